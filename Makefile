@@ -1,0 +1,39 @@
+# Two commands do all set-up on a fresh machine: `make demo` and `make test`.
+VENV    ?= .venv
+PY      := $(VENV)/bin/python
+PIP     := $(PY) -m pip install -q -c constraints.txt
+STAMP   := $(VENV)/.anra-installed
+OUT     ?= results/demo
+
+.PHONY: demo test test-fast install lint bench-paper clean
+
+$(PY):
+	python3 -m venv $(VENV)
+
+# Re-install only when the package metadata changes.
+$(STAMP): pyproject.toml constraints.txt | $(PY)
+	$(PIP) torch==2.13.0
+	$(PIP) -e ".[test,plot,peers]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/anra demo --out $(OUT)
+
+test: $(STAMP)
+	$(PY) -m pytest -q -n 2
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -n 2 -m "not slow"
+
+lint: $(STAMP)
+	$(PIP) ruff
+	$(VENV)/bin/ruff check anra_torch tests experiments
+	$(VENV)/bin/ruff format --check anra_torch tests experiments
+
+bench-paper: $(STAMP)
+	$(PY) experiments/paper_simulation.py --out results/paper_simulation
+
+clean:
+	rm -rf $(VENV) results .pytest_cache

@@ -1,0 +1,410 @@
+"""Noise-robust derivative layers on fixed kernels: time as Conv3d, space as Conv2d, in physical units.
+
+Time layers take a video ``(B, T, H, W)`` and apply an ``(L, 1, 1)`` Conv3d kernel over ``(B, 1, T, H, W)``;
+the output has ``T - L + 1`` frames, frame ``k`` estimating the derivative at input frame ``k + centre``
+(``centre = L - 1 - delay``). Spatial layers take ``(..., H, W)`` and return derivatives per unit length.
+Borders are explicit: ``"crop"`` (valid convolution, output smaller by ``N - 1``) or a padding mode
+(``"reflect"``, ``"replicate"``, ``"circular"``, ``"zeros"``) that keeps the size.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from anra_torch.layers import stencils
+
+__all__ = [
+    "BORDERS",
+    "TimeDerivative",
+    "Laplacian",
+    "Gradient",
+    "SecondDerivatives",
+    "GaussianSmoothing",
+    "time_derivative",
+    "laplacian",
+    "gradient",
+    "second_derivatives",
+    "gaussian_smooth",
+]
+
+BORDERS: dict[str, str | None] = {
+    "crop": None,
+    "reflect": "reflect",
+    "replicate": "replicate",
+    "circular": "circular",
+    "zeros": "constant",
+}
+"""Border handling: ``"crop"`` keeps only fully supported pixels; the others pad (``F.pad`` modes)."""
+
+
+def _check_border(border: str) -> None:
+    if border not in BORDERS:
+        raise ValueError(f"unknown border {border!r}; expected one of: {', '.join(BORDERS)}")
+
+
+def _per_leading(spacing: float | Tensor, x: Tensor, extra_dims: int) -> Tensor | float:
+    """Broadcast a float or ``(B,)`` spacing against ``x`` whose first dim is B."""
+    if isinstance(spacing, Tensor) and spacing.ndim > 0:
+        return spacing.to(x.dtype).reshape(-1, *([1] * extra_dims))
+    return float(spacing)
+
+
+def _check_spacing(spacing: float | Tensor, name: str, unit: str) -> None:
+    values = spacing if isinstance(spacing, Tensor) else torch.tensor(float(spacing))
+    if not bool(torch.isfinite(values).all()) or bool((values <= 0).any()):
+        raise ValueError(f"{name} must be a positive finite number in {unit}, got {spacing!r}")
+
+
+# ----------------------------------------------------------------------------------------------- time
+def _time_filter(frames: Tensor, taps: Tensor) -> Tensor:
+    """Correlate ``(B, T, H, W)`` with ``C`` tap vectors ``(C, L)`` along T as one Conv3d.
+
+    Output ``(B, C, T-L+1, H, W)``.
+    """
+    weight = taps.to(frames.dtype).reshape(taps.shape[0], 1, -1, 1, 1)
+    return F.conv3d(frames.unsqueeze(1), weight)
+
+
+class TimeDerivative(nn.Module):
+    """Holoborodko time derivative d/dt (units of the data per s) as a fixed ``(L, 1, 1)`` Conv3d.
+
+    Args:
+        family: ``"smooth"`` (one-sided, delay ``(L-1)/2``), ``"centred"`` (odd L), ``"hybrid"`` (no delay).
+        length: window length ``L`` in frames.
+
+    Shape:
+        Input ``(B, T, H, W)`` with ``T >= L``; output ``(B, T - L + 1, H, W)``.
+        :meth:`average` applies the matching temporal average, same output shape, for the spatial terms.
+    """
+
+    def __init__(self, family: str = "smooth", length: int = 5) -> None:
+        super().__init__()
+        self.stencil = stencils.time_stencil(family, length)
+        self.register_buffer("taps", self.stencil.taps.clone(), persistent=False)
+        self.register_buffer("pair", self.stencil.pair.clone(), persistent=False)
+
+    @property
+    def length(self) -> int:
+        """Window length in frames."""
+        return self.stencil.length
+
+    @property
+    def delay(self) -> float:
+        """Frames between the newest frame of the window and the instant the derivative applies."""
+        return self.stencil.delay
+
+    @property
+    def centre(self) -> float:
+        """Offset (frames) from the window's oldest frame to the instant the derivative applies."""
+        return self.stencil.centre
+
+    def _check(self, frames: Tensor) -> None:
+        if frames.ndim != 4:
+            raise ValueError(f"frames must have shape (B, T, H, W), got {tuple(frames.shape)}")
+        if frames.shape[1] < self.length:
+            raise ValueError(
+                f"need at least {self.length} frames for a time filter of length {self.length}, "
+                f"got {frames.shape[1]}"
+            )
+
+    def forward(self, frames: Tensor, dt: float | Tensor) -> Tensor:
+        self._check(frames)
+        _check_spacing(dt, "dt", "s")
+        return _time_filter(frames, self.taps[None])[:, 0] / _per_leading(dt, frames, 3)
+
+    def average(self, frames: Tensor) -> Tensor:
+        """Temporal average with the derivative's centre, for the spatial side of the PDE."""
+        self._check(frames)
+        return _time_filter(frames, self.pair[None])[:, 0]
+
+    def with_average(self, frames: Tensor, dt: float | Tensor) -> tuple[Tensor, Tensor]:
+        """``(forward(frames, dt), average(frames))`` from a single two-channel Conv3d."""
+        self._check(frames)
+        _check_spacing(dt, "dt", "s")
+        both = _time_filter(frames, torch.stack([self.taps, self.pair]))
+        return both[:, 0] / _per_leading(dt, frames, 3), both[:, 1]
+
+    def adjoint(self, rate_weights: Tensor, average_weights: Tensor, dt: float | Tensor) -> Tensor:
+        """Transpose of :meth:`with_average`: maps output-space weights back onto the input frames.
+
+        ``sum(rw * forward(x)) + sum(aw * average(x)) == sum(adjoint(rw, aw) * x)`` for any video x.
+
+        Shape:
+            Weights ``(B, T-L+1, H, W)``; output ``(B, T, H, W)``.
+        """
+        stacked = torch.stack([rate_weights / _per_leading(dt, rate_weights, 3), average_weights], 1)
+        weight = torch.stack([self.taps, self.pair]).to(stacked.dtype).reshape(2, 1, -1, 1, 1)
+        return F.conv_transpose3d(stacked, weight).squeeze(1)
+
+    def extra_repr(self) -> str:
+        return f"family={self.stencil.family!r}, length={self.length}, delay={self.delay:g}"
+
+
+def time_derivative(frames: Tensor, dt: float | Tensor, *, family: str = "smooth", length: int = 5) -> Tensor:
+    """Noise-robust d/dt of a video in units of the data per second.
+
+    Shape:
+        Input ``(B, T, H, W)``; output ``(B, T - L + 1, H, W)``, frame k at input frame ``k + (L-1) - delay``.
+    """
+    return TimeDerivative(family, length).to(frames.device)(frames, dt)
+
+
+# ---------------------------------------------------------------------------------------------- space
+def _filter2d(x: Tensor, weight: Tensor, border: str) -> Tensor:
+    """Correlate ``(..., H, W)`` with ``C`` kernels ``(C, kh, kw)``; output ``(..., C, H', W')``."""
+    lead = x.shape[:-2]
+    flat = x.reshape(-1, 1, *x.shape[-2:])
+    kh, kw = weight.shape[-2:]
+    mode = BORDERS[border]
+    if mode is not None:
+        flat = F.pad(flat, (kw // 2, kw // 2, kh // 2, kh // 2), mode=mode)
+    out = F.conv2d(flat, weight.to(x.dtype).unsqueeze(1))
+    return out.reshape(*lead, *out.shape[1:])
+
+
+def _check_spatial(x: Tensor, support: int, border: str) -> None:
+    if x.ndim < 2:
+        raise ValueError(f"input must have shape (..., H, W), got {tuple(x.shape)}")
+    if border == "crop" and min(x.shape[-2:]) < support:
+        raise ValueError(
+            f"need frames of at least {support} x {support} px for a {support}-px kernel with "
+            f"border='crop', got {x.shape[-2]} x {x.shape[-1]}"
+        )
+
+
+def _correlate1d(x: Tensor, taps: list[float], dim: int) -> Tensor:
+    """Valid correlation along ``dim`` as a sum of shifted slices (zero taps skipped)."""
+    n = x.shape[dim] - len(taps) + 1
+    out = None
+    for i, tap in enumerate(taps):
+        if tap != 0.0:
+            term = x.narrow(dim, i, n) * tap
+            out = term if out is None else out + term
+    return out if out is not None else x.narrow(dim, 0, n) * 0.0
+
+
+def _separable_factors(kernel: Tensor, tol: float = 1e-13) -> list[tuple[list[float], list[float]]]:
+    """Write a 2D kernel as a short sum of outer products ``ky (x) kx`` (exact to rounding)."""
+    u, s, vh = torch.linalg.svd(kernel)
+    rank = int((s > tol * s[0]).sum()) if s[0] > 0 else 0
+    return [((u[:, i] * s[i]).tolist(), vh[i].tolist()) for i in range(rank)]
+
+
+class _SpatialOperator(nn.Module):
+    """Fixed stack of 2D kernels scaled by ``dx ** order``; subclasses only choose the kernels.
+
+    A kernel of low rank runs as separable 1D passes when that needs fewer operations than the full
+    Conv2d (``2 N r < N^2``); both give the same correlation.
+    """
+
+    order: int = 1
+
+    def __init__(self, kernels: Tensor, *, size: int, border: str) -> None:
+        super().__init__()
+        _check_border(border)
+        self.size, self.border = size, border
+        self.register_buffer("kernels", kernels.clone(), persistent=False)
+        self._factors = [_separable_factors(k) for k in kernels]
+        n = kernels.shape[-1]
+        self.separable = all(2 * n * len(f) < n * n for f in self._factors)
+
+    @property
+    def support(self) -> int:
+        """Kernel side in pixels; ``border='crop'`` trims ``support // 2`` px on each side."""
+        return int(self.kernels.shape[-1])
+
+    def _filter(self, u: Tensor) -> Tensor:
+        if not self.separable:
+            return _filter2d(u, self.kernels, self.border)
+        mode, r = BORDERS[self.border], self.support // 2
+        if mode is not None:
+            u = F.pad(u.reshape(-1, 1, *u.shape[-2:]), (r, r, r, r), mode=mode).reshape(
+                *u.shape[:-2], u.shape[-2] + 2 * r, u.shape[-1] + 2 * r
+            )
+        outputs = [
+            sum(_correlate1d(_correlate1d(u, kx, -1), ky, -2) for ky, kx in factors)
+            for factors in self._factors
+        ]
+        return torch.stack(outputs, dim=-3)
+
+    def _apply(self, u: Tensor, dx: float | Tensor) -> Tensor:
+        _check_spatial(u, self.support, self.border)
+        _check_spacing(dx, "dx", "mm")
+        out = self._filter(u)
+        return out / _per_leading(dx, out, out.ndim - 1) ** self.order
+
+    def extra_repr(self) -> str:
+        return f"size={self.size}, border={self.border!r}"
+
+
+class Laplacian(_SpatialOperator):
+    """Noise-robust Laplacian ``d11 + d22`` (units of the data per mm^2).
+
+    Args:
+        size: kernel size N in ``stencils.SPATIAL_SIZES`` (3 is the 5-point stencil).
+        family: ``"holoborodko"`` (noise-robust) or ``"central"`` (maximal-order, for smoothed fields).
+        border: ``"crop"`` or a padding mode, see :data:`BORDERS`.
+
+    Shape:
+        Input ``(..., H, W)``; output ``(..., H - N + 1, W - N + 1)`` for ``"crop"``, else ``(..., H, W)``.
+        ``dx`` is a float or a tensor ``(B,)`` matching the first input dimension.
+    """
+
+    order = 2
+
+    def __init__(self, size: int = 5, *, family: str = "holoborodko", border: str = "crop") -> None:
+        kernel = stencils.laplacian_kernel(size, family)
+        super().__init__(kernel.unsqueeze(0), size=size, border=border)
+        self.family = family
+
+    def forward(self, u: Tensor, dx: float | Tensor) -> Tensor:
+        return self._apply(u, dx).squeeze(-3)
+
+    def extra_repr(self) -> str:
+        return f"size={self.size}, family={self.family!r}, border={self.border!r}"
+
+
+class Gradient(_SpatialOperator):
+    """Holoborodko gradient ``(d/dx, d/dy)`` (units of the data per mm); x along W, y along H.
+
+    Shape:
+        Input ``(..., H, W)``; output ``(..., 2, H', W')``.
+    """
+
+    order = 1
+
+    def __init__(self, size: int = 5, *, border: str = "crop") -> None:
+        super().__init__(stencils.gradient_kernels(size), size=size, border=border)
+
+    def forward(self, u: Tensor, dx: float | Tensor) -> Tensor:
+        return self._apply(u, dx)
+
+
+class SecondDerivatives(_SpatialOperator):
+    """Noise-robust ``(d11, d22, d12)`` = ``(d2/dx2, d2/dy2, d2/dxdy)`` (units of the data per mm^2).
+
+    Shape:
+        Input ``(..., H, W)``; output ``(..., 3, H', W')``.
+    """
+
+    order = 2
+
+    def __init__(self, size: int = 5, *, border: str = "crop") -> None:
+        super().__init__(stencils.second_derivative_kernels(size), size=size, border=border)
+
+    def forward(self, u: Tensor, dx: float | Tensor) -> Tensor:
+        return self._apply(u, dx)
+
+
+def _banded(taps: Tensor, n: int) -> Tensor:
+    """``(n, n - k + 1)`` matrix M with ``(x @ M)[j] = sum_i taps[i] x[j + i]`` (valid correlation)."""
+    k, m = taps.numel(), n - taps.numel() + 1
+    rows = torch.arange(m, device=taps.device)
+    matrix = torch.zeros(n, m, dtype=taps.dtype, device=taps.device)
+    for i in range(k):
+        matrix[rows + i, rows] = taps[i]
+    return matrix
+
+
+class GaussianSmoothing(nn.Module):
+    """Separable Gaussian smoothing over (H, W) with ``sigma`` in pixels (0 is the identity).
+
+    Applied to the frames before any derivative, it acts identically on both sides of a linear PDE
+    (convolutions commute), so it lowers noise without biasing the estimated coefficients. Wide kernels
+    run as two banded matrix products (BLAS), far faster on CPU than a direct convolution.
+
+    Shape:
+        Input ``(..., H, W)``; output ``(..., H - 2r, W - 2r)`` for ``"crop"`` (``r = radius``).
+    """
+
+    def __init__(self, sigma: float, *, truncate: float = 3.5, border: str = "crop") -> None:
+        super().__init__()
+        _check_border(border)
+        self.sigma, self.border = float(sigma), border
+        self.register_buffer("taps", stencils.gaussian_taps(sigma, truncate=truncate), persistent=False)
+        self._matrices: dict[tuple, Tensor] = {}
+
+    @property
+    def radius(self) -> int:
+        """Pixels trimmed on each side with ``border='crop'``."""
+        return (self.taps.numel() - 1) // 2
+
+    def _matrix(self, n: int, like: Tensor) -> Tensor:
+        key = (n, like.dtype, like.device)
+        if key not in self._matrices:
+            self._matrices[key] = _banded(self.taps.to(like), n)
+        return self._matrices[key]
+
+    def forward(self, u: Tensor) -> Tensor:
+        if self.radius == 0:
+            return u
+        _check_spatial(u, self.taps.numel(), self.border)
+        r, mode = self.radius, BORDERS[self.border]
+        if mode is not None:
+            u = F.pad(u.reshape(-1, 1, *u.shape[-2:]), (r, r, r, r), mode=mode).reshape(
+                *u.shape[:-2], u.shape[-2] + 2 * r, u.shape[-1] + 2 * r
+            )
+        lead, (h, w) = u.shape[:-2], u.shape[-2:]
+        mx, my = self._matrix(w, u), self._matrix(h, u)
+        rows = (u.reshape(-1, w) @ mx).reshape(-1, h, mx.shape[1])
+        cols = rows.transpose(1, 2).reshape(-1, h) @ my
+        return (
+            cols.reshape(-1, mx.shape[1], my.shape[1])
+            .transpose(1, 2)
+            .reshape(*lead, my.shape[1], mx.shape[1])
+        )
+
+    def extra_repr(self) -> str:
+        return f"sigma={self.sigma:g}, radius={self.radius}, border={self.border!r}"
+
+
+@lru_cache(maxsize=64)
+def _cached(cls: type, *args: object, **kwargs: object) -> nn.Module:
+    return cls(*args, **kwargs)
+
+
+def laplacian(
+    u: Tensor,
+    dx: float | Tensor,
+    *,
+    size: int = 5,
+    family: str = "holoborodko",
+    border: str = "crop",
+) -> Tensor:
+    """Laplacian in units of the data per mm^2. See :class:`Laplacian`.
+
+    Shape:
+        Input ``(..., H, W)``; output ``(..., H', W')``.
+    """
+    return _cached(Laplacian, size, family=family, border=border).to(u.device)(u, dx)
+
+
+def gradient(u: Tensor, dx: float | Tensor, *, size: int = 5, border: str = "crop") -> Tensor:
+    """Noise-robust ``(d/dx, d/dy)``. See :class:`Gradient`.
+
+    Shape:
+        Input ``(..., H, W)``; output ``(..., 2, H', W')``.
+    """
+    return _cached(Gradient, size, border=border).to(u.device)(u, dx)
+
+
+def second_derivatives(u: Tensor, dx: float | Tensor, *, size: int = 5, border: str = "crop") -> Tensor:
+    """Noise-robust ``(d11, d22, d12)``. See :class:`SecondDerivatives`.
+
+    Shape:
+        Input ``(..., H, W)``; output ``(..., 3, H', W')``.
+    """
+    return _cached(SecondDerivatives, size, border=border).to(u.device)(u, dx)
+
+
+def gaussian_smooth(u: Tensor, sigma: float, *, border: str = "crop") -> Tensor:
+    """Separable Gaussian smoothing with ``sigma`` in pixels. See :class:`GaussianSmoothing`.
+
+    Shape:
+        Input ``(..., H, W)``; output ``(..., H - 2r, W - 2r)`` for ``"crop"``.
+    """
+    return _cached(GaussianSmoothing, float(sigma), border=border).to(u.device)(u)

@@ -1,0 +1,285 @@
+"""Synthetic thermal videos of known diffusivity, from the analytic solutions of :mod:`simulate`.
+
+- :func:`paper_video`: the simulation case of El-Kebir, Lee and Bentsman (arXiv 2203.13148).
+- :func:`blobs_video`: several Gaussian blobs at random positions on a warm background.
+
+Both are exact solutions of ``dT/dt = a (d_xx + d_yy) T`` on the infinite plane sampled at the pixel
+centres (no discretisation error), plus independent zero-mean Gaussian noise on every pixel of
+every frame.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from anra_torch.simulate import gaussian_blob, gaussian_blobs
+
+__all__ = ["SyntheticVideo", "blobs_video", "paper_video"]
+
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+"""Full width at half maximum of a Gaussian in units of its standard deviation (2.3548...)."""
+
+
+@dataclass(frozen=True)
+class SyntheticVideo:
+    """A synthetic thermal video and the truth it was made from.
+
+    Attributes:
+        frames: noisy temperatures.
+        clean: the noise-free field (shared by all videos when it has no batch dimension).
+        dt: frame period in s.
+        dx: pixel size in mm.
+        a: true diffusivity in mm^2/s.
+        times: frame times in s, ``k dt``.
+
+    Shape:
+        ``frames`` ``(B, T, H, W)``; ``clean`` ``(T, H, W)`` or ``(B, T, H, W)``;
+        ``times`` ``(T,)``.
+    """
+
+    frames: Tensor
+    clean: Tensor
+    dt: float
+    dx: float
+    a: float
+    times: Tensor
+
+    def to_npz(self, path: str | os.PathLike[str]) -> None:
+        """Save as ``.npz`` with keys ``frames``, ``dt``, ``dx``, ``t`` and ``a_true``.
+
+        ``frames`` is ``(T, H, W)`` when B == 1, else ``(B, T, H, W)``.
+
+        ``numpy.savez`` appends ``.npz`` to a path without that suffix.
+        """
+        frames = self.frames[0] if self.frames.shape[0] == 1 else self.frames
+        np.savez(
+            path,
+            frames=frames.detach().cpu().numpy(),
+            dt=np.float64(self.dt),
+            dx=np.float64(self.dx),
+            t=self.times.detach().cpu().numpy(),
+            a_true=np.float64(self.a),
+        )
+
+
+def paper_video(
+    *,
+    n_videos: int = 1,
+    seed: int = 0,
+    noise_sd: float = 0.01,
+    fps: float = 27.0,
+    duration: float = 1.0,
+    size: int = 224,
+    extent: float = 10.0,
+    a: float = 0.2,
+    peak: float = 3.8,
+    diameter_px: float = 50.0,
+    crop: int | None = None,
+    dtype: torch.dtype = torch.float64,
+) -> SyntheticVideo:
+    """The simulation case of El-Kebir et al. (arXiv 2203.13148), computed exactly.
+
+    A Gaussian of peak ``peak`` and full width at half maximum ``diameter_px`` pixels, centred in a
+    ``size x size`` frame spanning ``extent x extent`` (so ``dx = extent / size``), diffusing with
+    ``a``, sampled at ``fps`` for ``duration`` seconds (``round(duration * fps) + 1`` frames from
+    t = 0), plus Gaussian noise of sd ``noise_sd`` on every pixel of every frame. The clean field is
+    computed once; ``n_videos`` noise draws come from ``torch.Generator().manual_seed(seed)``.
+
+    Args:
+        n_videos: number of independent noise realisations B.
+        seed: seed of the noise.
+        noise_sd: noise standard deviation, units of temperature (>= 0).
+        fps: frame rate in Hz.
+        duration: recording length in s.
+        size: frame side in pixels.
+        extent: frame side in mm (the paper's "units").
+        a: diffusivity in mm^2/s.
+        peak: initial peak temperature (above a background of 0).
+        diameter_px: initial full width at half maximum in pixels.
+        crop: if given, keep only the central ``crop x crop`` pixels (heat then crosses the frame
+            edges); the pixels are exactly those of the uncropped video with the same seed.
+        dtype: floating dtype of the frames.
+
+    Returns:
+        A :class:`SyntheticVideo` with ``clean`` shared across videos.
+
+    Shape:
+        ``frames`` ``(B, T, S, S)`` and ``clean`` ``(T, S, S)`` with ``S = crop or size``.
+
+    Raises:
+        ValueError: non-positive sizes, rates or durations, negative noise, ``crop`` outside
+            ``[1, size]``.
+
+    Example:
+        >>> video = paper_video(n_videos=2, size=64, crop=32)
+        >>> tuple(video.frames.shape), video.dt == 1 / 27, video.dx == 10.0 / 64
+        ((2, 28, 32, 32), True, True)
+    """
+    n_videos = _check_int(n_videos, "n_videos", 1)
+    seed = _check_int(seed, "seed", 0)
+    size = _check_int(size, "size", 1)
+    noise_sd = _check_number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
+    fps = _check_number(fps, "fps", "Hz")
+    duration = _check_number(duration, "duration", "s")
+    extent = _check_number(extent, "extent", "mm")
+    a = _check_number(a, "a", "mm^2/s", minimum=0.0)
+    peak = _check_number(peak, "peak", "units of temperature", minimum=-math.inf)
+    diameter_px = _check_number(diameter_px, "diameter_px", "px")
+    if crop is not None:
+        crop = _check_int(crop, "crop", 1)
+        if crop > size:
+            raise ValueError(f"crop must be at most size={size} px, got {crop}")
+    _check_dtype(dtype)
+
+    dx = extent / size
+    dt = 1.0 / fps
+    times = torch.arange(round(duration * fps) + 1, dtype=torch.float64) / fps
+    sigma = diameter_px / FWHM_PER_SIGMA * dx
+    clean = gaussian_blob(times, shape=(size, size), dx=dx, a=a, peak=peak, sigma=sigma).to(dtype)
+    generator = torch.Generator().manual_seed(seed)
+    noise = torch.randn((n_videos, *clean.shape), generator=generator, dtype=dtype)
+    frames = clean + noise_sd * noise
+    if crop is not None:
+        start = (size - crop) // 2
+        window = (..., slice(start, start + crop), slice(start, start + crop))
+        frames, clean = frames[window].contiguous(), clean[window].contiguous()
+    return SyntheticVideo(frames=frames, clean=clean, dt=dt, dx=dx, a=a, times=times.to(dtype))
+
+
+def blobs_video(
+    *,
+    n_videos: int = 1,
+    seed: int = 0,
+    n_blobs: int = 3,
+    size: int = 96,
+    dx: float = 0.5,
+    fps: float = 30.0,
+    n_frames: int = 40,
+    a: float = 0.15,
+    background: float = 30.0,
+    peak_range: tuple[float, float] = (3.0, 10.0),
+    sigma_range_px: tuple[float, float] = (4.0, 12.0),
+    noise_sd: float = 0.02,
+    dtype: torch.dtype = torch.float64,
+) -> SyntheticVideo:
+    """Gaussian hot spots at random positions on a warm uniform background, computed exactly.
+
+    Each video draws its own ``n_blobs`` peaks (uniform in ``peak_range``), initial standard
+    deviations (uniform in ``sigma_range_px``, pixels) and centres (uniform, at least two initial
+    standard deviations inside the frame), then its noise, all from
+    ``torch.Generator().manual_seed(seed)``.
+
+    Args:
+        n_videos: number of videos B, each with its own geometry and noise.
+        seed: seed of geometry and noise.
+        n_blobs: hot spots per video.
+        size: frame side in pixels.
+        dx: pixel size in mm.
+        fps: frame rate in Hz.
+        n_frames: number of frames T (frame k at ``t = k / fps``).
+        a: diffusivity in mm^2/s.
+        background: uniform temperature under the blobs.
+        peak_range: ``(low, high)`` initial peak above the background.
+        sigma_range_px: ``(low, high)`` initial standard deviation in pixels; ``high < size / 4``.
+        noise_sd: noise standard deviation, units of temperature (>= 0).
+        dtype: floating dtype of the frames.
+
+    Returns:
+        A :class:`SyntheticVideo` with a per-video ``clean`` field.
+
+    Shape:
+        ``frames`` and ``clean`` ``(B, T, size, size)``.
+
+    Raises:
+        ValueError: non-positive sizes or rates, bad ranges, blobs too wide to fit in the frame.
+    """
+    n_videos = _check_int(n_videos, "n_videos", 1)
+    seed = _check_int(seed, "seed", 0)
+    n_blobs = _check_int(n_blobs, "n_blobs", 1)
+    size = _check_int(size, "size", 1)
+    n_frames = _check_int(n_frames, "n_frames", 1)
+    dx = _check_number(dx, "dx", "mm")
+    fps = _check_number(fps, "fps", "Hz")
+    a = _check_number(a, "a", "mm^2/s", minimum=0.0)
+    background = _check_number(background, "background", "units of temperature", minimum=-math.inf)
+    noise_sd = _check_number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
+    peak_lo, peak_hi = _check_range(peak_range, "peak_range", "units of temperature", minimum=-math.inf)
+    sigma_lo, sigma_hi = _check_range(sigma_range_px, "sigma_range_px", "px", minimum=0.0)
+    if sigma_lo <= 0:
+        raise ValueError(f"sigma_range_px must be positive, got {tuple(sigma_range_px)}")
+    if 4 * sigma_hi >= size:
+        raise ValueError(
+            f"sigma_range_px must stay below size / 4 = {size / 4:g} px to keep blobs inside the "
+            f"frame, got {sigma_hi:g}"
+        )
+    _check_dtype(dtype)
+
+    generator = torch.Generator().manual_seed(seed)
+    draws = torch.rand((n_videos, n_blobs, 4), generator=generator, dtype=torch.float64)
+    peaks = peak_lo + (peak_hi - peak_lo) * draws[..., 0]
+    sigma_px = sigma_lo + (sigma_hi - sigma_lo) * draws[..., 1]
+    margin = 2.0 * sigma_px  # centres at least two initial sd from every edge
+    centre_px = margin[..., None] + (size - 2.0 * margin[..., None]) * draws[..., 2:]
+    times = torch.arange(n_frames, dtype=torch.float64) / fps
+    clean = gaussian_blobs(
+        times,
+        shape=(size, size),
+        dx=dx,
+        a=a,
+        peaks=peaks,
+        sigmas=sigma_px * dx,
+        centres=centre_px * dx,
+        background=background,
+    ).to(dtype)
+    noise = torch.randn(clean.shape, generator=generator, dtype=dtype)
+    return SyntheticVideo(
+        frames=clean + noise_sd * noise,
+        clean=clean,
+        dt=1.0 / fps,
+        dx=dx,
+        a=a,
+        times=times.to(dtype),
+    )
+
+
+# ------------------------------------------------------------------------------------- validation
+def _check_int(value: object, name: str, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def _check_number(value: object, name: str, unit: str, *, minimum: float | None = None) -> float:
+    """A finite float; positive by default, or ``>= minimum``."""
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"{name} must be a number in {unit}, got {value!r}") from err
+    if minimum is None:
+        if not math.isfinite(number) or number <= 0:
+            raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
+    elif not math.isfinite(number) or number < minimum:
+        bound = "" if minimum == -math.inf else f" >= {minimum:g}"
+        raise ValueError(f"{name} must be a finite number{bound} in {unit}, got {value!r}")
+    return number
+
+
+def _check_range(value: object, name: str, unit: str, *, minimum: float) -> tuple[float, float]:
+    try:
+        low, high = (float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name} must be a pair (low, high) in {unit}, got {value!r}") from err
+    if not (math.isfinite(low) and math.isfinite(high)) or low > high or low < minimum:
+        raise ValueError(f"{name} must be a finite pair with low <= high in {unit}, got {value!r}")
+    return low, high
+
+
+def _check_dtype(dtype: object) -> None:
+    if dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
