@@ -14,7 +14,32 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-__all__ = ["RTCAttention", "rtc_attention", "confidence_mask"]
+__all__ = ["RTCAttention", "UniformAttention", "rtc_attention", "confidence_mask"]
+
+
+def _rtc(rate: Tensor, sharpness: float, unit_invariant: bool, mask: Tensor | None) -> tuple[Tensor, Tensor]:
+    """RTC weights and their diagonal derivative d w_ij / d rate_ij (same shapes)."""
+    magnitude = rate.abs()
+    valid = torch.isfinite(magnitude)
+    if mask is not None:
+        valid = valid & mask.to(torch.bool)
+    magnitude = torch.where(valid, magnitude, torch.zeros_like(magnitude))
+    scale = torch.ones_like(magnitude[..., :1, :1])
+    if unit_invariant:
+        peak = magnitude.amax(dim=(-2, -1), keepdim=True)
+        scale = torch.where(peak > 0, peak, torch.ones_like(peak))
+    z = sharpness * magnitude / scale
+    z_max = torch.where(valid, z, torch.full_like(z, -torch.inf)).amax(dim=(-2, -1), keepdim=True)
+    z_min = torch.where(valid, z, torch.full_like(z, torch.inf)).amin(dim=(-2, -1), keepdim=True)
+    z_max = torch.where(torch.isfinite(z_max), z_max, torch.zeros_like(z_max))
+    z_min = torch.where(torch.isfinite(z_min), z_min, z_max)
+    grow = torch.exp(z - z_max)
+    raw = torch.where(valid, (grow - torch.exp(z_min - z_max)).clamp_min(0), torch.zeros_like(z))
+    total = raw.sum(dim=(-2, -1), keepdim=True)
+    total = torch.where(total > 0, total, torch.ones_like(total))
+    weights = raw / total
+    slope = torch.where(valid, grow * sharpness * torch.sign(rate) / scale, torch.zeros_like(z))
+    return weights, slope * (1 - weights) / total
 
 
 def rtc_attention(
@@ -44,23 +69,7 @@ def rtc_attention(
         raise TypeError(f"rate must be a floating tensor, got dtype {rate.dtype}")
     if not (sharpness > 0):
         raise ValueError(f"sharpness must be a positive number, got {sharpness!r}")
-    magnitude = rate.abs()
-    valid = torch.isfinite(magnitude)
-    if mask is not None:
-        valid = valid & mask.to(torch.bool)
-    magnitude = torch.where(valid, magnitude, torch.zeros_like(magnitude))
-    if unit_invariant:
-        scale = magnitude.amax(dim=(-2, -1), keepdim=True)
-        magnitude = magnitude / torch.where(scale > 0, scale, torch.ones_like(scale))
-    z = sharpness * magnitude
-    z_max = torch.where(valid, z, torch.full_like(z, -torch.inf)).amax(dim=(-2, -1), keepdim=True)
-    z_min = torch.where(valid, z, torch.full_like(z, torch.inf)).amin(dim=(-2, -1), keepdim=True)
-    z_max = torch.where(torch.isfinite(z_max), z_max, torch.zeros_like(z_max))
-    z_min = torch.where(torch.isfinite(z_min), z_min, z_max)
-    raw = torch.exp(z - z_max) - torch.exp(z_min - z_max)
-    raw = torch.where(valid, raw.clamp_min(0), torch.zeros_like(raw))
-    total = raw.sum(dim=(-2, -1), keepdim=True)
-    return raw / torch.where(total > 0, total, torch.ones_like(total))
+    return _rtc(rate, sharpness, unit_invariant, mask)[0]
 
 
 def confidence_mask(weights: Tensor, threshold: float) -> Tensor:
@@ -99,15 +108,49 @@ class RTCAttention(nn.Module):
         self.sharpness, self.unit_invariant, self.threshold = sharpness, unit_invariant, threshold
 
     def forward(self, rate: Tensor, mask: Tensor | None = None) -> Tensor:
-        weights = rtc_attention(rate, sharpness=self.sharpness, unit_invariant=self.unit_invariant, mask=mask)
+        return self.with_slope(rate, mask)[0]
+
+    def with_slope(self, rate: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Weights and their diagonal sensitivity ``d w_ij / d rate_ij`` (per s / unit of the data).
+
+        The weights depend on the noisy rate they later multiply; by Stein's identity that correlation
+        biases a weighted regression by ``noise_var * sum(slope * regressor)``, which the estimator removes.
+        Couplings through the per-frame normalisation and maximum are O(1/pixels) and left out.
+        """
+        if not rate.is_floating_point():
+            raise TypeError(f"rate must be a floating tensor, got dtype {rate.dtype}")
+        weights, slope = _rtc(rate, self.sharpness, self.unit_invariant, mask)
         if self.threshold > 0:
-            kept = weights * confidence_mask(weights, self.threshold)
-            total = kept.sum(dim=(-2, -1), keepdim=True)
-            weights = kept / torch.where(total > 0, total, torch.ones_like(total))
-        return weights
+            kept = confidence_mask(weights, self.threshold)
+            total = (weights * kept).sum(dim=(-2, -1), keepdim=True)
+            total = torch.where(total > 0, total, torch.ones_like(total))
+            weights, slope = weights * kept / total, slope * kept / total
+        return weights, slope
 
     def extra_repr(self) -> str:
         return (
             f"sharpness={self.sharpness:g}, unit_invariant={self.unit_invariant}, "
             f"threshold={self.threshold:g}"
         )
+
+
+class UniformAttention(nn.Module):
+    """Equal weight on every valid pixel of a frame (summing to 1): the no-attention reference.
+
+    Same interface as :class:`RTCAttention`; its slope is zero, so it adds no weighting bias.
+
+    Shape:
+        Input ``(B, K, H, W)``; output weights, same shape.
+    """
+
+    def forward(self, rate: Tensor, mask: Tensor | None = None) -> Tensor:
+        return self.with_slope(rate, mask)[0]
+
+    def with_slope(self, rate: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        valid = torch.isfinite(rate)
+        if mask is not None:
+            valid = valid & mask.to(torch.bool)
+        weights = valid.to(rate.dtype)
+        total = weights.sum(dim=(-2, -1), keepdim=True)
+        weights = weights / torch.where(total > 0, total, torch.ones_like(total))
+        return weights, torch.zeros_like(weights)

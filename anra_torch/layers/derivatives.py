@@ -241,6 +241,18 @@ class _SpatialOperator(nn.Module):
         return f"size={self.size}, border={self.border!r}"
 
 
+class _PartnerSmoothing(_SpatialOperator):
+    """The smoothing built into a Laplacian, to apply to the other side of the PDE (unitless)."""
+
+    order = 0
+
+    def __init__(self, kernel: Tensor, *, border: str) -> None:
+        super().__init__(kernel.unsqueeze(0), size=kernel.shape[-1], border=border)
+
+    def forward(self, u: Tensor) -> Tensor:
+        return self._apply(u, 1.0).squeeze(-3)
+
+
 class Laplacian(_SpatialOperator):
     """Noise-robust Laplacian ``d11 + d22`` (units of the data per mm^2).
 
@@ -248,6 +260,10 @@ class Laplacian(_SpatialOperator):
         size: kernel size N in ``stencils.SPATIAL_SIZES`` (3 is the 5-point stencil).
         family: ``"holoborodko"`` (noise-robust) or ``"central"`` (maximal-order, for smoothed fields).
         border: ``"crop"`` or a padding mode, see :data:`BORDERS`.
+
+    Attributes:
+        partner: module applying the smoothing built into this Laplacian (same output shape), for the
+            other side of the PDE; see :func:`stencils.laplacian_partner`.
 
     Shape:
         Input ``(..., H, W)``; output ``(..., H - N + 1, W - N + 1)`` for ``"crop"``, else ``(..., H, W)``.
@@ -260,6 +276,7 @@ class Laplacian(_SpatialOperator):
         kernel = stencils.laplacian_kernel(size, family)
         super().__init__(kernel.unsqueeze(0), size=size, border=border)
         self.family = family
+        self.partner = _PartnerSmoothing(stencils.laplacian_partner(size, family), border=border)
 
     def forward(self, u: Tensor, dx: float | Tensor) -> Tensor:
         return self._apply(u, dx).squeeze(-3)

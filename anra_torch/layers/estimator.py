@@ -3,18 +3,19 @@
 For ``dT/dt = a (d11 + d22) T`` the estimator balances the PDE on the measured frames. Both sides see the
 same filters, so the balance stays exact for the filtered field:
 
-* spatial Gaussian smoothing ``G`` (sigma in px) of the frames, then
-* left side: the Holoborodko time derivative ``D_t`` (Conv3d), right side: the Laplacian of the frames
-  averaged in time with the derivative's own temporal partner ``S_t`` (same centre: no time misalignment);
-* attention weights ``w`` from the rate of temperature change (RTC);
-* ``mode="lsq"``: weighted least squares ``a = sum w U L / sum w (L^2 - v)`` where ``v`` is the noise
-  variance that the Laplacian passes (errors-in-variables correction; the noise level is estimated
-  from the video), or ``mode="ratio"``: the paper's weighted average of pointwise ratios ``U / L``.
+* the Holoborodko time derivative ``D_t`` (one Conv3d) for the left side, and the derivative's own
+  temporal partner ``S_t`` (same centre: no time misalignment) for the right side;
+* spatial Gaussian smoothing ``G`` (sigma in px) of both, then the Laplacian of the right side;
+* per-pixel weights ``w`` (RTC attention or uniform);
+* ``mode="lsq"``: weighted least squares ``a = sum w (U L - c) / sum w (L^2 - v)`` where ``v`` is the noise
+  variance that the Laplacian passes and ``c`` the noise covariance of U and L (errors-in-variables
+  correction, with the noise level estimated from the video), plus a Stein correction when the weights
+  depend on the noisy U; or ``mode="ratio"``: the paper's weighted average of pointwise ratios ``U / L``.
 
-With ``smoothing="auto"`` each video picks the smoothing whose noise-propagated standard error is smallest:
-smoothing does not bias the estimate (it acts on both sides), so the least noisy choice is the best one.
-The standard error is exact for white noise: it pushes the estimator's residual weights back through the
-composite linear filters (an adjoint computed by autograd).
+With several smoothing candidates (``smoothing="auto"``) each video takes the one whose noise-propagated
+standard error is smallest: smoothing does not bias the estimate (it acts on both sides), so the least
+noisy choice is the best one. The standard error is exact for white noise: it pushes the estimator's
+residual weights back through the composite linear filters (an adjoint computed by autograd).
 """
 
 from __future__ import annotations
@@ -27,17 +28,18 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from anra_torch._validation import as_spacing, as_video
-from anra_torch.layers.attention import RTCAttention
+from anra_torch.layers.attention import RTCAttention, UniformAttention
 from anra_torch.layers.derivatives import GaussianSmoothing, Laplacian, TimeDerivative
 from anra_torch.noise import estimate_noise_sd
 
 __all__ = ["ANRAEstimator", "ANRAResult", "MODES", "AUTO_SMOOTHING"]
 
 MODES = ("lsq", "ratio")
-AUTO_SMOOTHING: tuple[float, ...] = (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0)
+AUTO_SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
 """Spatial smoothing candidates (px) tried by ``smoothing="auto"``."""
 
 _MIN_RELIABILITY = 0.05  # below this fraction of signal in the regressor energy, nothing is measurable
+_MIN_VALID_PX = 8  # a candidate smoothing must leave at least this many pixels per side
 
 
 @dataclass(frozen=True)
@@ -110,10 +112,14 @@ class ANRAEstimator(nn.Module):
         time_family: Holoborodko time family (``"smooth"``, ``"centred"``, ``"hybrid"``).
         time_length: time window length in frames.
         laplacian_size: spatial kernel size (3, 5, 7, 9, 11).
-        laplacian_family: ``"central"`` (maximal order: after Gaussian smoothing accuracy at low
-            wavenumbers is what matters; the noise-robust ``"holoborodko"`` Laplacian reads ~0.2 % low
-            even on a 50 px blob, which biases ``a`` high) or ``"holoborodko"``.
-        attention: RTC attention module; default unit-invariant (``|dT/dt| / max``) with sharpness 1.
+        laplacian_family: ``"central"`` (maximal order: after Gaussian smoothing, accuracy at low
+            wavenumbers is what matters) or ``"holoborodko"`` (its built-in binomial smoothing is applied
+            to dT/dt as well, so it reads like the 5-point Laplacian of the smoothed field).
+        attention: per-pixel weighting with ``with_slope(rate, mask)``. Default: for ``"ratio"`` the paper's
+            :class:`RTCAttention`; for ``"lsq"`` :class:`UniformAttention`, because equal weights are the
+            best linear unbiased choice for white noise and measured better (RTC weights are computed from
+            the same noisy dT/dt they multiply: Stein's identity removes the bias this causes, but the
+            variance stays higher; see experiments/paper_simulation.py).
         eiv_correction: subtract the noise variance from the Laplacian energy (lsq mode).
         noise_sd: known noise standard deviation (units of the data); default estimated per video.
         window: side (px, odd) of the windowed diffusivity field; None skips the field.
@@ -141,7 +147,7 @@ class ANRAEstimator(nn.Module):
         time_length: int = 5,
         laplacian_size: int = 5,
         laplacian_family: str = "central",
-        attention: RTCAttention | None = None,
+        attention: nn.Module | None = None,
         eiv_correction: bool = True,
         noise_sd: float | None = None,
         window: int | None = None,
@@ -172,25 +178,41 @@ class ANRAEstimator(nn.Module):
         self.time = TimeDerivative(time_family, time_length)
         self.laplacian = Laplacian(laplacian_size, family=laplacian_family)
         self.smoothers = nn.ModuleList(GaussianSmoothing(s) for s in sigmas)
-        self.attention = attention if attention is not None else RTCAttention(unit_invariant=True)
+        if attention is None:
+            attention = UniformAttention() if mode == "lsq" else RTCAttention()
+        if not hasattr(attention, "with_slope"):
+            raise TypeError(
+                f"attention must provide with_slope(rate, mask) like RTCAttention, got {type(attention).__name__}"
+            )
+        self.attention = attention
         # Noise gains of the composite filters for unit dt, dx (fixed per candidate).
         pair_norm2 = float((self.time.pair**2).sum())
         cross_t = float((self.time.taps * self.time.pair).sum())
         gains = [self._spatial_gains(s) for s in self.smoothers]
+        taps_norm2 = float((self.time.taps**2).sum())
+        self.register_buffer("_rate_var", torch.tensor([taps_norm2 * g[2] for g in gains]), persistent=False)
         self.register_buffer("_lap_var", torch.tensor([pair_norm2 * g[0] for g in gains]), persistent=False)
         self.register_buffer("_cross_cov", torch.tensor([cross_t * g[1] for g in gains]), persistent=False)
 
-    def _spatial_gains(self, smoother: GaussianSmoothing) -> tuple[float, float]:
-        """(||Lap * G||^2, <G, Lap * G>) for unit dx: the noise variance / covariance factors."""
+    def _spatial_gains(self, smoother: GaussianSmoothing) -> tuple[float, float, float]:
+        """(||Lap o G||^2, <P o G, Lap o G>, ||P o G||^2) for unit dx: noise variance/covariance factors.
+
+        ``P`` is the Laplacian's partner smoothing applied to dT/dt.
+        """
         g = smoother.taps
-        g2 = torch.outer(g, g)
-        lap = self.laplacian.kernels[0]
-        n = lap.shape[-1]
-        lap_g = F.conv2d(F.pad(g2[None, None], (n - 1, n - 1, n - 1, n - 1)), lap.flip((-2, -1))[None, None])[
-            0, 0
-        ]
-        g2_full = F.pad(g2, (n // 2, n // 2, n // 2, n // 2))  # (2r + n, 2r + n), like lap_g
-        return float((lap_g**2).sum()), float((lap_g * g2_full).sum())
+        g2 = torch.outer(g, g)[None, None]
+        n = self.laplacian.support
+
+        def compose(kernel: Tensor) -> Tensor:
+            return F.conv2d(F.pad(g2, (n - 1,) * 4), kernel.flip((-2, -1))[None, None])[0, 0]
+
+        lap_g = compose(self.laplacian.kernels[0])
+        partner_g = compose(self.laplacian.partner.kernels[0])
+        return (
+            float((lap_g**2).sum()),
+            float((lap_g * partner_g).sum()),
+            float((partner_g**2).sum()),
+        )
 
     @property
     def sigmas(self) -> tuple[float, ...]:
@@ -208,11 +230,8 @@ class ANRAEstimator(nn.Module):
 
         Time filtering happened once on the raw frames (it commutes with the spatial filters).
         """
-        rate = smoother(rate_raw)
+        rate = self.laplacian.partner(smoother(rate_raw))
         lap = self.laplacian(smoother(average_raw), dx)
-        c = self.laplacian.support // 2
-        if c:
-            rate = rate[..., c:-c, c:-c]
         return rate, lap
 
     def _valid_mask(self, finite: Tensor, margin: int) -> Tensor:
@@ -236,15 +255,17 @@ class ANRAEstimator(nn.Module):
         smoother = self.smoothers[index]
         rate, lap = self._spatial_terms(*time_terms, dx, smoother)
         valid = self._valid_mask(finite, self._margin(smoother)) if not bool(finite.all()) else None
-        weights = self.attention(rate, valid)
+        weights, slope = self.attention.with_slope(rate, valid)
         b, dtype = rate.shape[0], rate.dtype
         if self.eiv_correction and self.mode == "lsq":
             var = noise_sd**2 * self._lap_var[index].to(dtype) / dx**4
             cov = noise_sd**2 * self._cross_cov[index].to(dtype) / (dt * dx**2)
+            rate_var = noise_sd**2 * self._rate_var[index].to(dtype) / dt**2
         else:
-            var = cov = torch.zeros_like(dx)
-        var, cov = var.view(b, 1, 1, 1), cov.view(b, 1, 1, 1)
-        num_map = weights * (rate * lap - cov)
+            var = cov = rate_var = torch.zeros_like(dx)
+        var, cov, rate_var = (v.view(b, 1, 1, 1) for v in (var, cov, rate_var))
+        # Stein: E[w(U) nU] = var(nU) E[dw/dU], so noisy weights inflate sum(w U L) by this much.
+        num_map = weights * (rate * lap - cov) - rate_var * slope * lap
         den_map = weights * (lap * lap - var)
         energy_map = weights * lap * lap
         safe_lap = torch.where(lap == 0, torch.ones_like(lap), lap)
@@ -331,9 +352,9 @@ class ANRAEstimator(nn.Module):
         else:
             noise_sd = estimate_noise_sd(video.detach(), mask=finite)
             noise_sd = noise_sd.reshape(b).to(video.dtype)
-        usable = [i for i, s in enumerate(self.smoothers) if min(h, w) - 2 * self._margin(s) >= 3]
+        usable = [i for i, s in enumerate(self.smoothers) if min(h, w) - 2 * self._margin(s) >= _MIN_VALID_PX]
         if not usable:
-            need = 2 * self._margin(self.smoothers[0]) + 3
+            need = min(2 * self._margin(s) for s in self.smoothers) + _MIN_VALID_PX
             raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
         time_terms = self.time.with_average(video, dt_)
         candidates = [self._candidate(i, time_terms, finite, dt_, dx_, noise_sd) for i in usable]

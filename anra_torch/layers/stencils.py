@@ -37,6 +37,7 @@ __all__ = [
     "second_derivative_kernels",
     "laplacian_kernel",
     "LAPLACIAN_FAMILIES",
+    "laplacian_partner",
     "central_second_derivative_taps",
     "gaussian_taps",
 ]
@@ -261,6 +262,19 @@ def _holoborodko_laplacian(size: int) -> Tensor:
     return d[0] + d[1]
 
 
+def _holoborodko_partner(size: int) -> Tensor:
+    # D2_N (x) B_{N-3} + B_{N-3} (x) D2_N == (5-point Laplacian) o (B_{N-3} (x) B_{N-3}) exactly, because
+    # D2_N = [1, -2, 1] * B_{N-3}: the Holoborodko Laplacian is the 5-point one of a binomially smoothed field.
+    _check_size(size)
+    b = binomial(size - 3)
+    return _embed(torch.outer(b, b), size)
+
+
+def _identity_partner(size: int) -> Tensor:
+    _check_size(size)
+    return _embed(torch.ones(1, 1, dtype=_DTYPE), size)
+
+
 def _central_laplacian(size: int) -> Tensor:
     _check_size(size)
     kernel = torch.zeros(size, size, dtype=_DTYPE)
@@ -270,12 +284,35 @@ def _central_laplacian(size: int) -> Tensor:
     return kernel
 
 
-LAPLACIAN_FAMILIES: dict[str, Callable[[int], Tensor]] = {
-    "holoborodko": _holoborodko_laplacian,
-    "central": _central_laplacian,
+LAPLACIAN_FAMILIES: dict[str, tuple[Callable[[int], Tensor], Callable[[int], Tensor]]] = {
+    "holoborodko": (_holoborodko_laplacian, _holoborodko_partner),
+    "central": (_central_laplacian, _identity_partner),
 }
-"""Registry of Laplacian families: ``"holoborodko"`` (noise-robust, zero at Nyquist) and ``"central"``
-(maximal-order cross, most accurate at low wavenumbers; for pre-smoothed fields)."""
+"""Registry of Laplacian families, name -> (kernel builder, partner builder): ``"holoborodko"``
+(noise-robust, zero at Nyquist) and ``"central"`` (maximal-order cross, most accurate at low wavenumbers;
+for pre-smoothed fields). The partner is the smoothing built into the Laplacian, see
+:func:`laplacian_partner`."""
+
+
+def _laplacian_family(family: str) -> tuple[Callable[[int], Tensor], Callable[[int], Tensor]]:
+    if family not in LAPLACIAN_FAMILIES:
+        raise ValueError(
+            f"unknown Laplacian family {family!r}; expected one of: {', '.join(LAPLACIAN_FAMILIES)}"
+        )
+    return LAPLACIAN_FAMILIES[family]
+
+
+def laplacian_partner(size: int = 5, family: str = "holoborodko") -> Tensor:
+    """The smoothing built into a Laplacian, for the other side of the PDE.
+
+    The Holoborodko Laplacian of size N equals the 5-point Laplacian applied after a binomial smoothing
+    ``B_{N-3} (x) B_{N-3}``; applying that same smoothing to dT/dt keeps ``dT/dt = a Lap T`` exact for the
+    smoothed field, so the Laplacian's smoothing costs no bias. Central Laplacians have the identity.
+
+    Shape:
+        Output ``(N, N)``, float64, sums to 1, same centre as :func:`laplacian_kernel`.
+    """
+    return _laplacian_family(family)[1](size)
 
 
 def laplacian_kernel(size: int = 5, family: str = "holoborodko") -> Tensor:
@@ -292,11 +329,7 @@ def laplacian_kernel(size: int = 5, family: str = "holoborodko") -> Tensor:
         >>> (laplacian_kernel(5) * 16).int().tolist()[2]
         [2, -2, -8, -2, 2]
     """
-    if family not in LAPLACIAN_FAMILIES:
-        raise ValueError(
-            f"unknown Laplacian family {family!r}; expected one of: {', '.join(LAPLACIAN_FAMILIES)}"
-        )
-    return LAPLACIAN_FAMILIES[family](size)
+    return _laplacian_family(family)[0](size)
 
 
 def gaussian_taps(sigma: float, *, truncate: float = 3.5) -> Tensor:

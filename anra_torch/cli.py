@@ -1,0 +1,446 @@
+"""Command line: ``anra estimate``, ``anra simulate``, ``anra demo`` (also ``python -m anra_torch``).
+
+Units everywhere: lengths in mm, times in s, diffusivity in mm^2/s, temperatures in the data's own unit.
+Every failure the user can cause (bad file, bad flag, a video without thermal activity) ends in one line
+``anra: error: <message>`` on stderr and exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from anra_torch.io import REGISTRY, Video, load_video, save_npz
+from anra_torch.layers.estimator import MODES, ANRAEstimator, ANRAResult
+from anra_torch.report import format_pm, write_estimate_report
+from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
+
+__all__ = ["PRESETS", "main", "build_parser"]
+
+PROG = "anra"
+DEMO_TRUTH = 0.2  # mm^2/s, the paper's simulation
+DEMO_PAPER_ESTIMATE = 0.189  # mm^2/s, what El-Kebir et al. report for it
+DEMO_WINDOW = 15  # px, windowed field in the demo report
+
+
+class _UsageError(Exception):
+    """A command-line mistake found by argparse (reported in one line, exit 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises on a usage error instead of printing the usage block and exiting."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise _UsageError(f"{message} (see '{self.prog} --help')")
+
+
+# ----------------------------------------------------------------------------------- flag types
+def _number(unit: str, *, positive: bool) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value) or (value <= 0 if positive else value < 0):
+            need = "positive" if positive else "non-negative"
+            raise argparse.ArgumentTypeError(f"must be a {need} number in {unit}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _integer(unit: str, *, minimum: int, odd: bool = False) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum or (odd and value % 2 == 0):
+            kind = "an odd" if odd else "an"
+            raise argparse.ArgumentTypeError(
+                f"must be {kind} integer >= {minimum} {unit}, got {text!r}".rstrip()
+            )
+        return value
+
+    return parse
+
+
+# ------------------------------------------------------------------------------------- estimate
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def _summary(video: Video, result: ANRAResult, est: ANRAEstimator, elapsed: float) -> dict[str, Any]:
+    """The ``estimate --json`` object (also the source of the human summary)."""
+    t, h, w = video.frames.shape
+    summary: dict[str, Any] = {
+        "path": str(video.source),
+        "diffusivity": _finite(float(result.diffusivity)),
+        "std_error": _finite(float(result.std_error)),
+        "valid": bool(result.valid),
+        "message": result.messages[0],
+        "frames": t,
+        "height": h,
+        "width": w,
+        "dt": video.dt,
+        "dx": video.dx,
+        "mode": est.mode,
+        "smoothing_px": float(result.smoothing),
+        "noise_sd": float(result.noise_sd),
+        "reliability": float(result.reliability),
+        "n_masked": int(result.n_masked),
+        "window_px": est.window,
+        "field_median": None,
+        "field_coverage": None,
+        "a_true": video.meta.get("a_true"),
+        "elapsed_s": round(elapsed, 3),
+        "units": {
+            "diffusivity": "mm^2/s",
+            "std_error": "mm^2/s",
+            "dt": "s",
+            "dx": "mm",
+            "smoothing_px": "px",
+            "noise_sd": video.unit,
+            "elapsed_s": "s",
+        },
+    }
+    if result.field is not None:
+        finite = result.field[result.field.isfinite()]
+        summary["field_coverage"] = float(finite.numel() / result.field.numel())
+        if finite.numel():
+            summary["field_median"] = float(finite.median())
+    return summary
+
+
+def _print_summary(s: dict[str, Any]) -> None:
+    a = s["diffusivity"]
+    print(f"{s['path']}")
+    print(f"  diffusivity a = {format_pm(a, s['std_error'], 'mm^2/s')} ({s['mode']}, ± 1 standard error)")
+    print(
+        f"  video: {s['frames']} frames of {s['height']} x {s['width']} px, "
+        f"dt = {s['dt']:.6g} s ({1 / s['dt']:.4g} Hz), dx = {s['dx']:.6g} mm"
+    )
+    print(
+        f"  smoothing {s['smoothing_px']:g} px (chosen from the data), noise sd {s['noise_sd']:.4g} "
+        f"{s['units']['noise_sd']}, reliability {s['reliability']:.3f}"
+    )
+    if s["n_masked"]:
+        print(f"  masked {s['n_masked']} non-finite pixel values")
+    if s["window_px"] is not None:
+        median = f"median {s['field_median']:.4g} mm^2/s" if s["field_median"] is not None else "no estimate"
+        print(
+            f"  field ({s['window_px']} px windows): {median} on {100 * s['field_coverage']:.1f} % of pixels"
+        )
+    if s["a_true"] is not None:
+        truth = float(s["a_true"])
+        error = f" (error {100 * (a - truth) / truth:+.3g} %)" if truth else ""
+        print(f"  file's a_true = {truth:g} mm^2/s{error}")
+    print(f"  took {s['elapsed_s']:.2f} s")
+
+
+def _run_estimate(args: argparse.Namespace) -> int:
+    est = ANRAEstimator(mode=args.mode, window=args.window, strict=False)
+    video = load_video(args.video, dt=args.dt, dx=args.dx)
+    if video.dx is None:
+        raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
+    start = time.perf_counter()
+    try:
+        result = est(video.frames, video.dt, video.dx)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{video.source}: {err}") from err
+    summary = _summary(video, result, est, time.perf_counter() - start)
+    if args.json:
+        print(json.dumps(summary, allow_nan=False))
+    if not summary["valid"]:
+        # No diffusivity: exit 2 in both modes; --json still printed its flagged record above.
+        print(f"{PROG}: error: {video.source}: {summary['message']}", file=sys.stderr)
+        return 2
+    if not args.json:
+        _print_summary(summary)
+    return 0
+
+
+# ------------------------------------------------------------------------------------- simulate
+@dataclass(frozen=True)
+class Preset:
+    """A synthetic video recipe for ``anra simulate``.
+
+    Attributes:
+        build: makes the video from the resolved flags (keyword arguments named after the flags:
+            ``a`` mm^2/s, ``noise`` sd, ``seed``, ``fps`` Hz, ``frames``, ``size`` px, ``dx`` mm).
+        defaults: flag values used when the flag is absent (None: the builder decides, see ``shown``).
+        help: one line for ``--help``.
+        shown: how ``--help`` states a default that is not a plain number.
+    """
+
+    build: Callable[..., SyntheticVideo]
+    defaults: dict[str, float | int | None]
+    help: str
+    shown: dict[str, str] = field(default_factory=dict)
+
+    def default_text(self, key: str) -> str:
+        value = self.defaults[key]
+        return self.shown.get(key) or f"{value:.4g}"
+
+
+def _paper(
+    *, a: float, noise: float, seed: int, fps: float, frames: int, size: int, dx: float | None
+) -> SyntheticVideo:
+    extent = 10.0 if dx is None else dx * size  # the paper's 10 mm field of view unless dx is given
+    return paper_video(
+        seed=seed, noise_sd=noise, fps=fps, duration=(frames - 1) / fps, size=size, extent=extent, a=a
+    )
+
+
+def _blobs(
+    *, a: float, noise: float, seed: int, fps: float, frames: int, size: int, dx: float
+) -> SyntheticVideo:
+    return blobs_video(seed=seed, noise_sd=noise, fps=fps, n_frames=frames, size=size, dx=dx, a=a)
+
+
+PRESETS: dict[str, Preset] = {
+    "paper": Preset(
+        _paper,
+        {"a": 0.2, "noise": 0.01, "fps": 27.0, "frames": 28, "size": 224, "dx": None},
+        "El-Kebir et al.'s case: one Gaussian (peak 3.8, 50 px FWHM), 224 px over 10 mm, 27 Hz for 1 s",
+        {"dx": "10 mm / size"},
+    ),
+    "blobs": Preset(
+        _blobs,
+        {"a": 0.15, "noise": 0.02, "fps": 30.0, "frames": 40, "size": 96, "dx": 0.5},
+        "three Gaussian hot spots at random places on a warm background, 96 px at 0.5 mm, 30 Hz",
+    ),
+}
+"""``anra simulate --preset NAME``: a new preset is one more entry."""
+
+
+def _crop(video: SyntheticVideo, crop: int) -> SyntheticVideo:
+    size = video.frames.shape[-1]
+    if crop > size:
+        raise ValueError(f"--crop must be at most the frame size {size} px, got {crop}")
+    start = (size - crop) // 2
+    window = (..., slice(start, start + crop), slice(start, start + crop))
+    return replace(video, frames=video.frames[window].contiguous(), clean=video.clean[window].contiguous())
+
+
+def _synthesize(args: argparse.Namespace) -> SyntheticVideo:
+    """Preset with the flags filled in, then the crop. (Effects added later slot in before the crop.)"""
+    preset = PRESETS[args.preset]
+    options = dict(preset.defaults)
+    options.update({k: getattr(args, k) for k in preset.defaults if getattr(args, k) is not None})
+    if args.duration is not None:
+        options["frames"] = round(args.duration * options["fps"]) + 1
+    video = preset.build(seed=args.seed, **options)
+    return _crop(video, args.crop) if args.crop is not None else video
+
+
+def _run_simulate(args: argparse.Namespace) -> int:
+    video = _synthesize(args)
+    noise = args.noise if args.noise is not None else PRESETS[args.preset].defaults["noise"]
+    path = save_npz(
+        args.out,
+        video.frames[0],
+        dt=video.dt,
+        dx=video.dx,
+        t=video.times,
+        a_true=video.a,
+        noise_sd=noise,
+        seed=args.seed,
+        preset=args.preset,
+    )
+    t, h, w = video.frames.shape[1:]
+    print(
+        f"wrote {path}: {t} frames of {h} x {w} px, dt = {video.dt:.6g} s, dx = {video.dx:.6g} mm, "
+        f"a = {video.a:g} mm^2/s, noise sd {noise:g}, seed {args.seed}"
+    )
+    return 0
+
+
+# ----------------------------------------------------------------------------------------- demo
+def _run_demo(args: argparse.Namespace) -> int:
+    if importlib.util.find_spec("matplotlib") is None:
+        raise ImportError(
+            "anra demo writes a report with matplotlib, which is not installed: pip install anra_torch[plot]"
+        )
+    out = Path(args.out)
+    start = time.perf_counter()
+    synthetic = paper_video(noise_sd=0.01, seed=0)
+    path = save_npz(
+        out / "paper_simulation.npz",
+        synthetic.frames[0],
+        dt=synthetic.dt,
+        dx=synthetic.dx,
+        t=synthetic.times,
+        a_true=synthetic.a,
+        noise_sd=0.01,
+        seed=0,
+        preset="paper",
+    )
+    video = load_video(path)
+    est = ANRAEstimator(window=DEMO_WINDOW)
+    tick = time.perf_counter()
+    result = est(video.frames, video.dt, video.dx)
+    estimated = time.perf_counter() - tick
+    report = write_estimate_report(out, video, result, truth=DEMO_TRUTH, estimator=est)
+    total = time.perf_counter() - start
+    a, error = float(result.diffusivity), float(result.std_error)
+    t, h, w = video.frames.shape
+    print(
+        f"anra demo: the simulation of El-Kebir et al. (arXiv 2203.13148): {t} frames of {h} x {w} px at "
+        f"{1 / video.dt:g} Hz, dx = {video.dx:.4g} mm, a = {DEMO_TRUTH} mm^2/s, noise sd 0.01"
+    )
+    print(
+        f"  estimate a = {format_pm(a, error, 'mm^2/s')}, error {100 * (a - DEMO_TRUTH) / DEMO_TRUTH:+.3g} % "
+        f"against {DEMO_TRUTH} (the paper reports {DEMO_PAPER_ESTIMATE})"
+    )
+    print(
+        f"  smoothing {float(result.smoothing):g} px chosen from the data, noise sd "
+        f"{float(result.noise_sd):.4g}, reliability {float(result.reliability):.3f}"
+    )
+    print(f"  estimated in {estimated:.2f} s ({total:.1f} s with simulation and report)")
+    print(f"  video:  {path}")
+    print(f"  report: {report}")
+    return 0
+
+
+# --------------------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    """The ``anra`` argument parser (usage errors raise instead of exiting; :func:`main` reports them)."""
+    from anra_torch import __version__
+
+    parser = _Parser(
+        prog=PROG,
+        description="Estimate the thermal diffusivity a of dT/dt = a (d11 + d22) T directly from thermal "
+        "video (ANRA, El-Kebir et al., arXiv 2203.13148). Units: mm, s, mm^2/s; temperatures in any "
+        "linear unit.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    formats = ", ".join(REGISTRY)
+    estimate = commands.add_parser(
+        "estimate",
+        help="estimate the diffusivity (mm^2/s) of a video file",
+        description=f"Estimate the diffusivity a (mm^2/s) of one video ({formats}). The spatial smoothing is "
+        "chosen from the data; exit status 2 when no diffusivity can be estimated.",
+    )
+    estimate.add_argument("video", metavar="VIDEO", help=f"video file ({formats}); frames (T, H, W)")
+    estimate.add_argument(
+        "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the file)"
+    )
+    estimate.add_argument(
+        "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the file)"
+    )
+    estimate.add_argument(
+        "--mode",
+        choices=MODES,
+        default="lsq",
+        help="lsq: weighted least squares with errors-in-variables correction (default); "
+        "ratio: the paper's attention-weighted average of dT/dt / Laplacian",
+    )
+    estimate.add_argument(
+        "--window",
+        type=_integer("px", minimum=1, odd=True),
+        metavar="PX",
+        help="also estimate a windowed field a(x, y) in mm^2/s over PX x PX pixel windows (odd)",
+    )
+    estimate.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object (diffusivity and std_error in mm^2/s, dt in s, dx in mm, ...)",
+    )
+    estimate.set_defaults(run=_run_estimate)
+
+    simulate = commands.add_parser(
+        "simulate",
+        help="write a synthetic video of known diffusivity (.npz)",
+        description="Write an exact solution of the heat equation plus Gaussian noise as .npz (keys "
+        "frames, dt in s, dx in mm, t in s, a_true in mm^2/s), readable by 'anra estimate'. Presets: "
+        + "; ".join(f"{name}: {p.help}" for name, p in PRESETS.items()),
+    )
+    simulate.add_argument(
+        "--preset", choices=list(PRESETS), default="paper", help="the scene (default paper)"
+    )
+
+    def preset_default(key: str) -> str:
+        return "default " + ", ".join(f"{name} {p.default_text(key)}" for name, p in PRESETS.items())
+
+    length = simulate.add_mutually_exclusive_group()
+    for group, flag, kind, metavar, text in (
+        (simulate, "--a", _number("mm^2/s", positive=False), "MM2S", "diffusivity in mm^2/s"),
+        (
+            simulate,
+            "--noise",
+            _number("temperature units", positive=False),
+            "SD",
+            "noise sd, temperature units",
+        ),
+        (simulate, "--fps", _number("Hz", positive=True), "HZ", "frame rate in Hz"),
+        (simulate, "--size", _integer("px", minimum=1), "PX", "frame side in px"),
+        (simulate, "--dx", _number("mm", positive=True), "MM", "pixel size in mm"),
+        (length, "--frames", _integer("frames", minimum=1), "N", "number of frames"),
+    ):
+        group.add_argument(flag, type=kind, metavar=metavar, help=f"{text} ({preset_default(flag[2:])})")
+    length.add_argument(
+        "--duration",
+        type=_number("s", positive=True),
+        metavar="S",
+        help="length in s: round(S * fps) + 1 frames",
+    )
+    simulate.add_argument(
+        "--seed", type=_integer("", minimum=0), default=0, metavar="N", help="noise seed (default 0)"
+    )
+    simulate.add_argument(
+        "--crop",
+        type=_integer("px", minimum=1),
+        metavar="PX",
+        help="keep the central PX x PX pixels (faster)",
+    )
+    simulate.add_argument("-o", "--out", required=True, metavar="OUT.npz", help="output file (.npz)")
+    simulate.set_defaults(run=_run_simulate)
+
+    demo = commands.add_parser(
+        "demo",
+        help="simulate the paper's case, estimate a (mm^2/s) and write a report",
+        description="Simulate El-Kebir et al.'s case (a = 0.2 mm^2/s, 224 px over 10 mm, 27 Hz for 1 s, "
+        "noise sd 0.01), estimate a with the default estimator and write report.md with figures.",
+    )
+    demo.add_argument(
+        "--out", default="results/demo", metavar="DIR", help="output directory (default results/demo)"
+    )
+    demo.set_defaults(run=_run_demo)
+    return parser
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or type(err).__name__
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``anra`` command line; returns the exit status (0 ok, 2 error).
+
+    Args:
+        argv: arguments without the program name; default ``sys.argv[1:]``.
+    """
+    try:
+        args = build_parser().parse_args(argv)
+        return args.run(args)
+    except SystemExit as done:  # --help, --version
+        return done.code if isinstance(done.code, int) else 0 if done.code is None else 2
+    except _UsageError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except (ValueError, TypeError, OSError, ImportError) as err:
+        print(f"{PROG}: error: {_one_line(err)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
