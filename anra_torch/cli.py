@@ -3,6 +3,19 @@
 Units everywhere: lengths in mm, times in s, diffusivity in mm^2/s, temperatures in the data's own unit.
 Every failure the user can cause (bad file, bad flag, a video without thermal activity) ends in one line
 ``anra: error: <message>`` on stderr and exit status 2, never a traceback.
+
+``anra estimate --json`` prints one object on one line:
+
+- ``path``; ``diffusivity`` and ``std_error`` (mm^2/s, null when no estimate); ``valid`` (bool) and
+  ``message`` (the reason when not valid, else "");
+- ``frames``, ``height``, ``width`` (px); ``dt`` (s); ``dx`` (mm); ``mode``;
+- ``smoothing_px`` (the Gaussian sigma chosen from the data); ``noise_sd`` (data units); ``reliability``
+  (signal fraction of the regressor energy, 1 is noiseless); ``n_masked`` (non-finite pixel values);
+- ``window_px``, ``field_median`` (mm^2/s), ``field_coverage`` (pixel fraction) with ``--window``, else null;
+- ``a_true`` (mm^2/s) when the file records the truth, else null; ``elapsed_s``; ``units`` (key -> unit).
+
+A video without measurable thermal activity still prints its flagged object with ``--json`` (``valid``
+false) and exits with status 2.
 """
 
 from __future__ import annotations
@@ -65,9 +78,8 @@ def _integer(unit: str, *, minimum: int, odd: bool = False) -> Callable[[str], i
             value = minimum - 1
         if value < minimum or (odd and value % 2 == 0):
             kind = "an odd" if odd else "an"
-            raise argparse.ArgumentTypeError(
-                f"must be {kind} integer >= {minimum} {unit}, got {text!r}".rstrip()
-            )
+            bound = f"{minimum} {unit}".strip()
+            raise argparse.ArgumentTypeError(f"must be {kind} integer >= {bound}, got {text!r}")
         return value
 
     return parse

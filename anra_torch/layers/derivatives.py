@@ -48,9 +48,17 @@ def _check_border(border: str) -> None:
 
 def _per_leading(spacing: float | Tensor, x: Tensor, extra_dims: int) -> Tensor | float:
     """Broadcast a float or ``(B,)`` spacing against ``x`` whose first dim is B."""
-    if isinstance(spacing, Tensor) and spacing.ndim > 0:
+    if isinstance(spacing, Tensor):
         return spacing.to(x.dtype).reshape(-1, *([1] * extra_dims))
     return float(spacing)
+
+
+def _check_spacing_batch(spacing: float | Tensor, name: str, x: Tensor) -> None:
+    if isinstance(spacing, Tensor) and spacing.numel() > 1 and (x.ndim < 3 or spacing.numel() != x.shape[0]):
+        raise ValueError(
+            f"{name} must be a number or have one value per video ({x.shape[0] if x.ndim > 2 else 1},), "
+            f"got shape {tuple(spacing.shape)}"
+        )
 
 
 def _check_spacing(spacing: float | Tensor, name: str, unit: str) -> None:
@@ -77,7 +85,8 @@ class TimeDerivative(nn.Module):
         length: window length ``L`` in frames.
 
     Shape:
-        Input ``(B, T, H, W)`` with ``T >= L``; output ``(B, T - L + 1, H, W)``.
+        Input ``(B, T, H, W)`` (or one video ``(T, H, W)``) with ``T >= L``; output ``(B, T - L + 1, H, W)``
+        (or ``(T - L + 1, H, W)``).
         :meth:`average` applies the matching temporal average, same output shape, for the spatial terms.
     """
 
@@ -102,31 +111,35 @@ class TimeDerivative(nn.Module):
         """Offset (frames) from the window's oldest frame to the instant the derivative applies."""
         return self.stencil.centre
 
-    def _check(self, frames: Tensor) -> None:
-        if frames.ndim != 4:
-            raise ValueError(f"frames must have shape (B, T, H, W), got {tuple(frames.shape)}")
-        if frames.shape[1] < self.length:
+    def _filter(self, frames: Tensor, taps: Tensor, dt: float | Tensor | None) -> Tensor:
+        """Apply ``(C, L)`` taps; (T, H, W) in -> (C, K, H, W) out, (B, T, H, W) -> (B, C, K, H, W)."""
+        if frames.ndim not in (3, 4):
+            raise ValueError(f"frames must have shape (T, H, W) or (B, T, H, W), got {tuple(frames.shape)}")
+        video = frames if frames.ndim == 4 else frames.unsqueeze(0)
+        if video.shape[1] < self.length:
             raise ValueError(
                 f"need at least {self.length} frames for a time filter of length {self.length}, "
-                f"got {frames.shape[1]}"
+                f"got {video.shape[1]}"
             )
+        out = _time_filter(video, taps)
+        if dt is not None:
+            _check_spacing(dt, "dt", "s")
+            _check_spacing_batch(dt, "dt", video)
+            # channel 0 is the derivative (per s); the others are averages
+            out = torch.cat([out[:, :1] / _per_leading(dt, out, 4), out[:, 1:]], dim=1)
+        return out if frames.ndim == 4 else out[0]
 
     def forward(self, frames: Tensor, dt: float | Tensor) -> Tensor:
-        self._check(frames)
-        _check_spacing(dt, "dt", "s")
-        return _time_filter(frames, self.taps[None])[:, 0] / _per_leading(dt, frames, 3)
+        return self._filter(frames, self.taps[None], dt).select(-4, 0)
 
     def average(self, frames: Tensor) -> Tensor:
         """Temporal average with the derivative's centre, for the spatial side of the PDE."""
-        self._check(frames)
-        return _time_filter(frames, self.pair[None])[:, 0]
+        return self._filter(frames, self.pair[None], None).select(-4, 0)
 
     def with_average(self, frames: Tensor, dt: float | Tensor) -> tuple[Tensor, Tensor]:
         """``(forward(frames, dt), average(frames))`` from a single two-channel Conv3d."""
-        self._check(frames)
-        _check_spacing(dt, "dt", "s")
-        both = _time_filter(frames, torch.stack([self.taps, self.pair]))
-        return both[:, 0] / _per_leading(dt, frames, 3), both[:, 1]
+        both = self._filter(frames, torch.stack([self.taps, self.pair]), dt)
+        return both.select(-4, 0), both.select(-4, 1)
 
     def adjoint(self, rate_weights: Tensor, average_weights: Tensor, dt: float | Tensor) -> Tensor:
         """Transpose of :meth:`with_average`: maps output-space weights back onto the input frames.
@@ -169,10 +182,12 @@ def _filter2d(x: Tensor, weight: Tensor, border: str) -> Tensor:
 def _check_spatial(x: Tensor, support: int, border: str) -> None:
     if x.ndim < 2:
         raise ValueError(f"input must have shape (..., H, W), got {tuple(x.shape)}")
-    if border == "crop" and min(x.shape[-2:]) < support:
+    # 'crop' needs the whole kernel inside the frame; 'reflect' and 'circular' more than its radius.
+    need = {"crop": support, "reflect": support // 2 + 1, "circular": support // 2 + 1}.get(border, 1)
+    if min(x.shape[-2:]) < need:
         raise ValueError(
-            f"need frames of at least {support} x {support} px for a {support}-px kernel with "
-            f"border='crop', got {x.shape[-2]} x {x.shape[-1]}"
+            f"need frames of at least {need} x {need} px for a {support}-px kernel with "
+            f"border={border!r}, got {x.shape[-2]} x {x.shape[-1]}"
         )
 
 
@@ -231,9 +246,10 @@ class _SpatialOperator(nn.Module):
         ]
         return torch.stack(outputs, dim=-3)
 
-    def _apply(self, u: Tensor, dx: float | Tensor) -> Tensor:
+    def _operate(self, u: Tensor, dx: float | Tensor) -> Tensor:
         _check_spatial(u, self.support, self.border)
         _check_spacing(dx, "dx", "mm")
+        _check_spacing_batch(dx, "dx", u)
         out = self._filter(u)
         return out / _per_leading(dx, out, out.ndim - 1) ** self.order
 
@@ -250,7 +266,7 @@ class _PartnerSmoothing(_SpatialOperator):
         super().__init__(kernel.unsqueeze(0), size=kernel.shape[-1], border=border)
 
     def forward(self, u: Tensor) -> Tensor:
-        return self._apply(u, 1.0).squeeze(-3)
+        return self._operate(u, 1.0).squeeze(-3)
 
 
 class Laplacian(_SpatialOperator):
@@ -279,7 +295,7 @@ class Laplacian(_SpatialOperator):
         self.partner = _PartnerSmoothing(stencils.laplacian_partner(size, family), border=border)
 
     def forward(self, u: Tensor, dx: float | Tensor) -> Tensor:
-        return self._apply(u, dx).squeeze(-3)
+        return self._operate(u, dx).squeeze(-3)
 
     def extra_repr(self) -> str:
         return f"size={self.size}, family={self.family!r}, border={self.border!r}"
@@ -298,7 +314,7 @@ class Gradient(_SpatialOperator):
         super().__init__(stencils.gradient_kernels(size), size=size, border=border)
 
     def forward(self, u: Tensor, dx: float | Tensor) -> Tensor:
-        return self._apply(u, dx)
+        return self._operate(u, dx)
 
 
 class SecondDerivatives(_SpatialOperator):
@@ -314,7 +330,10 @@ class SecondDerivatives(_SpatialOperator):
         super().__init__(stencils.second_derivative_kernels(size), size=size, border=border)
 
     def forward(self, u: Tensor, dx: float | Tensor) -> Tensor:
-        return self._apply(u, dx)
+        return self._operate(u, dx)
+
+
+_SLICE_TAPS = 13  # up to this many taps, shifted slices beat banded matrix products on CPU
 
 
 def _banded(taps: Tensor, n: int) -> Tensor:
@@ -331,8 +350,9 @@ class GaussianSmoothing(nn.Module):
     """Separable Gaussian smoothing over (H, W) with ``sigma`` in pixels (0 is the identity).
 
     Applied to the frames before any derivative, it acts identically on both sides of a linear PDE
-    (convolutions commute), so it lowers noise without biasing the estimated coefficients. Wide kernels
-    run as two banded matrix products (BLAS), far faster on CPU than a direct convolution.
+    (convolutions commute), so it lowers noise without biasing the estimated coefficients. Narrow kernels
+    run as shifted-slice sums, wide ones as two banded matrix products (BLAS), both far faster on CPU
+    than a direct convolution.
 
     Shape:
         Input ``(..., H, W)``; output ``(..., H - 2r, W - 2r)`` for ``"crop"`` (``r = radius``).
@@ -365,6 +385,9 @@ class GaussianSmoothing(nn.Module):
             u = F.pad(u.reshape(-1, 1, *u.shape[-2:]), (r, r, r, r), mode=mode).reshape(
                 *u.shape[:-2], u.shape[-2] + 2 * r, u.shape[-1] + 2 * r
             )
+        if self.taps.numel() <= _SLICE_TAPS:
+            taps = self.taps.tolist()
+            return _correlate1d(_correlate1d(u, taps, -1), taps, -2)
         lead, (h, w) = u.shape[:-2], u.shape[-2:]
         mx, my = self._matrix(w, u), self._matrix(h, u)
         rows = (u.reshape(-1, w) @ mx).reshape(-1, h, mx.shape[1])

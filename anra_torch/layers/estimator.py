@@ -39,7 +39,13 @@ AUTO_SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
 """Spatial smoothing candidates (px) tried by ``smoothing="auto"``."""
 
 _MIN_RELIABILITY = 0.05  # below this fraction of signal in the regressor energy, nothing is measurable
+_MIN_SIGNIFICANCE = 3.0  # |a| / std_error below this is indistinguishable from noise
 _MIN_VALID_PX = 8  # a candidate smoothing must leave at least this many pixels per side
+
+
+def _reliability(den: Tensor, energy: Tensor) -> Tensor:
+    """Fraction of the regressor energy that is signal (0 where there is no energy)."""
+    return torch.where(energy > 0, den / energy.clamp_min(1e-300), torch.zeros_like(den))
 
 
 @dataclass(frozen=True)
@@ -89,6 +95,18 @@ class ANRAResult:
 @dataclass
 class _Candidate:
     """Sums for one smoothing level, all batched over videos."""
+
+    def estimate(self, mode: str) -> Tensor:
+        """Global estimate per video, ``(B,)``."""
+        if mode == "ratio":
+            return self.ratio.mean(1)
+        total = self.den.sum(1)
+        return self.num.sum(1) / torch.where(total == 0, torch.ones_like(total), total)
+
+    def measurable(self, mode: str) -> Tensor:
+        """Signal clearly above the noise: enough signal energy and an estimate >= 3 standard errors."""
+        significant = self.estimate(mode).abs() >= _MIN_SIGNIFICANCE * self.std_error
+        return (_reliability(self.den.sum(1), self.energy.sum(1)) >= _MIN_RELIABILITY) & significant
 
     num: Tensor  # (B, K) sum_ij w U L - covariance correction
     den: Tensor  # (B, K) sum_ij w L^2 - variance correction
@@ -182,7 +200,8 @@ class ANRAEstimator(nn.Module):
             attention = UniformAttention() if mode == "lsq" else RTCAttention()
         if not hasattr(attention, "with_slope"):
             raise TypeError(
-                f"attention must provide with_slope(rate, mask) like RTCAttention, got {type(attention).__name__}"
+                "attention must provide with_slope(rate, mask) like RTCAttention, "
+                f"got {type(attention).__name__}"
             )
         self.attention = attention
         # Noise gains of the composite filters for unit dt, dx (fixed per candidate).
@@ -343,6 +362,8 @@ class ANRAEstimator(nn.Module):
         dx_ = as_spacing(dx, name="dx", unit="mm", batch=b, like=video)
         finite = torch.isfinite(video)
         n_masked = (~finite).sum((1, 2, 3))
+        fill_low = torch.tensor(-torch.inf, dtype=video.dtype)
+        fill_high = torch.tensor(torch.inf, dtype=video.dtype)
         if bool(n_masked.any()):
             counts = finite.sum((1, 2, 3)).clamp_min(1)
             fill = torch.where(finite, video, torch.zeros_like(video)).sum((1, 2, 3)) / counts
@@ -358,8 +379,10 @@ class ANRAEstimator(nn.Module):
             raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
         time_terms = self.time.with_average(video, dt_)
         candidates = [self._candidate(i, time_terms, finite, dt_, dx_, noise_sd) for i in usable]
+        # A candidate without measurable signal (e.g. all of its pixels masked) must not win on a zero error.
+        measurable = torch.stack([c.measurable(self.mode) for c in candidates], dim=1)
         errors = torch.stack([c.std_error for c in candidates], dim=1)  # (B, C)
-        errors = torch.nan_to_num(errors, nan=torch.inf)
+        errors = torch.where(measurable, torch.nan_to_num(errors, nan=torch.inf), torch.inf)
         choice = errors.argmin(dim=1)
 
         def pick(name: str) -> Tensor:
@@ -369,28 +392,37 @@ class ANRAEstimator(nn.Module):
 
         num, den, energy, ratio = pick("num"), pick("den"), pick("energy"), pick("ratio")
         std_error = pick("std_error")
+        measured = measurable.gather(1, choice[:, None])[:, 0]
         sigmas = torch.tensor([self.smoothers[i].sigma for i in usable], dtype=video.dtype)
         total_den, total_energy = den.sum(1), energy.sum(1)
-        reliability = torch.where(
-            total_energy > 0,
-            total_den / total_energy.clamp_min(1e-300),
-            torch.zeros_like(total_den),
-        )
+        reliability = _reliability(total_den, total_energy)
         if self.mode == "lsq":
             per_frame = num / torch.where(den == 0, torch.ones_like(den), den)
             per_frame = torch.where(den == 0, torch.zeros_like(per_frame), per_frame)
             estimate = num.sum(1) / torch.where(total_den == 0, torch.ones_like(total_den), total_den)
         else:
             per_frame, estimate = ratio, ratio.mean(1)
-        valid = (total_energy > 0) & (reliability >= _MIN_RELIABILITY) & torch.isfinite(estimate)
+        changing = torch.where(finite, video, fill_low).amax((1, 2, 3)) > torch.where(
+            finite, video, fill_high
+        ).amin((1, 2, 3))
+        valid = changing & measured & torch.isfinite(estimate)
         messages = tuple(
             ""
             if ok
+            else "frames are constant: no thermal activity, no diffusivity estimated"
+            if not moving
             else (
-                "frames show no thermal activity above the noise "
-                f"(signal fraction {float(rel):.3f} < {_MIN_RELIABILITY}); no diffusivity estimated"
+                "frames show no thermal activity above the noise (signal fraction "
+                f"{float(rel):.3f}, estimate {float(z):.1f} standard errors from 0; need >= "
+                f"{_MIN_RELIABILITY} and >= {_MIN_SIGNIFICANCE:g}); no diffusivity estimated"
             )
-            for ok, rel in zip(valid.tolist(), reliability.tolist(), strict=True)
+            for ok, moving, rel, z in zip(
+                valid.tolist(),
+                changing.tolist(),
+                reliability.tolist(),
+                (estimate.abs() / std_error).tolist(),
+                strict=True,
+            )
         )
         if self.strict and not bool(valid.all()):
             bad = int((~valid).nonzero()[0])

@@ -263,8 +263,8 @@ def _holoborodko_laplacian(size: int) -> Tensor:
 
 
 def _holoborodko_partner(size: int) -> Tensor:
-    # D2_N (x) B_{N-3} + B_{N-3} (x) D2_N == (5-point Laplacian) o (B_{N-3} (x) B_{N-3}) exactly, because
-    # D2_N = [1, -2, 1] * B_{N-3}: the Holoborodko Laplacian is the 5-point one of a binomially smoothed field.
+    # D2_N (x) B_{N-3} + B_{N-3} (x) D2_N == (5-point Laplacian) o (B_{N-3} (x) B_{N-3}) exactly, since
+    # D2_N = [1, -2, 1] * B_{N-3}: the Holoborodko Laplacian is the 5-point one of a smoothed field.
     _check_size(size)
     b = binomial(size - 3)
     return _embed(torch.outer(b, b), size)
