@@ -142,38 +142,15 @@ def _measured(name: str, fit: Callable[[], FitOutcome], memory: bool) -> PeerRes
     return PeerResult(name, a, seconds, peak_mb, ok, note)
 
 
-def paper_video(
-    *,
-    a: float = 0.2,
-    size: int = 224,
-    n_frames: int = 28,
-    fps: float = 27.0,
-    noise: float = 0.01,
-    seed: int | None = 0,
-    width_mm: float = 10.0,
-    fwhm_px: float = 50.0,
-    peak: float = 3.8,
-) -> tuple[np.ndarray, float, float]:
-    """The paper's simulated video: a spreading Gaussian (exact on the plane) plus white noise.
+def paper_video(*, noise: float = 0.01, seed: int = 0, **options: object) -> tuple[np.ndarray, float, float]:
+    """One video of the paper's case as NumPy ``(frames (T, H, W), dt, dx)``, from anra_torch.synthetic.
 
-    ``T(x, y, t) = peak s0^2 / (s0^2 + 2 a t) exp(-r^2 / (2 (s0^2 + 2 a t)))`` with
-    ``s0 = fwhm_px / 2.3548 * dx``, ``dx = width_mm / size``, pixel centres at ``(j + 0.5) dx``,
-    the peak in the centre of the frame, ``t = k / fps`` for ``k = 0 .. n_frames - 1``, plus
-    Gaussian noise of sd ``noise`` (NumPy ``default_rng(seed)``).
-
-    Returns:
-        ``(frames, dt, dx)`` with frames of shape ``(T, H, W) = (n_frames, size, size)``.
+    ``options`` go to :func:`anra_torch.synthetic.paper_video` (e.g. ``crop``, ``fps``, ``a``).
     """
-    dx = width_mm / size
-    s0 = fwhm_px / 2.3548 * dx
-    c = (np.arange(size) + 0.5) * dx - size * dx / 2
-    r2 = c[:, None] ** 2 + c[None, :] ** 2
-    t = np.arange(n_frames) / fps
-    s2 = s0**2 + 2 * a * t[:, None, None]
-    frames = peak * s0**2 / s2 * np.exp(-r2 / (2 * s2))
-    if noise:
-        frames = frames + noise * np.random.default_rng(seed).standard_normal(frames.shape)
-    return frames, 1.0 / fps, dx
+    from anra_torch.synthetic import paper_video as make
+
+    video = make(n_videos=1, seed=seed, noise_sd=noise, **options)
+    return video.frames[0].numpy(), video.dt, video.dx
 
 
 # -------------------------------------------------------------------------------------------------

@@ -235,7 +235,9 @@ def test_time_derivative_accepts_one_unbatched_video() -> None:
     torch.testing.assert_close(layer(video, 0.1), layer(video[None], 0.1)[0])
     rate, average = layer.with_average(video, 0.1)
     torch.testing.assert_close(average, layer.average(video[None])[0])
-    with pytest.raises(ValueError, match=r"frames must have shape \(T, H, W\) or \(B, T, H, W\), got \(8, 3\)"):
+    with pytest.raises(
+        ValueError, match=r"frames must have shape \(T, H, W\) or \(B, T, H, W\), got \(8, 3\)"
+    ):
         layer(torch.zeros(8, 3), 0.1)
 
 
@@ -452,8 +454,6 @@ def test_spatial_state_dict_round_trip(kind: str, size: int) -> None:
     assert not result.missing_keys and not result.unexpected_keys
     u = torch.randn(1, 12, 12, dtype=F64)
     torch.testing.assert_close(other(u, 0.3), layer(u, 0.3), rtol=0, atol=0)
-
-
 
 
 @pytest.mark.parametrize(

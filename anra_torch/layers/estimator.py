@@ -104,9 +104,14 @@ class _Candidate:
         return self.num.sum(1) / torch.where(total == 0, torch.ones_like(total), total)
 
     def measurable(self, mode: str) -> Tensor:
-        """Signal clearly above the noise: enough signal energy and an estimate >= 3 standard errors."""
-        significant = self.estimate(mode).abs() >= _MIN_SIGNIFICANCE * self.std_error
-        return (_reliability(self.den.sum(1), self.energy.sum(1)) >= _MIN_RELIABILITY) & significant
+        """Signal clearly above the noise: enough signal energy and (lsq) an estimate >= 3 standard errors.
+
+        The paper's ratio estimator has no such test: it is reported as it comes out.
+        """
+        enough = _reliability(self.den.sum(1), self.energy.sum(1)) >= _MIN_RELIABILITY
+        if mode == "ratio":
+            return enough
+        return enough & (self.estimate(mode).abs() >= _MIN_SIGNIFICANCE * self.std_error)
 
     num: Tensor  # (B, K) sum_ij w U L - covariance correction
     den: Tensor  # (B, K) sum_ij w L^2 - variance correction
@@ -126,11 +131,12 @@ class ANRAEstimator(nn.Module):
             ``"ratio"`` (the paper's RTC-weighted average of ``dT/dt / Laplacian``, kept as published).
         smoothing: spatial Gaussian sigma in px, a sequence of candidates, or ``"auto"``
             (:data:`AUTO_SMOOTHING`); with several candidates each video takes the one with the smallest
-            standard error.
+            standard error. Default: ``"auto"`` for ``"lsq"``, 0 (as published) for ``"ratio"``.
         time_family: Holoborodko time family (``"smooth"``, ``"centred"``, ``"hybrid"``).
         time_length: time window length in frames.
         laplacian_size: spatial kernel size (3, 5, 7, 9, 11).
-        laplacian_family: ``"central"`` (maximal order: after Gaussian smoothing, accuracy at low
+        laplacian_family: default ``"central"`` for ``"lsq"``, ``"holoborodko"`` (as published) for
+            ``"ratio"``. ``"central"`` (maximal order: after Gaussian smoothing, accuracy at low
             wavenumbers is what matters) or ``"holoborodko"`` (its built-in binomial smoothing is applied
             to dT/dt as well, so it reads like the 5-point Laplacian of the smoothed field).
         attention: per-pixel weighting with ``with_slope(rate, mask)``. Default: for ``"ratio"`` the paper's
@@ -160,11 +166,11 @@ class ANRAEstimator(nn.Module):
         self,
         *,
         mode: str = "lsq",
-        smoothing: float | Sequence[float] | str = "auto",
+        smoothing: float | Sequence[float] | str | None = None,
         time_family: str = "smooth",
         time_length: int = 5,
         laplacian_size: int = 5,
-        laplacian_family: str = "central",
+        laplacian_family: str | None = None,
         attention: nn.Module | None = None,
         eiv_correction: bool = True,
         noise_sd: float | None = None,
@@ -174,6 +180,10 @@ class ANRAEstimator(nn.Module):
         super().__init__()
         if mode not in MODES:
             raise ValueError(f"unknown mode {mode!r}; expected one of: {', '.join(MODES)}")
+        if smoothing is None:
+            smoothing = "auto" if mode == "lsq" else 0.0
+        if laplacian_family is None:
+            laplacian_family = "central" if mode == "lsq" else "holoborodko"
         if isinstance(smoothing, str):
             if smoothing != "auto":
                 raise ValueError(f"smoothing must be a sigma in px, a sequence or 'auto', got {smoothing!r}")
