@@ -57,7 +57,7 @@ def as_spacing(value: object, *, name: str, unit: str, batch: int, like: Tensor)
             f"{name} must be a number or have shape ({batch},), got shape {tuple(spacing.shape)}"
         )
     if not bool(torch.isfinite(spacing).all()) or bool((spacing <= 0).any()):
-        shown = spacing[0].item() if spacing.numel() == 1 or batch == 1 else spacing.tolist()
+        shown = value if not isinstance(value, Tensor) else (value.tolist() if value.ndim else value.item())
         raise ValueError(f"{name} must be a positive finite number in {unit}, got {shown}")
     return spacing.to(like.device)
 

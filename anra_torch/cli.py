@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from anra_torch.effects import EFFECTS, HiddenEffectVideo, hidden_effect_video
 from anra_torch.io import REGISTRY, Video, load_video, save_npz
 from anra_torch.layers.estimator import MODES, ANRAEstimator, ANRAResult
 from anra_torch.report import format_pm, write_estimate_report
@@ -187,16 +188,19 @@ class Preset:
 
     Attributes:
         build: makes the video from the resolved flags (keyword arguments named after the flags:
-            ``a`` mm^2/s, ``noise`` sd, ``seed``, ``fps`` Hz, ``frames``, ``size`` px, ``dx`` mm).
+            ``a`` mm^2/s, ``noise`` sd, ``seed``, ``fps`` Hz, ``frames``, ``size`` px, ``dx`` mm; plus
+            ``effects`` (names) and ``params`` (``{effect: {key: value}}``) when ``effects`` is set).
         defaults: flag values used when the flag is absent (None: the builder decides, see ``shown``).
         help: one line for ``--help``.
         shown: how ``--help`` states a default that is not a plain number.
+        effects: whether the scene takes ``--effect`` / ``--param`` (hidden effects with their truth).
     """
 
-    build: Callable[..., SyntheticVideo]
+    build: Callable[..., SyntheticVideo | HiddenEffectVideo]
     defaults: dict[str, float | int | None]
     help: str
     shown: dict[str, str] = field(default_factory=dict)
+    effects: bool = False
 
     def default_text(self, key: str) -> str:
         value = self.defaults[key]
@@ -218,6 +222,33 @@ def _blobs(
     return blobs_video(seed=seed, noise_sd=noise, fps=fps, n_frames=frames, size=size, dx=dx, a=a)
 
 
+def _hidden(
+    *,
+    a: float,
+    noise: float | None,
+    seed: int,
+    fps: float,
+    frames: int,
+    size: int,
+    dx: float,
+    effects: Sequence[str] = (),
+    params: dict[str, dict[str, float]] | None = None,
+) -> HiddenEffectVideo:
+    if frames < 2:
+        raise ValueError(f"the hidden scene needs at least 2 frames (--frames or --duration), got {frames}")
+    return hidden_effect_video(
+        effects,
+        seed=seed,
+        size=size,
+        dx=dx,
+        fps=fps,
+        duration=(frames - 1) / fps,
+        a=a,
+        noise_sd=noise,
+        params=params,
+    )
+
+
 PRESETS: dict[str, Preset] = {
     "paper": Preset(
         _paper,
@@ -230,48 +261,126 @@ PRESETS: dict[str, Preset] = {
         {"a": 0.15, "noise": 0.02, "fps": 30.0, "frames": 40, "size": 96, "dx": 0.5},
         "three Gaussian hot spots at random places on a warm background, 96 px at 0.5 mm, 30 Hz",
     ),
+    "hidden": Preset(
+        _hidden,
+        {"a": 0.15, "noise": None, "fps": 30.0, "frames": 91, "size": 96, "dx": 0.5},
+        "one or two Gaussian hot spots (rise 5-20) on a background of 30, 96 px at 0.5 mm, 30 Hz for 3 s, "
+        "plus the --effect terms (the scene of --effect)",
+        {"noise": "0.01 x the peak rise"},
+        effects=True,
+    ),
 }
 """``anra simulate --preset NAME``: a new preset is one more entry."""
 
 
-def _crop(video: SyntheticVideo, crop: int) -> SyntheticVideo:
+def _crop(video: SyntheticVideo | HiddenEffectVideo, crop: int) -> SyntheticVideo | HiddenEffectVideo:
     size = video.frames.shape[-1]
     if crop > size:
         raise ValueError(f"--crop must be at most the frame size {size} px, got {crop}")
     start = (size - crop) // 2
+    if isinstance(video, HiddenEffectVideo):  # also shifts the positions in the truth to the window
+        return video.crop(start, start, crop, crop)
     window = (..., slice(start, start + crop), slice(start, start + crop))
     return replace(video, frames=video.frames[window].contiguous(), clean=video.clean[window].contiguous())
 
 
-def _synthesize(args: argparse.Namespace) -> SyntheticVideo:
-    """Preset with the flags filled in, then the crop. (Effects added later slot in before the crop.)"""
-    preset = PRESETS[args.preset]
+def _effect_list(text: str) -> list[str]:
+    """``--effect NAME[,NAME...]``."""
+    names = [name.strip() for name in text.split(",")]
+    for name in names:
+        if name not in EFFECTS:
+            raise argparse.ArgumentTypeError(
+                f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}"
+            )
+    return names
+
+
+def _effect_param(text: str) -> tuple[str, str, float]:
+    """``--param NAME.KEY=VALUE``."""
+    target, _, value = text.partition("=")
+    name, _, key = target.strip().partition(".")
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not (name and key and math.isfinite(number)):
+        raise argparse.ArgumentTypeError(
+            f"must be NAME.KEY=VALUE with a finite number, e.g. source.rate=2.5, got {text!r}"
+        )
+    if name not in EFFECTS:
+        raise argparse.ArgumentTypeError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
+    return name, key, number
+
+
+def _preset_name(args: argparse.Namespace) -> str:
+    """``--preset``, by default ``hidden`` with ``--effect`` and ``paper`` without."""
+    if args.preset is not None:
+        return args.preset
+    return "hidden" if args.effect else "paper"
+
+
+def _effect_options(args: argparse.Namespace) -> tuple[list[str], dict[str, dict[str, float]]]:
+    """The ``--effect`` names and the ``--param`` values grouped by effect."""
+    names = [name for group in args.effect or [] for name in group]
+    params: dict[str, dict[str, float]] = {}
+    for name, key, value in args.param or []:
+        if name not in names:
+            raise ValueError(
+                f"--param {name}.{key}={value:g}: effect {name!r} is not simulated; add it to --effect"
+            )
+        params.setdefault(name, {})[key] = value
+    return names, params
+
+
+def _synthesize(args: argparse.Namespace) -> SyntheticVideo | HiddenEffectVideo:
+    """Preset with the flags (and for a scene with effects, ``--effect`` / ``--param``), then the crop."""
+    name = _preset_name(args)
+    preset = PRESETS[name]
+    names, params = _effect_options(args)
+    extra: dict[str, Any] = {}
+    if preset.effects:
+        extra = {"effects": names, "params": params}
+    elif names:
+        scenes = ", ".join(k for k, p in PRESETS.items() if p.effects)
+        raise ValueError(f"--effect needs a scene with effects (--preset {scenes}), got --preset {name}")
     options = dict(preset.defaults)
     options.update({k: getattr(args, k) for k in preset.defaults if getattr(args, k) is not None})
     if args.duration is not None:
         options["frames"] = round(args.duration * options["fps"]) + 1
-    video = preset.build(seed=args.seed, **options)
+    video = preset.build(seed=args.seed, **options, **extra)
     return _crop(video, args.crop) if args.crop is not None else video
 
 
 def _run_simulate(args: argparse.Namespace) -> int:
     video = _synthesize(args)
-    noise = args.noise if args.noise is not None else PRESETS[args.preset].defaults["noise"]
-    path = save_npz(
-        args.out,
-        video.frames[0],
-        dt=video.dt,
-        dx=video.dx,
-        t=video.times,
-        a_true=video.a,
-        noise_sd=noise,
-        seed=args.seed,
-        preset=args.preset,
-    )
-    t, h, w = video.frames.shape[1:]
+    name = _preset_name(args)
+    if isinstance(video, HiddenEffectVideo):
+        path = video.to_npz(args.out, preset=name)
+        noise = video.noise_sd
+        t, h, w = video.frames.shape
+        truth = "; ".join(
+            f"{e.name} " + ", ".join(f"{k}={v:.4g}" for k, v in e.to_dict()["params"].items())
+            for e in video.effects
+        )
+        effects = f", effects: {truth or 'none'}"
+    else:
+        noise = args.noise if args.noise is not None else PRESETS[name].defaults["noise"]
+        path = save_npz(
+            args.out,
+            video.frames[0],
+            dt=video.dt,
+            dx=video.dx,
+            t=video.times,
+            a_true=video.a,
+            noise_sd=noise,
+            seed=args.seed,
+            preset=name,
+        )
+        t, h, w = video.frames.shape[1:]
+        effects = ""
     print(
         f"wrote {path}: {t} frames of {h} x {w} px, dt = {video.dt:.6g} s, dx = {video.dx:.6g} mm, "
-        f"a = {video.a:g} mm^2/s, noise sd {noise:g}, seed {args.seed}"
+        f"a = {video.a:g} mm^2/s, noise sd {noise:g}, seed {args.seed}{effects}"
     )
     return 0
 
@@ -373,13 +482,36 @@ def build_parser() -> argparse.ArgumentParser:
 
     simulate = commands.add_parser(
         "simulate",
-        help="write a synthetic video of known diffusivity (.npz)",
+        help="write a synthetic video of known diffusivity, optionally with hidden effects (.npz)",
         description="Write an exact solution of the heat equation plus Gaussian noise as .npz (keys "
-        "frames, dt in s, dx in mm, t in s, a_true in mm^2/s), readable by 'anra estimate'. Presets: "
-        + "; ".join(f"{name}: {p.help}" for name, p in PRESETS.items()),
+        "frames, dt in s, dx in mm, t in s, a_true in mm^2/s), readable by 'anra estimate'. With --effect, "
+        "simulate dT/dt = a Lap T + the named effects (method of lines, RK4) on the 'hidden' scene and store "
+        "the truth too: 'effects' (a JSON list of {name, params, units}) and, for heterogeneity, 'a_map'. "
+        "Parameters not set by --param are drawn at random from --seed, clearly visible yet physical. "
+        "Presets: " + "; ".join(f"{name}: {p.help}" for name, p in PRESETS.items()),
     )
     simulate.add_argument(
-        "--preset", choices=list(PRESETS), default="paper", help="the scene (default paper)"
+        "--preset",
+        choices=list(PRESETS),
+        default=None,
+        help="the scene (default paper, or hidden with --effect)",
+    )
+    simulate.add_argument(
+        "--effect",
+        type=_effect_list,
+        action="append",
+        metavar="NAME[,NAME...]",
+        help="hidden effects to add (repeatable; at most one of anisotropy, heterogeneity, "
+        "nonlinear_diffusion): "
+        + "; ".join(f"{name} ({', '.join(spec.params)})" for name, spec in EFFECTS.items()),
+    )
+    simulate.add_argument(
+        "--param",
+        type=_effect_param,
+        action="append",
+        metavar="NAME.KEY=VALUE",
+        help="fix one effect parameter instead of drawing it (repeatable; units: mm, s, mm^2/s, K), "
+        "e.g. advection.vx=0.5; the others are still drawn from --seed",
     )
 
     def preset_default(key: str) -> str:
@@ -408,7 +540,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="length in s: round(S * fps) + 1 frames",
     )
     simulate.add_argument(
-        "--seed", type=_integer("", minimum=0), default=0, metavar="N", help="noise seed (default 0)"
+        "--seed",
+        type=_integer("", minimum=0),
+        default=0,
+        metavar="N",
+        help="seed of the noise and, with --effect, of the scene and every parameter not set by --param "
+        "(default 0)",
     )
     simulate.add_argument(
         "--crop",

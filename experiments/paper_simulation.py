@@ -99,39 +99,31 @@ def summarise(values: list[float], seconds: list[float] | None = None) -> dict[s
     return row
 
 
+PEERS = {
+    "spectral PDE fit (periodic, exact solver)": lambda f, dt, dx: spectral_fit(f, dt, dx),
+    "spectral PDE fit (Neumann, exact solver)": lambda f, dt, dx: spectral_fit(f, dt, dx, boundary="neumann"),
+    "NumPy/SciPy direct (sigma 4 px)": numpy_direct_estimate,
+    "PySINDy weak form, tuned": lambda f, dt, dx: weak_sindy_estimate(f, dt, dx, tuned=True),
+    "PySINDy weak form, defaults": lambda f, dt, dx: weak_sindy_estimate(f, dt, dx, tuned=False),
+    "PySINDy strong form (PDE-FIND)": pde_find_estimate,
+}
+
+
 def peers_on_paper_case(n_seeds: int, crops: tuple[int | None, ...]) -> list[dict[str, object]]:
-    """Peers (and ANRA's default, timed per video) on the same videos, full frame and crops."""
-    rows = []
+    """Peers and ANRA's default, one video at a time (timed per video), full frame and crops."""
     anra = ANRAEstimator(strict=False)
+    anra(paper_video(n_videos=1, noise_sd=0.01, crop=80).frames, 1 / 27, 0.05)  # warm-up
+    rows = []
     for crop in crops:
-        cases = {
-            "ANRA default": lambda f, dt, dx: anra(torch.from_numpy(f), dt, dx).diffusivity.item(),
-            "spectral PDE fit (periodic, exact solver)": None,
-            "spectral PDE fit (Neumann, exact solver)": None,
-            "NumPy/SciPy direct (sigma 4 px)": None,
-            "PySINDy weak form, tuned": None,
-            "PySINDy weak form, defaults": None,
-            "PySINDy strong form (PDE-FIND)": None,
-        }
-        results: dict[str, list] = {name: [] for name in cases}
+        results: dict[str, list[tuple]] = {"ANRA default": [], **{name: [] for name in PEERS}}
         for seed in tqdm(range(n_seeds), desc=f"peers crop={crop}", leave=False):
             v = paper_video(n_videos=1, seed=10_000 + seed, noise_sd=0.01, crop=crop)
             frames, dt, dx = v.frames[0].numpy(), v.dt, v.dx
             t0 = time.perf_counter()
-            a = cases["ANRA default"](frames, dt, dx)
-            results["ANRA default"].append((a, time.perf_counter() - t0, True, ""))
-            for name, peer in (
-                ("spectral PDE fit (periodic, exact solver)", lambda: spectral_fit(frames, dt, dx)),
-                (
-                    "spectral PDE fit (Neumann, exact solver)",
-                    lambda: spectral_fit(frames, dt, dx, boundary="neumann"),
-                ),
-                ("NumPy/SciPy direct (sigma 4 px)", lambda: numpy_direct_estimate(frames, dt, dx)),
-                ("PySINDy weak form, tuned", lambda: weak_sindy_estimate(frames, dt, dx, tuned=True)),
-                ("PySINDy weak form, defaults", lambda: weak_sindy_estimate(frames, dt, dx, tuned=False)),
-                ("PySINDy strong form (PDE-FIND)", lambda: pde_find_estimate(frames, dt, dx)),
-            ):
-                r = peer()
+            a = anra(v.frames[0], dt, dx).diffusivity.item()
+            results["ANRA default"].append((a, time.perf_counter() - t0, True, "", float("nan")))
+            for name, peer in PEERS.items():
+                r = peer(frames, dt, dx)
                 results[name].append((r.diffusivity, r.seconds, r.ok, r.note, r.peak_mb))
         for name, values in results.items():
             estimates = [v[0] if v[2] else float("nan") for v in values]
@@ -143,7 +135,7 @@ def peers_on_paper_case(n_seeds: int, crops: tuple[int | None, ...]) -> list[dic
                     "median_estimate": float(np.nanmedian(estimates)) if errs else float("nan"),
                     "median_abs_err_pct": float(np.median(errs)) if errs else float("nan"),
                     "seconds_per_video": float(np.median([v[1] for v in values])),
-                    "peak_mb": float(np.median([v[4] for v in values])) if len(values[0]) > 4 else None,
+                    "peak_mb": float(np.median([v[4] for v in values])),
                     "ok": f"{sum(v[2] for v in values)}/{len(values)}",
                     "note": values[0][3],
                 }

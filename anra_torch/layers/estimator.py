@@ -43,6 +43,10 @@ _MIN_SIGNIFICANCE = 3.0  # |a| / std_error below this is indistinguishable from 
 _MIN_VALID_PX = 8  # a candidate smoothing must leave at least this many pixels per side
 
 
+def _float64(values: list[float]) -> Tensor:
+    return torch.tensor(values, dtype=torch.float64)
+
+
 def _reliability(den: Tensor, energy: Tensor) -> Tensor:
     """Fraction of the regressor energy that is signal (0 where there is no energy)."""
     return torch.where(energy > 0, den / energy.clamp_min(1e-300), torch.zeros_like(den))
@@ -219,9 +223,9 @@ class ANRAEstimator(nn.Module):
         cross_t = float((self.time.taps * self.time.pair).sum())
         gains = [self._spatial_gains(s) for s in self.smoothers]
         taps_norm2 = float((self.time.taps**2).sum())
-        self.register_buffer("_rate_var", torch.tensor([taps_norm2 * g[2] for g in gains]), persistent=False)
-        self.register_buffer("_lap_var", torch.tensor([pair_norm2 * g[0] for g in gains]), persistent=False)
-        self.register_buffer("_cross_cov", torch.tensor([cross_t * g[1] for g in gains]), persistent=False)
+        self.register_buffer("_rate_var", _float64([taps_norm2 * g[2] for g in gains]), persistent=False)
+        self.register_buffer("_lap_var", _float64([pair_norm2 * g[0] for g in gains]), persistent=False)
+        self.register_buffer("_cross_cov", _float64([cross_t * g[1] for g in gains]), persistent=False)
 
     def _spatial_gains(self, smoother: GaussianSmoothing) -> tuple[float, float, float]:
         """(||Lap o G||^2, <P o G, Lap o G>, ||P o G||^2) for unit dx: noise variance/covariance factors.
@@ -374,10 +378,11 @@ class ANRAEstimator(nn.Module):
         n_masked = (~finite).sum((1, 2, 3))
         fill_low = torch.tensor(-torch.inf, dtype=video.dtype)
         fill_high = torch.tensor(torch.inf, dtype=video.dtype)
-        if bool(n_masked.any()):
-            counts = finite.sum((1, 2, 3)).clamp_min(1)
-            fill = torch.where(finite, video, torch.zeros_like(video)).sum((1, 2, 3)) / counts
-            video = torch.where(finite, video, fill.view(b, 1, 1, 1))
+        # Remove each video's mean (derivatives ignore it): keeps float32 precise on e.g. 300 K scenes,
+        # and fills masked pixels with a neutral value.
+        counts = finite.sum((1, 2, 3)).clamp_min(1)
+        mean = torch.where(finite, video, torch.zeros_like(video)).sum((1, 2, 3)) / counts
+        video = torch.where(finite, video - mean.view(b, 1, 1, 1), torch.zeros_like(video))
         if self.noise_sd is not None:
             noise_sd = torch.full((b,), float(self.noise_sd), dtype=video.dtype)
         else:
@@ -471,5 +476,5 @@ class ANRAEstimator(nn.Module):
     def extra_repr(self) -> str:
         return (
             f"mode={self.mode!r}, smoothing={self.sigmas}, eiv_correction={self.eiv_correction}, "
-            f"window={self.window}"
+            f"noise_sd={self.noise_sd}, window={self.window}, strict={self.strict}"
         )
