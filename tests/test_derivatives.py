@@ -598,3 +598,36 @@ def test_gaussian_smoothing_errors() -> None:
         GaussianSmoothing(-1.0)
     with pytest.raises(ValueError, match=r"need frames of at least 9 x 9 px for a 9-px kernel"):
         GaussianSmoothing(1.0)(torch.zeros(8, 20))
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: Laplacian(5, family="central"),
+        lambda: Laplacian(5),
+        lambda: Laplacian(3),
+        lambda: Laplacian(9),
+        lambda: Laplacian(7).partner,
+    ],
+    ids=["central5", "holoborodko5", "five-point", "holoborodko9", "partner7"],
+)
+def test_spatial_adjoint_is_the_exact_transpose(make) -> None:
+    op = make()
+    u = torch.randn(2, 3, 30, 31, dtype=F64)
+    dx = torch.tensor([0.3, 0.7], dtype=F64)
+    out = op(u, dx) if op.order else op(u)
+    y = torch.randn_like(out)
+    back = op.adjoint(y, dx if op.order else 1.0)
+    assert back.shape == u.shape
+    torch.testing.assert_close((back * u).sum(), (y * out).sum(), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("sigma", [0.0, 1.0, 2.5, 4.0])
+def test_gaussian_adjoint_is_the_exact_transpose(sigma: float) -> None:
+    smooth = GaussianSmoothing(sigma)
+    u = torch.randn(2, 40, 41, dtype=F64)
+    out = smooth(u)
+    y = torch.randn_like(out)
+    torch.testing.assert_close((smooth.adjoint(y) * u).sum(), (y * out).sum(), rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="border='crop'"):
+        GaussianSmoothing(sigma or 1.0, border="reflect").adjoint(y)

@@ -15,7 +15,7 @@ same filters, so the balance stays exact for the filtered field:
 With several smoothing candidates (``smoothing="auto"``) each video takes the one whose noise-propagated
 standard error is smallest: smoothing does not bias the estimate (it acts on both sides), so the least
 noisy choice is the best one. The standard error is exact for white noise: it pushes the estimator's
-residual weights back through the composite linear filters (an adjoint computed by autograd).
+residual weights back through the transposed filters.
 """
 
 from __future__ import annotations
@@ -332,16 +332,13 @@ class ANRAEstimator(nn.Module):
     ) -> Tensor:
         """``||A^T lever||`` for the linear map A: frames -> U - a L (unit white noise -> its sd).
 
-        The spatial part of the adjoint comes from autograd on zero probes, the time part from the
-        transposed Conv3d of :meth:`TimeDerivative.adjoint`.
+        Pushes ``lever`` back through the transposed filters: partner, Laplacian, smoothing, time.
         """
         lever = lever.detach()
         estimate = estimate.detach().view(-1, 1, 1, 1)
-        with torch.enable_grad():
-            probes = [torch.zeros_like(t, requires_grad=True) for t in time_terms]
-            rate, lap = self._spatial_terms(*probes, dx.detach(), smoother)
-            grads = torch.autograd.grad((lever * (rate - estimate * lap)).sum(), probes)
-        adjoint = self.time.adjoint(grads[0], grads[1], dt.detach())
+        rate_back = smoother.adjoint(self.laplacian.partner.adjoint(lever, 1.0))
+        lap_back = smoother.adjoint(self.laplacian.adjoint(-estimate * lever, dx.detach()))
+        adjoint = self.time.adjoint(rate_back, lap_back, dt.detach())
         return adjoint.pow(2).sum((1, 2, 3)).sqrt()
 
     def _box(self, m: Tensor) -> Tensor:
