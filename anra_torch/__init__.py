@@ -22,6 +22,8 @@ from anra_torch.layers import (
     second_derivatives,
     time_derivative,
 )
+from anra_torch.diagnosis import Diagnosis, diagnose_terms
+from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
 from anra_torch.noise import estimate_noise_sd
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
@@ -32,6 +34,9 @@ __all__ = [
     "ANRAEstimator",
     "ANRAResult",
     "AUTO_SMOOTHING",
+    "Diagnosis",
+    "EFFECTS",
+    "Effect",
     "GaussianSmoothing",
     "Gradient",
     "Laplacian",
@@ -40,16 +45,19 @@ __all__ = [
     "SyntheticVideo",
     "TimeDerivative",
     "blobs_video",
+    "diagnose_terms",
     "estimate_noise_sd",
     "gaussian_blob",
     "gaussian_blobs",
     "gaussian_smooth",
     "gradient",
     "heat_spectral",
+    "hidden_effect_video",
     "laplacian",
     "paper_video",
     "rtc_attention",
     "second_derivatives",
+    "simulate_effects",
     "simulate_heat",
     "time_derivative",
 ]
