@@ -5,6 +5,8 @@ derivatives on fixed kernels, RTC attention, and a direct estimator of the therm
 ``dT/dt = a (d11 + d22) T`` that never solves the PDE. Units: mm, s, mm^2/s.
 """
 
+from anra_torch.diagnosis import Diagnosis, diagnose_terms
+from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
 from anra_torch.layers import (
     AUTO_SMOOTHING,
     ANRAEstimator,
@@ -22,8 +24,6 @@ from anra_torch.layers import (
     second_derivatives,
     time_derivative,
 )
-from anra_torch.diagnosis import Diagnosis, diagnose_terms
-from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
 from anra_torch.noise import estimate_noise_sd
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
