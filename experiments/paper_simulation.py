@@ -285,7 +285,7 @@ def sweep_figure(sweep: dict[str, list[dict[str, object]]], path: Path) -> None:
         ax.set(xlabel=units[axis], ylabel="error of a [%] (median, 5-95 %)")
         if axis == "noise_sd":
             ax.set_xscale("log")
-        ax.set_yscale("symlog", linthresh=1.0)
+        ax.set_yscale("symlog", linthresh=0.01)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
