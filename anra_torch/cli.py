@@ -385,6 +385,136 @@ def _run_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------------- diagnose
+def _signed(value: float, spec: str) -> str:
+    """``+ 0.20`` or ``- 0.20``: a term joined to the previous one."""
+    return f"{'-' if value < 0 else '+'} {abs(value):{spec}}"
+
+
+def _equation(a: float, effects: Sequence[Any]) -> str:
+    """A human-readable ``dT/dt = ...`` of the extended model (``effects``: :class:`Effect` s)."""
+    byname = {e.name: e.params for e in effects}
+    if "anisotropy" in byname:
+        p = byname["anisotropy"]
+        diffusion = f"{p['a_x']:.3f} T_xx + {p['a_y']:.3f} T_yy {_signed(2 * p['a_xy'], '.3f')} T_xy"
+    elif "heterogeneity" in byname:
+        p = byname["heterogeneity"]
+        diffusion = (
+            f"div(a grad T) [a = {p['a_inside']:.3f} in the disc r < {p['radius']:.2f} mm around "
+            f"({p['x']:.2f}, {p['y']:.2f}) mm, {p['a_outside']:.3f} outside]"
+        )
+    elif "nonlinear_diffusion" in byname:
+        p = byname["nonlinear_diffusion"]
+        diffusion = f"div({p['a0']:.3f} (1 + {p['beta']:.3g} (T - {p['T_ref']:.1f})) grad T)"
+    else:
+        diffusion = f"{a:.3f} Lap T"
+    terms = [diffusion]
+    if "linear_loss" in byname:
+        p = byname["linear_loss"]
+        terms.append(f"{_signed(-p['b'], '.2f')} (T - {p['T_ref']:.1f})")
+    if "advection" in byname:
+        p = byname["advection"]
+        terms.append(f"- ({p['vx']:.2f} dT/dx {_signed(p['vy'], '.2f')} dT/dy)")
+    if "source" in byname:
+        p = byname["source"]
+        terms.append(
+            f"+ {p['rate']:.2f} G(width {p['width']:.2f} mm, ({p['x0']:.2f}, {p['y0']:.2f}) -> "
+            f"({p['x1']:.2f}, {p['y1']:.2f}) mm)"
+        )
+    return "dT/dt = " + " ".join(terms)
+
+
+def _clean_json(value: Any) -> Any:
+    """NaN and infinities -> None, recursively (JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {k: _clean_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_clean_json(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any]:
+    """The ``diagnose --json`` object and the :class:`GainResult` it was made from."""
+    from anra_torch.prediction import assess_gain, extended_effects, forecast_errors, simulate_model
+
+    frames = video.frames
+    try:
+        result = assess_gain(frames, video.dt, video.dx, fit_fraction=args.fit_fraction)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{video.source}: {err}") from err
+    diagnosis, split = result.diagnosis, result.split
+    initial, horizon = frames[split].double(), frames.shape[0] - split
+    per_effect = []
+    for effect, record in zip(result.effects, diagnosis.effects, strict=True):
+        if len(result.effects) == 1:
+            gain = result.gain
+        else:
+            alone = simulate_model(
+                initial, diagnosis, dt=video.dt, dx=video.dx, n_frames=horizon, effects=(effect,)
+            )[1:]
+            _, rmse, _ = forecast_errors(alone, result.measured, result.margin)
+            gain = 1.0 - rmse / result.base_rmse if result.base_rmse > 0 else 0.0
+        per_effect.append({"name": record["name"], "params": dict(record["params"]), "gain": gain})
+    diagnosed = extended_effects(diagnosis)  # timed from the first frame (result.effects: from the split)
+    params: dict[str, Any] = {"a": diagnosis.base}
+    params.update({e.name: dict(e.params) for e in diagnosed})
+    summary = {
+        "base": {"diffusivity": diagnosis.a_plain, "prediction_rmse": result.base_rmse},
+        "effects": per_effect,
+        "extended": {
+            "equation": _equation(diagnosis.base, diagnosed),
+            "params": params,
+            "prediction_rmse": result.extended_rmse,
+        },
+        "gain": result.gain,
+        "noise_floor": result.noise_floor,
+    }
+    return _clean_json(summary), result
+
+
+def _run_diagnose(args: argparse.Namespace) -> int:
+    try:
+        if not 0 < args.fit_fraction < 1:
+            raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
+        video = load_video(args.video, dt=args.dt, dx=args.dx)
+        if video.dx is None:
+            raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
+        summary, result = _diagnose_summary(video, args)
+    except (ValueError, TypeError, OSError) as err:
+        if args.json:  # batch users keep a row
+            print(json.dumps({"path": str(args.video), "error": _one_line(err)}))
+        raise
+    if args.json:
+        print(json.dumps(summary, allow_nan=False))
+    else:
+        base, ext = summary["base"], summary["extended"]
+        print(f"{video.source}")
+        print(
+            f"  plain heat equation: a = {base['diffusivity']:.4g} mm^2/s, forecast RMSE "
+            f"{base['prediction_rmse']:.4g} (noise floor {summary['noise_floor']:.4g} {video.unit})"
+        )
+        if summary["effects"]:
+            found = ", ".join(f"{e['name']} (gain {e['gain']:.2f})" for e in summary["effects"])
+            print(f"  effects: {found}")
+            print(f"  extended: {ext['equation']}")
+            print(f"  extended forecast RMSE {ext['prediction_rmse']:.4g}, gain {summary['gain']:.3f}")
+        else:
+            print("  no effect beyond heat diffusion found (gain 0)")
+        print(
+            f"  diagnosed frames 0-{result.split}, forecast {result.measured.shape[0]} held-out frames "
+            f"in {result.elapsed:.1f} s"
+        )
+    if args.report is not None:
+        from anra_torch.report import write_diagnosis_report
+
+        path = write_diagnosis_report(args.report, video, result.diagnosis, result)
+        if not args.json:
+            print(f"  report: {path}")
+    return 0
+
+
 # ----------------------------------------------------------------------------------------- demo
 def _run_demo(args: argparse.Namespace) -> int:
     if importlib.util.find_spec("matplotlib") is None:
@@ -555,6 +685,40 @@ def build_parser() -> argparse.ArgumentParser:
     )
     simulate.add_argument("-o", "--out", required=True, metavar="OUT.npz", help="output file (.npz)")
     simulate.set_defaults(run=_run_simulate)
+
+    diagnose = commands.add_parser(
+        "diagnose",
+        help="find hidden effects and test whether they forecast held-out frames better",
+        description="Diagnose which effects beyond heat diffusion (linear_loss, source, advection, "
+        "anisotropy, heterogeneity, nonlinear_diffusion) act in the first part of a video, then forecast "
+        "the rest from the measured frame at the split with the plain heat equation and with the extended "
+        "model (RK4, zero-flux edges) and compare their RMSE on the interior. gain = 1 - RMSE_extended / "
+        "RMSE_plain; the noise floor is the sensor noise sd. Exit status 2 on bad input.",
+    )
+    diagnose.add_argument("video", metavar="VIDEO", help=f"video file ({formats}); frames (T, H, W)")
+    diagnose.add_argument(
+        "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the file)"
+    )
+    diagnose.add_argument(
+        "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the file)"
+    )
+    diagnose.add_argument(
+        "--fit-fraction",
+        type=_number("fraction of the frames", positive=True),
+        default=0.6,
+        metavar="F",
+        help="fraction of the frames diagnosed, in (0, 1); the rest is forecast (default 0.6)",
+    )
+    diagnose.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object: base, effects (with per-effect gain), extended, gain, noise_floor "
+        "(an object with 'error' on failure)",
+    )
+    diagnose.add_argument(
+        "--report", metavar="DIR", help="write report.md with figures (forecasts, residual, RMSE) to DIR"
+    )
+    diagnose.set_defaults(run=_run_diagnose)
 
     demo = commands.add_parser(
         "demo",

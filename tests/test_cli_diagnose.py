@@ -1,0 +1,114 @@
+"""Tests for ``anra diagnose``: the JSON object, the human summary, --report and one-line errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from anra_torch.cli import main
+from anra_torch.effects import hidden_effect_video
+from anra_torch.io import save_npz
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def loss_video(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    video = hidden_effect_video(["linear_loss", "advection"], seed=1, size=64, duration=3.0)
+    return video.to_npz(tmp_path_factory.mktemp("diagnose") / "loss.npz")
+
+
+def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "diagnose", loss_video, "--json")
+    assert (code, err) == (0, "")
+    assert out.count("\n") == 1
+    record = json.loads(out)
+    assert set(record) == {"base", "effects", "extended", "gain", "noise_floor"}
+    assert set(record["base"]) == {"diffusivity", "prediction_rmse"}
+    assert set(record["extended"]) == {"equation", "params", "prediction_rmse"}
+    assert sorted(e["name"] for e in record["effects"]) == ["advection", "linear_loss"]
+    for effect in record["effects"]:
+        assert set(effect) == {"name", "params", "gain"}
+        assert effect["gain"] > 0.05  # each alone already helps (0.07 and 0.5 here)
+    assert set(record["extended"]["params"]) == {"a", "advection", "linear_loss"}
+    assert set(record["extended"]["params"]["linear_loss"]) == {"b", "T_ref"}
+    equation = record["extended"]["equation"]
+    assert (
+        equation.startswith("dT/dt = 0.1")
+        and "Lap T - 0.22 (T - 26.8) - (" in equation
+        and "dT/dy)" in equation
+    )
+    assert record["gain"] > 0.5
+    assert record["noise_floor"] < record["extended"]["prediction_rmse"] < 1.2 * record["noise_floor"]
+    assert record["base"]["prediction_rmse"] > 2 * record["extended"]["prediction_rmse"]
+
+
+def test_human_output_and_report(
+    loss_video: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out_dir = tmp_path / "report"
+    code, out, err = run(capsys, "diagnose", loss_video, "--fit-fraction", "0.5", "--report", out_dir)
+    assert (code, err) == (0, "")
+    assert "plain heat equation: a = " in out and "extended: dT/dt = " in out and "gain" in out
+    assert f"report: {out_dir / 'report.md'}" in out
+    for name in ("report.md", "forecast.png", "maps.png", "rmse.png"):
+        assert (out_dir / name).stat().st_size > 1000
+    text = (out_dir / "report.md").read_text()
+    assert "linear_loss" in text and "![RMSE against time](rmse.png)" in text
+
+
+@pytest.mark.slow
+def test_report_draws_source_path(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = hidden_effect_video(["source"], seed=0, size=64, duration=3.0).to_npz(tmp_path / "s.npz")
+    code, out, err = run(capsys, "diagnose", path, "--json", "--report", tmp_path / "r")
+    assert (code, err) == (0, "")
+    assert json.loads(out)["effects"][0]["name"] == "source"
+    assert "source path (" in (tmp_path / "r" / "report.md").read_text()
+
+
+def test_pure_video_has_no_effects(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = hidden_effect_video([], seed=0, size=64, duration=3.0).to_npz(tmp_path / "pure.npz")
+    code, out, err = run(capsys, "diagnose", path, "--json")
+    record = json.loads(out)
+    assert (code, err) == (0, "")
+    assert record["effects"] == [] and record["gain"] == 0.0
+    assert record["extended"]["params"] == {"a": record["base"]["diffusivity"]}
+    assert record["extended"]["equation"].endswith("Lap T")
+
+
+@pytest.mark.parametrize("as_json", [False, True])
+def test_too_short_video_is_one_line_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], as_json: bool
+) -> None:
+    video = hidden_effect_video([], seed=0, size=32, duration=0.2)  # 7 frames
+    path = video.to_npz(tmp_path / "short.npz")
+    code, out, err = run(capsys, "diagnose", path, *(["--json"] if as_json else []))
+    assert code == 2
+    assert err.startswith("anra: error: ") and err.count("\n") == 1
+    assert "fit_fraction=0.6: 7 frames" in err
+    if as_json:
+        record = json.loads(out)
+        assert set(record) == {"path", "error"} and "7 frames" in record["error"]
+    else:
+        assert out == ""
+
+
+def test_no_activity_is_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    frames = np.random.default_rng(0).normal(30.0, 0.1, (40, 40, 40))
+    path = save_npz(tmp_path / "noise.npz", frames, dt=0.05, dx=0.5)
+    code, out, err = run(capsys, "diagnose", path, "--json")
+    assert code == 2 and err.startswith("anra: error: ") and err.count("\n") == 1
+    assert "no thermal activity" in json.loads(out)["error"]
+
+
+@pytest.mark.parametrize("value", ["0", "1.5", "x"])
+def test_bad_fit_fraction(tmp_path: Path, capsys: pytest.CaptureFixture[str], value: str) -> None:
+    code, out, err = run(capsys, "diagnose", tmp_path / "missing.npz", "--fit-fraction", value)
+    assert code == 2 and err.startswith("anra: error: ") and err.count("\n") == 1 and "fit" in err
