@@ -25,6 +25,7 @@ from anra_torch.layers import (
     time_derivative,
 )
 from anra_torch.noise import estimate_noise_sd
+from anra_torch.prediction import GainResult, assess_gain
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
 
@@ -37,6 +38,7 @@ __all__ = [
     "Diagnosis",
     "EFFECTS",
     "Effect",
+    "GainResult",
     "GaussianSmoothing",
     "Gradient",
     "Laplacian",
@@ -44,6 +46,7 @@ __all__ = [
     "SecondDerivatives",
     "SyntheticVideo",
     "TimeDerivative",
+    "assess_gain",
     "blobs_video",
     "diagnose_terms",
     "estimate_noise_sd",

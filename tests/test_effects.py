@@ -685,3 +685,20 @@ def test_hidden_video_npz_round_trip_and_crop(tmp_path) -> None:  # noqa: ANN001
     assert het.params["radius"] == video.effects[1].params["radius"]
     with pytest.raises(ValueError, match="crop window .* must lie inside the 48 x 48 px frame"):
         video.crop(40, 0, 16, 16)
+
+
+def test_heterogeneity_sample_puts_the_disc_edge_near_the_first_hot_spot() -> None:
+    # The edge must lie within two hot-spot widths (sigma) of the spot, or no heat crosses it in the video.
+    for seed in range(20):
+        video = hidden_effect_video(["heterogeneity"], seed=seed, size=64, duration=0.1)
+        p = video.effects[0].params
+        rng = np.random.default_rng(seed)  # replay the hot-spot draws of hidden_effect_video
+        rng.integers(1, 3)  # number of spots
+        rng.uniform(5.0, 20.0)  # rise of the first
+        sigma = rng.uniform(3.0, 8.0)
+        margin = min(2.5 * sigma + 10.0, 32.0)
+        sx, sy = rng.uniform(margin, 64 - margin), rng.uniform(margin, 64 - margin)
+        centre = math.hypot(p["x"] / 0.5 - sx, p["y"] / 0.5 - sy)
+        radius = p["radius"] / 0.5
+        assert 8.0 <= radius <= 20.0 and centre <= 0.5 * radius + 1e-9
+        assert abs(radius - centre) <= 2.0 * sigma + 1e-9, (seed, radius, centre, sigma)
