@@ -1,4 +1,4 @@
-"""Command line: ``anra estimate``, ``anra diagnose``, ``anra simulate``, ``anra demo`` (also ``python -m anra_torch``).
+"""Command line: ``anra estimate``, ``diagnose``, ``simulate``, ``demo`` (also ``python -m anra_torch``).
 
 Units everywhere: lengths in mm, times in s, diffusivity in mm^2/s, temperatures in the data's own unit.
 Every failure the user can cause (bad file, bad flag, a video without thermal activity) ends in one line
