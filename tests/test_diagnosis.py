@@ -173,7 +173,9 @@ def test_hidden_effect_is_identified_with_its_parameters(name: str) -> None:
 @pytest.mark.slow
 def test_a_heterogeneity_the_heat_never_reaches_is_not_claimed() -> None:
     """Heat stays inside the disc: the video is pure heat transfer at a_inside, and says so."""
-    video = video_of(("heterogeneity",), seed=1)
+    centre = SIZE * 0.5 / 2  # mm: a disc over almost the whole 0.5 mm/px frame, far beyond the heat's reach
+    disc = {"x": centre, "y": centre, "radius": 0.45 * SIZE * 0.5}
+    video = video_of(("heterogeneity",), seed=1, params={"heterogeneity": disc})
     d = diagnose(video)
     assert d.effects == []
     assert d.base == pytest.approx(video.effects[0].params["a_inside"], rel=0.03)
