@@ -555,17 +555,24 @@ def test_dead_pixel_at_the_blob_centre(paper96_001: SyntheticVideo) -> None:
     assert abs(float(result.diffusivity) / A_PAPER - 1) < 0.01  # measured 0.03 %
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="a finite stuck pixel (reads 0 in every frame) is neither masked nor seen by std_error: its "
-    "Laplacian spike inflates the regressor energy, auto smoothing picks 1 px as 'least noisy' and returns "
-    "-93 % with a std_error of 0.008 % (4 px gives -0.3 %)",
-)
 def test_stuck_pixel_at_the_blob_centre(paper96_001: SyntheticVideo) -> None:
+    # Unmasked, this dead element gave -93 % (its Laplacian spike dominated the fit); it is now masked.
     frames = paper96_001.frames[0].clone()
     frames[:, 48, 48] = 0.0  # a dead element that reads a constant instead of NaN
+    frames[:, 10, 70] = 35.0  # and a saturated one
     result = ANRAEstimator()(frames, paper96_001.dt, paper96_001.dx)
     assert abs(float(result.diffusivity) / A_PAPER - 1) < 0.01
+    assert int(result.n_masked) == 2 * frames.shape[0]
+
+
+def test_a_static_noiseless_background_is_not_masked() -> None:
+    # Many exactly constant pixels are a static region, not dead elements: nothing is masked.
+    t = torch.arange(20, dtype=F64) / 27
+    video = gaussian_blob(t, shape=(64, 64), dx=0.1, a=0.2, peak=3.0, sigma=0.4) + 30.0
+    video[:, :, :8] = 30.0  # a static strip (12.5 % of the pixels) where the tails are below 1e-13 anyway
+    result = ANRAEstimator(smoothing=1.0, noise_sd=0.0)(video, 1 / 27, 0.1)
+    assert int(result.n_masked) == 0
+    assert float(result.diffusivity) == pytest.approx(0.2, rel=5e-3)
 
 
 def test_constant_video() -> None:

@@ -47,6 +47,25 @@ def _float64(values: list[float]) -> Tensor:
     return torch.tensor(values, dtype=torch.float64)
 
 
+_MAX_STUCK_FRACTION = 0.01  # more constant pixels than this is a static region, not dead elements
+
+
+def _stuck_pixels(video: Tensor, finite: Tensor) -> Tensor:
+    """Dead elements: finite pixels constant in time while the rest of the frame changes, ``(B, T, H, W)``.
+
+    A real scene seen through sensor noise never holds a pixel exactly constant; a few such pixels are
+    dead or saturated elements whose Laplacian spikes would otherwise dominate the fit. Many constant
+    pixels (a noiseless static background) are left alone.
+    """
+    big = torch.finfo(video.dtype).max
+    high = torch.where(finite, video, torch.full_like(video, -big)).amax(1)
+    low = torch.where(finite, video, torch.full_like(video, big)).amin(1)
+    constant = (high == low) & finite.all(1)  # (B, H, W)
+    fraction = constant.flatten(1).float().mean(1)
+    dead = constant & (fraction <= _MAX_STUCK_FRACTION).view(-1, 1, 1)
+    return dead.unsqueeze(1).expand_as(video)
+
+
 def _reliability(den: Tensor, energy: Tensor) -> Tensor:
     """Fraction of the regressor energy that is signal (0 where there is no energy)."""
     return torch.where(energy > 0, den / energy.clamp_min(1e-300), torch.zeros_like(den))
@@ -66,7 +85,8 @@ class ANRAResult:
         smoothing: spatial Gaussian sigma used (px), ``(B,)``.
         reliability: fraction of the regressor energy that is signal, not noise (1 is noiseless), ``(B,)``.
         valid: False for a video without measurable thermal activity, ``(B,)``.
-        n_masked: number of non-finite input pixels that were masked, ``(B,)``.
+        n_masked: number of pixel values masked (non-finite, or dead elements constant in every frame
+            while the scene changes), ``(B,)``.
         field: windowed diffusivity map aligned with the input frames, ``(B, H, W)`` (NaN where
             ``confidence == 0``: the border the filters cannot reach, or windows without signal), or None.
         confidence: reliability of each window in [0, 1], ``(B, H, W)``, or None.
@@ -356,7 +376,8 @@ class ANRAEstimator(nn.Module):
 
         Args:
             frames: temperatures (any linear unit), ``(T, H, W)`` or ``(B, T, H, W)``; integer counts are
-                converted to floats; non-finite pixels are masked (and counted in ``n_masked``).
+                converted to floats; non-finite pixels, and up to 1 % of pixels that are exactly constant
+                in every frame (dead elements), are masked and counted in ``n_masked``.
             dt: frame period in s, float or ``(B,)``.
             dx: pixel size in mm, float or ``(B,)``.
 
@@ -372,6 +393,7 @@ class ANRAEstimator(nn.Module):
         dt_ = as_spacing(dt, name="dt", unit="s", batch=b, like=video)
         dx_ = as_spacing(dx, name="dx", unit="mm", batch=b, like=video)
         finite = torch.isfinite(video)
+        finite = finite & ~_stuck_pixels(video, finite)
         n_masked = (~finite).sum((1, 2, 3))
         fill_low = torch.tensor(-torch.inf, dtype=video.dtype)
         fill_high = torch.tensor(torch.inf, dtype=video.dtype)
