@@ -45,6 +45,17 @@ DEMO_PAPER_ESTIMATE = 0.189  # mm^2/s, what El-Kebir et al. report for it
 DEMO_WINDOW = 15  # px, windowed field in the demo report
 
 
+def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
+    """VIDEO, --dt and --dx, shared by the commands that read a video."""
+    parser.add_argument("video", metavar="VIDEO", help=f"video file ({formats}); frames (T, H, W)")
+    parser.add_argument(
+        "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the file)"
+    )
+    parser.add_argument(
+        "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the file)"
+    )
+
+
 class _UsageError(Exception):
     """A command-line mistake found by argparse (reported in one line, exit 2)."""
 
@@ -583,13 +594,7 @@ def build_parser() -> argparse.ArgumentParser:
         description=f"Estimate the diffusivity a (mm^2/s) of one video ({formats}). The spatial smoothing is "
         "chosen from the data; exit status 2 when no diffusivity can be estimated.",
     )
-    estimate.add_argument("video", metavar="VIDEO", help=f"video file ({formats}); frames (T, H, W)")
-    estimate.add_argument(
-        "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the file)"
-    )
-    estimate.add_argument(
-        "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the file)"
-    )
+    _add_video_arguments(estimate, formats)
     estimate.add_argument(
         "--mode",
         choices=MODES,
@@ -695,13 +700,7 @@ def build_parser() -> argparse.ArgumentParser:
         "model (RK4, zero-flux edges) and compare their RMSE on the interior. gain = 1 - RMSE_extended / "
         "RMSE_plain; the noise floor is the sensor noise sd. Exit status 2 on bad input.",
     )
-    diagnose.add_argument("video", metavar="VIDEO", help=f"video file ({formats}); frames (T, H, W)")
-    diagnose.add_argument(
-        "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the file)"
-    )
-    diagnose.add_argument(
-        "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the file)"
-    )
+    _add_video_arguments(diagnose, formats)
     diagnose.add_argument(
         "--fit-fraction",
         type=_number("fraction of the frames", positive=True),

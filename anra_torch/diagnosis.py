@@ -59,6 +59,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from anra_torch._validation import as_video
 from anra_torch.layers.derivatives import (
     GaussianSmoothing,
     Gradient,
@@ -696,18 +697,12 @@ class Diagnosis:
 
 # --------------------------------------------------------------------------------------------- API
 def _as_frames(frames: object) -> Tensor:
-    if not isinstance(frames, Tensor):
-        try:
-            frames = torch.as_tensor(frames)
-        except (TypeError, ValueError, RuntimeError) as err:
-            raise TypeError(f"frames must be a tensor or array, got {type(frames).__name__}") from err
-    if frames.dtype == torch.bool or frames.is_complex():
-        raise TypeError(f"frames must hold real temperatures, got dtype {frames.dtype}")
-    if frames.ndim != 3:
+    video, batched = as_video(frames, name="frames")
+    if batched:
         raise ValueError(
-            f"frames must have shape (T, H, W), got {tuple(frames.shape)}; diagnose one video per call"
+            f"frames must have shape (T, H, W), got {tuple(video.shape)}; diagnose one video per call"
         )
-    video = frames.detach().to(_F64)
+    video = video[0].detach().to(_F64)
     bad = int((~torch.isfinite(video)).sum())
     if bad:
         raise ValueError(f"frames must be finite, got {bad} non-finite values; crop or fill them first")
