@@ -321,8 +321,11 @@ class ANRAEstimator(nn.Module):
         num_map = weights * (rate * lap - cov) - rate_var * slope * lap
         den_map = weights * (lap * lap - var)
         energy_map = weights * lap * lap
-        safe_lap = torch.where(lap == 0, torch.ones_like(lap), lap)
-        ratio_map = torch.where(lap == 0, torch.zeros_like(lap), weights * rate / safe_lap)
+        if self.mode == "ratio":  # the paper's pointwise ratios; lsq never needs them
+            safe_lap = torch.where(lap == 0, torch.ones_like(lap), lap)
+            ratio_map = torch.where(lap == 0, torch.zeros_like(lap), weights * rate / safe_lap)
+        else:
+            ratio_map = torch.zeros_like(lap[..., :1, :1])
         num, den = num_map.sum((-2, -1)), den_map.sum((-2, -1))
         energy, ratio = energy_map.sum((-2, -1)), ratio_map.sum((-2, -1))
         if self.mode == "lsq":
