@@ -9,15 +9,19 @@ both forecasts with frames the diagnosis never saw. The split: the diagnosis use
 index) and predict frames ``s + 1 .. T - 1``.
 
 Errors are taken on the interior (``diagnosis.margin`` px from each edge are left out: there the zero-flux
-boundary is an assumption, not a measurement). A perfect model's RMSE against noisy frames is the sensor
-noise sd (:attr:`GainResult.noise_floor`), plus the part of the initial frame's noise that the
-simulation has not yet smoothed away (early held-out frames sit a little above the floor).
+boundary is an assumption, not a measurement) and at the **evaluation scale**: the spatial Gaussian the
+diagnosis identified the model at (``diagnosis.smoothing`` px, or ``scale_px``). Both forecasts start from
+the measured split frame smoothed by that Gaussian, and are compared with the held-out frames smoothed by
+the same Gaussian. For a linear model with constant coefficients smoothing commutes with the dynamics, so
+this leaves the model error unchanged (the consistency principle of the estimator) while it removes most
+of the white sensor noise, which no model can forecast. The noise floor is the RMSE a perfect model
+would reach at that scale: the smoothed noise of the held-out frames plus the smoothed noise of the
+split frame carried forward by the plain model's heat kernel.
+The same quantities against the raw frames (forecasts from the raw split frame, noise floor = sensor sd)
+are kept as ``*_raw``: there the noise caps the gain: a model error ``e`` against noise ``sd`` gives at most
+``1 - sd / sqrt(sd^2 + e^2)``.
 
-Measured on ``hidden_effect_video(name, seed=0..4, size=64, duration=3.0)`` (noise 1 % of the rise; 55
-frames diagnosed, 36 forecast): median gain 0.52 for ``linear_loss``, 0.68 ``advection``, 0.56
-``source``; extended RMSE 1.08-1.12 x the noise floor; pure videos: no effect, gain 0, plain RMSE
-1.10-1.12 x the floor. Anisotropy, heterogeneity and nonlinear diffusion change a 1.2 s forecast by less
-than the noise: gain within +-0.05 of 0 at 1 % noise (0.35-0.48, 0.28-0.32 and 0.12-0.23 at 0.1 %).
+Measured with ``python experiments/diagnosis_benchmark.py`` (README): see its table.
 About 1-5 s per video on one core.
 """
 
@@ -31,9 +35,10 @@ from torch import Tensor
 
 from anra_torch.diagnosis import Diagnosis, diagnose_terms
 from anra_torch.effects import EFFECTS, Effect, simulate_effects
-from anra_torch.layers.derivatives import TimeDerivative
+from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
+from anra_torch.layers.stencils import gaussian_taps
 
-__all__ = ["GainResult", "assess_gain", "extended_effects", "simulate_model"]
+__all__ = ["AT_FLOOR", "GainResult", "assess_gain", "extended_effects", "simulate_model"]
 
 _F64 = torch.float64
 
@@ -156,18 +161,31 @@ class GainResult:
         base_a: ``a_plain`` (mm^2/s), the plain model's diffusivity.
         extended_a: ``diagnosis.base`` (mm^2/s), the extended model's base diffusivity.
         times: times of the held-out frames in s from the first frame.
-        rmse_base: per held-out frame RMSE of the plain forecast (data units), interior pixels.
+        rmse_base: per held-out frame RMSE of the plain forecast (data units), interior pixels, at the
+            evaluation scale.
         rmse_extended: the same for the extended forecast.
-        base_rmse: RMSE of the plain forecast over all held-out frames (interior).
+        base_rmse: RMSE of the plain forecast over all held-out frames (interior, evaluation scale).
         extended_rmse: the same for the extended forecast.
-        base_sse: the paper's Problem-1 error, sum of squared errors over the held-out interior.
+        base_sse: the paper's Problem-1 error, sum of squared errors over the held-out interior
+            (evaluation scale).
         extended_sse: the same for the extended forecast.
         gain: ``1 - extended_rmse / base_rmse`` (0 when no effect was found).
-        noise_floor: the diagnosis' noise sd: the RMSE a perfect model would reach against noisy frames.
+        noise_floor: the RMSE a perfect model would reach at the evaluation scale (data units).
         predicted_base: the plain forecast on the full frame.
         predicted_extended: the extended forecast on the full frame.
-        measured: the held-out measured frames.
+        measured: the held-out measured frames at the evaluation scale (smoothed).
         margin: pixels left out at each edge.
+        scale_px: the evaluation scale, a Gaussian sigma in px (0: raw frames).
+        base_rmse_raw: RMSE of the plain forecast against the raw held-out frames (interior).
+        extended_rmse_raw: the same for the extended forecast.
+        gain_raw: ``1 - extended_rmse_raw / base_rmse_raw`` (0 when no effect was found).
+        noise_floor_raw: the sensor noise sd, the least RMSE against raw frames.
+        effect_gains: each effect's own gain, ``1 - rmse_with_it_alone / base_rmse`` (evaluation scale),
+            in the order of ``effects`` (the whole gain when there is one effect).
+        gain_above_floor: the fraction of the plain model's error above the noise floor that the
+            extension removes, ``1 - e_extended / e_base`` with ``e = sqrt(max(rmse^2 - floor^2, 0))``
+            (evaluation scale); 0 when no effect was found or when the plain forecast is within
+            :data:`AT_FLOOR` of the floor (nothing measurable to gain).
         elapsed: seconds spent (diagnosis and both simulations).
 
     Shape:
@@ -193,11 +211,52 @@ class GainResult:
     predicted_extended: Tensor
     measured: Tensor
     margin: int
+    scale_px: float = 0.0
+    base_rmse_raw: float = math.nan
+    extended_rmse_raw: float = math.nan
+    gain_raw: float = 0.0
+    noise_floor_raw: float = math.nan
+    gain_above_floor: float = 0.0
+    effect_gains: tuple[float, ...] = ()
     elapsed: float = 0.0
 
 
 def _interior(video: Tensor, margin: int) -> Tensor:
     return video[..., margin : video.shape[-2] - margin, margin : video.shape[-1] - margin]
+
+
+AT_FLOOR = 1.1
+"""A plain forecast whose RMSE is below ``AT_FLOOR`` times the noise floor has no measurable model error:
+on pure heat-transfer videos the ratio is 0.97-1.03 (5 videos, 64-128 px, tests)."""
+
+
+def _gain_above_floor(base_rmse: float, extended_rmse: float, floor: float) -> float:
+    """``1 - e_extended / e_base`` with ``e = sqrt(max(rmse^2 - floor^2, 0))``; 0 at the floor."""
+    if base_rmse < AT_FLOOR * floor:
+        return 0.0
+    excess_base = math.sqrt(base_rmse**2 - floor**2)
+    excess_ext = math.sqrt(max(extended_rmse**2 - floor**2, 0.0))
+    return 1.0 - excess_ext / excess_base
+
+
+def _white_gain(sigma_px: float) -> float:
+    """Variance factor of white noise through a 2-D Gaussian of ``sigma_px`` (sum of squared weights)."""
+    return float(gaussian_taps(sigma_px).pow(2).sum()) ** 2
+
+
+def _forecast_floor(diagnosis: Diagnosis, scale_px: float, *, dt: float, dx: float, horizon: int) -> float:
+    """RMSE of a perfect model at the evaluation scale over the held-out frames, data units.
+
+    A perfect model started from the smoothed split frame is wrong by the smoothed noise of each held-out
+    frame (variance ``sd^2 |g|^2``) plus the split frame's smoothed noise carried forward ``t`` seconds by
+    the plain model, a heat kernel that widens the Gaussian to ``sigma^2 = scale^2 + 2 a t / dx^2`` px^2
+    (variance ``sd^2 |g_t|^2``); the two are independent. ``|g|^2`` is the exact sum of squared weights of
+    the sampled Gaussian. Checked against the forecast RMSE of pure heat-transfer videos (tests).
+    """
+    sd = float(diagnosis.noise_sd)
+    spread = 2.0 * max(float(diagnosis.a_plain), 0.0) * dt / dx**2  # px^2 per frame
+    carried = [_white_gain(math.sqrt(scale_px**2 + spread * k)) for k in range(1, horizon)]
+    return sd * math.sqrt(_white_gain(scale_px) + sum(carried) / len(carried))
 
 
 def forecast_errors(predicted: Tensor, measured: Tensor, margin: int) -> tuple[Tensor, float, float]:
@@ -239,6 +298,7 @@ def assess_gain(
     *,
     fit_fraction: float = 0.6,
     diagnosis: Diagnosis | None = None,
+    scale_px: float | None = None,
 ) -> GainResult:
     """Diagnose the first part of a video and forecast the rest with the plain and the extended model.
 
@@ -248,6 +308,8 @@ def assess_gain(
         dx: pixel size in mm.
         fit_fraction: fraction of the frames diagnosed (the rest is held out).
         diagnosis: a diagnosis of exactly ``frames[: round(fit_fraction T)]``; default: made here.
+        scale_px: evaluation scale, a Gaussian sigma in px (0 compares raw frames); default the
+            diagnosis' smoothing.
 
     Returns:
         :class:`GainResult`.
@@ -255,7 +317,7 @@ def assess_gain(
     Raises:
         ValueError: too short a video for the split (see :func:`split_index`), bad frames or spacing,
             or no thermal activity (from :func:`anra_torch.diagnosis.diagnose_terms`); a diagnosis whose
-            residual map does not fit the frame size.
+            residual map does not fit the frame size; a negative or non-finite ``scale_px``.
 
     Shape:
         ``frames`` ``(T, H, W)``.
@@ -291,18 +353,36 @@ def assess_gain(
     effects = extended_effects(
         diagnosis, fit_duration=fit_duration, start=fit_duration, duration=(horizon - 1) * dt
     )
-    initial = video[split]
-    measured = video[split + 1 :]
-    base = simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=())[1:]
-    extended = (
-        simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=effects)[1:]
-        if effects
-        else base
-    )
+    scale = float(diagnosis.smoothing) if scale_px is None else scale_px
+    if isinstance(scale, bool) or not isinstance(scale, int | float) or not (math.isfinite(scale) and scale >= 0):
+        raise ValueError(f"scale_px must be a Gaussian sigma >= 0 in px, got {scale_px!r}")
     m = diagnosis.margin
+
+    def forecast(initial: Tensor) -> tuple[Tensor, Tensor]:
+        base = simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=())[1:]
+        if not effects:
+            return base, base
+        return base, simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=effects)[1:]
+
+    raw = video[split + 1 :]
+    if scale == 0:
+        initial, measured = video[split], raw
+    else:
+        smooth = GaussianSmoothing(float(scale), border="reflect")
+        initial, measured = smooth(video[split : split + 1])[0], smooth(raw)
+    base, extended = forecast(initial)
     rmse_base, base_rmse, base_sse = forecast_errors(base, measured, m)
     rmse_ext, ext_rmse, ext_sse = forecast_errors(extended, measured, m)
-    gain = 1.0 - ext_rmse / base_rmse if effects and base_rmse > 0 else 0.0
+    raw_forecasts = (base, extended) if scale == 0 else forecast(video[split])
+    base_raw = forecast_errors(raw_forecasts[0], raw, m)[1]
+    ext_raw = forecast_errors(raw_forecasts[1], raw, m)[1]
+    found = bool(effects)
+    gain = 1.0 - ext_rmse / base_rmse if found and base_rmse > 0 else 0.0
+    effect_gains = [gain] if len(effects) == 1 else []
+    for effect in effects if len(effects) > 1 else ():
+        alone = simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=(effect,))[1:]
+        effect_gains.append(1.0 - forecast_errors(alone, measured, m)[1] / base_rmse if base_rmse > 0 else 0.0)
+    floor = _forecast_floor(diagnosis, float(scale), dt=dt, dx=dx, horizon=horizon)
     return GainResult(
         diagnosis=diagnosis,
         split=split,
@@ -317,10 +397,17 @@ def assess_gain(
         base_sse=base_sse,
         extended_sse=ext_sse,
         gain=gain,
-        noise_floor=float(diagnosis.noise_sd),
+        noise_floor=floor,
         predicted_base=base,
         predicted_extended=extended,
         measured=measured,
         margin=m,
+        scale_px=float(scale),
+        base_rmse_raw=base_raw,
+        extended_rmse_raw=ext_raw,
+        gain_raw=1.0 - ext_raw / base_raw if found and base_raw > 0 else 0.0,
+        noise_floor_raw=float(diagnosis.noise_sd),
+        gain_above_floor=_gain_above_floor(base_rmse, ext_rmse, floor) if found else 0.0,
+        effect_gains=tuple(effect_gains),
         elapsed=time.perf_counter() - tick,
     )

@@ -490,7 +490,7 @@ def _rmse_figure(video: Video, gain: Any, path: Path, mpl: tuple[Any, Any]) -> N
     ax.set_ylim(bottom=0)
     ax.set_xlabel("time since the first frame (s)")
     ax.set_ylabel(f"forecast RMSE ({video.unit})")
-    ax.set_title("forecast error on the held-out frames (interior)")
+    ax.set_title(f"forecast error on the held-out frames (interior, {gain.scale_px:g} px scale)")
     ax.legend(loc="best", fontsize="small")
     _save(fig, canvas, path)
 
@@ -531,8 +531,15 @@ def write_diagnosis_report(out_dir: str | os.PathLike[str], video: Video, diagno
         ("extended base a", f"{diagnosis.base:.5g} mm^2/s"),
         ("forecast RMSE plain", f"{gain.base_rmse:.4g} {video.unit} (SSE {gain.base_sse:.4g})"),
         ("forecast RMSE extended", f"{gain.extended_rmse:.4g} {video.unit} (SSE {gain.extended_sse:.4g})"),
+        ("evaluation scale", f"frames smoothed by a {gain.scale_px:g} px Gaussian (both forecasts and data)"),
         ("gain 1 - RMSE_ext / RMSE_plain", f"{gain.gain:.3f}"),
-        ("noise floor (noise sd)", f"{gain.noise_floor:.4g} {video.unit}"),
+        ("noise floor (perfect model)", f"{gain.noise_floor:.4g} {video.unit}"),
+        ("gain above the noise floor", f"{gain.gain_above_floor:.3f}"),
+        (
+            "raw frames: RMSE plain / extended, gain",
+            f"{gain.base_rmse_raw:.4g} / {gain.extended_rmse_raw:.4g} {video.unit}, {gain.gain_raw:.3f} "
+            f"(noise sd {gain.noise_floor_raw:.4g})",
+        ),
         ("interior", f"{gain.margin} px left out at each edge"),
     ]
     effects = [
