@@ -115,7 +115,7 @@ def to_unit(video: Video, unit: str) -> Video:
         raise ValueError(f"unit must be one of {', '.join(UNITS)}, got {unit!r}")
     if video.unit not in UNITS:
         raise ValueError(f"{video.name}: cannot convert {video.unit!r} to {unit}; set the video's unit first")
-    shift = UNITS[video.unit] - UNITS[unit]
+    shift = UNITS[unit] - UNITS[video.unit]
     frames = video.frames.double() + shift if shift else video.frames
     return replace(video, frames=frames, meta={**video.meta, "unit": "K" if unit == "K" else "degC"})
 

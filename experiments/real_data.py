@@ -134,13 +134,16 @@ def box_phase(video: Video, phase: Phase) -> dict[str, Any]:
     rmse = lambda p: float(np.sqrt(np.mean((p[inner] - measured[inner]) ** 2)))  # noqa: E731
     noise = float(np.std(np.diff(frames[: split + 1], axis=0)[inner]) / np.sqrt(2))
     base_rmse, ext_rmse = rmse(pred_plain), rmse(pred_ext)
-    cause = "source" if extended["c"] > 0 and phase.name == "heating" else "linear_loss"
+    # The named cause: the sign of the fitted non-diffusive rate at the split (net heating or net loss).
+    net = extended["c"] - extended["b"] * (float(frames[split].mean()) - extended["T_ref"])
+    cause = "source" if net > 0 else "linear_loss"
     return {
         "model": "small-box (5-point Laplacian, measured edges)",
         "a_plain": plain["a"],
         "a_extended": extended["a"],
         "loss_b_per_s": extended["b"],
         "source_c_per_s": extended["c"],
+        "net_rate_at_split_per_s": net,
         "effects": [cause],
         "base_rmse": base_rmse,
         "extended_rmse": ext_rmse,
