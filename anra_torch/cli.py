@@ -51,13 +51,19 @@ def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
         "video",
         metavar="VIDEO",
         help=f"video file ({formats}) or a folder with one file per frame (FLIR .jpg, .csv/.txt matrices); "
-        "non-uniform timestamps are resampled linearly to their median step, and the output says so",
+        "frames (T, H, W)",
     )
     parser.add_argument(
         "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the file)"
     )
     parser.add_argument(
         "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the file)"
+    )
+    parser.add_argument(
+        "--resample",
+        action="store_true",
+        help="interpolate non-uniform timestamps (e.g. FLIR EXIF times) linearly onto their median step; "
+        "the output states it (JSON: input.resampled)",
     )
     parser.add_argument(
         "--roi", metavar="X0,Y0,W,H", help="analyse only this region (px: first column, first row, width, height)"
@@ -72,7 +78,12 @@ def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
 def _load_input(args: argparse.Namespace) -> Video:
     """The video of VIDEO with --dt/--dx, resampled when its timestamps are not uniform, then --roi and
     --calibration; ``meta`` says what was done."""
-    video = load_video(args.video, dt=args.dt, dx=args.dx, timestamps="resample")
+    try:
+        video = load_video(
+            args.video, dt=args.dt, dx=args.dx, timestamps="resample" if args.resample else "uniform"
+        )
+    except ValueError as err:
+        raise ValueError(str(err).replace("(timestamps='resample' or 'keep' in load_video)", "(--resample)")) from None
     if args.roi is not None:
         from anra_torch.roi import crop, parse_roi
 
@@ -228,7 +239,8 @@ def _run_estimate(args: argparse.Namespace) -> int:
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
     summary = _summary(video, result, est, time.perf_counter() - start)
-    summary["input"] = _input_record(video)
+    if any(_input_record(video).values()):
+        summary["input"] = _input_record(video)
     if args.json:
         print(json.dumps(summary, allow_nan=False))
     if not summary["valid"]:
@@ -530,8 +542,9 @@ def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str,
         },
         "gain": result.gain,
         "noise_floor": result.noise_floor,
-        "input": _input_record(video),
     }
+    if any(_input_record(video).values()):
+        summary["input"] = _input_record(video)
     return _clean_json(summary), result
 
 
