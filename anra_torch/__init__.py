@@ -24,8 +24,11 @@ from anra_torch.layers import (
     second_derivatives,
     time_derivative,
 )
+from anra_torch.io import Video, load_video
 from anra_torch.noise import estimate_noise_sd
+from anra_torch.phases import Phase, segment_phases
 from anra_torch.prediction import GainResult, assess_gain
+from anra_torch.resample import resample_uniform
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
 
@@ -63,4 +66,9 @@ __all__ = [
     "simulate_effects",
     "simulate_heat",
     "time_derivative",
+    "Phase",
+    "Video",
+    "load_video",
+    "resample_uniform",
+    "segment_phases",
 ]

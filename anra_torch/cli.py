@@ -46,14 +46,72 @@ DEMO_WINDOW = 15  # px, windowed field in the demo report
 
 
 def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
-    """VIDEO, --dt and --dx, shared by the commands that read a video."""
-    parser.add_argument("video", metavar="VIDEO", help=f"video file ({formats}); frames (T, H, W)")
+    """VIDEO, --dt, --dx, --roi and --calibration, shared by the commands that read a video."""
+    parser.add_argument(
+        "video",
+        metavar="VIDEO",
+        help=f"video file ({formats}) or a folder with one file per frame (FLIR .jpg, .csv/.txt matrices); "
+        "frames (T, H, W)",
+    )
     parser.add_argument(
         "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the file)"
     )
     parser.add_argument(
         "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the file)"
     )
+    parser.add_argument(
+        "--resample",
+        action="store_true",
+        help="interpolate non-uniform timestamps (e.g. FLIR EXIF times) linearly onto their median step; "
+        "the output states it (JSON: input.resampled)",
+    )
+    parser.add_argument(
+        "--roi", metavar="X0,Y0,W,H", help="analyse only this region (px: first column, first row, width, height)"
+    )
+    parser.add_argument(
+        "--calibration",
+        metavar="CSV",
+        help="map apparent to true temperature with a table of 'true,apparent' rows (e.g. calibration_og.csv)",
+    )
+
+
+def _load_input(args: argparse.Namespace) -> Video:
+    """The video of VIDEO with --dt/--dx, resampled when its timestamps are not uniform, then --roi and
+    --calibration; ``meta`` says what was done."""
+    try:
+        video = load_video(
+            args.video, dt=args.dt, dx=args.dx, timestamps="resample" if args.resample else "uniform"
+        )
+    except ValueError as err:
+        raise ValueError(str(err).replace("(timestamps='resample' or 'keep' in load_video)", "(--resample)")) from None
+    if args.roi is not None:
+        from anra_torch.roi import crop, parse_roi
+
+        video = crop(video, parse_roi(args.roi))
+    if args.calibration is not None:
+        from anra_torch.calibration import apply_calibration, load_calibration
+
+        video = apply_calibration(video, load_calibration(args.calibration))
+    return video
+
+
+def _input_record(video: Video) -> dict[str, Any]:
+    """What the loading did: ``resampled`` (from what), ``roi`` (px), ``calibration``; null when not done."""
+    return {key: video.meta.get(key) for key in ("resampled", "roi", "calibration")}
+
+
+def _print_input(video: Video) -> None:
+    r = video.meta.get("resampled")
+    if r:
+        print(
+            f"  resampled: {r['from_frames']} frames with non-uniform steps {r['step_min']:.3g}-{r['step_max']:.3g} s "
+            f"-> {video.frames.shape[0]} frames at dt = {r['dt']:.4g} s ({r['method']})"
+        )
+    if video.meta.get("roi"):
+        print(f"  roi (x0, y0, width, height px): {video.meta['roi']}")
+    c = video.meta.get("calibration")
+    if c:
+        print(f"  calibrated with {c['table']} ({100 * c['outside_fraction']:.1f} % of values extrapolated)")
 
 
 class _UsageError(Exception):
@@ -172,7 +230,7 @@ def _print_summary(s: dict[str, Any]) -> None:
 
 def _run_estimate(args: argparse.Namespace) -> int:
     est = ANRAEstimator(mode=args.mode, window=args.window, strict=False)
-    video = load_video(args.video, dt=args.dt, dx=args.dx)
+    video = _load_input(args)
     if video.dx is None:
         raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
     start = time.perf_counter()
@@ -181,6 +239,8 @@ def _run_estimate(args: argparse.Namespace) -> int:
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
     summary = _summary(video, result, est, time.perf_counter() - start)
+    if any(_input_record(video).values()):
+        summary["input"] = _input_record(video)
     if args.json:
         print(json.dumps(summary, allow_nan=False))
     if not summary["valid"]:
@@ -189,6 +249,7 @@ def _run_estimate(args: argparse.Namespace) -> int:
         return 2
     if not args.json:
         _print_summary(summary)
+        _print_input(video)
     return 0
 
 
@@ -482,6 +543,8 @@ def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str,
             "noise_floor": result.noise_floor_raw,
         },
     }
+    if any(_input_record(video).values()):
+        summary["input"] = _input_record(video)
     return _clean_json(summary), result
 
 
@@ -489,7 +552,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     try:
         if not 0 < args.fit_fraction < 1:
             raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
-        video = load_video(args.video, dt=args.dt, dx=args.dx)
+        video = _load_input(args)
         if video.dx is None:
             raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
         summary, result = _diagnose_summary(video, args)
@@ -502,6 +565,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     else:
         base, ext = summary["base"], summary["extended"]
         print(f"{video.source}")
+        _print_input(video)
         print(
             f"  plain heat equation: a = {base['diffusivity']:.4g} mm^2/s, forecast RMSE "
             f"{base['prediction_rmse']:.4g} (noise floor {summary['noise_floor']:.4g} {video.unit}, frames "

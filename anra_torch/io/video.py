@@ -1,15 +1,16 @@
-"""Thermal videos from files: one loader per file format, chosen by suffix from :data:`REGISTRY`.
+"""Thermal videos from files and folders: one loader per format, chosen by suffix from a registry.
 
 A loader reads what the file holds into a :class:`RawVideo` (frames as stored, and whatever spacing and
 timestamps the file records); :func:`load_video` then applies the caller's explicit ``dt`` / ``dx`` (they win
 over the file), checks everything once and returns a :class:`Video`. A new format is one function and one
-registry entry.
+registry entry: :data:`REGISTRY` maps a file suffix to a loader, :data:`FOLDER_REGISTRY` maps the suffix of
+the frame files inside a folder (one file per frame, e.g. FLIR radiometric JPEGs) to a folder loader.
 
-Formats:
-    ``.npz``: arrays ``frames`` ``(T, H, W)`` and ``dt`` (s) or ``t`` (timestamps in s, uniformly spaced),
-    optional ``dx`` (mm) and ``unit`` (temperature unit, a string); other scalar or string entries (e.g.
-    ``a_true``) go to :attr:`Video.meta`.
-    ``.npy``: frames only; ``dt`` (and ``dx``) must be passed explicitly.
+Measured timestamps are often not uniform (a FLIR camera triggered by hand). :func:`load_video` keeps the
+true timestamps in :attr:`Video.t`; with ``timestamps="uniform"`` (default) it refuses non-uniform ones,
+``"keep"`` returns them as they are (``dt`` is then their median step and :attr:`Video.uniform` is False),
+``"resample"`` interpolates the frames linearly onto a uniform grid (:func:`anra_torch.resample.resample_uniform`)
+and records what it did in ``meta["resampled"]``.
 
 Every error is a one-line ``ValueError`` that names the file, the requirement and what was found.
 """
@@ -17,9 +18,6 @@ Every error is a one-line ``ValueError`` that names the file, the requirement an
 from __future__ import annotations
 
 import os
-import pickle
-import zipfile
-import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,24 +29,28 @@ from torch import Tensor
 
 from anra_torch._validation import uniform_step
 
-__all__ = ["REGISTRY", "RawVideo", "Video", "load_video", "save_npz"]
+__all__ = ["FOLDER_REGISTRY", "REGISTRY", "TIMESTAMPS", "RawVideo", "Video", "load_video", "save_npz"]
 
 PathLike = str | os.PathLike[str]
+TIMESTAMPS = ("uniform", "keep", "resample")
+"""What :func:`load_video` does with non-uniform timestamps: refuse, keep, or resample them."""
+_UNIFORM_RTOL = 1e-3  # steps within 0.1 % of their mean count as uniform
 
 
 @dataclass(frozen=True)
 class Video:
-    """A thermal video read from a file, with its spacing.
+    """A thermal video read from a file or folder, with its spacing.
 
     Attributes:
         frames: temperatures in any linear unit, as stored (integer raw counts are kept; the estimator
             converts them to floats).
-        dt: frame period in s.
+        dt: frame period in s (for non-uniform timestamps kept as they are: their median step).
         dx: pixel size in mm, or None when neither the file nor the caller gave one.
-        t: timestamps in s when the file has them (uniform, step ``dt``), else None.
-        source: the file it was read from (None for a video built in memory).
+        t: timestamps in s when the file has them, else None.
+        source: the file or folder it was read from (None for a video built in memory).
         meta: extra facts from the file: ``"unit"`` (temperature unit) when known, scalars such as
-            ``"a_true"``, and ``"dt_source"`` / ``"dx_source"`` (``"file"``, ``"t"`` or ``"argument"``).
+            ``"a_true"``, ``"dt_source"`` / ``"dx_source"`` (``"file"``, ``"t"`` or ``"argument"``),
+            ``"format"``, and ``"resampled"`` after a resampling (what it was resampled from).
 
     Shape:
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
@@ -70,6 +72,14 @@ class Video:
     def name(self) -> str:
         """Short name for messages: the file name, or ``"<memory>"``."""
         return self.source.name if self.source is not None else "<memory>"
+
+    @property
+    def uniform(self) -> bool:
+        """Whether the frames are evenly spaced by ``dt`` (True without timestamps)."""
+        if self.t is None or self.t.numel() < 3:
+            return True
+        steps = torch.diff(self.t.double())
+        return bool((steps - steps.mean()).abs().max() <= _UNIFORM_RTOL * steps.mean())
 
 
 @dataclass
@@ -94,76 +104,34 @@ class RawVideo:
 Loader = Callable[[Path], RawVideo]
 
 
-# ----------------------------------------------------------------------------------------------- loaders
-def _one_line(err: BaseException) -> str:
+# ----------------------------------------------------------------------------------------------- helpers
+def one_line(err: BaseException) -> str:
+    """``"TypeName: message"`` on one line, for wrapping a library's error."""
     text = " ".join(str(err).split()) or type(err).__name__
     return f"{type(err).__name__}: {text}"
 
 
-class _NotAnArchive(Exception):
-    pass
-
-
-def _load_npz(path: Path) -> RawVideo:
-    try:
-        archive = np.load(path, allow_pickle=False)
-        if not isinstance(archive, np.lib.npyio.NpzFile):
-            raise _NotAnArchive
-        with archive:
-            data = {key: archive[key] for key in archive.files}
-    except _NotAnArchive:
-        raise ValueError(f"{path}: is a single .npy array, not an .npz archive; rename it to .npy") from None
-    except ValueError as err:
-        if "pickle" in str(err) or "Object arrays" in str(err):
+def stack_frames(frames: list[np.ndarray], names: list[Path], folder: Path) -> np.ndarray:
+    """Stack per-frame 2D arrays into ``(T, H, W)``; a frame of another size is a one-line error naming it."""
+    first = frames[0].shape
+    for array, name in zip(frames, names, strict=True):
+        if array.ndim != 2:
+            raise ValueError(f"{name}: a frame must be a 2D matrix, got shape {tuple(array.shape)}")
+        if array.shape != first:
             raise ValueError(
-                f"{path}: holds pickled Python objects, which are never loaded; save numeric arrays "
-                "(numpy.savez) instead"
-            ) from err
-        raise ValueError(f"{path}: cannot read as .npz ({_one_line(err)}); the file may be corrupt") from err
-    except (zipfile.BadZipFile, EOFError, zlib.error, pickle.UnpicklingError, KeyError, OSError) as err:
-        raise ValueError(
-            f"{path}: cannot read as .npz ({_one_line(err)}); the file may be truncated or corrupt"
-        ) from err
-    if "frames" not in data:
-        found = ", ".join(repr(k) for k in data) or "nothing"
-        raise ValueError(
-            f"{path}: no 'frames' array; expected 'frames' (T, H, W) with 'dt' or 't', found {found}"
-        )
-    raw = RawVideo(frames=data.pop("frames"), dt=data.pop("dt", None), dx=data.pop("dx", None))
-    raw.t = data.pop("t", None)
-    for key, value in data.items():
-        if value.ndim == 0 and value.dtype.kind in "biuf":
-            raw.meta[key] = value.item()
-        elif value.ndim == 0 and value.dtype.kind == "U":
-            raw.meta[key] = str(value)
-    return raw
+                f"{folder}: mixed frame sizes: {name.name} is {array.shape[0]} x {array.shape[1]} px, "
+                f"{names[0].name} is {first[0]} x {first[1]} px; one folder must hold one video"
+            )
+    return np.stack(frames)
 
 
-def _load_npy(path: Path) -> RawVideo:
-    try:
-        frames = np.load(path, allow_pickle=False)
-    except ValueError as err:
-        if "pickle" in str(err) or "Object arrays" in str(err):
-            raise ValueError(
-                f"{path}: holds pickled Python objects, which are never loaded; save a numeric array "
-                "(numpy.save) instead"
-            ) from err
-        raise ValueError(f"{path}: cannot read as .npy ({_one_line(err)}); the file may be corrupt") from err
-    except (EOFError, OSError, pickle.UnpicklingError) as err:
-        raise ValueError(
-            f"{path}: cannot read as .npy ({_one_line(err)}); the file may be truncated or corrupt"
-        ) from err
-    if not isinstance(frames, np.ndarray):
-        frames.close()
-        raise ValueError(f"{path}: is an .npz archive, not a single .npy array; rename it to .npz")
-    return RawVideo(frames=frames)
+REGISTRY: dict[str, Loader] = {}
+"""File suffix (lower case, with the dot; may be compound such as ``.csv.gz``) -> loader.
 
+Filled by :mod:`anra_torch.io` (one module per format)."""
 
-REGISTRY: dict[str, Loader] = {
-    ".npz": _load_npz,
-    ".npy": _load_npy,
-}
-"""File suffix (lower case, with the dot; may be compound such as ``.csv.gz``) -> loader."""
+FOLDER_REGISTRY: dict[str, Loader] = {}
+"""Suffix of the frame files inside a folder (one file per frame) -> loader of the whole folder."""
 
 
 # ------------------------------------------------------------------------------------------- checks
@@ -173,7 +141,54 @@ def _loader_for(path: Path) -> Loader:
         if name.endswith(suffix):
             return REGISTRY[suffix]
     got = repr("".join(path.suffixes)) if path.suffixes else "(no suffix)"
-    raise ValueError(f"{path}: unknown video format {got}; expected one of: {', '.join(REGISTRY)}")
+    raise ValueError(
+        f"{path}: unknown video format {got}; expected one of: {', '.join(REGISTRY)} "
+        f"(or a folder of {', '.join(FOLDER_REGISTRY)} frames)"
+    )
+
+
+def _folder_loader_for(path: Path) -> Loader:
+    kinds = {
+        suffix
+        for child in path.iterdir()
+        if child.is_file() and not child.name.startswith(".")
+        for suffix in FOLDER_REGISTRY
+        if child.name.lower().endswith(suffix)
+    }
+    if not kinds:
+        raise ValueError(
+            f"{path}: is a directory without frame files; expected one file per frame "
+            f"({', '.join(FOLDER_REGISTRY)}) or a video file"
+        )
+    loaders = {FOLDER_REGISTRY[k] for k in kinds}
+    if len(loaders) > 1:
+        raise ValueError(
+            f"{path}: mixes frame files of different formats ({', '.join(sorted(kinds))}); "
+            "one folder must hold one video"
+        )
+    return loaders.pop()
+
+
+def _timestamps(raw: Any, path: Path, n: int) -> Tensor:
+    """Checked timestamps: ``n`` finite values in s, strictly increasing (no duplicates, sorted)."""
+    stamps = np.asarray(raw)
+    if stamps.dtype.kind not in "iuf" or stamps.ndim != 1 or stamps.size != n:
+        raise ValueError(
+            f"{path}: t must hold {n} timestamps in s (one per frame), got shape {tuple(stamps.shape)} "
+            f"dtype {stamps.dtype}"
+        )
+    t = torch.as_tensor(stamps, dtype=torch.float64)
+    if not bool(torch.isfinite(t).all()):
+        raise ValueError(f"{path}: t must be finite timestamps in s, got non-finite values")
+    steps = torch.diff(t)
+    if bool((steps <= 0).any()):
+        k = int(torch.nonzero(steps <= 0)[0])
+        kind = "duplicate" if steps[k] == 0 else "unsorted"
+        raise ValueError(
+            f"{path}: {kind} timestamps: t must be strictly increasing, got t[{k}]={t[k].item():g} s "
+            f"then t[{k + 1}]={t[k + 1].item():g} s"
+        )
+    return t
 
 
 def _positive(value: object, path: Path, name: str, unit: str, origin: str) -> float:
@@ -205,27 +220,39 @@ def _frames(array: Any, path: Path) -> Tensor:
     return torch.from_numpy(np.ascontiguousarray(array))
 
 
-def load_video(path: PathLike, *, dt: float | None = None, dx: float | None = None) -> Video:
-    """Read a thermal video; explicit ``dt`` / ``dx`` override what the file says.
+def load_video(
+    path: PathLike,
+    *,
+    dt: float | None = None,
+    dx: float | None = None,
+    timestamps: str = "uniform",
+) -> Video:
+    """Read a thermal video (a file, or a folder of one file per frame); explicit ``dt`` / ``dx`` win.
 
-    The format is chosen from the file suffix (:data:`REGISTRY`). When the file has timestamps ``t``
-    they must be uniformly spaced (resample the video first otherwise); an explicit ``dt`` replaces
-    both the file's ``dt`` and its timestamps.
+    The format is chosen from the file suffix (:data:`REGISTRY`) or, for a folder, from the suffix of the
+    frame files in it (:data:`FOLDER_REGISTRY`). Timestamps from the file (``t``, e.g. FLIR EXIF times) are
+    kept in :attr:`Video.t`; an explicit ``dt`` replaces both the file's ``dt`` and its timestamps.
 
     Args:
-        path: the video file.
+        path: the video file or folder.
         dt: frame period in s (required when the file has neither ``dt`` nor ``t``).
         dx: pixel size in mm (optional: :attr:`Video.dx` is None without it).
+        timestamps: what to do when the timestamps are not uniform (:data:`TIMESTAMPS`): ``"uniform"``
+            refuses them, ``"keep"`` keeps them (``dt`` = median step, :attr:`Video.uniform` False),
+            ``"resample"`` interpolates linearly onto a uniform grid at the median step and states it in
+            ``meta["resampled"]``.
 
     Returns:
-        A :class:`Video` with ``frames`` as stored (integer counts stay integers).
+        A :class:`Video` with ``frames`` as stored (integer counts stay integers; resampled frames are
+        float64).
 
     Shape:
-        The file's frames must be ``(T, H, W)``.
+        The frames must be ``(T, H, W)``.
 
     Raises:
-        ValueError: missing file, unknown suffix, unreadable or corrupt file, no ``frames``, wrong shape or
-            dtype, no frame period, non-positive spacing, timestamps that are not uniform or disagree with
+        ValueError: missing file, unknown suffix, unreadable, truncated or corrupt file, no ``frames``, wrong
+            shape or dtype, mixed frame sizes in a folder, no frame period, non-positive spacing, unsorted or
+            duplicate timestamps, timestamps that are not uniform (with ``"uniform"``) or disagree with
             ``dt``.
 
     Example:
@@ -236,27 +263,19 @@ def load_video(path: PathLike, *, dt: float | None = None, dx: float | None = No
         >>> tuple(video.frames.shape), video.dt, video.dx
         ((6, 8, 8), 0.04, 0.2)
     """
+    if timestamps not in TIMESTAMPS:
+        raise ValueError(f"timestamps must be one of {', '.join(TIMESTAMPS)}, got {timestamps!r}")
     path = Path(path)
     if not path.exists():
         raise ValueError(f"{path}: no such file")
-    if path.is_dir():
-        raise ValueError(f"{path}: is a directory, expected a video file")
-    loader = _loader_for(path)
+    loader = _folder_loader_for(path) if path.is_dir() else _loader_for(path)
     raw = loader(path)
     frames = _frames(raw.frames, path)
     meta = dict(raw.meta)
     n = frames.shape[0]
+    t = _timestamps(raw.t, path, n) if raw.t is not None else None
 
-    t = None
-    if raw.t is not None:
-        stamps = np.asarray(raw.t)
-        if stamps.dtype.kind not in "iuf" or stamps.ndim != 1 or stamps.size != n:
-            raise ValueError(
-                f"{path}: t must hold {n} timestamps in s (one per frame), got shape {tuple(stamps.shape)} "
-                f"dtype {stamps.dtype}"
-            )
-        t = torch.as_tensor(stamps, dtype=torch.float64)
-
+    resample = False
     if dt is not None:
         step = _positive(dt, path, "dt", "s", "(argument)")
         meta["dt_source"], t = "argument", None
@@ -264,10 +283,14 @@ def load_video(path: PathLike, *, dt: float | None = None, dx: float | None = No
         if n < 2:
             raise ValueError(f"{path}: a single frame has no frame period; pass dt in s (--dt)")
         try:
-            step = uniform_step(t)
+            step = uniform_step(t, rtol=_UNIFORM_RTOL)
         except ValueError as err:
-            raise ValueError(f"{path}: {err}") from err
-        if raw.dt is not None:
+            if timestamps == "uniform":
+                raise ValueError(
+                    f"{path}: {err} (timestamps='resample' or 'keep' in load_video)"
+                ) from err
+            step, resample = float(torch.diff(t).median()), timestamps == "resample"
+        if raw.dt is not None and not resample and timestamps != "keep":
             stored = _positive(raw.dt, path, "dt", "s", "in the file")
             if abs(stored - step) > 1e-3 * step:
                 raise ValueError(
@@ -292,7 +315,12 @@ def load_video(path: PathLike, *, dt: float | None = None, dx: float | None = No
     elif raw.dx is not None:
         spacing = _positive(raw.dx, path, "dx", "mm", "in the file")
         meta["dx_source"] = "file"
-    return Video(frames=frames, dt=step, dx=spacing, t=t, source=path, meta=meta)
+    video = Video(frames=frames, dt=step, dx=spacing, t=t, source=path, meta=meta)
+    if resample:
+        from anra_torch.resample import resample_uniform
+
+        video = resample_uniform(video)
+    return video
 
 
 def save_npz(

@@ -1,0 +1,96 @@
+"""Phase segmentation: find from the data when a local heat source is on (heating) and off (cooling).
+
+The hot-spot signal is the mean temperature of the 3 x 3 pixels around the pixel that rises most. The
+source is taken as switched off at the signal's peak (a surface under a source keeps warming until the
+source stops), and as switched on at the last frame before the peak where the rise is still below
+``onset`` of the total rise. Frames before the onset form a ``baseline`` phase, frames from the onset to
+the peak ``heating``, frames from the peak on ``cooling``. Shared boundary frames belong to both phases.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+__all__ = ["Phase", "hot_spot_signal", "segment_phases"]
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A run of frames with one heating state.
+
+    Attributes:
+        name: ``"baseline"``, ``"heating"`` or ``"cooling"``.
+        start: first frame (index).
+        stop: one past the last frame (index).
+        t_start: time of the first frame in s.
+        t_stop: time of the last frame in s.
+    """
+
+    name: str
+    start: int
+    stop: int
+    t_start: float
+    t_stop: float
+
+    @property
+    def frames(self) -> int:
+        """Number of frames in the phase."""
+        return self.stop - self.start
+
+
+def hot_spot_signal(frames: Tensor) -> tuple[Tensor, tuple[int, int]]:
+    """Mean of the 3 x 3 pixels around the pixel with the largest rise over the first frame.
+
+    Shape:
+        ``(T, H, W)`` -> ``(T,)`` and the (row, column) of that pixel.
+    """
+    x = frames.double()
+    rise = (x - x[:1]).amax(dim=0)
+    rise = torch.nan_to_num(rise, nan=-torch.inf)
+    row, col = divmod(int(rise.argmax()), x.shape[2])
+    window = x[:, max(row - 1, 0) : row + 2, max(col - 1, 0) : col + 2]
+    return torch.nanmean(window.reshape(x.shape[0], -1), dim=1), (row, col)
+
+
+def segment_phases(frames: Tensor, t: Tensor | None = None, *, onset: float = 0.05, smooth: int = 5) -> list[Phase]:
+    """Split a video into baseline / heating / cooling phases from its own hot-spot signal.
+
+    Args:
+        frames: temperatures.
+        t: timestamps in s (default the frame index).
+        onset: fraction of the total rise that marks the source switching on.
+        smooth: length of the running median on the signal (frames; 1 = none), against sensor noise;
+            applied only to videos of at least ``10 * smooth`` frames.
+
+    Returns:
+        The phases in time order (only those with at least 2 frames).
+
+    Shape:
+        ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
+
+    Raises:
+        ValueError: fewer than 3 frames, or a signal with no rise (nothing heats).
+    """
+    if frames.ndim != 3 or frames.shape[0] < 3:
+        raise ValueError(f"frames must have shape (T, H, W) with T >= 3, got {tuple(frames.shape)}")
+    n = frames.shape[0]
+    times = torch.arange(n, dtype=torch.float64) if t is None else torch.as_tensor(t, dtype=torch.float64)
+    signal, _ = hot_spot_signal(frames)
+    if smooth > 1 and n >= 10 * smooth:  # a short video keeps its peak frame
+        pad = smooth // 2
+        padded = torch.cat([signal[:1].expand(pad), signal, signal[-1:].expand(pad)])
+        signal = padded.unfold(0, smooth, 1).median(dim=1).values
+    peak = int(signal.argmax())
+    base = signal[0]
+    total = float(signal[peak] - base)
+    if not total > 0:
+        raise ValueError("no heating found: the hot-spot signal never rises above its first frame")
+    below = torch.nonzero(signal[: peak + 1] - base <= onset * total).reshape(-1)
+    start = int(below[-1]) if below.numel() else 0
+    bounds = [("baseline", 0, start + 1), ("heating", start, peak + 1), ("cooling", peak, n)]
+    return [
+        Phase(name, a, b, float(times[a]), float(times[b - 1])) for name, a, b in bounds if b - a >= 2
+    ]
