@@ -28,6 +28,7 @@ from anra_torch.io import Video, load_video
 from anra_torch.noise import estimate_noise_sd
 from anra_torch.phases import Phase, segment_phases
 from anra_torch.prediction import GainResult, assess_gain
+from anra_torch.refine import Refinement, refine_model
 from anra_torch.resample import resample_uniform
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
@@ -50,6 +51,8 @@ __all__ = [
     "SyntheticVideo",
     "TimeDerivative",
     "assess_gain",
+    "refine_model",
+    "Refinement",
     "blobs_video",
     "diagnose_terms",
     "estimate_noise_sd",
