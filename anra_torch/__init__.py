@@ -26,6 +26,9 @@ from anra_torch.layers import (
 )
 from anra_torch.noise import estimate_noise_sd
 from anra_torch.prediction import GainResult, assess_gain
+from anra_torch.dose import SKIN, ArrheniusConstants, arrhenius_omega, cem43, time_above
+from anra_torch.features import TissueFeatureMaps, TissueFeatures
+from anra_torch.tissue_model import LearnedTissueModel, MovingSource, simulate_tissue
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
 
@@ -63,4 +66,15 @@ __all__ = [
     "simulate_effects",
     "simulate_heat",
     "time_derivative",
+    # tissue features, thermal dose and the learned tissue model
+    "SKIN",
+    "ArrheniusConstants",
+    "LearnedTissueModel",
+    "MovingSource",
+    "TissueFeatureMaps",
+    "TissueFeatures",
+    "arrhenius_omega",
+    "cem43",
+    "simulate_tissue",
+    "time_above",
 ]
