@@ -57,7 +57,7 @@ from anra_torch.layers.derivatives import GaussianSmoothing, Laplacian, TimeDeri
 from anra_torch.layers.estimator import ANRAEstimator
 from anra_torch.noise import estimate_noise_sd
 
-__all__ = ["MAPS", "TissueFeatureMaps", "TissueFeatures"]
+__all__ = ["MAPS", "TissueFeatureMaps", "TissueFeatures", "feature_summary", "save_feature_maps"]
 
 _F64 = torch.float64
 _MIN_DECORRELATION = 0.05  # 1 - corr(L, T - T_0)^2 below this: a and b cannot be told apart
@@ -359,3 +359,48 @@ class TissueFeatures(nn.Module):
             f"units={self.units!r}, thresholds={self.thresholds}, rule={self.rule!r}, "
             f"smoothing={self.history_smoother.sigma:g}, window={self.estimator.window}"
         )
+
+
+# ------------------------------------------------------------------------------------ command line
+def feature_summary(frames: Tensor, dt: float, dx: float, *, units: str = "C") -> tuple[dict, TissueFeatureMaps]:
+    """The ``anra features --json`` object of one video and the maps it was made from.
+
+    The object holds every per-video value of :attr:`TissueFeatureMaps.summary` (at least
+    ``cem43_minutes_max``, ``omega_max``, ``peak_temperature_max``), plus ``frames``, ``height``,
+    ``width``, ``dt`` (s), ``dx`` (mm), ``temperature_unit`` (the declared one; every temperature
+    reported is Celsius), ``masked_fraction``, ``valid``, ``message`` and ``units`` (key -> unit).
+    Non-finite numbers become None.
+
+    Shape:
+        ``frames`` ``(T, H, W)``.
+    """
+    maps = TissueFeatures(units=units)(frames, dt, dx)
+    n = frames.shape[0] * frames.shape[1] * frames.shape[2]
+    record: dict = {"frames": int(frames.shape[0]), "height": int(frames.shape[1]), "width": int(frames.shape[2])}
+    record |= {"dt": float(dt), "dx": float(dx), "temperature_unit": units}
+    for key, value in maps.summary.items():
+        number = float(value)
+        record[key] = number if torch.isfinite(value) else None
+    record["n_masked"] = int(maps.summary["n_masked"])
+    record["masked_fraction"] = record["n_masked"] / n
+    record["valid"] = bool(maps.valid)
+    record["message"] = maps.messages[0]
+    record["units"] = {"dt": "s", "dx": "mm", **{k: maps.units[k] for k in maps.summary}}
+    return record, maps
+
+
+def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: float) -> str:
+    """Write the maps of one video to ``.npz``: one ``(H, W)`` array per map, ``masked``, ``dt``, ``dx``
+    and ``units_<name>`` strings. Returns the path written (``.npz`` appended when missing).
+
+    Raises:
+        OSError: the file cannot be written.
+    """
+    import numpy as np
+
+    target = str(path) if str(path).endswith(".npz") else f"{path}.npz"
+    arrays = {name: m.detach().cpu().numpy() for name, m in maps.maps.items()}
+    arrays["masked"] = maps.masked.cpu().numpy()
+    units = {f"units_{name}": np.array(maps.units[name]) for name in maps.maps}
+    np.savez_compressed(target, dt=np.array(dt), dx=np.array(dx), **arrays, **units)
+    return target
