@@ -269,7 +269,8 @@ class LearnedTissueModel(nn.Module):
         """A model initialised from ANRA's direct estimate of one video ``(T, H, W)``.
 
         ``a`` starts at the estimator's windowed field averaged over each coarse cell (weighted by its
-        confidence; the global estimate where a cell has none). ``b`` and ``T_body`` start at the
+        confidence; the global estimate where a cell has none), kept within a factor 4 of the global
+        estimate. ``b`` and ``T_body`` start at the
         ``linear_loss`` found by :func:`anra_torch.diagnosis.diagnose_terms` (restricted to that effect);
         without one, ``b = 1e-3 1/s`` and ``T_body`` the median of the first frame. A given
         ``body_temperature`` overrides the diagnosed one.
@@ -288,7 +289,8 @@ class LearnedTissueModel(nn.Module):
             raise ValueError(f"frames: {est.messages}; cannot initialise from the direct estimate")
         a_global = float(est.diffusivity)
         a = _pool(torch.nan_to_num(est.field, nan=0.0), est.confidence, grid)
-        a = torch.nan_to_num(a, nan=a_global).clamp_min(1e-2 * a_global)
+        # A window with little signal can read far off: keep the start within a factor 4 of the global a.
+        a = torch.nan_to_num(a, nan=a_global).clamp(a_global / 4, 4 * a_global)
         b, body = 1e-3, float(video[0].median())
         diagnosis = diagnose_terms(video, dt, dx, effects=["linear_loss"])
         if diagnosis.effects:
