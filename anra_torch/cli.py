@@ -544,7 +544,13 @@ def _run_features(args: argparse.Namespace) -> int:
         print(json.dumps(_clean_json(record), allow_nan=False))
         return 0
     print(f"{video.source}: {record['frames']} frames of {record['height']} x {record['width']} px")
-    for key in ("peak_temperature_max", "cem43_minutes_max", "omega_max", "damaged_fraction", "diffusivity_global"):
+    for key in (
+        "peak_temperature_max",
+        "cem43_minutes_max",
+        "omega_max",
+        "damaged_fraction",
+        "diffusivity_global",
+    ):
         value = record[key]
         shown = "n/a" if value is None else f"{value:.4g}"
         print(f"  {key}: {shown} {record['units'][key]}")
@@ -776,7 +782,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="print one JSON object: cem43_minutes_max, omega_max, peak_temperature_max, ... with units",
     )
-    features.add_argument("--out", metavar="MAPS.npz", help="save the maps (one (H, W) array each) to MAPS.npz")
+    features.add_argument(
+        "--out", metavar="MAPS.npz", help="save the maps (one (H, W) array each) to MAPS.npz"
+    )
     features.set_defaults(run=_run_features)
     return parser
 

@@ -195,7 +195,9 @@ def _prepare(temperatures: object, dt: object, units: str, rule: str) -> tuple[T
     _check_rule(rule)
     x, shape = _as_history(temperatures)
     if x.shape[1] < (2 if rule == "linear" else 1):
-        raise ValueError(f"rule={rule!r} needs at least {2 if rule == 'linear' else 1} frames, got {x.shape[1]}")
+        raise ValueError(
+            f"rule={rule!r} needs at least {2 if rule == 'linear' else 1} frames, got {x.shape[1]}"
+        )
     return to_celsius(x, units), _as_dt(dt, x.shape[0]), shape
 
 

@@ -44,14 +44,23 @@ Everything is computed in float64 without gradient tracking.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from anra_torch._validation import as_spacing, as_video
-from anra_torch.dose import RULES, SKIN, UNITS, ArrheniusConstants, arrhenius_omega, cem43, time_above, to_celsius
+from anra_torch.dose import (
+    RULES,
+    SKIN,
+    UNITS,
+    ArrheniusConstants,
+    arrhenius_omega,
+    cem43,
+    time_above,
+    to_celsius,
+)
 from anra_torch.layers.attention import rtc_attention
 from anra_torch.layers.derivatives import GaussianSmoothing, Laplacian, TimeDerivative
 from anra_torch.layers.estimator import ANRAEstimator
@@ -298,7 +307,8 @@ class TissueFeatures(nn.Module):
         return rate, average, self.laplacian(average, dx)
 
     def _noise_gains(self, dt: Tensor, dx: Tensor) -> tuple[Tensor, Tensor]:
-        """``(var L, cov(U, L))`` per unit white-noise variance, ``(B,)``: impulse responses of the filters."""
+        """``(var L, cov(U, L))`` per unit white-noise variance, ``(B,)``, from the filters' impulse
+        responses."""
         r = self.term_smoother.radius + 1
         side = 2 * r + 1
         probe = torch.zeros(1, self.time.length, side + 2 * r, side + 2 * r, dtype=_F64)
@@ -362,7 +372,9 @@ class TissueFeatures(nn.Module):
 
 
 # ------------------------------------------------------------------------------------ command line
-def feature_summary(frames: Tensor, dt: float, dx: float, *, units: str = "C") -> tuple[dict, TissueFeatureMaps]:
+def feature_summary(
+    frames: Tensor, dt: float, dx: float, *, units: str = "C"
+) -> tuple[dict, TissueFeatureMaps]:
     """The ``anra features --json`` object of one video and the maps it was made from.
 
     The object holds every per-video value of :attr:`TissueFeatureMaps.summary` (at least
@@ -376,7 +388,11 @@ def feature_summary(frames: Tensor, dt: float, dx: float, *, units: str = "C") -
     """
     maps = TissueFeatures(units=units)(frames, dt, dx)
     n = frames.shape[0] * frames.shape[1] * frames.shape[2]
-    record: dict = {"frames": int(frames.shape[0]), "height": int(frames.shape[1]), "width": int(frames.shape[2])}
+    record: dict = {
+        "frames": int(frames.shape[0]),
+        "height": int(frames.shape[1]),
+        "width": int(frames.shape[2]),
+    }
     record |= {"dt": float(dt), "dx": float(dx), "temperature_unit": units}
     for key, value in maps.summary.items():
         number = float(value)

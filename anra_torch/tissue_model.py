@@ -117,7 +117,9 @@ class TissueRHS(nn.Module):
             raise ValueError("perfusion must be finite and non-negative in 1/s")
         self.perfusion, self.source = b, source
         self.body_temperature = (
-            body_temperature if isinstance(body_temperature, Tensor) else torch.tensor(float(body_temperature))
+            body_temperature
+            if isinstance(body_temperature, Tensor)
+            else torch.tensor(float(body_temperature))
         )
         self.dx, self.time_scale = float(dx), float(time_scale)
 
@@ -383,4 +385,3 @@ def relative_error(estimate: Tensor, truth: Tensor, mask: Tensor | None = None) 
     """Median of ``|estimate / truth - 1|`` over ``mask`` (all pixels by default)."""
     ratio = (estimate / truth - 1).abs()
     return float(ratio[mask].median() if mask is not None else ratio.median())
-

@@ -92,17 +92,17 @@ def main() -> None:
             keep = (a_true, b_true, a0, b0, a1, b1, history)
         print(json.dumps(runs[-1]))
     lines = [
-        f"Planted diffusivity bump and perfusion ramp, 32 x 32 px, 41 frames, noise {NOISE} K; median relative "
-        f"error over all pixels, {args.steps} L-BFGS iterations through RK4 (torchdiffeq):",
+        f"Planted diffusivity bump and perfusion ramp, 32 x 32 px, 41 frames, noise {NOISE} K; "
+        f"median relative error over all pixels, {args.steps} L-BFGS iterations through RK4 (torchdiffeq):",
         "",
-        "| seed | a: direct ANRA | a: learned | b: direct (diagnosis) | b: learned | T_body learned (true 37 C) "
-        "| loss start -> end (K^2; noise var 0.0025) | time (s) |",
+        "| seed | a: direct ANRA | a: learned | b: direct (diagnosis) | b: learned "
+        "| T_body learned (true 37 C) | loss start -> end (K^2; noise var 0.0025) | time (s) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in runs:
         lines.append(
-            f"| {r['seed']} | {r['a_error_direct']:.1%} | {r['a_error_learned']:.1%} | {r['b_error_direct']:.1%} "
-            f"| {r['b_error_learned']:.1%} | {r['body_temperature_learned']:.2f} "
+            f"| {r['seed']} | {r['a_error_direct']:.1%} | {r['a_error_learned']:.1%} "
+            f"| {r['b_error_direct']:.1%} | {r['b_error_learned']:.1%} | {r['body_temperature_learned']:.2f} "
             f"| {r['loss_start']:.4f} -> {r['loss_end']:.5f} | {r['elapsed_s']:.0f} |"
         )
     worst = {k: max(r[k] for r in runs) for k in ("a_error_learned", "b_error_learned")}
@@ -130,7 +130,9 @@ def plot(keep: tuple, path: Path) -> Path:
         (("a", "mm^2/s", (a_true, a0, a1)), ("b", "1/s", (b_true, b0, b1)))
     ):
         low, high = float(fields[0].min()), float(fields[0].max())
-        for col, (title, f) in enumerate(zip(("true", "direct estimate (start)", "learned"), fields, strict=True)):
+        for col, (title, f) in enumerate(
+            zip(("true", "direct estimate (start)", "learned"), fields, strict=True)
+        ):
             image = axes[row, col].imshow(f.numpy(), extent=extent, vmin=low, vmax=high, cmap="viridis")
             axes[row, col].set_title(f"{name} {title}")
             fig.colorbar(image, ax=axes[row, col], label=unit)

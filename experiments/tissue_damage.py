@@ -83,7 +83,13 @@ def scene(seed: int) -> dict:
     n_fine = round(DURATION / FINE_DT) + 1
     truth = simulate_tissue(u0, a, b, dx=DX, dt=FINE_DT, n_frames=n_fine, source=source)
     omega = arrhenius_omega(truth, FINE_DT, rule="linear")
-    return {"clean": truth[::STRIDE], "dt": FINE_DT * STRIDE, "omega": omega, "damaged": omega >= 1.0, "truth": truth}
+    return {
+        "clean": truth[::STRIDE],
+        "dt": FINE_DT * STRIDE,
+        "omega": omega,
+        "damaged": omega >= 1.0,
+        "truth": truth,
+    }
 
 
 def camera(clean: torch.Tensor, noise: float, seed: int) -> torch.Tensor:
@@ -178,7 +184,11 @@ def evaluate(data: dict) -> dict:
         threshold = best_threshold(model.score(data["train"][key]), ytr)
         score = model.score(data["test"][key])
         scores[name] = score
-        methods[name] = {"f1": f1(score >= threshold, yte), "roc_auc": roc_auc(score, yte), "threshold": threshold}
+        methods[name] = {
+            "f1": f1(score >= threshold, yte),
+            "roc_auc": roc_auc(score, yte),
+            "threshold": threshold,
+        }
     omega = data["test"]["omega_map"]
     scores[OMEGA_RULE] = omega
     methods[OMEGA_RULE] = {"f1": f1(omega >= 1.0, yte), "roc_auc": roc_auc(omega, yte), "threshold": 1.0}
@@ -283,7 +293,8 @@ def main() -> None:
         auc_lo, auc_hi = margin["roc_auc_95"]
         lines.append(
             f"Margin ANRA - raw at {noise:g} K: F1 {margin['f1']:+.3f} (95 % bootstrap over test videos "
-            f"{f1_lo:+.3f} to {f1_hi:+.3f}), ROC AUC {margin['roc_auc']:+.4f} ({auc_lo:+.4f} to {auc_hi:+.4f})."
+            f"{f1_lo:+.3f} to {f1_hi:+.3f}), ROC AUC {margin['roc_auc']:+.4f} "
+            f"({auc_lo:+.4f} to {auc_hi:+.4f})."
         )
     results["elapsed_s"] = time.perf_counter() - start
     table = "\n".join(lines) + "\n"
@@ -308,14 +319,18 @@ def plot(example: tuple, scores: dict[str, torch.Tensor], y: torch.Tensor, path:
     extent = (0, SIZE * DX, SIZE * DX, 0)
     image = axes[0].imshow(video["truth"].amax(0).numpy(), extent=extent, cmap="inferno")
     fig.colorbar(image, ax=axes[0], label="C")
-    axes[0].contour(video["damaged"].numpy().astype(float), levels=[0.5], colors="cyan", extent=extent, origin="upper")
+    axes[0].contour(
+        video["damaged"].numpy().astype(float), levels=[0.5], colors="cyan", extent=extent, origin="upper"
+    )
     axes[0].set_title("true peak T; damage (cyan)")
     noisy = axes[1].imshow(frames.amax(0).numpy(), extent=extent, cmap="inferno")
     fig.colorbar(noisy, ax=axes[1], label="C")
     axes[1].set_title(f"camera peak ({1 / (FINE_DT * STRIDE):g} Hz, noise {noise:g} K)")
     omega = axes[2].imshow(np.log10(1e-6 + maps["omega"].numpy()), extent=extent, cmap="viridis")
     fig.colorbar(omega, ax=axes[2], label="log10 Omega")
-    axes[2].contour(video["damaged"].numpy().astype(float), levels=[0.5], colors="red", extent=extent, origin="upper")
+    axes[2].contour(
+        video["damaged"].numpy().astype(float), levels=[0.5], colors="red", extent=extent, origin="upper"
+    )
     axes[2].set_title("ANRA Omega; true damage (red)")
     for ax in axes[:3]:
         ax.set_xlabel("x (mm)")

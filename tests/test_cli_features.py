@@ -97,7 +97,9 @@ def test_non_finite_values_are_masked_and_reported(
     assert code == 0 and "note: 4 non-finite samples masked" in out
 
 
-def test_out_saves_every_map(files: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_out_saves_every_map(
+    files: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     target = tmp_path / "maps"
     code, out, err = run(capsys, "features", files["celsius"], "--out", target)
     assert (code, err) == (0, "")
@@ -110,7 +112,9 @@ def test_out_saves_every_map(files: dict[str, Path], tmp_path: Path, capsys: pyt
     assert float(saved["dt"]) == DT and float(saved["dx"]) == DX
 
 
-def test_bad_input_is_one_line(files: dict[str, Path], capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+def test_bad_input_is_one_line(
+    files: dict[str, Path], capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
     code, out, err = run(capsys, "features", files["no_dx"])
     assert code == 2 and "pass --dx in mm" in err and err.count("\n") == 1
     code, out, err = run(capsys, "features", tmp_path / "missing.npz")

@@ -51,7 +51,9 @@ def _quad_linear(rate, samples: np.ndarray, dt: float, breaks: tuple[float, ...]
     ("celsius", "minutes", "expected"), [(43.0, 10.0, 10.0), (44.0, 5.0, 10.0), (42.0, 20.0, 5.0)]
 )
 @pytest.mark.parametrize("dt", [1.0, 0.25])
-def test_cem43_constant_histories_are_exact(celsius: float, minutes: float, expected: float, dt: float) -> None:
+def test_cem43_constant_histories_are_exact(
+    celsius: float, minutes: float, expected: float, dt: float
+) -> None:
     n = round(minutes * 60 / dt)
     assert float(cem43(torch.full((n,), celsius), dt)) == pytest.approx(expected, rel=1e-12)
     # The interpolant of n + 1 samples lasts n dt.
@@ -106,7 +108,9 @@ def test_omega_constants_are_configurable() -> None:
     pig = ArrheniusConstants(frequency=7.39e39, activation_energy=2.577e5)
     history = torch.full((11,), 55.0, dtype=torch.float64)
     expected = 10 * _omega_rate(55.0, 7.39e39, 2.577e5)
-    assert float(arrhenius_omega(history, 1.0, constants=pig, rule="linear")) == pytest.approx(expected, rel=1e-12)
+    assert float(arrhenius_omega(history, 1.0, constants=pig, rule="linear")) == pytest.approx(
+        expected, rel=1e-12
+    )
     assert SKIN.frequency == 3.1e98 and SKIN.activation_energy == 6.28e5
     with pytest.raises(ValueError, match="activation_energy must be a positive"):
         ArrheniusConstants(frequency=1.0, activation_energy=-1.0)

@@ -43,8 +43,12 @@ def test_maps_shapes_units_and_finiteness(heated: torch.Tensor) -> None:
 
 def test_dose_maps_equal_the_dose_functions_on_the_raw_history(heated: torch.Tensor) -> None:
     out = TissueFeatures(smoothing=0.0, rule="linear")(heated, DT, DX)
-    torch.testing.assert_close(out.maps["cem43_minutes"], cem43(heated, DT, rule="linear"), rtol=1e-12, atol=0)
-    torch.testing.assert_close(out.maps["omega"], arrhenius_omega(heated, DT, rule="linear"), rtol=1e-12, atol=0)
+    torch.testing.assert_close(
+        out.maps["cem43_minutes"], cem43(heated, DT, rule="linear"), rtol=1e-12, atol=0
+    )
+    torch.testing.assert_close(
+        out.maps["omega"], arrhenius_omega(heated, DT, rule="linear"), rtol=1e-12, atol=0
+    )
     torch.testing.assert_close(
         out.maps["time_above_43"], time_above(heated, DT, 43.0, rule="linear"), rtol=1e-12, atol=0
     )

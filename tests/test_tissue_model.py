@@ -88,7 +88,9 @@ def planted_scene(seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tens
     r2 = (x[None, :] - 4.0) ** 2 + (x[:, None] - 4.0) ** 2
     a_true = 0.1 + 0.15 * torch.exp(-r2 / (2 * 2.0**2))
     b_true = 0.05 + 0.15 * x[None, :].expand(h, w) / 8.0
-    texture = GaussianSmoothing(2.0, border="reflect")(torch.randn(1, h, w, generator=generator, dtype=F64))[0]
+    texture = GaussianSmoothing(2.0, border="reflect")(torch.randn(1, h, w, generator=generator, dtype=F64))[
+        0
+    ]
     u0 = 37.0 + 10.0 * (texture - texture.min()) / (texture.max() - texture.min())
     clean = simulate_tissue(u0, a_true, b_true, dx=dx, dt=dt, n_frames=41)
     video = clean + 0.05 * torch.randn(clean.shape, generator=generator, dtype=F64)
