@@ -6,7 +6,9 @@ derivatives on fixed kernels, RTC attention, and a direct estimator of the therm
 """
 
 from anra_torch.diagnosis import Diagnosis, diagnose_terms
+from anra_torch.dose import SKIN, ArrheniusConstants, arrhenius_omega, cem43, time_above
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
+from anra_torch.features import TissueFeatureMaps, TissueFeatures
 from anra_torch.layers import (
     AUTO_SMOOTHING,
     ANRAEstimator,
@@ -32,6 +34,7 @@ from anra_torch.refine import Refinement, refine_model
 from anra_torch.resample import resample_uniform
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
+from anra_torch.tissue_model import LearnedTissueModel, MovingSource, simulate_tissue
 
 __version__ = "0.1.0"
 
@@ -74,4 +77,15 @@ __all__ = [
     "load_video",
     "resample_uniform",
     "segment_phases",
+    # tissue features, thermal dose and the learned tissue model
+    "SKIN",
+    "ArrheniusConstants",
+    "LearnedTissueModel",
+    "MovingSource",
+    "TissueFeatureMaps",
+    "TissueFeatures",
+    "arrhenius_omega",
+    "cem43",
+    "simulate_tissue",
+    "time_above",
 ]

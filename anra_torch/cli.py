@@ -591,6 +591,41 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------------- features
+def _run_features(args: argparse.Namespace) -> int:
+    from anra_torch.features import feature_summary, save_feature_maps
+
+    video = load_video(args.video, dt=args.dt, dx=args.dx)
+    if video.dx is None:
+        raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
+    try:
+        record, maps = feature_summary(video.frames, video.dt, video.dx, units=args.units)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{video.source}: {err}") from err
+    record = {"path": str(video.source), **record, "out": None}
+    if args.out is not None:
+        record["out"] = save_feature_maps(args.out, maps, dt=video.dt, dx=video.dx)
+    if args.json:
+        print(json.dumps(_clean_json(record), allow_nan=False))
+        return 0
+    print(f"{video.source}: {record['frames']} frames of {record['height']} x {record['width']} px")
+    for key in (
+        "peak_temperature_max",
+        "cem43_minutes_max",
+        "omega_max",
+        "damaged_fraction",
+        "diffusivity_global",
+    ):
+        value = record[key]
+        shown = "n/a" if value is None else f"{value:.4g}"
+        print(f"  {key}: {shown} {record['units'][key]}")
+    if record["message"]:
+        print(f"  note: {record['message']}")
+    if record["out"]:
+        print(f"  maps: {record['out']}")
+    return 0
+
+
 # ----------------------------------------------------------------------------------------- demo
 def _run_demo(args: argparse.Namespace) -> int:
     if importlib.util.find_spec("matplotlib") is None:
@@ -796,6 +831,28 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", default="results/demo", metavar="DIR", help="output directory (default results/demo)"
     )
     demo.set_defaults(run=_run_demo)
+
+    features = commands.add_parser(
+        "features",
+        help="tissue features of a video: thermal dose (CEM43, Omega), peak, rates, ANRA maps",
+        description="Per-pixel tissue features of one video: peak temperature, time above 43/50/60 C, "
+        "CEM43 (min), Arrhenius Omega (skin constants), heating and cooling rates (K/s), RTC attention, "
+        "local diffusivity (mm^2/s) and its confidence, loss rate (1/s) and source (K) maps. "
+        "Temperatures are reported in Celsius. Non-finite values are masked and counted.",
+    )
+    _add_video_arguments(features, formats)
+    features.add_argument(
+        "--units", choices=("C", "K"), default="C", help="temperature unit of the frames (default C)"
+    )
+    features.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object: cem43_minutes_max, omega_max, peak_temperature_max, ... with units",
+    )
+    features.add_argument(
+        "--out", metavar="MAPS.npz", help="save the maps (one (H, W) array each) to MAPS.npz"
+    )
+    features.set_defaults(run=_run_features)
     return parser
 
 

@@ -1,0 +1,387 @@
+"""A tissue model with spatial fields, simulated on torchdiffeq and learned end to end from video.
+
+The model (Pennes-like bioheat equation per unit heat capacity, on the pixel grid)::
+
+    dT/dt = div(a(x, y) grad T) - b(x, y) (T - T_body) + q(t, x, y)
+
+* ``a`` diffusivity field (mm^2/s), conservative flux form of :class:`anra_torch.simulate.HeatRHS`
+  (zero-flux edges);
+* ``b`` perfusion / loss-rate field (1/s) pulling towards the body temperature ``T_body``;
+* ``q`` an optional :class:`MovingSource` (K/s): a Gaussian spot moving along a straight path while it
+  is on, e.g. an electrosurgical tip.
+
+:func:`simulate_tissue` integrates it with fixed-step RK4 (``torchdiffeq.odeint``), every step inside
+RK4's stability limit; gradients flow to tensor fields that require them.
+
+:class:`LearnedTissueModel` holds ``log a`` and ``log b`` on a coarse grid (bilinear up-sampling to the
+frame: a smooth, positive field with few parameters), initialised from ANRA's direct estimate
+(:class:`anra_torch.layers.estimator.ANRAEstimator` windowed field for ``a``, the loss-rate map of
+:class:`anra_torch.features.TissueFeatures` for ``b``), and :meth:`LearnedTissueModel.fit` trains them by
+back-propagating the frame misfit through the ODE solver.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+from torchdiffeq import odeint
+from tqdm.auto import tqdm
+
+from anra_torch._validation import as_video
+from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.simulate import HeatRHS
+
+__all__ = ["LearnedTissueModel", "MovingSource", "TissueRHS", "relative_error", "simulate_tissue"]
+
+_F64 = torch.float64
+_RK4_REAL_LIMIT = 2.7853  # RK4 is stable for real eigenvalues in [-2.785, 0] (times the step)
+_SAFETY = 0.9
+_SPAN = math.log(10.0)  # learned fields stay within a factor 10 of their start (keeps RK4 steps bounded)
+
+
+@dataclass(frozen=True)
+class MovingSource:
+    """A Gaussian heat source moving at constant speed from ``start`` to ``end`` while on.
+
+    Attributes:
+        start: ``(x, y)`` in mm at ``t = t_on``.
+        end: ``(x, y)`` in mm at ``t = t_off``.
+        width: Gaussian sigma in mm.
+        power: heating rate at the spot centre in K/s.
+        t_on: switch-on time in s.
+        t_off: switch-off time in s (``> t_on``); on during ``[t_on, t_off)``. :func:`simulate_tissue`
+            integrates the switching exactly when both fall on its RK4 substeps (multiples of
+            ``dt / substeps``); otherwise with an error up to ``power`` times one substep.
+    """
+
+    start: tuple[float, float]
+    end: tuple[float, float]
+    width: float
+    power: float
+    t_on: float = 0.0
+    t_off: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.width > 0 and math.isfinite(self.width)):
+            raise ValueError(f"width must be a positive finite number in mm, got {self.width!r}")
+        if not math.isfinite(self.power):
+            raise ValueError(f"power must be a finite number in K/s, got {self.power!r}")
+        if not (self.t_off > self.t_on):
+            raise ValueError(f"t_off must be after t_on (s), got t_on={self.t_on!r}, t_off={self.t_off!r}")
+
+    def field(self, t: Tensor, x: Tensor, y: Tensor) -> Tensor:
+        """Heating rate (K/s) at time ``t`` (s) on the grid ``x`` ``(W,)``, ``y`` ``(H,)``: ``(H, W)``."""
+        s = ((t - self.t_on) / (self.t_off - self.t_on)).clamp(0, 1)
+        on = ((t >= self.t_on) & (t < self.t_off)).to(x.dtype)
+        cx = self.start[0] + (self.end[0] - self.start[0]) * s
+        cy = self.start[1] + (self.end[1] - self.start[1]) * s
+        inv = 0.5 / self.width**2
+        gx = torch.exp(-((x - cx) ** 2) * inv)
+        gy = torch.exp(-((y - cy) ** 2) * inv)
+        return on * self.power * gy[:, None] * gx[None, :]
+
+
+class TissueRHS(nn.Module):
+    """``dT/dt = div(a grad T) - b (T - T_body) + q`` for ``torchdiffeq``, time in units of ``time_scale`` s.
+
+    Args:
+        diffusivity: ``a`` in mm^2/s, a number or a field ``(H, W)`` (kept as given: may require grad).
+        perfusion: ``b`` in 1/s, a number or a field ``(H, W)``.
+        dx: pixel size in mm.
+        body_temperature: ``T_body``, units of T.
+        source: optional :class:`MovingSource`.
+        time_scale: seconds per unit of solver time.
+
+    Shape:
+        ``forward(t, T)``: ``T`` ``(H, W)`` or ``(B, H, W)``; output like ``T``.
+    """
+
+    def __init__(
+        self,
+        diffusivity: float | Tensor,
+        perfusion: float | Tensor,
+        *,
+        dx: float,
+        body_temperature: float | Tensor = 37.0,
+        source: MovingSource | None = None,
+        time_scale: float = 1.0,
+    ) -> None:
+        super().__init__()
+        self.heat = HeatRHS(diffusivity, dx=dx)
+        b = perfusion if isinstance(perfusion, Tensor) else torch.tensor(float(perfusion), dtype=_F64)
+        if not bool(torch.isfinite(b.detach()).all()) or bool((b.detach() < 0).any()):
+            raise ValueError("perfusion must be finite and non-negative in 1/s")
+        self.perfusion, self.source = b, source
+        self.body_temperature = (
+            body_temperature
+            if isinstance(body_temperature, Tensor)
+            else torch.tensor(float(body_temperature))
+        )
+        self.dx, self.time_scale = float(dx), float(time_scale)
+
+    def forward(self, t: Tensor, u: Tensor) -> Tensor:
+        seconds = t * self.time_scale
+        excess = u - self.body_temperature.to(u)
+        out = self.heat(seconds, u).reshape(u.shape) - self.perfusion.to(u) * excess
+        if self.source is not None:
+            h, w = u.shape[-2:]
+            x = (torch.arange(w, dtype=u.dtype) + 0.5) * self.dx
+            y = (torch.arange(h, dtype=u.dtype) + 0.5) * self.dx
+            out = out + self.source.field(seconds.to(u.dtype), x, y)
+        return out * self.time_scale
+
+
+def _max_value(v: float | Tensor) -> float:
+    return float(v.detach().max()) if isinstance(v, Tensor) else float(v)
+
+
+def simulate_tissue(
+    initial: Tensor,
+    diffusivity: float | Tensor,
+    perfusion: float | Tensor = 0.0,
+    *,
+    dx: float,
+    dt: float,
+    n_frames: int,
+    body_temperature: float | Tensor = 37.0,
+    source: MovingSource | None = None,
+    substeps: int | None = None,
+) -> Tensor:
+    """Simulate a thermal video of the tissue model (RK4, zero-flux edges); differentiable in the fields.
+
+    Args:
+        initial: first frame (temperatures).
+        diffusivity: ``a`` (mm^2/s), number or ``(H, W)``, non-negative.
+        perfusion: ``b`` (1/s), number or ``(H, W)``, non-negative.
+        dx: pixel size in mm.
+        dt: frame period in s.
+        n_frames: frames ``T`` (>= 2); frame 0 is ``initial``.
+        body_temperature: ``T_body`` the perfusion pulls towards.
+        source: optional :class:`MovingSource`.
+        substeps: RK4 steps per frame; default the fewest inside ``0.9`` of RK4's stability limit
+            ``(8 a_max / dx^2 + b_max) ds <= 2.785``.
+
+    Returns:
+        Video ``(T, H, W)`` in the dtype of ``initial``.
+
+    Raises:
+        ValueError: bad spacing, frame count, negative or non-finite fields.
+
+    Shape:
+        ``initial`` ``(H, W)``; fields scalar or ``(H, W)``; output ``(T, H, W)``.
+    """
+    if initial.ndim != 2:
+        raise ValueError(f"initial must have shape (H, W), got {tuple(initial.shape)}")
+    for name, value, unit in (("dx", dx, "mm"), ("dt", dt, "s")):
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
+    if not (isinstance(n_frames, int) and n_frames >= 2):
+        raise ValueError(f"n_frames must be an integer >= 2, got {n_frames!r}")
+    stiffness = 8.0 * _max_value(diffusivity) / dx**2 + _max_value(perfusion)
+    needed = max(1, math.ceil(stiffness * dt / (_SAFETY * _RK4_REAL_LIMIT)))
+    steps = needed if substeps is None else int(substeps)
+    if steps < needed:
+        raise ValueError(f"substeps={substeps} is unstable for RK4 here; need at least {needed}")
+    rhs = TissueRHS(
+        diffusivity,
+        perfusion,
+        dx=dx,
+        body_temperature=body_temperature,
+        source=source,
+        time_scale=dt / steps,
+    )
+    times = torch.arange(n_frames, dtype=initial.dtype) * steps
+    # perturb: each step sees t just after its start and just before its end, so a source switching on
+    # or off on a substep boundary is integrated exactly.
+    return odeint(rhs, initial, times, method="rk4", options={"step_size": 1.0, "perturb": True})
+
+
+def _pool(field: Tensor, weight: Tensor, grid: tuple[int, int]) -> Tensor:
+    """Weighted average of ``field`` ``(H, W)`` on a coarse ``grid`` (cells without weight: NaN)."""
+    num = F.adaptive_avg_pool2d((field * weight)[None, None], grid)[0, 0]
+    den = F.adaptive_avg_pool2d(weight[None, None], grid)[0, 0]
+    return torch.where(den > 0, num / torch.where(den > 0, den, 1.0), torch.nan)
+
+
+class LearnedTissueModel(nn.Module):
+    """Diffusivity and perfusion fields learned end to end through the torchdiffeq simulator.
+
+    ``log a`` and ``log b`` live on a coarse ``grid`` and are up-sampled bilinearly to the frame; both
+    stay positive. Start them with :meth:`from_video` (ANRA's direct estimate) and train with :meth:`fit`.
+
+    Args:
+        shape: frame size ``(H, W)`` in px.
+        dx: pixel size in mm.
+        diffusivity: initial ``a`` (mm^2/s), a number or a coarse field ``grid``.
+        perfusion: initial ``b`` (1/s), a number or a coarse field ``grid``.
+        grid: coarse grid ``(h, w)`` of the learned fields.
+        body_temperature: initial ``T_body`` (units of T), learned as well.
+
+    Shape:
+        :attr:`diffusivity`, :attr:`perfusion`: ``(H, W)``; ``forward(initial, n_frames, dt)``:
+        ``(H, W)`` -> ``(T, H, W)``.
+    """
+
+    def __init__(
+        self,
+        shape: tuple[int, int],
+        dx: float,
+        *,
+        diffusivity: float | Tensor = 0.1,
+        perfusion: float | Tensor = 0.01,
+        grid: tuple[int, int] = (6, 6),
+        body_temperature: float = 37.0,
+    ) -> None:
+        super().__init__()
+        self.shape, self.dx, self.grid = tuple(shape), float(dx), tuple(grid)
+        if not math.isfinite(body_temperature):
+            raise ValueError(f"body_temperature must be finite, got {body_temperature!r}")
+        self.body_temperature = nn.Parameter(torch.tensor(float(body_temperature), dtype=_F64))
+
+        def start(value: float | Tensor, name: str, unit: str) -> Tensor:
+            v = torch.as_tensor(value, dtype=_F64)
+            v = v.expand(self.grid) if v.ndim == 0 else v
+            if tuple(v.shape) != self.grid:
+                raise ValueError(f"{name} must be a number or have shape {self.grid}, got {tuple(v.shape)}")
+            if not bool(torch.isfinite(v).all()) or bool((v <= 0).any()):
+                raise ValueError(f"{name} must be positive and finite in {unit}, got min {float(v.min()):g}")
+            return v.log().clone()
+
+        # Learned: theta in log a = log a_0 + span tanh(theta): a stays within a factor e^span of its start.
+        self.register_buffer("log_diffusivity_start", start(diffusivity, "diffusivity", "mm^2/s"))
+        self.register_buffer("log_perfusion_start", start(perfusion, "perfusion", "1/s"))
+        self.diffusivity_theta = nn.Parameter(torch.zeros(self.grid, dtype=_F64))
+        self.perfusion_theta = nn.Parameter(torch.zeros(self.grid, dtype=_F64))
+
+    @classmethod
+    def from_video(
+        cls,
+        frames: Tensor,
+        dt: float,
+        dx: float,
+        *,
+        grid: tuple[int, int] = (6, 6),
+        body_temperature: float | None = None,
+        window: int = 9,
+    ) -> LearnedTissueModel:
+        """A model initialised from ANRA's direct estimate of one video ``(T, H, W)``.
+
+        ``a`` starts at the estimator's windowed field averaged over each coarse cell (weighted by its
+        confidence; the global estimate where a cell has none), kept within a factor 4 of the global
+        estimate. ``b`` and ``T_body`` start at the
+        ``linear_loss`` found by :func:`anra_torch.diagnosis.diagnose_terms` (restricted to that effect);
+        without one, ``b = 1e-3 1/s`` and ``T_body`` the median of the first frame. A given
+        ``body_temperature`` overrides the diagnosed one.
+
+        Raises:
+            ValueError: bad shape, or no measurable thermal activity.
+        """
+        from anra_torch.diagnosis import diagnose_terms
+
+        video, batched = as_video(frames, name="frames")
+        if batched:
+            raise ValueError(f"frames must have shape (T, H, W), got {tuple(video.shape)}")
+        video = video[0].to(_F64)
+        est = ANRAEstimator(window=window, strict=False)(video, dt, dx)
+        if not bool(est.valid):
+            raise ValueError(f"frames: {est.messages}; cannot initialise from the direct estimate")
+        a_global = float(est.diffusivity)
+        a = _pool(torch.nan_to_num(est.field, nan=0.0), est.confidence, grid)
+        # A window with little signal can read far off: keep the start within a factor 4 of the global a.
+        a = torch.nan_to_num(a, nan=a_global).clamp(a_global / 4, 4 * a_global)
+        b, body = 1e-3, float(video[0].median())
+        diagnosis = diagnose_terms(video, dt, dx, effects=["linear_loss"])
+        if diagnosis.effects:
+            params = diagnosis.effects[0]["params"]
+            b, body = max(params["b"], 1e-3), params["T_ref"]
+        body = body if body_temperature is None else float(body_temperature)
+        return cls(tuple(video.shape[1:]), dx, diffusivity=a, perfusion=b, grid=grid, body_temperature=body)
+
+    def _upsample(self, coarse: Tensor) -> Tensor:
+        return F.interpolate(coarse[None, None], size=self.shape, mode="bilinear", align_corners=False)[0, 0]
+
+    @property
+    def diffusivity(self) -> Tensor:
+        """``a`` on the frame, mm^2/s, ``(H, W)``."""
+        log_a = self.log_diffusivity_start + _SPAN * torch.tanh(self.diffusivity_theta)
+        return self._upsample(log_a).exp()
+
+    @property
+    def perfusion(self) -> Tensor:
+        """``b`` on the frame, 1/s, ``(H, W)``."""
+        log_b = self.log_perfusion_start + _SPAN * torch.tanh(self.perfusion_theta)
+        return self._upsample(log_b).exp()
+
+    def forward(self, initial: Tensor, n_frames: int, dt: float) -> Tensor:
+        """Simulated video from ``initial`` ``(H, W)``: ``(n_frames, H, W)``."""
+        return simulate_tissue(
+            initial.to(_F64),
+            self.diffusivity,
+            self.perfusion,
+            dx=self.dx,
+            dt=dt,
+            n_frames=n_frames,
+            body_temperature=self.body_temperature,
+        )
+
+    def loss(self, frames: Tensor, dt: float) -> Tensor:
+        """Mean squared misfit (units of T squared) of the video simulated from ``frames[0]``."""
+        video = frames.to(_F64)
+        return (self(video[0], video.shape[0], dt) - video).pow(2)[1:].mean()
+
+    def fit(self, frames: Tensor, dt: float, *, steps: int = 30, progress: bool = False) -> list[float]:
+        """Train both fields with L-BFGS (strong Wolfe line search) on :meth:`loss`.
+
+        Every evaluation back-propagates the misfit through the RK4 solver.
+
+        Args:
+            frames: the measured video (units of T).
+            dt: frame period in s.
+            steps: L-BFGS iterations.
+            progress: show a progress bar.
+
+        Returns:
+            The loss at every evaluation, starting with the initial one (units of T squared).
+
+        Shape:
+            ``frames`` ``(T, H, W)`` with ``(H, W)`` the model's shape.
+        """
+        video = frames.detach().to(_F64)
+        if video.ndim != 3 or tuple(video.shape[1:]) != self.shape:
+            raise ValueError(
+                f"frames must have shape (T, {self.shape[0]}, {self.shape[1]}), got {tuple(video.shape)}"
+            )
+        if not bool(torch.isfinite(video).all()):
+            raise ValueError("frames must be finite to train the tissue model; crop or fill them first")
+        optimiser = torch.optim.LBFGS(
+            self.parameters(), lr=1.0, max_iter=steps, history_size=20, line_search_fn="strong_wolfe"
+        )
+        history: list[float] = []
+        bar = tqdm(total=steps, desc="tissue model", disable=not progress)
+
+        def closure() -> Tensor:
+            optimiser.zero_grad()
+            loss = self.loss(video, dt)
+            loss.backward()
+            history.append(loss.item())
+            bar.update(1)
+            return loss
+
+        optimiser.step(closure)
+        bar.close()
+        with torch.no_grad():
+            history.append(self.loss(video, dt).item())
+        return history
+
+    def extra_repr(self) -> str:
+        return f"shape={self.shape}, grid={self.grid}, dx={self.dx:g}"
+
+
+def relative_error(estimate: Tensor, truth: Tensor, mask: Tensor | None = None) -> float:
+    """Median of ``|estimate / truth - 1|`` over ``mask`` (all pixels by default)."""
+    ratio = (estimate / truth - 1).abs()
+    return float(ratio[mask].median() if mask is not None else ratio.median())

@@ -1,0 +1,123 @@
+"""Tests for ``anra features``: the JSON object against the dose functions, --out, units and masking."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from anra_torch.cli import main
+from anra_torch.dose import arrhenius_omega, cem43
+from anra_torch.features import TissueFeatures
+from anra_torch.io import save_npz
+from anra_torch.layers.derivatives import GaussianSmoothing
+from anra_torch.tissue_model import MovingSource, simulate_tissue
+
+DT, DX = 0.1, 0.2
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def burn() -> torch.Tensor:
+    """A source sweeping 2 mm in 2 s over tissue at 37 C, then 2 s of cooling; noise 0.02 K."""
+    u0 = torch.full((40, 40), 37.0, dtype=torch.float64)
+    source = MovingSource(start=(3.0, 4.0), end=(5.0, 4.0), width=0.6, power=40.0, t_off=2.0)
+    clean = simulate_tissue(u0, 0.1, 0.3, dx=DX, dt=DT, n_frames=41, source=source)
+    generator = torch.Generator().manual_seed(2)
+    return clean + 0.02 * torch.randn(clean.shape, generator=generator, dtype=torch.float64)
+
+
+@pytest.fixture(scope="module")
+def files(burn: torch.Tensor, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("features")
+    holed = burn.clone()
+    holed[5, 10, 10] = math.nan
+    holed[6:9, 0, 0] = math.inf
+    return {
+        "celsius": save_npz(folder / "burn.npz", burn.numpy(), dt=DT, dx=DX),
+        "kelvin": save_npz(folder / "burn_k.npz", (burn + 273.15).numpy(), dt=DT, dx=DX),
+        "holed": save_npz(folder / "holed.npz", holed.numpy(), dt=DT, dx=DX),
+        "no_dx": save_npz(folder / "no_dx.npz", burn.numpy(), dt=DT, dx=None),
+    }
+
+
+def test_json_values_match_the_dose_of_the_denoised_history(
+    files: dict[str, Path], burn: torch.Tensor, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run(capsys, "features", files["celsius"], "--json")
+    assert (code, err) == (0, "")
+    assert out.count("\n") == 1
+    record = json.loads(out)
+    assert {"cem43_minutes_max", "omega_max", "peak_temperature_max", "damaged_fraction"} <= set(record)
+    assert record["units"]["cem43_minutes_max"] == "min" and record["units"]["peak_temperature_max"] == "C"
+    assert record["units"]["omega_max"] == "1" and record["temperature_unit"] == "C"
+    assert (record["frames"], record["height"], record["width"]) == (41, 40, 40)
+    assert record["n_masked"] == 0 and record["valid"] is True and record["out"] is None
+    # Independent of the feature module: smooth with the same 1 px Gaussian, then the dose functions.
+    history = GaussianSmoothing(1.0, border="reflect")(burn)
+    assert record["cem43_minutes_max"] == pytest.approx(float(cem43(history, DT).max()), rel=1e-9)
+    assert record["omega_max"] == pytest.approx(float(arrhenius_omega(history, DT).max()), rel=1e-9)
+    assert record["peak_temperature_max"] == pytest.approx(float(history.max()), rel=1e-12)
+    assert record["omega_max"] > 1 and 0 < record["damaged_fraction"] < 0.2
+
+
+def test_kelvin_needs_units_k(files: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "features", files["kelvin"], "--json")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("anra: error: ")
+    assert "--units C" in err and "--units K" in err and "310" in err
+    code, out, err = run(capsys, "features", files["kelvin"], "--json", "--units", "K")
+    assert (code, err) == (0, "")
+    kelvin = json.loads(out)
+    _, out, _ = run(capsys, "features", files["celsius"], "--json")
+    celsius = json.loads(out)
+    for key in ("cem43_minutes_max", "omega_max", "peak_temperature_max"):
+        assert kelvin[key] == pytest.approx(celsius[key], rel=1e-6)
+
+
+def test_non_finite_values_are_masked_and_reported(
+    files: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run(capsys, "features", files["holed"], "--json")
+    assert (code, err) == (0, "")
+    record = json.loads(out)
+    assert record["n_masked"] == 4 and record["masked_fraction"] == pytest.approx(4 / (41 * 40 * 40))
+    assert "4 non-finite samples masked" in record["message"]
+    assert all(v is not None for k, v in record.items() if k.endswith("_max"))
+    code, out, err = run(capsys, "features", files["holed"])
+    assert code == 0 and "note: 4 non-finite samples masked" in out
+
+
+def test_out_saves_every_map(
+    files: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    target = tmp_path / "maps"
+    code, out, err = run(capsys, "features", files["celsius"], "--out", target)
+    assert (code, err) == (0, "")
+    assert "cem43_minutes_max" in out and f"maps: {target}.npz" in out
+    saved = np.load(f"{target}.npz")
+    expected = TissueFeatures()(torch.from_numpy(np.load(files["celsius"])["frames"]), DT, DX)
+    for name, m in expected.maps.items():
+        np.testing.assert_allclose(saved[name], m.numpy(), rtol=1e-12, atol=0)
+        assert str(saved[f"units_{name}"]) == expected.units[name]
+    assert float(saved["dt"]) == DT and float(saved["dx"]) == DX
+
+
+def test_bad_input_is_one_line(
+    files: dict[str, Path], capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    code, out, err = run(capsys, "features", files["no_dx"])
+    assert code == 2 and "pass --dx in mm" in err and err.count("\n") == 1
+    code, out, err = run(capsys, "features", tmp_path / "missing.npz")
+    assert code == 2 and "no such file" in err
+    code, out, err = run(capsys, "features", files["celsius"], "--units", "F")
+    assert code == 2 and "--units" in err and "invalid choice" in err

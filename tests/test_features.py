@@ -1,0 +1,133 @@
+"""TissueFeatures: maps against the dose functions, planted loss and source, masking, units, batching."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from anra_torch.dose import arrhenius_omega, cem43, time_above
+from anra_torch.features import MAPS, TissueFeatures
+from anra_torch.simulate import gaussian_blob
+from anra_torch.tissue_model import MovingSource, simulate_tissue
+
+DX, DT = 0.2, 0.1
+POWER, ON = 10.0, 2.0  # K/s at the spot centre, s
+
+
+@pytest.fixture(scope="module")
+def heated() -> torch.Tensor:
+    """A static spot heats tissue at 37 C for 2 s, then it cools for 4 s (a = 0.1, b = 0.3)."""
+    u0 = torch.full((40, 40), 37.0, dtype=torch.float64)
+    source = MovingSource(start=(4.0, 4.0), end=(4.0, 4.0), width=0.8, power=POWER, t_off=ON)
+    clean = simulate_tissue(u0, 0.1, 0.3, dx=DX, dt=DT, n_frames=61, source=source)
+    generator = torch.Generator().manual_seed(1)
+    return clean + 0.02 * torch.randn(clean.shape, generator=generator, dtype=torch.float64)
+
+
+def test_maps_shapes_units_and_finiteness(heated: torch.Tensor) -> None:
+    out = TissueFeatures()(heated, DT, DX)
+    assert tuple(out.maps) == MAPS
+    for name, m in out.maps.items():
+        assert m.shape == (40, 40), name
+        assert bool(torch.isfinite(m).all()), name
+        assert name in out.units
+    assert out.stack().shape == (len(MAPS), 40, 40)
+    assert out.stack(["omega", "cem43_minutes"]).shape == (2, 40, 40)
+    assert out.units["cem43_minutes_max"] == "min" and out.units["peak_temperature_max"] == "C"
+    assert out.messages == ("",) or out.messages == ""
+    with pytest.raises(ValueError, match="unknown feature map 'burn'"):
+        out.stack(["burn"])
+
+
+def test_dose_maps_equal_the_dose_functions_on_the_raw_history(heated: torch.Tensor) -> None:
+    out = TissueFeatures(smoothing=0.0, rule="linear")(heated, DT, DX)
+    torch.testing.assert_close(
+        out.maps["cem43_minutes"], cem43(heated, DT, rule="linear"), rtol=1e-12, atol=0
+    )
+    torch.testing.assert_close(
+        out.maps["omega"], arrhenius_omega(heated, DT, rule="linear"), rtol=1e-12, atol=0
+    )
+    torch.testing.assert_close(
+        out.maps["time_above_43"], time_above(heated, DT, 43.0, rule="linear"), rtol=1e-12, atol=0
+    )
+    torch.testing.assert_close(out.maps["peak_temperature"], heated.amax(0), rtol=1e-12, atol=0)
+    assert float(out.summary["omega_max"]) == float(out.maps["omega"].max())
+    assert float(out.summary["damaged_fraction"]) == float((out.maps["omega"] >= 1).double().mean())
+
+
+def test_planted_loss_rate_and_source(heated: torch.Tensor) -> None:
+    out = TissueFeatures()(heated, DT, DX)
+    centre = (slice(18, 22), slice(18, 22))
+    # b = 0.3 1/s: measured 0.33-0.35 on the spot (the 5-point balance of a smoothed spot)
+    assert out.maps["loss_rate"][centre].median().item() == pytest.approx(0.3, rel=0.25)
+    # The source deposits POWER * ON = 20 K at its centre before the 2 px smoothing (16 K after it,
+    # less the 0.2 s before the first derivative frame): measured 13.9 K.
+    source = out.maps["source"]
+    assert 12.0 < source[centre].max().item() < 16.5
+    assert source[:5, :5].abs().max().item() < 0.5  # nothing far from the spot
+    row, col = divmod(int(source.argmax()), 40)
+    assert abs(row - 19.5) <= 1 and abs(col - 19.5) <= 1
+    # RTC attention (1 = uniform) sits on the spot, where the temperature changes fastest.
+    attention = out.maps["rtc_attention"]
+    assert attention[centre].min().item() > 10.0 and attention[:5, :5].max().item() < 0.1
+
+
+def test_heating_and_cooling_rates_of_a_linear_ramp() -> None:
+    # Every pixel: +3 K/s for 2 s then -1 K/s: the Holoborodko derivative is exact on lines.
+    t = torch.arange(41, dtype=torch.float64) * DT
+    history = 37.0 + torch.where(t <= 2.0, 3.0 * t, 6.0 - (t - 2.0))
+    ramp = history.view(-1, 1, 1) + 0.1 * torch.randn(1, 24, 24, dtype=torch.float64).clamp(-1, 1)
+    out = TissueFeatures(smoothing=0.0)(ramp, DT, DX)
+    torch.testing.assert_close(out.maps["heating_rate"], torch.full((24, 24), 3.0, dtype=torch.float64))
+    torch.testing.assert_close(out.maps["cooling_rate"], torch.full((24, 24), 1.0, dtype=torch.float64))
+
+
+def test_diffusivity_map_of_a_pure_heat_video() -> None:
+    t = torch.arange(16, dtype=torch.float64) * 0.05
+    video = 37.0 + gaussian_blob(t, shape=(48, 48), dx=0.1, a=0.2, peak=10.0, sigma=0.6)
+    out = TissueFeatures()(video, 0.05, 0.1)
+    assert float(out.summary["diffusivity_global"]) == pytest.approx(0.2, rel=1e-3)
+    confident = out.maps["confidence"] > 0.5
+    assert int(confident.sum()) > 100
+    assert out.maps["diffusivity"][confident].median().item() == pytest.approx(0.2, rel=0.02)
+
+
+def test_kelvin_input_gives_the_same_maps(heated: torch.Tensor) -> None:
+    celsius = TissueFeatures()(heated[:30], DT, DX)
+    kelvin = TissueFeatures(units="K")(heated[:30] + 273.15, DT, DX)
+    for name in ("peak_temperature", "cem43_minutes", "omega", "heating_rate", "source"):
+        torch.testing.assert_close(kelvin.maps[name], celsius.maps[name], rtol=1e-6, atol=1e-9)
+
+
+def test_batch_equals_single_videos(heated: torch.Tensor) -> None:
+    pair = torch.stack([heated[:30], heated[:30].flip(-1)])
+    batch = TissueFeatures()(pair, torch.tensor([DT, 2 * DT]), DX)
+    for i, dt in enumerate((DT, 2 * DT)):
+        single = TissueFeatures()(pair[i], dt, DX)
+        for name in ("omega", "cem43_minutes", "source", "loss_rate", "diffusivity"):
+            torch.testing.assert_close(batch.maps[name][i], single.maps[name], rtol=1e-7, atol=1e-9)
+
+
+def test_non_finite_samples_are_masked_and_reported(heated: torch.Tensor) -> None:
+    video = heated[:30].clone()
+    video[10, 5, 7] = math.nan
+    video[11:13, 30, 30] = math.inf
+    out = TissueFeatures()(video, DT, DX)
+    assert int(out.summary["n_masked"]) == 3
+    assert int(out.masked[5, 7]) == 1 and int(out.masked[30, 30]) == 2
+    assert "3 non-finite samples masked" in out.messages
+    for name, m in out.maps.items():
+        assert bool(torch.isfinite(m).all()), name
+
+
+def test_units_that_do_not_fit_are_refused(heated: torch.Tensor) -> None:
+    with pytest.raises(ValueError, match=r"--units C.*only makes sense in K"):
+        TissueFeatures()(heated[:10] + 273.15, DT, DX)
+    with pytest.raises(ValueError, match=r"--units K.*below absolute zero"):
+        TissueFeatures(units="K")(heated[:10] - 400.0, DT, DX)
+    with pytest.raises(ValueError, match="units must be one of 'C', 'K', got 'F'"):
+        TissueFeatures(units="F")
+    with pytest.raises(ValueError, match="window must be an odd number"):
+        TissueFeatures(window=4)
