@@ -32,6 +32,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -333,6 +334,6 @@ def estimate_long(
 
     with tqdm(total=shape[0], unit="frame", desc="anra long video", disable=not progress) as bar:
         for block in _chunks(frames, chunk):
-            stream.push(torch.as_tensor(block) if not isinstance(block, Tensor) else block)
+            stream.push(block if isinstance(block, Tensor) else torch.from_numpy(np.array(block)))
             bar.update(block.shape[0])
     return stream.estimate()
