@@ -119,3 +119,20 @@ def test_bad_input_messages(video) -> None:
         stream.push(torch.zeros(40, 41))
     with pytest.raises(ValueError, match=r"chunk must be an integer >= 1 \(frames\), got 0"):
         estimate_long(np.zeros((10, 40, 40)), 0.1, 0.1, chunk=0)
+
+
+def test_npy_frames_reads_slices_without_loading_the_file(video, tmp_path) -> None:
+    from anra_torch.streaming import NpyFrames
+
+    array = video.frames[0].numpy().astype(np.float32)
+    np.save(tmp_path / "v.npy", array)
+    frames = NpyFrames(tmp_path / "v.npy")
+    assert frames.shape == (28, 96, 96) and len(frames) == 28
+    np.testing.assert_array_equal(frames[5:9], array[5:9])
+    np.testing.assert_array_equal(frames[20:100], array[20:])
+    est = estimate_long(frames, video.dt, video.dx, chunk=10, noise_sd=NOISE)
+    offline = ANRAEstimator(smoothing=4.0, noise_sd=NOISE)(torch.from_numpy(array), video.dt, video.dx)
+    assert est.diffusivity == pytest.approx(float(offline.diffusivity), rel=1e-4)
+    np.save(tmp_path / "flat.npy", np.zeros((4, 5)))
+    with pytest.raises(ValueError, match=r"flat.npy: frames must be a C-ordered real array \(T, H, W\), got shape \(4, 5\)"):
+        NpyFrames(tmp_path / "flat.npy")
