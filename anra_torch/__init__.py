@@ -5,6 +5,7 @@ derivatives on fixed kernels, RTC attention, and a direct estimator of the therm
 ``dT/dt = a (d11 + d22) T`` that never solves the PDE. Units: mm, s, mm^2/s.
 """
 
+from anra_torch.batch import run_batch
 from anra_torch.diagnosis import Diagnosis, diagnose_terms
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
 from anra_torch.layers import (
@@ -27,6 +28,7 @@ from anra_torch.layers import (
 from anra_torch.noise import estimate_noise_sd
 from anra_torch.prediction import GainResult, assess_gain
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
+from anra_torch.streaming import StreamingEstimator, estimate_long
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
 
 __version__ = "0.1.0"
@@ -63,4 +65,7 @@ __all__ = [
     "simulate_effects",
     "simulate_heat",
     "time_derivative",
+    "run_batch",
+    "StreamingEstimator",
+    "estimate_long",
 ]

@@ -1,8 +1,9 @@
 """Many videos in one run: input expansion, batched estimation, resumable atomic CSV/Parquet tables.
 
-:func:`run_batch` reads every input (files, folders, glob patterns; any format in :data:`anra_torch.io.REGISTRY`),
-sends same-shaped videos through one :class:`~anra_torch.layers.estimator.ANRAEstimator` call as a batch,
-optionally diagnoses each video (:func:`anra_torch.prediction.assess_gain`) and writes one row per input:
+:func:`run_batch` reads every input (files, folders, glob patterns; any format in
+:data:`anra_torch.io.REGISTRY`), sends same-shaped videos through one
+:class:`~anra_torch.layers.estimator.ANRAEstimator` call as a batch, optionally diagnoses each video
+(:func:`anra_torch.prediction.assess_gain`) and writes one row per input:
 
 - ``path``; ``status`` (``"ok"`` or ``"error"``); ``error`` (one line, empty when ok);
 - ``diffusivity``, ``std_error`` (mm^2/s); ``smoothing_px`` (px); ``noise_sd`` (data units);

@@ -540,7 +540,9 @@ def _run_batch(args: argparse.Namespace) -> int:
     if args.dask or args.scheduler:
         from anra_torch.distributed import run_batch_dask
 
-        summary = run_batch_dask(args.inputs, args.out, scheduler=args.scheduler, workers=args.workers, **options)
+        summary = run_batch_dask(
+            args.inputs, args.out, scheduler=args.scheduler, workers=args.workers, **options
+        )
     else:
         summary = run_batch(args.inputs, args.out, **options)
     record = {
@@ -559,8 +561,11 @@ def _run_batch(args: argparse.Namespace) -> int:
             f"({summary.total} inputs) in {summary.seconds:.1f} s"
         )
     if summary.failed:
-        print(f"{PROG}: error: {summary.failed} of {summary.total} inputs failed; see the 'error' column of "
-              f"{summary.out}", file=sys.stderr)
+        print(
+            f"{PROG}: error: {summary.failed} of {summary.total} inputs failed; see the 'error' column of "
+            f"{summary.out}",
+            file=sys.stderr,
+        )
         return 2
     return 0
 
@@ -762,7 +767,8 @@ def build_parser() -> argparse.ArgumentParser:
         "batch",
         help="estimate (and diagnose) many videos into one resumable CSV/Parquet table",
         description=f"Estimate the diffusivity of every video among INPUTS (files, folders, glob patterns; "
-        f"{formats}) into one row each of OUT (.csv or .parquet). Same-shaped videos are estimated together; a "
+        f"{formats}) into one row each of OUT (.csv or .parquet). Same-shaped videos are estimated together; "
+        "a "
         "bad file gets an error row and never stops the others; re-running skips inputs already ok; OUT is "
         "replaced atomically after every batch. Exit status 2 when an input failed (see its 'error' column).",
     )

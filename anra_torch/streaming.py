@@ -181,10 +181,14 @@ class StreamingEstimator:
         if self._shape is None:
             need = 2 * self.margin + 1
             if min(h, w) < need:
-                raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
+                raise ValueError(
+                    f"frames must be at least {need} x {need} px for these filters, got {h} x {w}"
+                )
             self._shape = (h, w)
         elif (h, w) != self._shape:
-            raise ValueError(f"frames must keep the stream's size {self._shape[0]} x {self._shape[1]}, got {h} x {w}")
+            raise ValueError(
+                f"frames must keep the stream's size {self._shape[0]} x {self._shape[1]}, got {h} x {w}"
+            )
         return block.to(self.dtype)
 
     def _valid(self, finite: Tensor) -> Tensor:
@@ -236,8 +240,9 @@ class StreamingEstimator:
             lp = sum(tap * laps[i : i + n_new] for i, tap in enumerate(self._pair) if tap != 0.0)
             products = torch.stack([u * lp, lp * lp], 1)  # (n_new, 2, H'', W'')
             if any(m is not None for m in self._mask_ring):
-                masks = torch.stack([torch.ones_like(laps[0], dtype=torch.bool) if m is None else m
-                                     for m in self._mask_ring])
+                masks = torch.stack(
+                    [torch.ones_like(laps[0], dtype=torch.bool) if m is None else m for m in self._mask_ring]
+                )
                 window = masks[0:n_new].clone()
                 for i in range(1, length):
                     window &= masks[i : i + n_new]
@@ -262,16 +267,28 @@ class StreamingEstimator:
     def estimate(self) -> StreamingEstimate:
         """The estimate from the frames pushed so far (see :class:`StreamingEstimate`)."""
         when = (self.windows - 1 + self.time.centre) * self.dt if self.windows else math.nan
-        base = {"frames_seen": self.frames_seen, "windows": self.windows, "noise_sd": self.noise_sd, "time": when}
+        base = {
+            "frames_seen": self.frames_seen,
+            "windows": self.windows,
+            "noise_sd": self.noise_sd,
+            "time": when,
+        }
         if self.windows == 0:
             need = self.time.length
             return StreamingEstimate(
-                math.nan, math.nan, reliability=math.nan, ready=False,
-                message=f"need {need} frames for the time filter, got {self.frames_seen}", **base,
+                math.nan,
+                math.nan,
+                reliability=math.nan,
+                ready=False,
+                message=f"need {need} frames for the time filter, got {self.frames_seen}",
+                **base,
             )
         if math.isnan(self.noise_sd) and self.eiv_correction:
             return StreamingEstimate(
-                math.nan, math.nan, reliability=math.nan, ready=False,
+                math.nan,
+                math.nan,
+                reliability=math.nan,
+                ready=False,
                 message=f"noise level not known yet: estimated after {self.noise_frames} frames, "
                 f"got {self.frames_seen}",
                 **base,
@@ -284,12 +301,18 @@ class StreamingEstimator:
         reliability = den / self._sum_ll if self._sum_ll > 0 else 0.0
         if not den > 0:
             return StreamingEstimate(
-                math.nan, math.nan, reliability=reliability, ready=False,
-                message="no thermal activity above the noise yet (Laplacian energy within the noise)", **base,
+                math.nan,
+                math.nan,
+                reliability=reliability,
+                ready=False,
+                message="no thermal activity above the noise yet (Laplacian energy within the noise)",
+                **base,
             )
         last_den = self._last[1] - var
         per_frame = (self._last[0] - cov) / last_den if last_den > 0 else math.nan
-        return StreamingEstimate(num / den, per_frame, reliability=reliability, ready=True, message="", **base)
+        return StreamingEstimate(
+            num / den, per_frame, reliability=reliability, ready=True, message="", **base
+        )
 
 
 class NpyFrames:
@@ -358,7 +381,7 @@ def estimate_long(
     dt: float,
     dx: float,
     *,
-    chunk: int = 256,
+    chunk: int = 64,
     progress: bool = False,
     **options: Any,
 ) -> StreamingEstimate:

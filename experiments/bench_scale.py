@@ -36,8 +36,6 @@ import argparse
 import gc
 import json
 import math
-import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -142,7 +140,9 @@ def numpy_same_estimate(frames: np.ndarray, dt: float, dx: float, sigma: float =
         return ndi.correlate1d(u, g, axis=2, mode="constant")[:, :, r:-r]
 
     rate_s, avg_s = smooth(rate)[:, 2:-2, 2:-2], smooth(avg)
-    lap = ndi.correlate1d(avg_s, d2, axis=1, mode="constant") + ndi.correlate1d(avg_s, d2, axis=2, mode="constant")
+    lap = ndi.correlate1d(avg_s, d2, axis=1, mode="constant") + ndi.correlate1d(
+        avg_s, d2, axis=2, mode="constant"
+    )
     lap = lap[:, 2:-2, 2:-2] / np.float32(dx * dx)
     m_ul = np.einsum("kij,kij->k", rate_s, lap, dtype=np.float64) / lap[0].size
     m_ll = np.einsum("kij,kij->k", lap, lap, dtype=np.float64) / lap[0].size
@@ -192,7 +192,9 @@ def measure(spec: dict) -> dict:
         seconds, result, peak = _timed(lambda: est(x, dt, dx), repeats)
         values = result.diffusivity.double().numpy()
     elif kind == "numpy[sigma=4]":
-        seconds, values, peak = _timed(lambda: np.array([numpy_same_estimate(f, dt, dx) for f in frames]), repeats)
+        seconds, values, peak = _timed(
+            lambda: np.array([numpy_same_estimate(f, dt, dx) for f in frames]), repeats
+        )
         from anra_torch.layers.estimator import ANRAEstimator
 
         anra = ANRAEstimator(smoothing=4.0)(torch.from_numpy(frames), dt, dx).diffusivity.double().numpy()
@@ -206,8 +208,10 @@ def measure(spec: dict) -> dict:
         from peers import spectral_fit, weak_sindy_estimate
 
         video = frames[0].astype(np.float64)
-        fit = (lambda: weak_sindy_estimate(video, dt, dx)) if kind == "weak_sindy" else (
-            lambda: spectral_fit(video, dt, dx)
+        fit = (
+            (lambda: weak_sindy_estimate(video, dt, dx))
+            if kind == "weak_sindy"
+            else (lambda: spectral_fit(video, dt, dx))
         )
         result = fit()  # the peer times itself (fit only) and traces its own peak memory
         seconds, peak, values = result.seconds, result.peak_mb, np.array([result.diffusivity])
@@ -217,7 +221,9 @@ def measure(spec: dict) -> dict:
         record["anra_diffusivity"] = float(ANRAEstimator()(torch.from_numpy(frames[0]), dt, dx).diffusivity)
     else:
         raise ValueError(f"unknown kind {kind!r}")
-    n_frames = frames.shape[0] * frames.shape[1] if kind not in ("weak_sindy", "spectral") else frames.shape[1]
+    n_frames = (
+        frames.shape[0] * frames.shape[1] if kind not in ("weak_sindy", "spectral") else frames.shape[1]
+    )
     record.update(
         seconds=seconds,
         frames_per_s=n_frames / seconds,
@@ -244,7 +250,9 @@ def _measure_stream(spec: dict) -> dict:
         stream.push(frame)
         times.append(time.perf_counter() - t0)
     ms = np.array(times) * 1e3
-    return dict(spec, ms_median=float(np.median(ms)), ms_p95=float(np.percentile(ms, 95)), ms_mean=float(ms.mean()))
+    return dict(
+        spec, ms_median=float(np.median(ms)), ms_p95=float(np.percentile(ms, 95)), ms_mean=float(ms.mean())
+    )
 
 
 def write_long_video(path: Path, n_frames: int, *, size: int = 128, chunk: int = 500) -> tuple[float, float]:
@@ -259,7 +267,9 @@ def write_long_video(path: Path, n_frames: int, *, size: int = 128, chunk: int =
     for start in range(0, n_frames, chunk):
         times = torch.arange(start, min(start + chunk, n_frames), dtype=torch.float64) * dt
         clean = gaussian_blob(times, shape=(size, size), dx=dx, a=0.02, peak=5.0, sigma=1.0)
-        out[start : start + len(times)] = (clean + NOISE * torch.randn(clean.shape, generator=rng, dtype=torch.float64)).numpy()
+        out[start : start + len(times)] = (
+            clean + NOISE * torch.randn(clean.shape, generator=rng, dtype=torch.float64)
+        ).numpy()
     out.flush()
     del out
     return dt, dx
@@ -271,16 +281,17 @@ def _measure_long(spec: dict) -> dict:
     frames = NpyFrames(spec["path"])
     baseline = _status("VmRSS")
     t0 = time.perf_counter()
-    est = estimate_long(frames, spec["dt"], spec["dx"], chunk=spec["chunk"])
+    with _Peak() as peak_run:
+        est = estimate_long(frames, spec["dt"], spec["dx"], chunk=spec["chunk"])
     seconds = time.perf_counter() - t0
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak = _status("VmHWM")  # peak resident set since the reset at the start of the run
     return dict(
         spec,
         seconds=seconds,
         frames_per_s=frames.shape[0] / seconds,
         peak_rss_mb=peak,
         rss_before_mb=baseline,
-        peak_above_start_mb=peak - baseline,
+        peak_above_start_mb=peak_run.mb,
         diffusivity=est.diffusivity,
     )
 
@@ -304,32 +315,46 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
         "# Throughput and memory benchmark",
         "",
         f"`{' '.join(['python', *sys.argv])}`; torch threads {args.threads}; float32; 28-frame videos "
-        f"(27 Hz, a = {A_TRUE} mm^2/s, noise 0.01). The machine was shared with other jobs: ratios measured in "
+        f"(27 Hz, a = {A_TRUE} mm^2/s, noise 0.01). The machine was shared with other jobs: ratios "
+        "measured in "
         "this same run are what count.",
         "",
         "| size | batch | method | frames/s | s per call | peak MB | mean a | mean abs error |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    table = [r for r in records if r["kind"] in ("anra[auto]", "anra[sigma=4]", "numpy[sigma=4]", "read", "weak_sindy", "spectral")]
+    table = [
+        r
+        for r in records
+        if r["kind"] in ("anra[auto]", "anra[sigma=4]", "numpy[sigma=4]", "read", "weak_sindy", "spectral")
+    ]
     for r in table:
         if "failed" in r:
-            lines.append(f"| {r['size']} | {r.get('batch', 1)} | {r['kind']} | failed: {r['failed']} | | | | |")
+            lines.append(
+                f"| {r['size']} | {r.get('batch', 1)} | {r['kind']} | failed: {r['failed']} | | | | |"
+            )
             continue
         lines.append(
-            f"| {r['size']} | {r.get('batch', 1)} | {r['kind']} | {_fmt(r['frames_per_s'], 4)} | {_fmt(r['seconds'])} | "
+            f"| {r['size']} | {r.get('batch', 1)} | {r['kind']} | {_fmt(r['frames_per_s'], 4)} | "
+            f"{_fmt(r['seconds'])} | "
             f"{_fmt(r['peak_mb'])} | {_fmt(r['diffusivity_mean'], 5)} | {_fmt(r['abs_error_mean'])} |"
         )
     lines += ["", "## Ratios (frames/s of ANRA over the other, same size; ANRA at its largest batch)", ""]
     lines += ["| size | ratio | value |", "|---|---|---|"]
     for size in SIZES:
-        get = {(r["kind"], r.get("batch", 1)): r for r in records if r.get("size") == size and "failed" not in r}
+        get = {
+            (r["kind"], r.get("batch", 1)): r for r in records if r.get("size") == size and "failed" not in r
+        }
         batches = sorted(b for k, b in get if k == "anra[auto]")
         if not batches:
             continue
         big = batches[-1]
         auto, fixed = get[("anra[auto]", big)], get.get(("anra[sigma=4]", big))
         pairs = [
-            (f"anra[sigma=4] B={big} / numpy[sigma=4] (same estimator)", fixed, get.get(("numpy[sigma=4]", big))),
+            (
+                f"anra[sigma=4] B={big} / numpy[sigma=4] (same estimator)",
+                fixed,
+                get.get(("numpy[sigma=4]", big)),
+            ),
             (f"anra[auto] B={big} / numpy[sigma=4]", auto, get.get(("numpy[sigma=4]", big))),
             (f"anra[auto] B={big} / spectral fit", auto, get.get(("spectral", 1))),
             (f"anra[auto] B={big} / weak SINDy (tuned)", auto, get.get(("weak_sindy", 1))),
@@ -341,13 +366,18 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
                 lines.append(f"| {size} | {name} | {top['frames_per_s'] / bottom['frames_per_s']:.3g} |")
         numpy_rec = get.get(("numpy[sigma=4]", big))
         if numpy_rec:
-            lines.append(f"| {size} | max relative difference numpy vs anra a (sigma=4) | {numpy_rec['max_rel_diff_vs_anra']:.2g} |")
+            lines.append(
+                f"| {size} | max relative difference numpy vs anra a (sigma=4) | "
+                f"{numpy_rec['max_rel_diff_vs_anra']:.2g} |"
+            )
         for peer in ("spectral", "weak_sindy"):
             rec = get.get((peer, 1))
             if rec:
                 lines.append(
-                    f"| {size} | {peer}: a = {_fmt(rec['diffusivity_mean'], 5)} (error {_fmt(rec['abs_error_mean'])}) vs "
-                    f"anra[auto] a = {_fmt(rec['anra_diffusivity'], 5)} (error {_fmt(abs(rec['anra_diffusivity'] - A_TRUE))}) "
+                    f"| {size} | {peer}: a = {_fmt(rec['diffusivity_mean'], 5)} "
+                    f"(error {_fmt(rec['abs_error_mean'])}) vs anra[auto] a = "
+                    f"{_fmt(rec['anra_diffusivity'], 5)} "
+                    f"(error {_fmt(abs(rec['anra_diffusivity'] - A_TRUE))}) "
                     "on the same video | |"
                 )
     stream = [r for r in records if r["kind"] == "stream"]
@@ -360,17 +390,23 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
         )
     long = [r for r in records if r["kind"] == "long"]
     if long:
-        lines += ["", "## Long videos (estimate_long, chunks of 256 frames, 128 x 128 float32 .npy)", ""]
-        lines += ["| frames | peak RSS MB | RSS before MB | peak above start MB | s | a |", "|---|---|---|---|---|---|"]
+        lines += ["", "## Long videos (estimate_long, chunks of 64 frames, 128 x 128 float32 .npy)", ""]
+        lines += [
+            "| frames | peak RSS MB | RSS before MB | peak above start MB | s | a |",
+            "|---|---|---|---|---|---|",
+        ]
         for r in long:
             lines.append(
                 f"| {r['frames']} | {_fmt(r.get('peak_rss_mb'), 4)} | {_fmt(r.get('rss_before_mb'), 4)} | "
-                f"{_fmt(r.get('peak_above_start_mb'), 3)} | {_fmt(r.get('seconds'))} | {_fmt(r.get('diffusivity'), 4)} |"
+                f"{_fmt(r.get('peak_above_start_mb'), 3)} | {_fmt(r.get('seconds'))} | "
+                f"{_fmt(r.get('diffusivity'), 4)} |"
             )
         if len(long) == 2 and all("peak_rss_mb" in r for r in long):
             lines.append("")
-            lines.append(f"Peak RSS ratio {long[1]['frames']} / {long[0]['frames']} frames: "
-                         f"{long[1]['peak_rss_mb'] / long[0]['peak_rss_mb']:.3f} (target <= 1.5).")
+            lines.append(
+                f"Peak RSS ratio {long[1]['frames']} / {long[0]['frames']} frames: "
+                f"{long[1]['peak_rss_mb'] / long[0]['peak_rss_mb']:.3f} (target <= 1.5)."
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -379,7 +415,9 @@ def main() -> None:
     parser.add_argument("--out", default="results/bench", help="output folder (bench.json, bench.md)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads per measurement (default 1)")
     parser.add_argument("--repeats", type=int, default=2, help="timed runs after the cold one (best kept)")
-    parser.add_argument("--quick", action="store_true", help="batches 1 and 8 only, long video 1k and 2k frames")
+    parser.add_argument(
+        "--quick", action="store_true", help="batches 1 and 8 only, long video 1k and 2k frames"
+    )
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
@@ -393,7 +431,9 @@ def main() -> None:
         for batch in batches:
             for kind in ("anra[auto]", "anra[sigma=4]", "numpy[sigma=4]", "read"):
                 repeats = args.repeats if batch < 32 else 1
-                specs.append({"kind": kind, "size": size, "batch": batch, "threads": args.threads, "repeats": repeats})
+                specs.append(
+                    {"kind": kind, "size": size, "batch": batch, "threads": args.threads, "repeats": repeats}
+                )
         for kind in ("spectral", "weak_sindy"):
             specs.append({"kind": kind, "size": size, "batch": 1, "threads": args.threads, "repeats": 0})
     specs.append({"kind": "stream", "frames": 220, "threads": 1, "repeats": 0})
@@ -403,8 +443,18 @@ def main() -> None:
         for n in lengths:
             path = Path(scratch) / f"long_{n}.npy"
             dt, dx = write_long_video(path, n)
-            specs.append({"kind": "long", "frames": n, "path": str(path), "dt": dt, "dx": dx, "chunk": 256,
-                          "threads": args.threads, "repeats": 0})
+            specs.append(
+                {
+                    "kind": "long",
+                    "frames": n,
+                    "path": str(path),
+                    "dt": dt,
+                    "dx": dx,
+                    "chunk": 64,
+                    "threads": args.threads,
+                    "repeats": 0,
+                }
+            )
         for spec in tqdm(specs, desc="bench", unit="measurement"):
             records.append(_spawn(spec))
     out = Path(args.out)

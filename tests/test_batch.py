@@ -1,4 +1,5 @@
-"""Batch runs: input expansion, one row per input, same-shaped batching, resumable atomic tables, CLI, Dask."""
+"""Batch runs: input expansion, one row per input, same-shaped batching, resumable atomic tables, CLI,
+Dask."""
 
 from __future__ import annotations
 

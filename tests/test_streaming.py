@@ -26,7 +26,9 @@ def video():
 def test_frame_by_frame_equals_offline(video, sigma: float) -> None:
     frames = video.frames[0]
     offline = ANRAEstimator(smoothing=sigma, noise_sd=NOISE)(frames, video.dt, video.dx)
-    stream = StreamingEstimator(dt=video.dt, dx=video.dx, smoothing=sigma, noise_sd=NOISE, dtype=torch.float64)
+    stream = StreamingEstimator(
+        dt=video.dt, dx=video.dx, smoothing=sigma, noise_sd=NOISE, dtype=torch.float64
+    )
     per_frame = []
     for frame in frames:
         est = stream.push(frame)
@@ -112,7 +114,9 @@ def test_bad_input_messages(video) -> None:
     stream = StreamingEstimator(dt=0.1, dx=0.1)
     with pytest.raises(ValueError, match=r"frames must have shape \(H, W\) or \(n, H, W\), got \(4,\)"):
         stream.push(torch.zeros(4))
-    with pytest.raises(ValueError, match=r"frames must be at least 33 x 33 px for these filters, got 20 x 40"):
+    with pytest.raises(
+        ValueError, match=r"frames must be at least 33 x 33 px for these filters, got 20 x 40"
+    ):
         stream.push(torch.zeros(20, 40))
     stream.push(torch.zeros(40, 40))
     with pytest.raises(ValueError, match=r"frames must keep the stream's size 40 x 40, got 40 x 41"):
@@ -134,5 +138,7 @@ def test_npy_frames_reads_slices_without_loading_the_file(video, tmp_path) -> No
     offline = ANRAEstimator(smoothing=4.0, noise_sd=NOISE)(torch.from_numpy(array), video.dt, video.dx)
     assert est.diffusivity == pytest.approx(float(offline.diffusivity), rel=1e-4)
     np.save(tmp_path / "flat.npy", np.zeros((4, 5)))
-    with pytest.raises(ValueError, match=r"flat.npy: frames must be a C-ordered real array \(T, H, W\), got shape \(4, 5\)"):
+    with pytest.raises(
+        ValueError, match=r"flat.npy: frames must be a C-ordered real array \(T, H, W\), got shape \(4, 5\)"
+    ):
         NpyFrames(tmp_path / "flat.npy")

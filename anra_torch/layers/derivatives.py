@@ -211,10 +211,18 @@ def _correlate1d(x: Tensor, taps: list[float], dim: int) -> Tensor:
 
 
 def _correlate1d_adjoint(y: Tensor, taps: list[float], dim: int) -> Tensor:
-    """Transpose of :func:`_correlate1d`: zero-pad ``k - 1`` on both sides, correlate with reversed taps."""
-    k = len(taps)
-    pad = [0, 0] * (y.ndim - (dim % y.ndim) - 1) + [k - 1, k - 1]
-    return _correlate1d(F.pad(y, pad), taps[::-1], dim)
+    """Transpose of :func:`_correlate1d`: ``x[j + i] += taps[i] y[j]``, output longer by ``k - 1``.
+
+    Scattered in place into one zeroed output (no padded copy of ``y``).
+    """
+    k, n = len(taps), y.shape[dim]
+    shape = list(y.shape)
+    shape[dim] = n + k - 1
+    out = y.new_zeros(shape)
+    for i, tap in enumerate(taps):
+        if tap != 0.0:
+            out.narrow(dim, i, n).add_(y, alpha=tap)
+    return out
 
 
 def _separable_factors(kernel: Tensor, tol: float = 1e-13) -> list[tuple[list[float], list[float]]]:
