@@ -204,6 +204,8 @@ def _correlate1d(x: Tensor, taps: list[float], dim: int) -> Tensor:
     if not nonzero:
         return x.narrow(dim, 0, n) * 0.0
     first, tap = nonzero[0]
+    if len(nonzero) == 1 and tap == 1.0:  # a shifted identity: a view, no pass over memory
+        return x.narrow(dim, first, n)
     out = x.narrow(dim, first, n) * tap
     for i, tap in nonzero[1:]:
         out.add_(x.narrow(dim, i, n), alpha=tap)
@@ -263,10 +265,13 @@ class _SpatialOperator(nn.Module):
             u = F.pad(u.reshape(-1, 1, *u.shape[-2:]), (r, r, r, r), mode=mode).reshape(
                 *u.shape[:-2], u.shape[-2] + 2 * r, u.shape[-1] + 2 * r
             )
-        outputs = [
-            sum(_correlate1d(_correlate1d(u, kx, -1), ky, -2) for ky, kx in factors)
-            for factors in self._factors
-        ]
+        outputs = []
+        for factors in self._factors:
+            terms = [_correlate1d(_correlate1d(u, kx, -1), ky, -2) for ky, kx in factors]
+            out = terms[0] if len(terms) == 1 else terms[0] + terms[1]
+            for term in terms[2:]:
+                out.add_(term)
+            outputs.append(out)
         # one kernel (the Laplacian, its partner): a view, not a stacked copy
         return outputs[0].unsqueeze(-3) if len(outputs) == 1 else torch.stack(outputs, dim=-3)
 
@@ -292,6 +297,8 @@ class _SpatialOperator(nn.Module):
         _check_spacing(dx, "dx", "mm")
         _check_spacing_batch(dx, "dx", u)
         out = self._filter(u)
+        if self.order == 0:  # unitless smoothing: no division (and no copy of a cropped view)
+            return out
         return out / _per_leading(dx, out, out.ndim - 1) ** self.order
 
     def extra_repr(self) -> str:
