@@ -187,3 +187,19 @@ def test_dask_two_worker_cluster_gives_the_local_rows(videos: Path, tmp_path: Pa
         assert row["error"] == by_path[row["path"]]["error"]
         if row["status"] == "ok":
             assert row["diffusivity"] == pytest.approx(by_path[row["path"]]["diffusivity"], rel=1e-6)
+
+
+def test_estimator_slices_of_a_big_batch_equal_the_whole(monkeypatch) -> None:
+    from anra_torch.layers import estimator as estimator_module
+
+    video = paper_video(n_videos=5, seed=7, crop=48)
+    frames = video.frames.clone()
+    frames[3] = frames[3, :1].expand_as(frames[3])  # static video: flagged, not raised, with strict=False
+    whole = ANRAEstimator(strict=False, window=9)(frames, video.dt, video.dx)
+    monkeypatch.setattr(estimator_module, "_SLICE_ELEMENTS", 2 * frames[0].numel())  # slices of 2 videos
+    sliced = ANRAEstimator(strict=False, window=9)(frames, video.dt, video.dx)
+    for name in ("diffusivity", "std_error", "per_frame", "smoothing", "valid", "field", "confidence"):
+        torch.testing.assert_close(getattr(sliced, name), getattr(whole, name), equal_nan=True)
+    assert sliced.messages == whole.messages and not bool(sliced.valid[3])
+    with pytest.raises(ValueError, match=r"^video 3: frames show no thermal activity"):
+        ANRAEstimator()(frames, video.dt, video.dx)
