@@ -153,7 +153,7 @@ class TimeDerivative(nn.Module):
         # Shifted-slice sums along T (a 2-channel conv_transpose3d runs ~10x slower on CPU).
         rate = _correlate1d_adjoint(rate_weights, self.taps.tolist(), 1)
         rate = rate / _per_leading(dt, rate, 3)
-        return rate.add_(_correlate1d_adjoint(average_weights, self.pair.tolist(), 1))
+        return rate + _correlate1d_adjoint(average_weights, self.pair.tolist(), 1)
 
     def extra_repr(self) -> str:
         return f"family={self.stencil.family!r}, length={self.length}, delay={self.delay:g}"
@@ -213,18 +213,10 @@ def _correlate1d(x: Tensor, taps: list[float], dim: int) -> Tensor:
 
 
 def _correlate1d_adjoint(y: Tensor, taps: list[float], dim: int) -> Tensor:
-    """Transpose of :func:`_correlate1d`: ``x[j + i] += taps[i] y[j]``, output longer by ``k - 1``.
-
-    Scattered in place into one zeroed output (no padded copy of ``y``).
-    """
-    k, n = len(taps), y.shape[dim]
-    shape = list(y.shape)
-    shape[dim] = n + k - 1
-    out = y.new_zeros(shape)
-    for i, tap in enumerate(taps):
-        if tap != 0.0:
-            out.narrow(dim, i, n).add_(y, alpha=tap)
-    return out
+    """Transpose of :func:`_correlate1d`: zero-pad ``k - 1`` on both sides, correlate with reversed taps."""
+    k = len(taps)
+    pad = [0, 0] * (y.ndim - (dim % y.ndim) - 1) + [k - 1, k - 1]
+    return _correlate1d(F.pad(y, pad), taps[::-1], dim)
 
 
 def _separable_factors(kernel: Tensor, tol: float = 1e-13) -> list[tuple[list[float], list[float]]]:
