@@ -13,7 +13,7 @@ $(PY):
 # Re-install only when the package metadata changes.
 $(STAMP): pyproject.toml constraints.txt | $(PY)
 	$(PIP) torch==2.13.0
-	$(PIP) -e ".[test,plot,peers,formats]"
+	$(PIP) -e ".[test,plot,peers,formats,parquet,dask]"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -5,6 +5,7 @@ derivatives on fixed kernels, RTC attention, and a direct estimator of the therm
 ``dT/dt = a (d11 + d22) T`` that never solves the PDE. Units: mm, s, mm^2/s.
 """
 
+from anra_torch.batch import run_batch
 from anra_torch.diagnosis import Diagnosis, diagnose_terms
 from anra_torch.dose import SKIN, ArrheniusConstants, arrhenius_omega, cem43, time_above
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
@@ -33,6 +34,7 @@ from anra_torch.prediction import GainResult, assess_gain
 from anra_torch.refine import Refinement, refine_model
 from anra_torch.resample import resample_uniform
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
+from anra_torch.streaming import StreamingEstimator, estimate_long
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
 from anra_torch.tissue_model import LearnedTissueModel, MovingSource, simulate_tissue
 
@@ -88,4 +90,7 @@ __all__ = [
     "cem43",
     "simulate_tissue",
     "time_above",
+    "run_batch",
+    "StreamingEstimator",
+    "estimate_long",
 ]

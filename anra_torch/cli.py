@@ -626,6 +626,51 @@ def _run_features(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------------- batch
+def _run_batch(args: argparse.Namespace) -> int:
+    from anra_torch.batch import run_batch
+
+    options = {
+        "dt": args.dt,
+        "dx": args.dx,
+        "diagnose": args.diagnose,
+        "batch_size": args.batch_size,
+        "dtype": "float64" if args.float64 else "float32",
+        "progress": not args.no_progress,
+    }
+    if args.dask or args.scheduler:
+        from anra_torch.distributed import run_batch_dask
+
+        summary = run_batch_dask(
+            args.inputs, args.out, scheduler=args.scheduler, workers=args.workers, **options
+        )
+    else:
+        summary = run_batch(args.inputs, args.out, **options)
+    record = {
+        "out": str(summary.out),
+        "total": summary.total,
+        "skipped": summary.skipped,
+        "ok": summary.ok,
+        "failed": summary.failed,
+        "seconds": round(summary.seconds, 3),
+    }
+    if args.json:
+        print(json.dumps(record))
+    else:
+        print(
+            f"{summary.out}: {summary.ok} ok, {summary.failed} failed, {summary.skipped} already done "
+            f"({summary.total} inputs) in {summary.seconds:.1f} s"
+        )
+    if summary.failed:
+        print(
+            f"{PROG}: error: {summary.failed} of {summary.total} inputs failed; see the 'error' column of "
+            f"{summary.out}",
+            file=sys.stderr,
+        )
+        return 2
+    return 0
+
+
 # ----------------------------------------------------------------------------------------- demo
 def _run_demo(args: argparse.Namespace) -> int:
     if importlib.util.find_spec("matplotlib") is None:
@@ -820,6 +865,51 @@ def build_parser() -> argparse.ArgumentParser:
         "--report", metavar="DIR", help="write report.md with figures (forecasts, residual, RMSE) to DIR"
     )
     diagnose.set_defaults(run=_run_diagnose)
+
+    batch = commands.add_parser(
+        "batch",
+        help="estimate (and diagnose) many videos into one resumable CSV/Parquet table",
+        description=f"Estimate the diffusivity of every video among INPUTS (files, folders, glob patterns; "
+        f"{formats}) into one row each of OUT (.csv or .parquet). Same-shaped videos are estimated together; "
+        "a "
+        "bad file gets an error row and never stops the others; re-running skips inputs already ok; OUT is "
+        "replaced atomically after every batch. Exit status 2 when an input failed (see its 'error' column).",
+    )
+    batch.add_argument("inputs", nargs="+", metavar="INPUT", help="video files, folders or glob patterns")
+    batch.add_argument("--out", required=True, metavar="OUT", help="results table, .csv or .parquet")
+    batch.add_argument(
+        "--diagnose", action="store_true", help="also diagnose hidden effects (top_effect, gain, noise_floor)"
+    )
+    batch.add_argument(
+        "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the files)"
+    )
+    batch.add_argument(
+        "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the files)"
+    )
+    batch.add_argument(
+        "--batch-size",
+        type=_integer("videos", minimum=1),
+        default=8,
+        metavar="N",
+        help="videos read and estimated together (default 8)",
+    )
+    batch.add_argument("--float64", action="store_true", help="compute in float64 (default float32)")
+    batch.add_argument(
+        "--dask", action="store_true", help="run on Dask (embedded LocalCluster unless --scheduler)"
+    )
+    batch.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address (implies --dask)")
+    batch.add_argument(
+        "--workers",
+        type=_integer("workers", minimum=1),
+        default=2,
+        metavar="N",
+        help="workers of the embedded LocalCluster (default 2)",
+    )
+    batch.add_argument("--no-progress", action="store_true", help="no progress bar")
+    batch.add_argument(
+        "--json", action="store_true", help="print one JSON object: out, total, skipped, ok, failed, seconds"
+    )
+    batch.set_defaults(run=_run_batch)
 
     demo = commands.add_parser(
         "demo",

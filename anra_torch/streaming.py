@@ -1,0 +1,421 @@
+"""Frame-by-frame ANRA: a ring buffer of filtered frames, causal time filters, an estimate after every frame.
+
+The offline estimator (:class:`~anra_torch.layers.estimator.ANRAEstimator`, ``mode="lsq"``, uniform weights)
+computes, for every window of ``L`` frames ``k .. k + L - 1``,
+
+* ``U_k = P G (sum_i taps_i T_{k+i}) / dt`` and ``Lap_k = Lap G (sum_i pair_i T_{k+i})``;
+* the frame means ``m_ul[k] = mean(U_k Lap_k)`` and ``m_ll[k] = mean(Lap_k^2)`` over the valid pixels,
+
+and returns ``a = (sum_k m_ul - K c) / (sum_k m_ll - K v)`` with the noise covariance ``c`` and variance ``v``
+(errors-in-variables correction). The spatial filters commute with the time filter, so each frame is filtered
+in space once when it arrives (``P G T_j`` and ``Lap G T_j``, kept in a ring buffer of ``L`` frames); the time
+filter is then an ``L``-term sum over the buffer, causal (window ending at the newest frame; the estimate
+applies ``L - 1 - centre`` frames back, see :attr:`TimeDerivative.delay`). Only the running sums are kept:
+memory is ``O(L H W)`` whatever the length of the video.
+
+:class:`StreamingEstimator` takes one frame ``(H, W)`` or a block ``(n, H, W)`` at a time; on the same frames,
+with the same fixed configuration (one smoothing sigma, a known ``noise_sd``), its diffusivity equals the
+offline estimator's up to float rounding. :func:`estimate_long` feeds a long video (any array that can be
+sliced, e.g. a ``numpy.load(..., mmap_mode="r")`` memmap) through it in chunks, so peak memory does not grow
+with the number of frames.
+
+Differences from the offline estimator, by design: one smoothing sigma (no automatic choice, which needs the
+whole video), the noise level from the first ``noise_frames`` frames when not given, no standard error and no
+dead-pixel detection (constant pixels are only recognisable once the video is over); non-finite pixels are
+masked (with their filter support) exactly as offline.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from anra_torch.layers.derivatives import GaussianSmoothing, Laplacian, TimeDerivative
+from anra_torch.noise import estimate_noise_sd
+
+__all__ = ["NpyFrames", "StreamingEstimate", "StreamingEstimator", "estimate_long"]
+
+
+@dataclass(frozen=True)
+class StreamingEstimate:
+    """The estimate after the frames seen so far.
+
+    Attributes:
+        diffusivity: global ``a`` (mm^2/s) over every complete window so far; NaN exactly when ``ready`` is
+            False (the reason in ``message``).
+        per_frame: ``a`` of the newest window alone (mm^2/s), NaN when not ready.
+        frames_seen: frames pushed so far.
+        windows: complete time windows (``frames_seen - L + 1``, at least 0).
+        noise_sd: noise sd used (data units), NaN before it is known.
+        reliability: fraction of the regressor energy that is signal (1 is noiseless).
+        time: instant (s after the first frame) the newest window's derivative applies to.
+        ready: True once a diffusivity is available.
+        message: why there is none yet ("" when ready).
+    """
+
+    diffusivity: float
+    per_frame: float
+    frames_seen: int
+    windows: int
+    noise_sd: float
+    reliability: float
+    time: float
+    ready: bool
+    message: str
+
+
+class StreamingEstimator:
+    """ANRA diffusivity from a live stream of frames, one frame (or block) at a time.
+
+    Args:
+        dt: frame period in s.
+        dx: pixel size in mm.
+        smoothing: spatial Gaussian sigma in px (one value: the automatic choice needs the whole video).
+        time_family: Holoborodko time family, as offline.
+        time_length: time window length ``L`` in frames.
+        laplacian_size: spatial kernel size, as offline.
+        laplacian_family: ``"central"`` (offline lsq default) or ``"holoborodko"``.
+        eiv_correction: subtract the noise variance/covariance (as offline).
+        noise_sd: known noise sd (data units); None estimates it once from the first ``noise_frames``
+            frames with :func:`anra_torch.noise.estimate_noise_sd`.
+        noise_frames: frames used for that estimate (>= 5).
+        dtype: computation dtype (float32 is ~2x faster; float64 reproduces the offline float64 result).
+
+    Shape:
+        :meth:`push` takes ``(H, W)`` or ``(n, H, W)``; every frame of a stream must have the same ``(H, W)``.
+
+    Example:
+        >>> from anra_torch.simulate import gaussian_blob
+        >>> video = gaussian_blob(torch.arange(12) / 27.0, shape=(48, 48), dx=0.1, a=0.2, peak=3.0, sigma=1.0)
+        >>> stream = StreamingEstimator(dt=1 / 27, dx=0.1, smoothing=1.0, noise_sd=0.0)
+        >>> for frame in video:
+        ...     est = stream.push(frame)
+        >>> round(est.diffusivity, 3)
+        0.2
+    """
+
+    def __init__(
+        self,
+        *,
+        dt: float,
+        dx: float,
+        smoothing: float = 4.0,
+        time_family: str = "smooth",
+        time_length: int = 5,
+        laplacian_size: int = 5,
+        laplacian_family: str = "central",
+        eiv_correction: bool = True,
+        noise_sd: float | None = None,
+        noise_frames: int = 16,
+        dtype: torch.dtype = torch.float32,
+    ) -> None:
+        for name, value, unit in (("dt", dt, "s"), ("dx", dx, "mm")):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
+        if noise_sd is not None and not (math.isfinite(noise_sd) and noise_sd >= 0):
+            raise ValueError(f"noise_sd must be a finite number >= 0 (data units), got {noise_sd!r}")
+        if not (isinstance(noise_frames, int) and noise_frames >= 5):
+            raise ValueError(f"noise_frames must be an integer >= 5, got {noise_frames!r}")
+        if dtype not in (torch.float32, torch.float64):
+            raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        self.dt, self.dx, self.dtype = float(dt), float(dx), dtype
+        self.time = TimeDerivative(time_family, time_length)
+        self.laplacian = Laplacian(laplacian_size, family=laplacian_family)
+        self.smoother = GaussianSmoothing(smoothing)
+        self.eiv_correction = eiv_correction
+        self.noise_frames = noise_frames
+        self._taps = (self.time.taps / self.dt).tolist()
+        self._pair = self.time.pair.tolist()
+        self.margin = self.smoother.radius + self.laplacian.support // 2
+        # Noise gains of the composite filters for unit spacing (as the offline estimator computes them).
+        g = self.smoother.taps
+        n = self.laplacian.support
+        g2 = torch.outer(g, g)[None, None]
+
+        def compose(kernel: Tensor) -> Tensor:
+            return F.conv2d(F.pad(g2, (n - 1,) * 4), kernel.flip((-2, -1))[None, None])[0, 0]
+
+        lap_g = compose(self.laplacian.kernels[0])
+        partner_g = compose(self.laplacian.partner.kernels[0])
+        self._lap_gain = float((self.time.pair**2).sum()) * float((lap_g**2).sum()) / self.dx**4
+        self._cross_gain = (
+            float((self.time.taps * self.time.pair).sum()) * float((lap_g * partner_g).sum())
+        ) / (self.dt * self.dx**2)
+        self._given_noise = noise_sd
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every frame (start a new stream with the same configuration)."""
+        self._rate_ring: list[Tensor] = []  # P G T_j, newest last, at most L
+        self._lap_ring: list[Tensor] = []  # Lap G T_j / dx^2
+        self._mask_ring: list[Tensor | None] = []  # valid output pixels of frame j (None: all)
+        self._noise_buffer: list[Tensor] = []
+        self._shape: tuple[int, int] | None = None
+        self._offset: Tensor | None = None
+        self.frames_seen = 0
+        self.windows = 0
+        self._sum_ul = 0.0  # sum over windows of the frame mean of U Lap
+        self._sum_ll = 0.0  # ... of Lap^2
+        self._last = (math.nan, math.nan)  # newest window's (mean U Lap, mean Lap^2)
+        self.noise_sd = math.nan if self._given_noise is None else float(self._given_noise)
+
+    # ----------------------------------------------------------------------------------- filtering
+    def _check(self, frames: Any) -> Tensor:
+        block = torch.as_tensor(frames)
+        if block.dtype == torch.bool or block.is_complex():
+            raise TypeError(f"frames must hold real temperatures, got dtype {block.dtype}")
+        if block.ndim == 2:
+            block = block.unsqueeze(0)
+        if block.ndim != 3:
+            raise ValueError(f"frames must have shape (H, W) or (n, H, W), got {tuple(block.shape)}")
+        h, w = block.shape[-2:]
+        if self._shape is None:
+            need = 2 * self.margin + 1
+            if min(h, w) < need:
+                raise ValueError(
+                    f"frames must be at least {need} x {need} px for these filters, got {h} x {w}"
+                )
+            self._shape = (h, w)
+        elif (h, w) != self._shape:
+            raise ValueError(
+                f"frames must keep the stream's size {self._shape[0]} x {self._shape[1]}, got {h} x {w}"
+            )
+        return block.to(self.dtype)
+
+    def _valid(self, finite: Tensor) -> Tensor:
+        """Output pixels whose whole spatial support is finite, ``(n, H'', W'')``."""
+        k = 2 * self.margin + 1
+        bad = F.max_pool2d((~finite).to(torch.float32).unsqueeze(1), k, stride=1).squeeze(1)
+        return bad == 0
+
+    def _spatial(self, block: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
+        finite = torch.isfinite(block)
+        mask = None
+        if not bool(finite.all()):
+            mask = self._valid(finite)
+            block = torch.where(finite, block, torch.zeros_like(block))
+        smooth = self.smoother(block)
+        return self.laplacian.partner(smooth), self.laplacian(smooth, self.dx), mask
+
+    # -------------------------------------------------------------------------------------- update
+    def push(self, frames: Any) -> StreamingEstimate:
+        """Add one frame ``(H, W)`` or a block ``(n, H, W)`` (oldest first); return the current estimate.
+
+        Raises:
+            ValueError: wrong shape, a size change within the stream, frames smaller than the filters.
+            TypeError: non-numeric frames.
+        """
+        block = self._check(frames)
+        if self._offset is None:  # a constant offset keeps float32 precise on e.g. 300 K scenes
+            first = block[0][torch.isfinite(block[0])]
+            self._offset = first.mean() if first.numel() else torch.zeros((), dtype=self.dtype)
+        block = block - self._offset
+        if math.isnan(self.noise_sd) and len(self._noise_buffer) < self.noise_frames:
+            self._noise_buffer.extend(block[: self.noise_frames - len(self._noise_buffer)])
+            if len(self._noise_buffer) >= self.noise_frames:
+                self.noise_sd = float(estimate_noise_sd(torch.stack(self._noise_buffer)))
+                self._noise_buffer = []
+        rate, lap, mask = self._spatial(block)
+        length = self.time.length
+        for j in range(block.shape[0]):  # per frame only list bookkeeping; the maths below is batched
+            self._rate_ring.append(rate[j])
+            self._lap_ring.append(lap[j])
+            self._mask_ring.append(None if mask is None else mask[j])
+        # Windows completed by this block: those ending at each new frame with L frames available.
+        total = len(self._rate_ring)
+        n_new = max(0, total - length + 1)
+        if n_new:
+            rates = torch.stack(self._rate_ring)
+            laps = torch.stack(self._lap_ring)
+            u = sum(tap * rates[i : i + n_new] for i, tap in enumerate(self._taps) if tap != 0.0)
+            lp = sum(tap * laps[i : i + n_new] for i, tap in enumerate(self._pair) if tap != 0.0)
+            products = torch.stack([u * lp, lp * lp], 1)  # (n_new, 2, H'', W'')
+            if any(m is not None for m in self._mask_ring):
+                masks = torch.stack(
+                    [torch.ones_like(laps[0], dtype=torch.bool) if m is None else m for m in self._mask_ring]
+                )
+                window = masks[0:n_new].clone()
+                for i in range(1, length):
+                    window &= masks[i : i + n_new]
+                weights = window.to(products.dtype)
+                counts = weights.sum((-2, -1)).clamp_min(1)
+                means = (products * weights[:, None]).sum((-2, -1)) / counts[:, None]
+                means = torch.where((window.flatten(1).any(1))[:, None], means, torch.zeros_like(means))
+            else:
+                means = products.mean((-2, -1))
+            sums = means.double().sum(0)
+            self._sum_ul += float(sums[0])
+            self._sum_ll += float(sums[1])
+            self._last = (float(means[-1, 0]), float(means[-1, 1]))
+            self.windows += n_new
+        keep = length - 1
+        self._rate_ring = self._rate_ring[-keep:] if keep else []
+        self._lap_ring = self._lap_ring[-keep:] if keep else []
+        self._mask_ring = self._mask_ring[-keep:] if keep else []
+        self.frames_seen += block.shape[0]
+        return self.estimate()
+
+    def estimate(self) -> StreamingEstimate:
+        """The estimate from the frames pushed so far (see :class:`StreamingEstimate`)."""
+        when = (self.windows - 1 + self.time.centre) * self.dt if self.windows else math.nan
+        base = {
+            "frames_seen": self.frames_seen,
+            "windows": self.windows,
+            "noise_sd": self.noise_sd,
+            "time": when,
+        }
+        if self.windows == 0:
+            need = self.time.length
+            return StreamingEstimate(
+                math.nan,
+                math.nan,
+                reliability=math.nan,
+                ready=False,
+                message=f"need {need} frames for the time filter, got {self.frames_seen}",
+                **base,
+            )
+        if math.isnan(self.noise_sd) and self.eiv_correction:
+            return StreamingEstimate(
+                math.nan,
+                math.nan,
+                reliability=math.nan,
+                ready=False,
+                message=f"noise level not known yet: estimated after {self.noise_frames} frames, "
+                f"got {self.frames_seen}",
+                **base,
+            )
+        var = cov = 0.0
+        if self.eiv_correction:
+            var, cov = self.noise_sd**2 * self._lap_gain, self.noise_sd**2 * self._cross_gain
+        num = self._sum_ul - self.windows * cov
+        den = self._sum_ll - self.windows * var
+        reliability = den / self._sum_ll if self._sum_ll > 0 else 0.0
+        if not den > 0:
+            return StreamingEstimate(
+                math.nan,
+                math.nan,
+                reliability=reliability,
+                ready=False,
+                message="no thermal activity above the noise yet (Laplacian energy within the noise)",
+                **base,
+            )
+        last_den = self._last[1] - var
+        per_frame = (self._last[0] - cov) / last_den if last_den > 0 else math.nan
+        return StreamingEstimate(
+            num / den, per_frame, reliability=reliability, ready=True, message="", **base
+        )
+
+
+class NpyFrames:
+    """Frames of a ``(T, H, W)`` ``.npy`` file read on demand by plain file reads.
+
+    Unlike ``numpy.load(..., mmap_mode="r")``, whose mapped pages stay resident and count towards the
+    process's memory as the video is read, only the requested frames are ever in memory.
+
+    Args:
+        path: a ``.npy`` file holding one C-ordered real array ``(T, H, W)``.
+
+    Shape:
+        ``frames[a:b]`` -> ``numpy.ndarray`` ``(b - a, H, W)``; ``shape`` ``(T, H, W)``.
+
+    Raises:
+        ValueError: not a readable ``.npy`` file, or not a C-ordered real ``(T, H, W)`` array.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        try:
+            with self.path.open("rb") as handle:
+                version = np.lib.format.read_magic(handle)
+                read_header = (
+                    np.lib.format.read_array_header_1_0
+                    if version == (1, 0)
+                    else np.lib.format.read_array_header_2_0
+                )
+                shape, fortran, dtype = read_header(handle)
+                self._offset = handle.tell()
+        except (OSError, ValueError) as err:
+            raise ValueError(f"{self.path}: cannot read as .npy ({' '.join(str(err).split())})") from err
+        if len(shape) != 3 or fortran or dtype.kind not in "iuf":
+            raise ValueError(
+                f"{self.path}: frames must be a C-ordered real array (T, H, W), got shape {shape}, "
+                f"dtype {dtype}{', Fortran order' if fortran else ''}"
+            )
+        self.shape, self.dtype = tuple(shape), dtype
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, index: slice) -> np.ndarray:
+        if not isinstance(index, slice):
+            raise TypeError(f"NpyFrames supports slices of frames, got {type(index).__name__}")
+        start, stop, step = index.indices(self.shape[0])
+        if step != 1:
+            raise ValueError(f"NpyFrames reads contiguous frames only (step 1), got step {step}")
+        frame = self.shape[1] * self.shape[2]
+        count = max(stop - start, 0)
+        with self.path.open("rb") as handle:
+            handle.seek(self._offset + start * frame * self.dtype.itemsize)
+            data = np.fromfile(handle, dtype=self.dtype, count=count * frame)
+        if data.size != count * frame:
+            raise ValueError(f"{self.path}: truncated: frames {start}-{stop - 1} are not all in the file")
+        return data.reshape(count, *self.shape[1:])
+
+
+def _chunks(frames: Any, chunk: int) -> Iterator[Any]:
+    for start in range(0, frames.shape[0], chunk):
+        yield frames[start : start + chunk]
+
+
+def estimate_long(
+    frames: Any,
+    dt: float,
+    dx: float,
+    *,
+    chunk: int = 64,
+    progress: bool = False,
+    **options: Any,
+) -> StreamingEstimate:
+    """Diffusivity of a long video processed in chunks of frames (memory independent of its length).
+
+    Args:
+        frames: anything with ``shape`` ``(T, H, W)`` that slices along T into arrays or tensors, e.g.
+            :class:`NpyFrames` (a ``.npy`` file read chunk by chunk), an HDF5 dataset, a tensor; only one
+            chunk at a time is converted and filtered.
+        dt: frame period in s.
+        dx: pixel size in mm.
+        chunk: frames per chunk (>= 1).
+        progress: show a tqdm progress bar.
+        **options: :class:`StreamingEstimator` options (``smoothing``, ``noise_sd``, ``dtype``, ...).
+
+    Returns:
+        :class:`StreamingEstimate` after the last frame.
+
+    Raises:
+        ValueError: ``frames`` without a ``(T, H, W)`` shape, ``chunk`` < 1, or the estimator's errors.
+
+    Shape:
+        ``frames`` ``(T, H, W)``.
+    """
+    shape = tuple(getattr(frames, "shape", ()))
+    if len(shape) != 3:
+        raise ValueError(f"frames must have shape (T, H, W), got {shape}")
+    if not (isinstance(chunk, int) and chunk >= 1):
+        raise ValueError(f"chunk must be an integer >= 1 (frames), got {chunk!r}")
+    stream = StreamingEstimator(dt=dt, dx=dx, **options)
+    from tqdm.auto import tqdm
+
+    with tqdm(total=shape[0], unit="frame", desc="anra long video", disable=not progress) as bar:
+        for block in _chunks(frames, chunk):
+            stream.push(block if isinstance(block, Tensor) else torch.from_numpy(np.array(block)))
+            bar.update(block.shape[0])
+    return stream.estimate()

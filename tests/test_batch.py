@@ -1,0 +1,205 @@
+"""Batch runs: input expansion, one row per input, same-shaped batching, resumable atomic tables, CLI,
+Dask."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from anra_torch import batch as batch_module
+from anra_torch.batch import BATCH_COLUMNS, expand_inputs, read_table, run_batch, write_table
+from anra_torch.cli import main
+from anra_torch.effects import hidden_effect_video
+from anra_torch.io import save_npz
+from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.synthetic import paper_video
+
+
+@pytest.fixture(scope="module")
+def videos(tmp_path_factory) -> Path:
+    """Folder: 3 paper videos 64 px, one 72 px, a corrupt file, a .npy without dt, a text file."""
+    root = tmp_path_factory.mktemp("videos")
+    small = paper_video(n_videos=3, seed=5, crop=64)
+    for i in range(3):
+        save_npz(root / f"p{i}.npz", small.frames[i], dt=small.dt, dx=small.dx, a_true=0.2)
+    other = paper_video(n_videos=1, seed=6, crop=72)
+    (root / "sub").mkdir()
+    save_npz(root / "sub" / "q.npz", other.frames[0], dt=other.dt, dx=other.dx)
+    (root / "broken.npz").write_bytes(b"not a zip archive")
+    np.save(root / "nodt.npy", np.zeros((6, 40, 40)))
+    (root / "notes.txt").write_text("not a video")
+    return root
+
+
+def _offline(path: Path, dtype: torch.dtype = torch.float64) -> float:
+    data = np.load(path)
+    frames = torch.from_numpy(data["frames"]).to(dtype)
+    return float(ANRAEstimator(strict=False)(frames, float(data["dt"]), float(data["dx"])).diffusivity)
+
+
+def test_expand_inputs_files_folders_globs(videos: Path) -> None:
+    found = expand_inputs([videos])
+    names = [Path(p).name for p in found]
+    assert names == ["broken.npz", "nodt.npy", "p0.npz", "p1.npz", "p2.npz", "q.npz"]  # no notes.txt
+    globbed = expand_inputs([str(videos / "p*.npz"), videos / "p1.npz", str(videos / "zz*.npz")])
+    assert [Path(p).name for p in globbed] == ["p0.npz", "p1.npz", "p2.npz", "zz*.npz"]
+    assert expand_inputs(["missing.npz"]) == ["missing.npz"]  # kept: it gets an error row
+
+
+def test_rows_match_the_estimator_and_bad_files_get_error_rows(videos: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r.csv"
+    summary = run_batch([videos, "missing.npz"], out, dtype="float64", progress=False)
+    assert (summary.total, summary.ok, summary.failed, summary.skipped) == (7, 4, 3, 0)
+    rows = {Path(r["path"]).name: r for r in read_table(out)}
+    assert list(rows) == ["broken.npz", "nodt.npy", "p0.npz", "p1.npz", "p2.npz", "q.npz", "missing.npz"]
+    for name in ("p0.npz", "p1.npz", "p2.npz", "sub/q.npz"):
+        row = rows[Path(name).name]
+        assert row["status"] == "ok" and row["error"] is None
+        assert row["diffusivity"] == pytest.approx(_offline(videos / name), rel=1e-9)
+        assert abs(row["diffusivity"] - 0.2) < 5 * row["std_error"] + 1e-3
+    assert rows["p0.npz"]["a_true"] == 0.2 and rows["p0.npz"]["height"] == 64
+    assert "no frame period" in rows["nodt.npy"]["error"]
+    assert rows["missing.npz"]["error"] == "missing.npz: no such file"
+    assert rows["broken.npz"]["status"] == "error" and rows["broken.npz"]["diffusivity"] is None
+
+
+def test_same_shaped_videos_share_one_estimator_call(videos: Path, tmp_path: Path, monkeypatch) -> None:
+    calls: list[tuple[int, ...]] = []
+    forward = ANRAEstimator.forward
+
+    def spy(self, frames, dt, dx):
+        calls.append(tuple(frames.shape))
+        return forward(self, frames, dt, dx)
+
+    monkeypatch.setattr(ANRAEstimator, "forward", spy)
+    run_batch([videos / "p*.npz", videos / "sub"], tmp_path / "r.csv", progress=False)
+    assert sorted(calls) == [(1, 28, 72, 72), (3, 28, 64, 64)]
+
+
+def test_float32_default_agrees_with_float64(videos: Path, tmp_path: Path) -> None:
+    run_batch([videos / "p0.npz"], tmp_path / "r.csv", progress=False)
+    (row,) = read_table(tmp_path / "r.csv")
+    assert row["diffusivity"] == pytest.approx(_offline(videos / "p0.npz"), rel=1e-4)
+
+
+def test_resume_skips_done_inputs_and_retries_errors(videos: Path, tmp_path: Path) -> None:
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for name in ("p0.npz", "p1.npz", "broken.npz"):
+        (folder / name).write_bytes((videos / name).read_bytes())
+    out = tmp_path / "r.csv"
+    first = run_batch([folder], out, progress=False)
+    assert (first.ok, first.failed) == (2, 1)
+    (folder / "p0.npz").write_bytes(b"garbage")  # a done input is not read again
+    (folder / "broken.npz").write_bytes((videos / "p2.npz").read_bytes())  # a fixed one is retried
+    second = run_batch([folder], out, progress=False)
+    assert (second.skipped, second.ok, second.failed) == (2, 1, 0)
+    assert [r["status"] for r in read_table(out)] == ["ok", "ok", "ok"]
+
+
+def test_interrupted_run_keeps_finished_batches(videos: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r.parquet"
+
+    def interrupted(chunks, options):
+        yield batch_module.process_paths(chunks[0], options)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_batch([videos / "p*.npz"], out, batch_size=2, progress=False, runner=interrupted)
+    rows = read_table(out)
+    assert [Path(r["path"]).name for r in rows] == ["p0.npz", "p1.npz"]
+    assert [p.name for p in tmp_path.iterdir()] == ["r.parquet"]  # no temporary file left
+    resumed = run_batch([videos / "p*.npz"], out, batch_size=2, progress=False)
+    assert (resumed.skipped, resumed.ok) == (2, 1)
+
+
+def test_write_is_atomic(tmp_path: Path, monkeypatch) -> None:
+    out = tmp_path / "r.csv"
+    write_table(out, [{"path": "a.npz", "status": "ok", "diffusivity": 0.2}])
+    before = out.read_bytes()
+
+    def crash(*args):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", crash)
+    with pytest.raises(OSError, match="disk full"):
+        write_table(out, [{"path": "b.npz", "status": "ok", "diffusivity": 0.3}])
+    assert out.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["r.csv"]
+
+
+def test_csv_and_parquet_hold_the_same_rows(tmp_path: Path) -> None:
+    rows = [
+        {"path": "a.npz", "status": "ok", "diffusivity": 0.2, "n_masked": 3, "top_effect": "advection"},
+        {"path": "b.npz", "status": "error", "error": "b.npz: no such file", "diffusivity": math.nan},
+    ]
+    for suffix in (".csv", ".parquet"):
+        write_table(tmp_path / f"r{suffix}", rows)
+    csv_rows, parquet_rows = read_table(tmp_path / "r.csv"), read_table(tmp_path / "r.parquet")
+    assert csv_rows == parquet_rows
+    assert list(csv_rows[0]) == list(BATCH_COLUMNS)
+    assert csv_rows[1]["diffusivity"] is None and csv_rows[0]["n_masked"] == 3
+    with pytest.raises(ValueError, match=r"--out must end in \.csv or \.parquet, got 'r.txt'"):
+        write_table(tmp_path / "r.txt", rows)
+
+
+@pytest.mark.slow
+def test_diagnose_columns(tmp_path: Path) -> None:
+    path = hidden_effect_video(["advection"], seed=1, size=64, duration=3.0).to_npz(tmp_path / "adv.npz")
+    out = tmp_path / "r.csv"
+    run_batch([path], out, diagnose=True, progress=False)
+    (row,) = read_table(out)
+    assert row["status"] == "ok" and row["top_effect"] == "advection"
+    assert row["gain"] > 0.3 and row["extended_rmse"] < row["base_rmse"]
+    assert row["noise_floor"] > 0
+
+
+def test_cli_batch(videos: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "r.csv"
+    assert main(["batch", str(videos / "p*.npz"), "--out", str(out), "--json", "--no-progress"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert (record["total"], record["ok"], record["failed"], record["out"]) == (3, 3, 0, str(out))
+    assert main(["batch", str(videos), "--out", str(out), "--no-progress"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.strip() == f"anra: error: 2 of 6 inputs failed; see the 'error' column of {out}"
+    assert "1 ok, 2 failed, 3 already done (6 inputs)" in captured.out
+    assert main(["batch", str(videos), "--out", str(tmp_path / "r.txt")]) == 2
+    assert "--out must end in .csv or .parquet, got 'r.txt'" in capsys.readouterr().err
+
+
+def test_dask_two_worker_cluster_gives_the_local_rows(videos: Path, tmp_path: Path) -> None:
+    pytest.importorskip("distributed", reason="the Dask engine needs the 'dask' extra")
+    from anra_torch.distributed import run_batch_dask
+
+    local, remote = tmp_path / "local.csv", tmp_path / "dask.csv"
+    run_batch([videos], local, batch_size=2, progress=False)
+    summary = run_batch_dask([videos], remote, workers=2, batch_size=2, progress=False)
+    assert (summary.ok, summary.failed) == (4, 2)
+    by_path = {r["path"]: r for r in read_table(local)}
+    for row in read_table(remote):
+        assert row["status"] == by_path[row["path"]]["status"]
+        assert row["error"] == by_path[row["path"]]["error"]
+        if row["status"] == "ok":
+            assert row["diffusivity"] == pytest.approx(by_path[row["path"]]["diffusivity"], rel=1e-6)
+
+
+def test_estimator_slices_of_a_big_batch_equal_the_whole(monkeypatch) -> None:
+    from anra_torch.layers import estimator as estimator_module
+
+    video = paper_video(n_videos=5, seed=7, crop=48)
+    frames = video.frames.clone()
+    frames[3] = frames[3, :1].expand_as(frames[3])  # static video: flagged, not raised, with strict=False
+    whole = ANRAEstimator(strict=False, window=9)(frames, video.dt, video.dx)
+    monkeypatch.setattr(estimator_module, "_SLICE_ELEMENTS", 2 * frames[0].numel())  # slices of 2 videos
+    sliced = ANRAEstimator(strict=False, window=9)(frames, video.dt, video.dx)
+    for name in ("diffusivity", "std_error", "per_frame", "smoothing", "valid", "field", "confidence"):
+        torch.testing.assert_close(getattr(sliced, name), getattr(whole, name), equal_nan=True)
+    assert sliced.messages == whole.messages and not bool(sliced.valid[3])
+    with pytest.raises(ValueError, match=r"^video 3: frames show no thermal activity"):
+        ANRAEstimator()(frames, video.dt, video.dx)
