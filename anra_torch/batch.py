@@ -33,7 +33,7 @@ from typing import Any
 
 import torch
 
-from anra_torch.io import REGISTRY, Video, load_video
+from anra_torch.io import FOLDER_REGISTRY, REGISTRY, Video, load_video
 from anra_torch.layers.estimator import ANRAEstimator
 
 __all__ = ["BATCH_COLUMNS", "BatchSummary", "expand_inputs", "read_table", "run_batch", "write_table"]
@@ -81,11 +81,30 @@ def _is_video_file(path: Path) -> bool:
 
 
 def _is_video_folder(path: Path) -> bool:
-    """A folder that is itself one video (e.g. a folder of FLIR JPEG frames); none is supported yet.
+    """A folder that is itself one video (:data:`anra_torch.io.FOLDER_REGISTRY`): one file per frame.
 
-    When a loader for such folders lands in :data:`REGISTRY`, this is the one place to recognise them.
+    JPEGs are always single frames (FLIR radiometric JPEGs), so a folder holding them is one video. A
+    ``.csv`` / ``.txt`` file is either a per-frame matrix (its first line is numbers) or a whole video (a
+    FLIR CSV export starts with a header): the first such file decides.
     """
-    return False
+    if not path.is_dir():
+        return False
+    frames = sorted(
+        child
+        for child in path.iterdir()
+        if child.is_file() and not child.name.startswith(".") and child.suffix.lower() in FOLDER_REGISTRY
+    )
+    if not frames:
+        return False
+    if any(f.suffix.lower() in (".jpg", ".jpeg") for f in frames):
+        return True
+    try:
+        with frames[0].open("r", errors="replace") as handle:
+            first = next((line for line in handle if line.strip()), "")
+        [float(x) for x in first.replace(",", " ").split()]
+    except (OSError, ValueError):
+        return False
+    return bool(first.strip())
 
 
 def expand_inputs(inputs: Iterable[PathLike]) -> list[str]:
@@ -112,10 +131,15 @@ def expand_inputs(inputs: Iterable[PathLike]) -> list[str]:
             found = [str(m) for m in matches if _is_video_file(m) or _is_video_folder(m)]
             for m in matches:
                 if m.is_dir() and not _is_video_folder(m):
-                    found.extend(str(f) for f in sorted(m.rglob("*")) if _is_video_file(f))
+                    found.extend(expand_inputs([m]))
             out.extend(found or [text])
         elif path.is_dir() and not _is_video_folder(path):
-            found = [str(f) for f in sorted(path.rglob("*")) if _is_video_file(f) or _is_video_folder(f)]
+            folders = [f for f in sorted(path.rglob("*")) if _is_video_folder(f)]
+            found = [
+                str(f)
+                for f in sorted(path.rglob("*"))
+                if f in folders or (_is_video_file(f) and f.parent not in folders)
+            ]
             out.extend(found or [text])
         else:
             out.append(text)
@@ -220,6 +244,8 @@ class BatchOptions:
         diagnose: also diagnose each video and forecast held-out frames.
         dtype: ``"float32"`` (fast) or ``"float64"``.
         fit_fraction: fraction of the frames diagnosed with ``diagnose``.
+        resample: resample non-uniform timestamps (FLIR JPEG folders) onto their median step
+            (:func:`anra_torch.resample.resample_uniform`); otherwise such a video is an error row.
     """
 
     dt: float | None = None
@@ -227,6 +253,7 @@ class BatchOptions:
     diagnose: bool = False
     dtype: str = "float32"
     fit_fraction: float = 0.6
+    resample: bool = False
 
 
 def _error_row(path: str, message: str) -> dict[str, Any]:
@@ -234,7 +261,8 @@ def _error_row(path: str, message: str) -> dict[str, Any]:
 
 
 def _load(path: str, options: BatchOptions) -> Video:
-    video = load_video(path, dt=options.dt, dx=options.dx)
+    timestamps = "resample" if options.resample else "uniform"
+    video = load_video(path, dt=options.dt, dx=options.dx, timestamps=timestamps)
     if video.dx is None:
         raise ValueError(f"{path}: no pixel size: the file has no 'dx'; pass --dx in mm")
     return video
@@ -384,6 +412,7 @@ def run_batch(
     dtype: str = "float32",
     progress: bool = True,
     runner: Runner | None = None,
+    resample: bool = False,
 ) -> BatchSummary:
     """Estimate (and optionally diagnose) every input video into a resumable table.
 
@@ -399,6 +428,7 @@ def run_batch(
         dtype: ``"float32"`` (default, fast) or ``"float64"``.
         progress: show a tqdm progress bar on stderr.
         runner: how chunks are processed; default in this process (see :mod:`anra_torch.distributed`).
+        resample: resample non-uniform timestamps onto their median step instead of an error row.
 
     Returns:
         :class:`BatchSummary`.
@@ -415,7 +445,7 @@ def run_batch(
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
     if out.suffix.lower() == ".parquet":
         _parquet()
-    options = BatchOptions(dt=dt, dx=dx, diagnose=diagnose, dtype=dtype)
+    options = BatchOptions(dt=dt, dx=dx, diagnose=diagnose, dtype=dtype, resample=resample)
     start = time.perf_counter()
     paths = expand_inputs(inputs)
     table = {_key(row["path"]): row for row in read_table(out)}

@@ -637,6 +637,7 @@ def _run_batch(args: argparse.Namespace) -> int:
         "batch_size": args.batch_size,
         "dtype": "float64" if args.float64 else "float32",
         "progress": not args.no_progress,
+        "resample": args.resample,
     }
     if args.dask or args.scheduler:
         from anra_torch.distributed import run_batch_dask
@@ -894,6 +895,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="videos read and estimated together (default 8)",
     )
     batch.add_argument("--float64", action="store_true", help="compute in float64 (default float32)")
+    batch.add_argument(
+        "--resample",
+        action="store_true",
+        help="resample non-uniform timestamps (FLIR JPEG folders) linearly onto their median step",
+    )
     batch.add_argument(
         "--dask", action="store_true", help="run on Dask (embedded LocalCluster unless --scheduler)"
     )

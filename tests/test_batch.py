@@ -203,3 +203,39 @@ def test_estimator_slices_of_a_big_batch_equal_the_whole(monkeypatch) -> None:
     assert sliced.messages == whole.messages and not bool(sliced.valid[3])
     with pytest.raises(ValueError, match=r"^video 3: frames show no thermal activity"):
         ANRAEstimator()(frames, video.dt, video.dx)
+
+
+def test_a_folder_of_frames_is_one_input(tmp_path: Path) -> None:
+    """Per-frame matrices and FLIR JPEG folders are one video each; FLIR CSV exports stay one per file."""
+    frames = tmp_path / "run" / "frames"
+    frames.mkdir(parents=True)
+    for k in range(3):
+        np.savetxt(frames / f"f{k:03d}.csv", np.full((4, 5), float(k)), delimiter=",")
+    (tmp_path / "run" / "a.npz").write_bytes(b"")
+    exports = tmp_path / "exports"
+    exports.mkdir()
+    (exports / "one.csv").write_text("File Name,x\nFrame 1,\n1,2\n")
+    (exports / "two.csv").write_text("File Name,y\nFrame 1,\n1,2\n")
+    assert expand_inputs([tmp_path]) == [
+        str(exports / "one.csv"),
+        str(exports / "two.csv"),
+        str(tmp_path / "run" / "a.npz"),
+        str(frames),
+    ]
+
+
+@pytest.mark.skipif(
+    not (Path(__file__).resolve().parents[2] / "shared" / "data" / "laser_silicone").is_dir(),
+    reason="../shared/data/laser_silicone is absent",
+)
+def test_flir_jpeg_folders_run_as_videos_with_resample(tmp_path: Path) -> None:
+    data = Path(__file__).resolve().parents[2] / "shared" / "data" / "laser_silicone"
+    assert expand_inputs([data]) == [str(data / "Nov19"), str(data / "Nov19_2")]
+    out = tmp_path / "flir.csv"
+    summary = run_batch([data], out, dx=0.55, progress=False)
+    assert summary.failed == 2  # non-uniform EXIF times: an explicit error row each
+    assert all("uniformly spaced" in row["error"] for row in read_table(out))
+    out.unlink()
+    summary = run_batch([data], out, dx=0.55, progress=False, resample=True)
+    rows = read_table(out)
+    assert summary.ok == 2 and [int(float(r["frames"])) for r in rows] == [24, 24]
