@@ -595,7 +595,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
 def _run_features(args: argparse.Namespace) -> int:
     from anra_torch.features import feature_summary, save_feature_maps
 
-    video = load_video(args.video, dt=args.dt, dx=args.dx)
+    video = _load_input(args)
     if video.dx is None:
         raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
     try:
@@ -603,12 +603,15 @@ def _run_features(args: argparse.Namespace) -> int:
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
     record = {"path": str(video.source), **record, "out": None}
+    if any(_input_record(video).values()):
+        record["input"] = _input_record(video)
     if args.out is not None:
         record["out"] = save_feature_maps(args.out, maps, dt=video.dt, dx=video.dx)
     if args.json:
         print(json.dumps(_clean_json(record), allow_nan=False))
         return 0
     print(f"{video.source}: {record['frames']} frames of {record['height']} x {record['width']} px")
+    _print_input(video)
     for key in (
         "peak_temperature_max",
         "cem43_minutes_max",

@@ -121,3 +121,17 @@ def test_bad_input_is_one_line(
     assert code == 2 and "no such file" in err
     code, out, err = run(capsys, "features", files["celsius"], "--units", "F")
     assert code == 2 and "--units" in err and "invalid choice" in err
+
+
+@pytest.mark.skipif(
+    not (Path(__file__).resolve().parents[2] / "shared" / "data" / "laser_silicone").is_dir(),
+    reason="../shared/data/laser_silicone is absent",
+)
+def test_features_read_a_flir_folder_with_resampling(capsys: pytest.CaptureFixture[str]) -> None:
+    folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "laser_silicone" / "Nov19_2"
+    assert main(["features", str(folder), "--dx", "0.55", "--json"]) == 2
+    assert "(--resample)" in capsys.readouterr().err
+    assert main(["features", str(folder), "--dx", "0.55", "--resample", "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["frames"] == 24 and record["input"]["resampled"]["from_frames"] == 25
+    assert 200 < record["peak_temperature_max"] < 220  # the ~210 C peak of this run (data README)
