@@ -402,7 +402,8 @@ def _forecast_figure(video: Video, gain: Any, path: Path, mpl: tuple[Any, Any]) 
     axes = fig.subplots(2, 3)
     extent = _extent(h, w, video.dx)
     image = axes[0, 0].imshow(measured, extent=extent, vmin=lo, vmax=hi, cmap="inferno")
-    axes[0, 0].set_title(f"measured, t = {when:.3f} s")
+    scale = f", {gain.scale_px:g} px Gaussian" if gain.scale_px > 0 else ""
+    axes[0, 0].set_title(f"measured{scale}, t = {when:.3f} s")
     for ax, field, title in ((axes[0, 1], base, "plain heat equation"), (axes[0, 2], extended, "extended")):
         ax.imshow(field, extent=extent, vmin=lo, vmax=hi, cmap="inferno")
         ax.set_title(f"{title} forecast")
