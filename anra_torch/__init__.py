@@ -10,6 +10,7 @@ from anra_torch.diagnosis import Diagnosis, diagnose_terms
 from anra_torch.dose import SKIN, ArrheniusConstants, arrhenius_omega, cem43, time_above
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
 from anra_torch.features import TissueFeatureMaps, TissueFeatures
+from anra_torch.io import Video, load_video
 from anra_torch.layers import (
     AUTO_SMOOTHING,
     ANRAEstimator,
@@ -27,7 +28,6 @@ from anra_torch.layers import (
     second_derivatives,
     time_derivative,
 )
-from anra_torch.io import Video, load_video
 from anra_torch.noise import estimate_noise_sd
 from anra_torch.phases import Phase, segment_phases
 from anra_torch.prediction import GainResult, assess_gain

@@ -42,7 +42,10 @@ class CalibrationTable:
     def __post_init__(self) -> None:
         t, a = np.asarray(self.true, np.float64), np.asarray(self.apparent, np.float64)
         if t.ndim != 1 or t.shape != a.shape or t.size < 2:
-            raise ValueError(f"{self.source}: a calibration table needs >= 2 (true, apparent) pairs, got {t.shape} and {a.shape}")
+            raise ValueError(
+                f"{self.source}: a calibration table needs >= 2 (true, apparent) pairs, "
+                f"got {t.shape} and {a.shape}"
+            )
         if not (np.isfinite(t).all() and np.isfinite(a).all()):
             raise ValueError(f"{self.source}: calibration values must be finite")
         if (np.diff(t) <= 0).any() or (np.diff(a) <= 0).any():
@@ -88,13 +91,16 @@ def load_calibration(path: str | os.PathLike[str]) -> CalibrationTable:
             rows.append((float(cells[0]), float(cells[1])))
         except (ValueError, IndexError):
             if rows or number > 1:
-                raise ValueError(f"{path}: line {number}: expected 'true,apparent' numbers, got {line!r}") from None
+                raise ValueError(
+                    f"{path}: line {number}: expected 'true,apparent' numbers, got {line!r}"
+                ) from None
     table = np.asarray(rows, dtype=np.float64).reshape(-1, 2)
     return CalibrationTable(true=table[:, 0], apparent=table[:, 1], source=str(path))
 
 
 def apply_calibration(video: Video, table: CalibrationTable) -> Video:
-    """The video in true temperatures; ``meta["calibration"]`` records the table and the extrapolated fraction.
+    """The video in true temperatures; ``meta["calibration"]`` records the table and the extrapolated
+    fraction.
 
     Shape:
         ``video.frames`` ``(T, H, W)`` -> same, float64.
@@ -136,7 +142,9 @@ class PixelSize:
 
     def __post_init__(self) -> None:
         if not 0 < self.low <= self.value <= self.high:
-            raise ValueError(f"pixel size needs 0 < low <= value <= high in mm, got {self.low}, {self.value}, {self.high}")
+            raise ValueError(
+                f"pixel size needs 0 < low <= value <= high in mm, got {self.low}, {self.value}, {self.high}"
+            )
 
     def diffusivity_interval(self, a: float) -> tuple[float, float]:
         """The interval of a diffusivity ``a`` (mm^2/s, estimated at :attr:`value`) over ``[low, high]``.

@@ -66,12 +66,15 @@ def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
         "the output states it (JSON: input.resampled)",
     )
     parser.add_argument(
-        "--roi", metavar="X0,Y0,W,H", help="analyse only this region (px: first column, first row, width, height)"
+        "--roi",
+        metavar="X0,Y0,W,H",
+        help="analyse only this region (px: first column, first row, width, height)",
     )
     parser.add_argument(
         "--calibration",
         metavar="CSV",
-        help="map apparent to true temperature with a table of 'true,apparent' rows (e.g. calibration_og.csv)",
+        help="map apparent to true temperature with a table of 'true,apparent' rows "
+        "(e.g. calibration_og.csv)",
     )
 
 
@@ -83,7 +86,9 @@ def _load_input(args: argparse.Namespace) -> Video:
             args.video, dt=args.dt, dx=args.dx, timestamps="resample" if args.resample else "uniform"
         )
     except ValueError as err:
-        raise ValueError(str(err).replace("(timestamps='resample' or 'keep' in load_video)", "(--resample)")) from None
+        raise ValueError(
+            str(err).replace("(timestamps='resample' or 'keep' in load_video)", "(--resample)")
+        ) from None
     if args.roi is not None:
         from anra_torch.roi import crop, parse_roi
 
@@ -104,7 +109,8 @@ def _print_input(video: Video) -> None:
     r = video.meta.get("resampled")
     if r:
         print(
-            f"  resampled: {r['from_frames']} frames with non-uniform steps {r['step_min']:.3g}-{r['step_max']:.3g} s "
+            f"  resampled: {r['from_frames']} frames with non-uniform steps "
+            f"{r['step_min']:.3g}-{r['step_max']:.3g} s "
             f"-> {video.frames.shape[0]} frames at dt = {r['dt']:.4g} s ({r['method']})"
         )
     if video.meta.get("roi"):

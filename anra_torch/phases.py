@@ -55,7 +55,9 @@ def hot_spot_signal(frames: Tensor) -> tuple[Tensor, tuple[int, int]]:
     return torch.nanmean(window.reshape(x.shape[0], -1), dim=1), (row, col)
 
 
-def segment_phases(frames: Tensor, t: Tensor | None = None, *, onset: float = 0.05, smooth: int = 5) -> list[Phase]:
+def segment_phases(
+    frames: Tensor, t: Tensor | None = None, *, onset: float = 0.05, smooth: int = 5
+) -> list[Phase]:
     """Split a video into baseline / heating / cooling phases from its own hot-spot signal.
 
     Args:
@@ -91,6 +93,4 @@ def segment_phases(frames: Tensor, t: Tensor | None = None, *, onset: float = 0.
     below = torch.nonzero(signal[: peak + 1] - base <= onset * total).reshape(-1)
     start = int(below[-1]) if below.numel() else 0
     bounds = [("baseline", 0, start + 1), ("heating", start, peak + 1), ("cooling", peak, n)]
-    return [
-        Phase(name, a, b, float(times[a]), float(times[b - 1])) for name, a, b in bounds if b - a >= 2
-    ]
+    return [Phase(name, a, b, float(times[a]), float(times[b - 1])) for name, a, b in bounds if b - a >= 2]

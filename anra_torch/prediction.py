@@ -354,7 +354,11 @@ def assess_gain(
         diagnosis, fit_duration=fit_duration, start=fit_duration, duration=(horizon - 1) * dt
     )
     scale = float(diagnosis.smoothing) if scale_px is None else scale_px
-    if isinstance(scale, bool) or not isinstance(scale, int | float) or not (math.isfinite(scale) and scale >= 0):
+    if (
+        isinstance(scale, bool)
+        or not isinstance(scale, int | float)
+        or not (math.isfinite(scale) and scale >= 0)
+    ):
         raise ValueError(f"scale_px must be a Gaussian sigma >= 0 in px, got {scale_px!r}")
     m = diagnosis.margin
 
@@ -381,7 +385,9 @@ def assess_gain(
     effect_gains = [gain] if len(effects) == 1 else []
     for effect in effects if len(effects) > 1 else ():
         alone = simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=(effect,))[1:]
-        effect_gains.append(1.0 - forecast_errors(alone, measured, m)[1] / base_rmse if base_rmse > 0 else 0.0)
+        effect_gains.append(
+            1.0 - forecast_errors(alone, measured, m)[1] / base_rmse if base_rmse > 0 else 0.0
+        )
     floor = _forecast_floor(diagnosis, float(scale), dt=dt, dx=dx, horizon=horizon)
     return GainResult(
         diagnosis=diagnosis,

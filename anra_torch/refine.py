@@ -95,7 +95,8 @@ class _Model:
         values = [a] + [float(v) for e in effects for v in e.params.values()]
         units = ["mm^2/s"] + [EFFECTS[e.name].params[k] for e in effects for k in e.params]
         self.start = torch.tensor(values, dtype=_F64)
-        self.log = torch.tensor([k in _POSITIVE and v > 0 for (_, k), v in zip(self.names, values)])
+        positive = [k in _POSITIVE and v > 0 for (_, k), v in zip(self.names, values, strict=True)]
+        self.log = torch.tensor(positive)
         self.scale = torch.tensor(
             [
                 1.0 if log else _natural_scale(k, v, u, dx=dx, spread=spread, duration=duration)
@@ -140,7 +141,8 @@ class _Model:
     def effects_at(self, delta: Tensor) -> tuple[float, tuple[Effect, ...]]:
         a, params = self.split(self.values(delta).detach())
         return float(a), tuple(
-            Effect(e.name, {k: float(v) for k, v in p.items()}) for e, p in zip(self.effects, params, strict=True)
+            Effect(e.name, {k: float(v) for k, v in p.items()})
+            for e, p in zip(self.effects, params, strict=True)
         )
 
 
@@ -182,13 +184,18 @@ def refine_model(
     n, h, w = video.shape
     if tuple(diagnosis.residual_map.shape) != (h - 2 * m, w - 2 * m):
         raise ValueError(
-            f"diagnosis was made on frames of another size: residual map {tuple(diagnosis.residual_map.shape)} "
+            "diagnosis was made on frames of another size: residual map "
+            f"{tuple(diagnosis.residual_map.shape)} "
             f"with margin {m} px, frames {h} x {w} px"
         )
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
     scale = float(diagnosis.smoothing) if scale_px is None else scale_px
-    if isinstance(scale, bool) or not isinstance(scale, int | float) or not (math.isfinite(scale) and scale >= 0):
+    if (
+        isinstance(scale, bool)
+        or not isinstance(scale, int | float)
+        or not (math.isfinite(scale) and scale >= 0)
+    ):
         raise ValueError(f"scale_px must be a Gaussian sigma >= 0 in px, got {scale_px!r}")
     target = video if scale == 0 else GaussianSmoothing(float(scale), border="reflect")(video)
     duration = (n - 1) * dt

@@ -47,7 +47,8 @@ def crop(video: Video, roi: ROI) -> Video:
     _, height, width = video.frames.shape
     if x0 + w > width or y0 + h > height:
         raise ValueError(
-            f"{video.name}: roi {x0},{y0},{w},{h} (x0,y0,W,H px) does not fit in the {width} x {height} px frame"
+            f"{video.name}: roi {x0},{y0},{w},{h} (x0,y0,W,H px) does not fit in the "
+            f"{width} x {height} px frame"
         )
     frames = video.frames[:, y0 : y0 + h, x0 : x0 + w].contiguous()
     return replace(video, frames=frames, meta={**video.meta, "roi": [x0, y0, w, h]})
@@ -108,6 +109,8 @@ def apply_mask(video: Video, mask: Tensor) -> Video:
         ValueError: a mask of another shape.
     """
     if tuple(mask.shape) != tuple(video.frames.shape[1:]):
-        raise ValueError(f"mask must have the frame shape {tuple(video.frames.shape[1:])}, got {tuple(mask.shape)}")
+        raise ValueError(
+            f"mask must have the frame shape {tuple(video.frames.shape[1:])}, got {tuple(mask.shape)}"
+        )
     frames = video.frames.double().masked_fill(mask.bool(), float("nan"))
     return replace(video, frames=frames, meta={**video.meta, "masked_px": int(mask.sum())})

@@ -401,7 +401,10 @@ def table(summary: dict, gain_measured: bool, sindy_ran: bool) -> str:
     for group, s in summary.items():
         gain = _pct(s["median_gain"]) if gain_measured else "not measured"
         more = (
-            [f"{_pct(s['median_gain_above_floor'])} / {_pct(s['median_gain_raw'])}", f"{s['median_base_over_floor']:.2f}"]
+            [
+                f"{_pct(s['median_gain_above_floor'])} / {_pct(s['median_gain_raw'])}",
+                f"{s['median_base_over_floor']:.2f}",
+            ]
             if gain_measured
             else ["", ""]
         )

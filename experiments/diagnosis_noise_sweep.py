@@ -22,7 +22,9 @@ GROUPS = ("linear_loss", "advection", "source", "anisotropy", "pure")
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--cases", type=int, default=4, help="seeds per effect and noise level (default 4)")
     parser.add_argument("--out", type=Path, default=Path("results/diagnosis_noise_sweep"))
     args = parser.parse_args()
@@ -38,7 +40,9 @@ def main() -> None:
     tick = time.perf_counter()
     for group, noise, seed in tqdm(jobs, desc="cases"):
         names = () if group == "pure" else (group,)
-        video = hidden_effect_video(names, seed=100 + seed, size=64, fps=30.0, duration=3.0, dx=0.15, noise_frac=noise)
+        video = hidden_effect_video(
+            names, seed=100 + seed, size=64, fps=30.0, duration=3.0, dx=0.15, noise_frac=noise
+        )
         found = diagnose_terms(video.frames, video.dt, video.dx).names
         ok = found == [] if group == "pure" else bool(found) and found[0] == group
         records.append({"group": group, "noise": noise, "seed": 100 + seed, "found": found, "ok": ok})
@@ -55,7 +59,8 @@ def main() -> None:
     text = (
         "# Diagnosis against noise\n\n"
         + "\n".join(lines)
-        + f"\n\n- 64 px, 30 fps, 3 s, dx 0.15 mm, seeds 100-{99 + args.cases}; wall time {wall:.0f} s on one thread.\n"
+        + f"\n\n- 64 px, 30 fps, 3 s, dx 0.15 mm, seeds 100-{99 + args.cases}; "
+        + f"wall time {wall:.0f} s on one thread.\n"
     )
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "table.md").write_text(text)

@@ -21,9 +21,9 @@ Per recording, the phases (baseline / heating / cooling) come from the data
 - FLIR CSV boxes (9-15 px wide) are smaller than the project's filters need (20-26 px), so a small-box
   model written here replaces them: the same 11-frame moving average on both sides of the PDE, central
   time differences and the 5-point Laplacian; least squares for the plain model ``dT/dt = a Lap T`` and
-  the extended ``dT/dt = a Lap T - b (T - Tbar) + c`` fitted on the 100 frames before the split (``b``: linear loss to the sample and stage, ``c``:
-  net heating by the spot source); forecasts by explicit Euler substeps with the MEASURED edge pixels as
-  Dirichlet boundary (the box edges are not insulated).
+  the extended ``dT/dt = a Lap T - b (T - Tbar) + c`` fitted on the 100 frames before the split (``b``:
+  linear loss to the sample and stage, ``c``: net heating by the spot source); forecasts by explicit
+  Euler substeps with the MEASURED edge pixels as Dirichlet boundary (the box edges are not insulated).
 
 Outputs in --out (default results/real_data): table.md, results.json, one Fig.-3-style PNG per recording
 and phase (measured, plain prediction and its deviation, extended prediction and its deviation, N s after
@@ -80,7 +80,9 @@ def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
 
 
 def _lap(u: np.ndarray, dx: float) -> np.ndarray:
-    return (u[..., 1:-1, 2:] + u[..., 1:-1, :-2] + u[..., 2:, 1:-1] + u[..., :-2, 1:-1] - 4 * u[..., 1:-1, 1:-1]) / dx**2
+    return (
+        u[..., 1:-1, 2:] + u[..., 1:-1, :-2] + u[..., 2:, 1:-1] + u[..., :-2, 1:-1] - 4 * u[..., 1:-1, 1:-1]
+    ) / dx**2
 
 
 def box_fit(frames: np.ndarray, dt: float, dx: float, extended: bool) -> dict[str, float]:
@@ -101,7 +103,9 @@ def box_fit(frames: np.ndarray, dt: float, dx: float, extended: bool) -> dict[st
     return fit
 
 
-def box_forecast(frames: np.ndarray, dt: float, dx: float, fit: dict[str, float], start: int, n: int) -> np.ndarray:
+def box_forecast(
+    frames: np.ndarray, dt: float, dx: float, fit: dict[str, float], start: int, n: int
+) -> np.ndarray:
     """Forecast ``n`` frames after ``frames[start]``; edges follow the measurement (Dirichlet in time)."""
     a = max(fit["a"], 0.0)  # a negative diffusivity is ill-posed forward: treated as no diffusion
     rate = a / dx**2 * 4 + max(fit["b"], 0.0)
@@ -170,9 +174,7 @@ def anra_phase(video: Video, phase: Phase) -> dict[str, Any]:
         "a_plain": result.base_a,
         "a_extended": result.extended_a,
         "effects": [e["name"] for e in result.diagnosis.effects],
-        "effect_params": [
-            {k2: float(v) for k2, v in e["params"].items()} for e in result.diagnosis.effects
-        ],
+        "effect_params": [{k2: float(v) for k2, v in e["params"].items()} for e in result.diagnosis.effects],
         "base_rmse": result.base_rmse,
         "extended_rmse": result.extended_rmse,
         "gain": result.gain,
@@ -297,7 +299,10 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
             png = out / f"{name}_{phase.name}.png".replace(" ", "_")
             fig3(png, f"{name} {phase.name} ({fit['model']})", figure, video.unit)
             fit.update(
-                t_start=phase.t_start, t_stop=phase.t_stop, frames=phase.frames, seconds=time.perf_counter() - tick
+                t_start=phase.t_start,
+                t_stop=phase.t_stop,
+                frames=phase.frames,
+                seconds=time.perf_counter() - tick,
             )
             fit["cause"] = "; ".join(CAUSES.get(e, e) for e in fit["effects"][:1]) or "none found"
             record["phases"][phase.name] = fit
@@ -313,7 +318,8 @@ def _f(x: Any, spec: str = ".3g") -> str:
 
 def table(rows: list) -> str:
     lines = [
-        "| recording | phase | frames (t) | model | a (mm^2/s) | effects found (named cause first) | RMSE plain | RMSE extended | gain | noise |",
+        "| recording | phase | frames (t) | model | a (mm^2/s) | effects found (named cause first) "
+        "| RMSE plain | RMSE extended | gain | noise |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, phase, f in rows:
@@ -325,7 +331,8 @@ def table(rows: list) -> str:
         lines.append(
             f"| {name} | {phase} | {f['frames']} ({f['t_start']:.0f}-{f['t_stop']:.0f} s) | "
             f"{'ANRA' if 'a_anra' in f else 'small box'} | {a} | {', '.join(f['effects']) or 'none'} | "
-            f"{_f(f['base_rmse'])} | {_f(f['extended_rmse'])} | {_f(f['gain'], '+.2f')} | {_f(f['noise_floor'])} |"
+            f"{_f(f['base_rmse'])} | {_f(f['extended_rmse'])} | {_f(f['gain'], '+.2f')} | "
+            f"{_f(f['noise_floor'])} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -31,7 +31,14 @@ def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[st
     assert out.count("\n") == 1
     record = json.loads(out)
     assert set(record) == {
-        "base", "effects", "extended", "gain", "noise_floor", "scale_px", "gain_above_floor", "raw"
+        "base",
+        "effects",
+        "extended",
+        "gain",
+        "noise_floor",
+        "scale_px",
+        "gain_above_floor",
+        "raw",
     }
     assert set(record["raw"]) == {"base_rmse", "extended_rmse", "gain", "noise_floor"}
     assert record["raw"]["noise_floor"] > record["noise_floor"] > 0  # smoothing removes most noise

@@ -11,7 +11,11 @@ import pytest
 from anra_torch.io import load_video
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "flir_csv"
-EXPECTED = {"Q 100 Silver 1.csv": (1368, 9, 31), "Sample2 300 M1.csv": (2093, 14, 15), "Sample2 RT M1.csv": (1923, 15, 15)}
+EXPECTED = {
+    "Q 100 Silver 1.csv": (1368, 9, 31),
+    "Sample2 300 M1.csv": (2093, 14, 15),
+    "Sample2 RT M1.csv": (1923, 15, 15),
+}
 
 
 def direct_reading(path: Path) -> np.ndarray:
@@ -40,14 +44,18 @@ def test_real_exports_parse_exactly(name: str) -> None:
     assert video.unit == "degC" and video.meta["flir_emissivity"] == 1.0
 
 
-def _export(tmp_path: Path, blocks: list[np.ndarray], name: str = "box.csv", drop: tuple | None = None) -> Path:
+def _export(
+    tmp_path: Path, blocks: list[np.ndarray], name: str = "box.csv", drop: tuple | None = None
+) -> Path:
     lines = ["Parameters:,Emissivity:,0.95 ", ",Refl. temp.:,20.0 °C", ",", "Bx1", ""]
     for k, block in enumerate(blocks, start=1):
         for r, row in enumerate(block):
             if drop == (k, r):
                 continue
             label = f"Frame {k}" if r == 0 else ""
-            lines.append(label + "," + ",".join(f"{v:.3f}" for v in row) + ("," if r == len(block) - 1 else ""))
+            lines.append(
+                label + "," + ",".join(f"{v:.3f}" for v in row) + ("," if r == len(block) - 1 else "")
+            )
         lines.append("")
     path = tmp_path / name
     path.write_text("\ufeff" + "\n".join(lines), encoding="utf-8")

@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from flir_reference import decode
 
 from anra_torch.io import load_video
 from anra_torch.io.flir_jpeg import flir_timestamp
 from anra_torch.resample import resample_uniform
-
-from flir_reference import decode
 
 pytest.importorskip("flyr", reason="the formats extra (flyr) is not installed")
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "laser_silicone"
@@ -57,7 +56,9 @@ def test_times_are_the_capture_times_to_the_millisecond(run: tuple) -> None:
     # The EXIF DateTimeOriginal (local time, whole seconds) is the same instant.
     exif = Image.open(files[3]).getexif().get_ifd(0x8769)[0x9003]
     local = datetime.strptime(exif, "%Y:%m:%d %H:%M:%S")
-    utc = datetime.fromisoformat(video.meta["t0_utc"]).replace(tzinfo=None) + timedelta(seconds=float(video.t[3]))
+    utc = datetime.fromisoformat(video.meta["t0_utc"]).replace(tzinfo=None) + timedelta(
+        seconds=float(video.t[3])
+    )
     offset = (local - utc).total_seconds()
     assert abs(offset - round(offset / 3600) * 3600) < 1.0
     steps = np.diff(video.t.numpy())
@@ -126,4 +127,6 @@ def test_unsorted_and_duplicate_times_name_the_files(tmp_path: Path) -> None:
 def test_single_jpeg_is_one_frame() -> None:
     video = load_video(DATA / "Nov19" / "FLIR2191.jpg", dt=1.0, dx=0.55)
     assert video.frames.shape == (1, 96, 128)
-    assert flir_timestamp(DATA / "Nov19" / "FLIR2191.jpg") == pytest.approx(decode(DATA / "Nov19" / "FLIR2191.jpg")[1])
+    assert flir_timestamp(DATA / "Nov19" / "FLIR2191.jpg") == pytest.approx(
+        decode(DATA / "Nov19" / "FLIR2191.jpg")[1]
+    )

@@ -72,7 +72,10 @@ def test_real_calibration_file_round_trips() -> None:
     table = load_calibration(DATA / "flir_csv" / "calibration_og.csv")
     np.testing.assert_allclose(table.to_true(torch.tensor([24.82, 142.73, 364.8])).numpy(), [25, 200, 500])
     video = apply_calibration(Video(torch.full((3, 4, 4), 217.38), dt=0.1, dx=0.25), table)
-    assert float(video.frames[0, 0, 0]) == pytest.approx(300.0) and video.meta["calibration"]["outside_fraction"] == 0
+    assert (
+        float(video.frames[0, 0, 0]) == pytest.approx(300.0)
+        and video.meta["calibration"]["outside_fraction"] == 0
+    )
 
 
 def test_calibration_errors(tmp_path: Path) -> None:

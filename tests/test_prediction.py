@@ -68,7 +68,9 @@ def test_diffusion_effects_gain_more_where_heat_moves_further_in_the_forecast(
     assert result.gain_above_floor > above_floor
 
 
-@pytest.mark.parametrize(("seed", "dx", "scale"), [(2, 0.5, None), (3, 0.1, None), (4, 0.2, 0.0), (5, 0.1, 1.0)])
+@pytest.mark.parametrize(
+    ("seed", "dx", "scale"), [(2, 0.5, None), (3, 0.1, None), (4, 0.2, 0.0), (5, 0.1, 1.0)]
+)
 def test_pure_video_has_no_effect_and_plain_forecast_sits_on_the_floor(
     seed: int, dx: float, scale: float | None
 ) -> None:

@@ -62,7 +62,9 @@ def test_csv_phase_gain_is_measured(tmp_path: Path) -> None:
 @needs_data
 def test_cli_estimates_a_flir_folder_and_says_it_resampled(capsys: pytest.CaptureFixture[str]) -> None:
     folder = DATA / "laser_silicone" / "Nov19_2"
-    assert main(["estimate", str(folder), "--dx", "0.55", "--resample", "--roi", "30,20,70,60", "--json"]) == 0
+    assert (
+        main(["estimate", str(folder), "--dx", "0.55", "--resample", "--roi", "30,20,70,60", "--json"]) == 0
+    )
     out = json.loads(capsys.readouterr().out)
     assert out["input"]["resampled"]["from_frames"] == 25 and out["frames"] == 24
     assert (out["height"], out["width"]) == (60, 70) and out["input"]["roi"] == [30, 20, 70, 60]

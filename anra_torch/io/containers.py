@@ -70,12 +70,18 @@ def load_hdf5(path: Path) -> RawVideo:
     try:
         with h5py.File(path, "r") as handle:
             arrays: dict[str, Any] = {}
-            handle.visititems(lambda name, obj: arrays.update({name: obj}) if isinstance(obj, h5py.Dataset) else None)
-            key = _pick_frames({k: np.empty(v.shape) if v.ndim == 3 else v[()] for k, v in arrays.items()}, path, "dataset")
+            handle.visititems(
+                lambda name, obj: arrays.update({name: obj}) if isinstance(obj, h5py.Dataset) else None
+            )
+            key = _pick_frames(
+                {k: np.empty(v.shape) if v.ndim == 3 else v[()] for k, v in arrays.items()}, path, "dataset"
+            )
             values = {k: (v[()] if k == key or v.ndim < 3 else None) for k, v in arrays.items()}
             values.update({k: v for k, v in handle[key].attrs.items() if k in (*_SPACING, "unit")})
     except (OSError, KeyError, RuntimeError) as err:
-        raise ValueError(f"{path}: cannot read as HDF5 ({one_line(err)}); the file may be truncated or corrupt") from err
+        raise ValueError(
+            f"{path}: cannot read as HDF5 ({one_line(err)}); the file may be truncated or corrupt"
+        ) from err
     return _raw(values, key, "hdf5")
 
 
@@ -87,7 +93,9 @@ def load_tiff(path: Path) -> RawVideo:
             frames = tif.asarray()
             imagej = tif.imagej_metadata or {}
     except Exception as err:  # tifffile raises TiffFileError, ValueError, OSError... on a damaged file
-        raise ValueError(f"{path}: cannot read as TIFF ({one_line(err)}); the file may be truncated or corrupt") from err
+        raise ValueError(
+            f"{path}: cannot read as TIFF ({one_line(err)}); the file may be truncated or corrupt"
+        ) from err
     if frames.ndim == 2:
         frames = frames[None]
     raw = RawVideo(frames=frames, meta={"format": "tiff"})

@@ -74,7 +74,9 @@ def load_flir_csv(path: Path) -> RawVideo:
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as err:
-        raise ValueError(f"{path}: not a text file ({err.reason} at byte {err.start}); expected a CSV") from err
+        raise ValueError(
+            f"{path}: not a text file ({err.reason} at byte {err.start}); expected a CSV"
+        ) from err
     lines = text.splitlines()
     blocks: list[tuple[int, int, list[np.ndarray]]] = []  # (frame number, line number, rows)
     header_end = None

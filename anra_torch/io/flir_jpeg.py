@@ -108,7 +108,9 @@ def _meta(params: dict, t0: float) -> dict:
     keep = ("emissivity", "object_distance", "reflected_apparent_temperature", "atmospheric_temperature")
     meta = {f"flir_{k}": float(params[k]) for k in keep if k in params}
     meta.update(
-        unit="degC", format="flir_jpeg", t0_utc=datetime.fromtimestamp(t0, UTC).isoformat(timespec="milliseconds")
+        unit="degC",
+        format="flir_jpeg",
+        t0_utc=datetime.fromtimestamp(t0, UTC).isoformat(timespec="milliseconds"),
     )
     return meta
 

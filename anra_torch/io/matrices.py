@@ -46,4 +46,6 @@ def load_matrix_folder(folder: Path) -> RawVideo:
         key=_natural,
     )
     frames = stack_frames([_matrix(p) for p in files], files, folder)
-    return RawVideo(frames=frames, meta={"format": "matrix_folder", "files": f"{files[0].name} .. {files[-1].name}"})
+    return RawVideo(
+        frames=frames, meta={"format": "matrix_folder", "files": f"{files[0].name} .. {files[-1].name}"}
+    )

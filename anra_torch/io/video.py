@@ -9,8 +9,8 @@ the frame files inside a folder (one file per frame, e.g. FLIR radiometric JPEGs
 Measured timestamps are often not uniform (a FLIR camera triggered by hand). :func:`load_video` keeps the
 true timestamps in :attr:`Video.t`; with ``timestamps="uniform"`` (default) it refuses non-uniform ones,
 ``"keep"`` returns them as they are (``dt`` is then their median step and :attr:`Video.uniform` is False),
-``"resample"`` interpolates the frames linearly onto a uniform grid (:func:`anra_torch.resample.resample_uniform`)
-and records what it did in ``meta["resampled"]``.
+``"resample"`` interpolates the frames linearly onto a uniform grid
+(:func:`anra_torch.resample.resample_uniform`) and records what it did in ``meta["resampled"]``.
 
 Every error is a one-line ``ValueError`` that names the file, the requirement and what was found.
 """
@@ -286,9 +286,7 @@ def load_video(
             step = uniform_step(t, rtol=_UNIFORM_RTOL)
         except ValueError as err:
             if timestamps == "uniform":
-                raise ValueError(
-                    f"{path}: {err} (timestamps='resample' or 'keep' in load_video)"
-                ) from err
+                raise ValueError(f"{path}: {err} (timestamps='resample' or 'keep' in load_video)") from err
             step, resample = float(torch.diff(t).median()), timestamps == "resample"
         if raw.dt is not None and not resample and timestamps != "keep":
             stored = _positive(raw.dt, path, "dt", "s", "in the file")
