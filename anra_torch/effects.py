@@ -695,6 +695,41 @@ def _check_effects(effects: object) -> tuple[Effect, ...]:
 
 
 # ---------------------------------------------------------------------------------- right-hand side
+def effect_rhs(
+    a: float | Tensor,
+    parts: Sequence[tuple[EffectSpec, Mapping[str, float | Tensor]]],
+    grid: Grid,
+    time_scale: float,
+) -> Callable[[Tensor, Tensor], Tensor]:
+    """``f(t, T) = (D[T] + sum of effect terms) * time_scale`` from ``(spec, params)`` pairs, unchecked.
+
+    The one assembly of a model's right-hand side: :class:`ExtendedHeatRHS` calls it after validating its
+    effects; :func:`anra_torch.refine.refine_model` calls it with tensor parameters so that autograd
+    reaches them. ``D`` is ``a`` times the 5-point Laplacian unless a part replaces the diffusion term;
+    ``t`` is in units of ``time_scale`` seconds.
+    """
+    diffusion = None
+    terms = []
+    for spec, params in parts:
+        term = spec.build(params, grid)
+        if spec.replaces_diffusion:
+            diffusion = term
+        else:
+            terms.append(term)
+    if diffusion is None:
+        heat = HeatRHS(a, dx=grid.dx, boundary=grid.boundary, boundary_value=grid.boundary_value)
+        diffusion = lambda t, u: heat(t, u).reshape(u.shape)  # noqa: E731
+
+    def rhs(t: Tensor, u: Tensor) -> Tensor:
+        seconds = t * time_scale
+        out = diffusion(seconds, u)
+        for term in terms:
+            out = out + term(seconds, u)
+        return out * time_scale
+
+    return rhs
+
+
 class ExtendedHeatRHS(nn.Module):
     """Right-hand side ``dT/dt = D[T] + sum of effect terms`` on the pixel grid, for ``torchdiffeq``.
 
@@ -726,20 +761,10 @@ class ExtendedHeatRHS(nn.Module):
         self.grid = grid
         self.effects = _check_effects(effects)
         self.time_scale = _number(time_scale, "time_scale", "s", positive=True)
-        replaced = [e for e in self.effects if e.replaces_diffusion]
-        if replaced:
-            self._diffusion = replaced[0].spec.build(replaced[0].params, grid)
-        else:
-            heat = HeatRHS(self.a, dx=grid.dx, boundary=grid.boundary, boundary_value=grid.boundary_value)
-            self._diffusion = lambda t, u: heat(t, u).reshape(u.shape)
-        self._terms = [e.spec.build(e.params, grid) for e in self.effects if not e.replaces_diffusion]
+        self._rhs = effect_rhs(self.a, [(e.spec, e.params) for e in self.effects], grid, self.time_scale)
 
     def forward(self, t: Tensor, u: Tensor) -> Tensor:
-        seconds = t * self.time_scale
-        out = self._diffusion(seconds, u)
-        for term in self._terms:
-            out = out + term(seconds, u)
-        return out * self.time_scale
+        return self._rhs(t, u)
 
     def extra_repr(self) -> str:
         names = ", ".join(e.name for e in self.effects) or "none"

@@ -259,6 +259,38 @@ def _forecast_floor(diagnosis: Diagnosis, scale_px: float, *, dt: float, dx: flo
     return sd * math.sqrt(_white_gain(scale_px) + sum(carried) / len(carried))
 
 
+def check_diagnosis_frames(diagnosis: Diagnosis, height: int, width: int) -> None:
+    """Raise a one-line ``ValueError`` unless ``diagnosis`` was made on ``height`` x ``width`` px frames."""
+    m = diagnosis.margin
+    if tuple(diagnosis.residual_map.shape) != (height - 2 * m, width - 2 * m):
+        raise ValueError(
+            "diagnosis was made on frames of another size: residual map "
+            f"{tuple(diagnosis.residual_map.shape)} with margin {m} px, frames {height} x {width} px"
+        )
+
+
+def evaluation_scale(diagnosis: Diagnosis, scale_px: float | None) -> float:
+    """The evaluation scale in px: ``scale_px``, or the diagnosis' smoothing when None.
+
+    Raises:
+        ValueError: a ``scale_px`` that is not a finite number >= 0.
+    """
+    scale = float(diagnosis.smoothing) if scale_px is None else scale_px
+    number = isinstance(scale, int | float) and not isinstance(scale, bool)
+    if not (number and math.isfinite(scale) and scale >= 0):
+        raise ValueError(f"scale_px must be a Gaussian sigma >= 0 in px, got {scale_px!r}")
+    return float(scale)
+
+
+def at_scale(frames: Tensor, scale_px: float) -> Tensor:
+    """Frames smoothed by a Gaussian of ``scale_px`` (reflecting edges); the frames themselves at 0.
+
+    Shape:
+        ``frames`` ``(K, H, W)``; output the same.
+    """
+    return frames if scale_px == 0 else GaussianSmoothing(scale_px, border="reflect")(frames)
+
+
 def forecast_errors(predicted: Tensor, measured: Tensor, margin: int) -> tuple[Tensor, float, float]:
     """Per-frame RMSE ``(K,)``, overall RMSE and sum of squared errors on the interior.
 
@@ -342,24 +374,13 @@ def assess_gain(
     if diagnosis is None:
         diagnosis = diagnose_terms(video[: split + 1], dt, dx)
     else:
-        m = diagnosis.margin
-        if tuple(diagnosis.residual_map.shape) != (h - 2 * m, w - 2 * m):
-            raise ValueError(
-                "diagnosis was made on frames of another size: residual map "
-                f"{tuple(diagnosis.residual_map.shape)} with margin {m} px, frames {h} x {w} px"
-            )
+        check_diagnosis_frames(diagnosis, h, w)
     fit_duration = split * dt
     horizon = n_frames - split
     effects = extended_effects(
         diagnosis, fit_duration=fit_duration, start=fit_duration, duration=(horizon - 1) * dt
     )
-    scale = float(diagnosis.smoothing) if scale_px is None else scale_px
-    if (
-        isinstance(scale, bool)
-        or not isinstance(scale, int | float)
-        or not (math.isfinite(scale) and scale >= 0)
-    ):
-        raise ValueError(f"scale_px must be a Gaussian sigma >= 0 in px, got {scale_px!r}")
+    scale = evaluation_scale(diagnosis, scale_px)
     m = diagnosis.margin
 
     def forecast(initial: Tensor) -> tuple[Tensor, Tensor]:
@@ -369,11 +390,7 @@ def assess_gain(
         return base, simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=effects)[1:]
 
     raw = video[split + 1 :]
-    if scale == 0:
-        initial, measured = video[split], raw
-    else:
-        smooth = GaussianSmoothing(float(scale), border="reflect")
-        initial, measured = smooth(video[split : split + 1])[0], smooth(raw)
+    initial, measured = at_scale(video[split : split + 1], scale)[0], at_scale(raw, scale)
     base, extended = forecast(initial)
     rmse_base, base_rmse, base_sse = forecast_errors(base, measured, m)
     rmse_ext, ext_rmse, ext_sse = forecast_errors(extended, measured, m)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -32,10 +33,8 @@ from torch import Tensor
 from torchdiffeq import odeint
 
 from anra_torch.diagnosis import Diagnosis
-from anra_torch.effects import EFFECTS, Effect, Grid, _step_rates, _substeps
-from anra_torch.layers.derivatives import GaussianSmoothing
-from anra_torch.prediction import extended_effects
-from anra_torch.simulate import HeatRHS
+from anra_torch.effects import Effect, Grid, _step_rates, _substeps, effect_rhs
+from anra_torch.prediction import at_scale, check_diagnosis_frames, evaluation_scale, extended_effects
 
 __all__ = ["Refinement", "refine_model"]
 
@@ -73,7 +72,7 @@ class Refinement:
     scale_px: float
 
 
-def _natural_scale(key: str, value: float, unit: str, *, dx: float, spread: float, duration: float) -> float:
+def _natural_scale(value: float, unit: str, *, dx: float, spread: float, duration: float) -> float:
     """Step size of a non-log parameter: what a unit change of the optimiser's variable means."""
     if unit == "mm":
         return dx
@@ -93,14 +92,14 @@ class _Model:
         self.names = [("", "a")] + [(e.name, k) for e in effects for k in e.params]
         self.effects = effects
         values = [a] + [float(v) for e in effects for v in e.params.values()]
-        units = ["mm^2/s"] + [EFFECTS[e.name].params[k] for e in effects for k in e.params]
+        units = ["mm^2/s"] + [e.spec.params[k] for e in effects for k in e.params]
         self.start = torch.tensor(values, dtype=_F64)
         positive = [k in _POSITIVE and v > 0 for (_, k), v in zip(self.names, values, strict=True)]
         self.log = torch.tensor(positive)
         self.scale = torch.tensor(
             [
-                1.0 if log else _natural_scale(k, v, u, dx=dx, spread=spread, duration=duration)
-                for (_, k), v, u, log in zip(self.names, values, units, self.log.tolist(), strict=True)
+                1.0 if log else _natural_scale(v, u, dx=dx, spread=spread, duration=duration)
+                for v, u, log in zip(values, units, positive, strict=True)
             ],
             dtype=_F64,
         )
@@ -115,28 +114,10 @@ class _Model:
             params[index[name]][key] = value
         return values[0], params
 
-    def rhs(self, delta: Tensor, grid: Grid, time_scale: float):
+    def rhs(self, delta: Tensor, grid: Grid, time_scale: float) -> Callable[[Tensor, Tensor], Tensor]:
         a, params = self.split(self.values(delta))
-        diffusion = None
-        terms = []
-        for effect, p in zip(self.effects, params, strict=True):
-            term = effect.spec.build(p, grid)
-            if effect.replaces_diffusion:
-                diffusion = term
-            else:
-                terms.append(term)
-        if diffusion is None:
-            heat = HeatRHS(a, dx=grid.dx, boundary=grid.boundary)
-            diffusion = lambda t, u: heat(t, u).reshape(u.shape)  # noqa: E731
-
-        def f(t: Tensor, u: Tensor) -> Tensor:
-            seconds = t * time_scale
-            out = diffusion(seconds, u)
-            for term in terms:
-                out = out + term(seconds, u)
-            return out * time_scale
-
-        return f
+        parts = [(effect.spec, p) for effect, p in zip(self.effects, params, strict=True)]
+        return effect_rhs(a, parts, grid, time_scale)
 
     def effects_at(self, delta: Tensor) -> tuple[float, tuple[Effect, ...]]:
         a, params = self.split(self.values(delta).detach())
@@ -182,22 +163,11 @@ def refine_model(
         raise ValueError(f"frames must have shape (T >= 2, H, W), got {tuple(video.shape)}")
     m = diagnosis.margin
     n, h, w = video.shape
-    if tuple(diagnosis.residual_map.shape) != (h - 2 * m, w - 2 * m):
-        raise ValueError(
-            "diagnosis was made on frames of another size: residual map "
-            f"{tuple(diagnosis.residual_map.shape)} "
-            f"with margin {m} px, frames {h} x {w} px"
-        )
+    check_diagnosis_frames(diagnosis, h, w)
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
-    scale = float(diagnosis.smoothing) if scale_px is None else scale_px
-    if (
-        isinstance(scale, bool)
-        or not isinstance(scale, int | float)
-        or not (math.isfinite(scale) and scale >= 0)
-    ):
-        raise ValueError(f"scale_px must be a Gaussian sigma >= 0 in px, got {scale_px!r}")
-    target = video if scale == 0 else GaussianSmoothing(float(scale), border="reflect")(video)
+    scale = evaluation_scale(diagnosis, scale_px)
+    target = at_scale(video, scale)
     duration = (n - 1) * dt
     effects = extended_effects(diagnosis)
     a0 = max(diagnosis.base if effects else diagnosis.a_plain, 1e-9)
