@@ -45,6 +45,22 @@ DEMO_PAPER_ESTIMATE = 0.189  # mm^2/s, what El-Kebir et al. report for it
 DEMO_WINDOW = 15  # px, windowed field in the demo report
 
 
+def _add_spacing_arguments(parser: argparse.ArgumentParser, source: str) -> None:
+    """--dt, --dx and --resample, shared by every command that reads videos (``source``: "the file(s)")."""
+    parser.add_argument(
+        "--dt", type=_number("s", positive=True), metavar="S", help=f"frame period in s (overrides {source})"
+    )
+    parser.add_argument(
+        "--dx", type=_number("mm", positive=True), metavar="MM", help=f"pixel size in mm (overrides {source})"
+    )
+    parser.add_argument(
+        "--resample",
+        action="store_true",
+        help="interpolate non-uniform timestamps (e.g. FLIR EXIF times) linearly onto their median step; "
+        "the output states it",
+    )
+
+
 def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
     """VIDEO, --dt, --dx, --roi and --calibration, shared by the commands that read a video."""
     parser.add_argument(
@@ -53,18 +69,7 @@ def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
         help=f"video file ({formats}) or a folder with one file per frame (FLIR .jpg, .csv/.txt matrices); "
         "frames (T, H, W)",
     )
-    parser.add_argument(
-        "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the file)"
-    )
-    parser.add_argument(
-        "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the file)"
-    )
-    parser.add_argument(
-        "--resample",
-        action="store_true",
-        help="interpolate non-uniform timestamps (e.g. FLIR EXIF times) linearly onto their median step; "
-        "the output states it (JSON: input.resampled)",
-    )
+    _add_spacing_arguments(parser, "the file")
     parser.add_argument(
         "--roi",
         metavar="X0,Y0,W,H",
@@ -880,9 +885,8 @@ def build_parser() -> argparse.ArgumentParser:
         "batch",
         help="estimate (and diagnose) many videos into one resumable CSV/Parquet table",
         description=f"Estimate the diffusivity of every video among INPUTS (files, folders, glob patterns; "
-        f"{formats}) into one row each of OUT (.csv or .parquet). Same-shaped videos are estimated together; "
-        "a "
-        "bad file gets an error row and never stops the others; re-running skips inputs already ok; OUT is "
+        f"{formats}) into one row each of OUT (.csv or .parquet). Same-shaped videos are estimated "
+        "together; a bad file gets an error row and never stops the others; re-running skips inputs already ok; OUT is "
         "replaced atomically after every batch. Exit status 2 when an input failed (see its 'error' column).",
     )
     batch.add_argument("inputs", nargs="+", metavar="INPUT", help="video files, folders or glob patterns")
@@ -890,12 +894,7 @@ def build_parser() -> argparse.ArgumentParser:
     batch.add_argument(
         "--diagnose", action="store_true", help="also diagnose hidden effects (top_effect, gain, noise_floor)"
     )
-    batch.add_argument(
-        "--dt", type=_number("s", positive=True), metavar="S", help="frame period in s (overrides the files)"
-    )
-    batch.add_argument(
-        "--dx", type=_number("mm", positive=True), metavar="MM", help="pixel size in mm (overrides the files)"
-    )
+    _add_spacing_arguments(batch, "the files")
     batch.add_argument(
         "--batch-size",
         type=_integer("videos", minimum=1),
@@ -904,11 +903,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="videos read and estimated together (default 8)",
     )
     batch.add_argument("--float64", action="store_true", help="compute in float64 (default float32)")
-    batch.add_argument(
-        "--resample",
-        action="store_true",
-        help="resample non-uniform timestamps (FLIR JPEG folders) linearly onto their median step",
-    )
     batch.add_argument(
         "--dask", action="store_true", help="run on Dask (embedded LocalCluster unless --scheduler)"
     )
