@@ -48,10 +48,11 @@ import numpy as np
 import torch
 
 from anra_torch.calibration import PixelSize, apply_calibration, load_calibration
+from anra_torch.diagnosis import diagnose_terms
 from anra_torch.io import Video, load_video
 from anra_torch.layers.estimator import ANRAEstimator
 from anra_torch.phases import Phase, hot_spot_signal, segment_phases
-from anra_torch.prediction import assess_gain
+from anra_torch.prediction import assess_gain, split_index
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 LASER_DX = PixelSize(0.55, 0.5, 0.6)  # mm/px, C3-X 41 x 31 deg over 128 x 96 px at about 10 cm
@@ -160,10 +161,13 @@ def box_phase(video: Video, phase: Phase) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------ project pipeline
-def anra_phase(video: Video, phase: Phase) -> dict[str, Any]:
+def anra_phase(video: Video, phase: Phase, effects: list[str] | None = None) -> dict[str, Any]:
+    """ANRA fit and held-out gain of one phase; ``effects`` restricts the diagnosis' candidates."""
     frames = video.frames[phase.start : phase.stop].double()
     est = ANRAEstimator(strict=False)(frames, video.dt, video.dx)
-    result = assess_gain(frames, video.dt, video.dx, fit_fraction=0.6)
+    split = split_index(frames.shape[0], 0.6)
+    diagnosis = diagnose_terms(frames[: split + 1], video.dt, video.dx, effects=effects)
+    result = assess_gain(frames, video.dt, video.dx, fit_fraction=0.6, diagnosis=diagnosis)
     a = float(est.diffusivity)
     k = result.measured.shape[0]
     return {
@@ -259,7 +263,7 @@ def load(name: str, path: Path) -> Video:
     return apply_calibration(video, load_calibration(DATA / "flir_csv" / "calibration_og.csv"))
 
 
-def run(out: Path, quick: bool) -> dict[str, Any]:
+def run(out: Path, quick: bool, effects: list[str] | None = None) -> dict[str, Any]:
     from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
@@ -291,7 +295,7 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
                 continue
             tick = time.perf_counter()
             try:
-                fit = anra_phase(video, phase) if path.is_dir() else box_phase(video, phase)
+                fit = anra_phase(video, phase, effects) if path.is_dir() else box_phase(video, phase)
             except (ValueError, RuntimeError) as err:
                 record["phases"][phase.name] = {"error": str(err)}
                 continue
@@ -341,12 +345,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="results/real_data", help="output directory")
     parser.add_argument("--quick", action="store_true", help="one laser run and one CSV file")
+    parser.add_argument(
+        "--effects",
+        type=lambda text: [name.strip() for name in text.split(",") if name.strip()],
+        default=None,
+        metavar="NAME[,NAME...]",
+        help="restrict the laser phases' diagnosis to these candidate effects (default all); "
+        "the small-box CSV model is unchanged",
+    )
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         print(f"real_data: {DATA} not found (the measured data live beside the checkout)", file=sys.stderr)
         return 2
     torch.set_num_threads(1)
-    run(Path(args.out), args.quick)
+    run(Path(args.out), args.quick, args.effects)
     print((Path(args.out) / "table.md").read_text())
     return 0
 
