@@ -886,8 +886,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="estimate (and diagnose) many videos into one resumable CSV/Parquet table",
         description=f"Estimate the diffusivity of every video among INPUTS (files, folders, glob patterns; "
         f"{formats}) into one row each of OUT (.csv or .parquet). Same-shaped videos are estimated "
-        "together; a bad file gets an error row and never stops the others; re-running skips inputs already ok; OUT is "
-        "replaced atomically after every batch. Exit status 2 when an input failed (see its 'error' column).",
+        "together; a bad file gets an error row and never stops the others; re-running skips inputs "
+        "already ok; OUT is replaced atomically after every batch. Exit status 2 when an input failed "
+        "(see its 'error' column).",
     )
     batch.add_argument("inputs", nargs="+", metavar="INPUT", help="video files, folders or glob patterns")
     batch.add_argument("--out", required=True, metavar="OUT", help="results table, .csv or .parquet")

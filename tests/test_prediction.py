@@ -2,8 +2,8 @@
 
 Measured on ``hidden_effect_video(name, seed, size=64, duration=3.0)`` (dx 0.5 mm, noise 1 % of the rise,
 91 frames, diagnosis on 55, forecast of 36). At 0.5 mm/px the heat moves about a pixel during the 1.2 s
-forecast, so anisotropy, heterogeneity and nonlinear diffusion leave the plain forecast at the noise
-floor (nothing to gain); at 0.1 mm/px they do not (gain 0.4-0.8 on seeds of the benchmark).
+forecast, so anisotropy, heterogeneity and nonlinear diffusion change it little; on a finer grid they
+change it more (measured values in the tests below; ``experiments/diagnosis_benchmark.py`` for 20 cases).
 """
 
 from __future__ import annotations
