@@ -311,15 +311,14 @@ class TissueFeatures(nn.Module):
         responses."""
         r = self.term_smoother.radius + 1
         side = 2 * r + 1
-        probe = torch.zeros(1, self.time.length, side + 2 * r, side + 2 * r, dtype=_F64)
-        responses = []
-        for k in range(self.time.length):  # one impulse per frame of the window: the space-time kernel
-            p = probe.clone()
-            p[0, k, side // 2 + r, side // 2 + r] = 1.0
-            rate, _, lap = self._terms(p, torch.ones(1, dtype=_F64), torch.ones(1, dtype=_F64))
-            responses.append((rate[0, 0], lap[0, 0]))
-        uu = sum(float((u * l).sum()) for u, l in responses)
-        ll = sum(float((l * l).sum()) for _, l in responses)
+        n = self.time.length
+        # One impulse per frame of the time window, as a batch of n videos: the space-time kernel.
+        probe = torch.zeros(n, n, side + 2 * r, side + 2 * r, dtype=_F64)
+        probe[torch.arange(n), torch.arange(n), side // 2 + r, side // 2 + r] = 1.0
+        ones = torch.ones(n, dtype=_F64)
+        rate, _, lap = self._terms(probe, ones, ones)
+        uu = float((rate[:, 0] * lap[:, 0]).sum())
+        ll = float(lap[:, 0].pow(2).sum())
         return ll / dx**4, uu / (dt * dx**2)
 
     def _effects(
