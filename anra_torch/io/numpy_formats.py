@@ -23,6 +23,15 @@ class _NotAnArchive(Exception):
     pass
 
 
+def _value_error(path: Path, err: ValueError, kind: str, save: str) -> ValueError:
+    """The one-line error for a ``ValueError`` of ``numpy.load`` (pickled content, or corrupt)."""
+    if "pickle" in str(err) or "Object arrays" in str(err):
+        return ValueError(
+            f"{path}: holds pickled Python objects, which are never loaded; save {save} instead"
+        )
+    return ValueError(f"{path}: cannot read as {kind} ({one_line(err)}); the file may be corrupt")
+
+
 def load_npz(path: Path) -> RawVideo:
     try:
         archive = np.load(path, allow_pickle=False)
@@ -33,12 +42,7 @@ def load_npz(path: Path) -> RawVideo:
     except _NotAnArchive:
         raise ValueError(f"{path}: is a single .npy array, not an .npz archive; rename it to .npy") from None
     except ValueError as err:
-        if "pickle" in str(err) or "Object arrays" in str(err):
-            raise ValueError(
-                f"{path}: holds pickled Python objects, which are never loaded; save numeric arrays "
-                "(numpy.savez) instead"
-            ) from err
-        raise ValueError(f"{path}: cannot read as .npz ({one_line(err)}); the file may be corrupt") from err
+        raise _value_error(path, err, ".npz", "numeric arrays (numpy.savez)") from err
     except (zipfile.BadZipFile, EOFError, zlib.error, pickle.UnpicklingError, KeyError, OSError) as err:
         raise ValueError(
             f"{path}: cannot read as .npz ({one_line(err)}); the file may be truncated or corrupt"
@@ -62,12 +66,7 @@ def load_npy(path: Path) -> RawVideo:
     try:
         frames = np.load(path, allow_pickle=False)
     except ValueError as err:
-        if "pickle" in str(err) or "Object arrays" in str(err):
-            raise ValueError(
-                f"{path}: holds pickled Python objects, which are never loaded; save a numeric array "
-                "(numpy.save) instead"
-            ) from err
-        raise ValueError(f"{path}: cannot read as .npy ({one_line(err)}); the file may be corrupt") from err
+        raise _value_error(path, err, ".npy", "a numeric array (numpy.save)") from err
     except (EOFError, OSError, pickle.UnpicklingError) as err:
         raise ValueError(
             f"{path}: cannot read as .npy ({one_line(err)}); the file may be truncated or corrupt"
