@@ -39,7 +39,8 @@ def test_temperatures_agree_with_an_independent_decode(run: tuple, k: int) -> No
     files = sorted(folder.glob("*.jpg"))
     reference, _ = decode(files[k])
     error = np.abs(video.frames[k].numpy() - reference)
-    assert error.max() < 0.1  # degC, the acceptance bound (measured: < 1e-3)
+    assert error.max() < 0.1  # degC, the acceptance bound
+    assert error.max() < 1e-3  # what the decoders actually agree to (3.0e-4 at most over the 50 frames)
     # A spot check at the hottest pixel, which reaches 200-390 degC.
     row, col = np.unravel_index(reference.argmax(), reference.shape)
     assert abs(float(video.frames[k, row, col]) - reference[row, col]) < 0.1
