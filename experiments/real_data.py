@@ -125,11 +125,12 @@ def box_forecast(
     return out
 
 
-def box_phase(video: Video, phase: Phase) -> dict[str, Any]:
+def box_phase(video: Video, phase: Phase, window: int = BOX_FIT_WINDOW) -> dict[str, Any]:
+    """Small-box fit on the ``window`` frames before the split, and its held-out gain."""
     frames = video.frames[phase.start : phase.stop].double().numpy()
     split = int(round(0.6 * (frames.shape[0] - 1)))
     horizon = min(frames.shape[0] - 1 - split, BOX_HORIZON)
-    fit_part = frames[max(0, split - BOX_FIT_WINDOW) : split + 1]
+    fit_part = frames[max(0, split - window) : split + 1]
     plain = box_fit(fit_part, video.dt, video.dx, extended=False)
     extended = box_fit(fit_part, video.dt, video.dx, extended=True)
     measured = frames[split + 1 : split + 1 + horizon]
@@ -263,7 +264,9 @@ def load(name: str, path: Path) -> Video:
     return apply_calibration(video, load_calibration(DATA / "flir_csv" / "calibration_og.csv"))
 
 
-def run(out: Path, quick: bool, effects: list[str] | None = None) -> dict[str, Any]:
+def run(
+    out: Path, quick: bool, effects: list[str] | None = None, window: int = BOX_FIT_WINDOW
+) -> dict[str, Any]:
     from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
@@ -295,7 +298,7 @@ def run(out: Path, quick: bool, effects: list[str] | None = None) -> dict[str, A
                 continue
             tick = time.perf_counter()
             try:
-                fit = anra_phase(video, phase, effects) if path.is_dir() else box_phase(video, phase)
+                fit = anra_phase(video, phase, effects) if path.is_dir() else box_phase(video, phase, window)
             except (ValueError, RuntimeError) as err:
                 record["phases"][phase.name] = {"error": str(err)}
                 continue
@@ -353,12 +356,19 @@ def main(argv: list[str] | None = None) -> int:
         help="restrict the laser phases' diagnosis to these candidate effects (default all); "
         "the small-box CSV model is unchanged",
     )
+    parser.add_argument(
+        "--box-window",
+        type=int,
+        default=BOX_FIT_WINDOW,
+        metavar="N",
+        help=f"frames before the split the small-box CSV models are fitted on (default {BOX_FIT_WINDOW})",
+    )
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         print(f"real_data: {DATA} not found (the measured data live beside the checkout)", file=sys.stderr)
         return 2
     torch.set_num_threads(1)
-    run(Path(args.out), args.quick, args.effects)
+    run(Path(args.out), args.quick, args.effects, args.box_window)
     print((Path(args.out) / "table.md").read_text())
     return 0
 
