@@ -236,10 +236,12 @@ def main() -> None:
     extractor = TissueFeatures()
     sets: dict[float, dict[str, dict[str, list]]] = {n: {"train": {}, "test": {}} for n in noises}
     example = None
+    peaks = []  # true peak temperature of each scene, C
     for k in tqdm(range(args.train + args.test), desc="videos"):
         split = "train" if k < args.train else "test"
         seed = args.seed * 1000 + k
         video = scene(seed)
+        peaks.append(float(video["truth"].max()))
         for noise in noises:
             frames = camera(video["clean"], noise, seed)
             anra, maps = anra_features(frames, video["dt"], extractor)
@@ -262,13 +264,16 @@ def main() -> None:
             "size_px": SIZE,
             "dx_mm": DX,
             "seed": args.seed,
+            "true_peak_c": {"min": min(peaks), "median": float(np.median(peaks)), "max": max(peaks)},
         },
         "features": {"raw temperature": ["peak", "mean", "last", "std"], "ANRA": list(extractor.map_names)},
         "by_noise": {},
     }
     lines = [
         f"Damaged-pixel classification (Omega >= 1 of the true temperature) on {args.test} held-out videos, "
-        f"logistic regression trained on {args.train} videos; camera {1 / (FINE_DT * STRIDE):g} Hz:",
+        f"logistic regression trained on {args.train} videos; camera {1 / (FINE_DT * STRIDE):g} Hz; "
+        f"true peak temperatures of the {len(peaks)} scenes {min(peaks):.0f}-{max(peaks):.0f} C, median "
+        f"{np.median(peaks):.0f} C:",
         "",
         "| camera noise sd (K) | damaged pixels (test) | features | F1 | ROC AUC |",
         "|---|---|---|---|---|",
