@@ -34,6 +34,7 @@ from anra_torch.prediction import GainResult, assess_gain
 from anra_torch.refine import Refinement, refine_model
 from anra_torch.resample import resample_uniform
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
+from anra_torch.source_map import SourceMapModel, fit_source_map
 from anra_torch.streaming import StreamingEstimator, estimate_long
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
 from anra_torch.tissue_model import LearnedTissueModel, MovingSource, simulate_tissue
@@ -58,6 +59,8 @@ __all__ = [
     "assess_gain",
     "refine_model",
     "Refinement",
+    "SourceMapModel",
+    "fit_source_map",
     "blobs_video",
     "diagnose_terms",
     "estimate_noise_sd",

@@ -818,8 +818,9 @@ def simulate_effects(
     boundary: str = "neumann",
     boundary_value: float = 0.0,
     substeps: int | None = None,
+    forcing: Tensor | None = None,
 ) -> Tensor:
-    """Simulate a thermal video of ``dT/dt = D[T] + sum of effect terms`` (method of lines, RK4).
+    """Simulate a thermal video of ``dT/dt = D[T] + sum of effect terms (+ forcing)`` (method of lines, RK4).
 
     Fixed-step RK4 (``torchdiffeq``) with an integer number of substeps per frame, by default the fewest
     that are stable for the whole spectrum (diffusion up to the largest diffusivity the model can reach,
@@ -837,12 +838,15 @@ def simulate_effects(
         boundary: a key of :data:`anra_torch.simulate.BOUNDARIES` (default zero flux).
         boundary_value: ghost temperature for ``"dirichlet"``.
         substeps: RK4 steps per frame; default automatic (see above).
+        forcing: a stationary heat-input map in data units per s, added to the right-hand side at every
+            pixel (e.g. a measured source map, :mod:`anra_torch.source_map`); it does not change stability.
 
     Returns:
         The video in the dtype of ``initial``.
 
     Shape:
-        ``initial`` ``(H, W)`` or ``(B, H, W)``; output ``(T, H, W)`` or ``(B, T, H, W)``.
+        ``initial`` ``(H, W)`` or ``(B, H, W)``; ``forcing`` ``(H, W)``; output ``(T, H, W)`` or
+        ``(B, T, H, W)``.
 
     Raises:
         TypeError: ``initial`` not real numbers, effects not :class:`Effect`.
@@ -867,6 +871,15 @@ def simulate_effects(
     grid = Grid((height, width), dx, (n_frames - 1) * dt, boundary, boundary_value)
     if substeps is not None:
         substeps = _check_int(substeps, "substeps", 1)
+    if forcing is not None:
+        forcing = torch.as_tensor(forcing)
+        if forcing.shape != (height, width) or not bool(torch.isfinite(forcing).all()):
+            raise ValueError(
+                f"forcing must be a finite map of the frame's shape ({height}, {width}) in data units per s, "
+                f"got shape {tuple(forcing.shape)}"
+                + ("" if forcing.shape != (height, width) else " with non-finite values")
+            )
+        forcing = forcing.to(u0.dtype)
     duration = grid.duration
     low, high = float(u0.min()), float(u0.max())
     if BOUNDARIES[boundary].uses_value:
@@ -884,6 +897,9 @@ def simulate_effects(
         out = u0.unsqueeze(1)
         return out if batched else out[0]
     rhs = ExtendedHeatRHS(a, grid=grid, effects=checked, time_scale=dt / substeps)
+    if forcing is not None:
+        heat, step_input = rhs, forcing * (dt / substeps)
+        rhs = lambda t, u: heat(t, u) + step_input  # noqa: E731
     t = torch.arange(n_frames, dtype=u0.dtype) * substeps
     out = odeint(rhs, u0, t, method="rk4", options={"step_size": 1.0}).movedim(0, 1)
     return out if batched else out[0]

@@ -1,0 +1,233 @@
+"""A stationary heat-input map: the extension for sources that are not Gaussian spots, e.g. a real beam.
+
+The effect library's ``source`` is a Gaussian spot moving on a straight line. A measured beam (an
+unfocused fibre tip, a heated stage seen through a window) has its own shape and stays put: fitting it with
+a Gaussian leaves a dipole error that grows with the forecast, and extrapolating the spot's small fitted
+drift moves it further. This module models the heat input by its map instead:
+
+    dT/dt = a Lap T - b T + q(x, y)
+
+``q`` (data units per s) is a per-pixel constant: the source's own map plus ``b T_ref(x, y)``, a loss
+towards a reference that may vary in space (heat stored at depth under a spot relaxes the surface towards a
+warmer local level). It is found without solving the PDE, by a fixed-effects regression at one spatial
+scale:
+
+1. the frames are smoothed by a Gaussian (the same on both sides of the PDE, so the smoothed field obeys
+   the same linear equation);
+2. ``U = (S[k+1] - S[k-1]) / (2 dt)``, the central time difference, is paired with ``S[k]`` and its
+   5-point Laplacian at the same instant ``k`` (time alignment);
+3. removing each pixel's time mean from ``U``, ``Lap S`` and ``S`` removes ``q``; least squares on the
+   interior then gives ``a >= 0`` and ``b >= 0`` (the best non-negative pair), and ``q`` is the pixel's
+   time mean of ``U - a Lap S + b S``.
+
+The map has one value per pixel and needs at least two rates (four frames) per pixel; within ``margin`` px
+of the edges, where the filters do not reach, it repeats the nearest interior value (a zero there would pull
+those pixels towards 0 through ``- b T``). :meth:`SourceMapModel.forecast` simulates it with
+:func:`anra_torch.effects.simulate_effects` (zero-flux edges).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from anra_torch.effects import Effect, simulate_effects
+from anra_torch.prediction import GainResult, at_scale, forecast_errors
+
+__all__ = ["SourceMapGain", "SourceMapModel", "fit_source_map", "source_map_gain"]
+
+_F64 = torch.float64
+
+
+@dataclass(frozen=True)
+class SourceMapModel:
+    """``dT/dt = a Lap T - b T + q(x, y)`` fitted to a video at one spatial scale.
+
+    Attributes:
+        a: diffusivity in mm^2/s (>= 0).
+        b: loss rate in 1/s (>= 0).
+        forcing: the map ``q`` in data units per s; within ``margin`` px of the edges the nearest interior
+            value.
+        scale_px: the Gaussian sigma (px) the frames were smoothed by before the fit.
+        margin: pixels left out at each edge.
+        n_rates: time differences per pixel the fit used.
+
+    Shape:
+        ``forcing`` ``(H, W)``.
+    """
+
+    a: float
+    b: float
+    forcing: Tensor
+    scale_px: float
+    margin: int
+    n_rates: int
+
+    @property
+    def equilibrium(self) -> Tensor:
+        """The temperature the model relaxes to without diffusion, ``q / b`` (data units; NaN if b = 0).
+
+        Shape:
+            ``(H, W)``.
+        """
+        return self.forcing / self.b if self.b > 0 else torch.full_like(self.forcing, math.nan)
+
+    def forecast(self, initial: Tensor, *, dt: float, dx: float, n_frames: int) -> Tensor:
+        """Simulate ``n_frames`` frames from ``initial`` (frame 0 included), zero-flux edges, float64.
+
+        Shape:
+            ``initial`` ``(H, W)``; output ``(n_frames, H, W)``.
+        """
+        loss = (Effect("linear_loss", {"b": self.b, "T_ref": 0.0}),) if self.b > 0 else ()
+        return simulate_effects(
+            torch.as_tensor(initial).to(_F64),
+            a=self.a,
+            dx=dx,
+            dt=dt,
+            n_frames=n_frames,
+            effects=loss,
+            forcing=self.forcing,
+        )
+
+
+def _laplacian(u: Tensor, dx: float) -> Tensor:
+    p = F.pad(u.unsqueeze(1), (1, 1, 1, 1), mode="replicate").squeeze(1)
+    return (p[..., 1:-1, 2:] + p[..., 1:-1, :-2] + p[..., 2:, 1:-1] + p[..., :-2, 1:-1] - 4 * u) / dx**2
+
+
+def _nonnegative_pair(x: Tensor, y: Tensor) -> tuple[float, float]:
+    """Least squares ``y ~ x @ (a, b)`` with ``a, b >= 0`` (the two columns are few: try every face)."""
+    best = (0.0, 0.0, float(y.pow(2).sum()))
+    for columns in ((0, 1), (0,), (1,)):
+        sub = x[:, columns]
+        coef = torch.linalg.lstsq(sub, y.unsqueeze(1)).solution[:, 0]
+        if bool((coef < 0).any()) or not bool(torch.isfinite(coef).all()):
+            continue
+        sse = float((y - sub @ coef).pow(2).sum())
+        if sse < best[2]:
+            full = [0.0, 0.0]
+            for i, c in zip(columns, coef.tolist(), strict=True):
+                full[i] = c
+            best = (full[0], full[1], sse)
+    return best[0], best[1]
+
+
+def fit_source_map(
+    frames: Tensor, dt: float, dx: float, *, scale_px: float = 1.0, margin: int = 3
+) -> SourceMapModel:
+    """Fit ``dT/dt = a Lap T - b T + q(x, y)`` by the fixed-effects regression of the module docstring.
+
+    Args:
+        frames: temperatures (any linear unit), uniformly sampled in time.
+        dt: frame period in s.
+        dx: pixel size in mm.
+        scale_px: Gaussian sigma (px) applied to every frame first (0: none).
+        margin: pixels left out at each edge (at least 1: the Laplacian's reach).
+
+    Returns:
+        :class:`SourceMapModel`.
+
+    Raises:
+        ValueError: not ``(T, H, W)``, fewer than 4 frames, non-finite values, a margin that leaves no
+            interior, bad spacings or scale.
+
+    Shape:
+        ``frames`` ``(T, H, W)``.
+
+    Example:
+        >>> u0 = torch.full((24, 24), 20.0, dtype=torch.float64)
+        >>> q = torch.zeros(24, 24, dtype=torch.float64); q[8:16, 8:16] = 1.0
+        >>> video = simulate_effects(u0, a=0.1, dx=0.5, dt=0.1, n_frames=30, forcing=q)
+        >>> model = fit_source_map(video, 0.1, 0.5, scale_px=0)
+        >>> round(model.a, 2), round(float(model.forcing[12, 12]), 2)
+        (0.1, 1.0)
+    """
+    video = torch.as_tensor(frames)
+    if video.ndim != 3:
+        raise ValueError(f"frames must have shape (T, H, W), got {tuple(video.shape)}")
+    n, h, w = video.shape
+    if n < 4:
+        raise ValueError(f"frames must hold at least 4 frames for a per-pixel source map (2 rates), got {n}")
+    for value, name, unit in ((dt, "dt", "s"), (dx, "dx", "mm")):
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if not (number and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
+    if isinstance(margin, bool) or not isinstance(margin, int) or margin < 1 or min(h, w) - 2 * margin < 3:
+        raise ValueError(
+            f"margin must be an integer >= 1 that leaves at least 3 x 3 px inside {h} x {w} frames, "
+            f"got {margin!r}"
+        )
+    if not (isinstance(scale_px, int | float) and math.isfinite(scale_px) and scale_px >= 0):
+        raise ValueError(f"scale_px must be a Gaussian sigma >= 0 in px, got {scale_px!r}")
+    video = video.to(_F64)
+    if not bool(torch.isfinite(video).all()):
+        raise ValueError(
+            "frames must be finite to fit a source map; crop or fill the non-finite pixels first"
+        )
+    smooth = at_scale(video, float(scale_px))
+    inner = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
+    rate = ((smooth[2:] - smooth[:-2]) / (2 * dt))[inner]
+    temp = smooth[1:-1]
+    lap = _laplacian(temp, dx)[inner]
+    temp = temp[inner]
+
+    def centred(x: Tensor) -> Tensor:
+        return (x - x.mean(0, keepdim=True)).reshape(-1)
+
+    a, b = _nonnegative_pair(torch.stack([centred(lap), -centred(temp)], dim=1), centred(rate))
+    interior = (rate - a * lap + b * temp).mean(0)
+    forcing = F.pad(interior[None, None], (margin,) * 4, mode="replicate")[0, 0]
+    return SourceMapModel(a=a, b=b, forcing=forcing, scale_px=float(scale_px), margin=margin, n_rates=n - 2)
+
+
+@dataclass(frozen=True)
+class SourceMapGain:
+    """The source-map model fitted on a :class:`GainResult`'s fit part and its forecast of the held-out rest.
+
+    Attributes:
+        model: the fitted :class:`SourceMapModel`.
+        predicted: its forecast of the held-out frames (float64, evaluation scale's initial frame).
+        rmse: its RMSE against the same smoothed held-out frames and interior as the plain forecast.
+        gain: ``1 - rmse / result.base_rmse`` (0 when the plain forecast is exact).
+
+    Shape:
+        ``predicted`` ``(K, H, W)``.
+    """
+
+    model: SourceMapModel
+    predicted: Tensor
+    rmse: float
+    gain: float
+
+
+def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) -> SourceMapGain:
+    """Fit the source map on ``result``'s fit part and forecast its held-out frames like the plain model.
+
+    Same split, evaluation scale, initial frame, interior and measured frames as ``result``
+    (:func:`anra_torch.prediction.assess_gain` on the same ``frames``), so ``gain`` compares like with like.
+
+    Raises:
+        ValueError: ``frames`` not the video ``result`` was made from (frame count), or a fit part shorter
+            than :func:`fit_source_map` needs.
+
+    Shape:
+        ``frames`` ``(T, H, W)``.
+    """
+    video = torch.as_tensor(frames).to(_F64)
+    split, horizon = result.split, result.measured.shape[0]
+    if video.ndim != 3 or video.shape[0] != split + 1 + horizon:
+        raise ValueError(
+            f"frames must be the (T, H, W) video the gain was assessed on ({split + 1 + horizon} frames), "
+            f"got shape {tuple(video.shape)}"
+        )
+    scale, m = result.scale_px, result.margin
+    model = fit_source_map(video[: split + 1], dt, dx, scale_px=scale, margin=max(m, 1))
+    initial = at_scale(video[split : split + 1], scale)[0]
+    predicted = model.forecast(initial, dt=dt, dx=dx, n_frames=horizon + 1)[1:]
+    rmse = forecast_errors(predicted, result.measured, m)[1]
+    gain = 1.0 - rmse / result.base_rmse if result.base_rmse > 0 else 0.0
+    return SourceMapGain(model=model, predicted=predicted, rmse=rmse, gain=gain)

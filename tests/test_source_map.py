@@ -1,0 +1,127 @@
+"""The stationary source map: the simulator's forcing, recovery of a, b and q, and the forecast it gives."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from torch import Tensor
+
+from anra_torch.diagnosis import diagnose_terms
+from anra_torch.effects import Effect, simulate_effects
+from anra_torch.prediction import at_scale, forecast_errors, simulate_model
+from anra_torch.source_map import fit_source_map
+
+F64 = torch.float64
+
+
+def _ring_beam(size: int, dx: float) -> tuple[Tensor, Tensor]:
+    """A ring-shaped heat input (K/s): not a Gaussian spot, as a fibre-tip beam is not."""
+    y, x = torch.meshgrid(torch.arange(size, dtype=F64), torch.arange(size, dtype=F64), indexing="ij")
+    r = torch.sqrt((x - 0.45 * size) ** 2 + (y - 0.55 * size) ** 2) * dx
+    ring = 6.0 * torch.exp(-((r - 4.0) ** 2) / (2 * 1.2**2))
+    return ring, r
+
+
+def _beam_video(noise: float, seed: int = 0) -> tuple[Tensor, float, float, dict]:
+    size, dx, dt, a, b = 64, 0.5, 0.5, 0.12, 0.05
+    ring, _ = _ring_beam(size, dx)
+    u0 = torch.full((size, size), 25.0, dtype=F64)
+    loss = Effect("linear_loss", {"b": b, "T_ref": 25.0})
+    clean = simulate_effects(u0, a=a, dx=dx, dt=dt, n_frames=40, effects=[loss], forcing=ring)
+    g = torch.Generator().manual_seed(seed)
+    frames = clean + noise * torch.randn(clean.shape, generator=g, dtype=F64)
+    return frames, dt, dx, {"a": a, "b": b, "q": ring + b * 25.0}
+
+
+def test_forcing_matches_the_exact_relaxation() -> None:
+    """Uniform field, loss b, forcing q: T(t) = q/b + (T0 - q/b) exp(-b t) to RK4 error (50 substeps)."""
+    u0 = torch.full((6, 7), 30.0, dtype=F64)
+    q = torch.full((6, 7), 2.0, dtype=F64)
+    loss = Effect("linear_loss", {"b": 0.4, "T_ref": 0.0})
+    video = simulate_effects(u0, a=0.3, dx=0.5, dt=0.25, n_frames=21, effects=[loss], forcing=q, substeps=50)
+    t = torch.arange(21, dtype=F64) * 0.25
+    exact = 5.0 + (30.0 - 5.0) * torch.exp(-0.4 * t)
+    assert torch.allclose(video[:, 3, 3], exact, rtol=1e-10, atol=0)
+    assert float((video - video[:, :1, :1]).abs().max()) < 1e-12  # stays uniform
+
+
+def test_forcing_must_match_the_frame() -> None:
+    u0 = torch.zeros(6, 7, dtype=F64)
+    message = r"forcing must be a finite map of the frame's shape \(6, 7\).*got shape \(7, 6\)"
+    with pytest.raises(ValueError, match=message):
+        simulate_effects(u0, a=0.1, dx=0.5, dt=0.1, n_frames=3, forcing=torch.zeros(7, 6))
+    bad = torch.zeros(6, 7)
+    bad[0, 0] = math.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        simulate_effects(u0, a=0.1, dx=0.5, dt=0.1, n_frames=3, forcing=bad)
+
+
+def test_recovers_diffusivity_loss_and_the_beam_map() -> None:
+    frames, dt, dx, truth = _beam_video(noise=0.02)
+    model = fit_source_map(frames, dt, dx, scale_px=1.0, margin=4)
+    assert model.a == pytest.approx(truth["a"], rel=0.05)
+    assert model.b == pytest.approx(truth["b"], rel=0.05)
+    assert model.n_rates == 38
+    inner = (slice(8, -8), slice(8, -8))
+    q_true = at_scale(truth["q"][None], 1.0)[0][inner]
+    q_fit = model.forcing[inner]
+    corr = torch.corrcoef(torch.stack([q_true.reshape(-1), q_fit.reshape(-1)]))[0, 1]
+    assert float(corr) > 0.99
+    assert torch.equal(model.forcing[:4, 10], model.forcing[4, 10].expand(4))  # the margin repeats the edge
+    assert torch.allclose(model.equilibrium * model.b, model.forcing)
+
+
+def test_map_forecast_beats_plain_and_gaussian_source_on_a_ring_beam() -> None:
+    """Fit on 24 frames, forecast 15: the map model is near the noise floor, a Gaussian spot is not."""
+    frames, dt, dx, _ = _beam_video(noise=0.05)
+    split, scale = 24, 1.0
+    fit = frames[: split + 1]
+    model = fit_source_map(fit, dt, dx, scale_px=scale, margin=4)
+    initial = at_scale(frames[split : split + 1], scale)[0]
+    measured = at_scale(frames[split + 1 :], scale)
+    n = frames.shape[0] - split
+    mapped = forecast_errors(model.forecast(initial, dt=dt, dx=dx, n_frames=n)[1:], measured, 4)[1]
+    diagnosis = diagnose_terms(fit, dt, dx)
+    plain = simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=n, effects=())[1:]
+    plain_rmse = forecast_errors(plain, measured, 4)[1]
+    assert 1 - mapped / plain_rmse > 0.98  # measured 0.994 (map 0.016 K, plain 2.55 K)
+    assert "source" in [e["name"] for e in diagnosis.effects]
+    spot = simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=n)[1:]
+    gaussian = forecast_errors(spot, measured, 4)[1]
+    assert mapped < 0.05 * gaussian  # the Gaussian spot: 1.25 K
+
+
+def test_pure_diffusion_gives_no_loss_and_a_flat_map() -> None:
+    y, x = torch.meshgrid(torch.arange(48, dtype=F64), torch.arange(48, dtype=F64), indexing="ij")
+    u0 = 20 + 30 * torch.exp(-((x - 24) ** 2 + (y - 22) ** 2) / (2 * 5.0**2))
+    video = simulate_effects(u0, a=0.2, dx=0.4, dt=0.2, n_frames=20)
+    model = fit_source_map(video, 0.2, 0.4, scale_px=0, margin=2)
+    assert model.a == pytest.approx(0.2, rel=1e-3)
+    assert model.b < 1e-4
+    assert float(model.forcing.abs().max()) < 1e-2 * float((video[1] - video[0]).abs().max() / 0.2)
+
+
+@pytest.mark.parametrize(
+    ("frames", "kwargs", "message"),
+    [
+        (torch.zeros(3, 10, 10), {}, r"at least 4 frames for a per-pixel source map \(2 rates\), got 3"),
+        (torch.zeros(10, 10), {}, r"frames must have shape \(T, H, W\), got \(10, 10\)"),
+        (torch.zeros(5, 10, 10), {"margin": 4}, r"margin must be .* inside 10 x 10 frames, got 4"),
+        (torch.zeros(5, 10, 10), {"margin": 0}, "got 0"),
+        (torch.zeros(5, 10, 10), {"scale_px": -1.0}, r"scale_px must be a Gaussian sigma >= 0 in px"),
+    ],
+)
+def test_bad_input_gets_a_one_line_error(frames: Tensor, kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        fit_source_map(frames, 0.1, 0.5, **kwargs)
+
+
+def test_bad_spacing_and_non_finite_frames() -> None:
+    frames = torch.zeros(5, 10, 10)
+    with pytest.raises(ValueError, match=r"dt must be a positive finite number in s, got 0"):
+        fit_source_map(frames, 0, 0.5)
+    frames[2, 5, 5] = math.inf
+    with pytest.raises(ValueError, match="frames must be finite"):
+        fit_source_map(frames, 0.1, 0.5)
