@@ -554,6 +554,22 @@ def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str,
             "noise_floor": result.noise_floor_raw,
         },
     }
+    if getattr(args, "source_map", False):
+        from anra_torch.source_map import source_map_gain
+
+        try:
+            mapped = source_map_gain(frames, video.dt, video.dx, result)
+        except ValueError as err:
+            raise ValueError(f"{video.source}: --source-map: {err}") from err
+        summary["source_map"] = {
+            "equation": "dT/dt = a Lap T - b T + q(x, y)",
+            "a": mapped.model.a,
+            "b": mapped.model.b,
+            "q_max": float(mapped.model.forcing.max()),
+            "q_min": float(mapped.model.forcing.min()),
+            "prediction_rmse": mapped.rmse,
+            "gain": mapped.gain,
+        }
     if any(_input_record(video).values()):
         summary["input"] = _input_record(video)
     return _clean_json(summary), result
@@ -589,6 +605,13 @@ def _run_diagnose(args: argparse.Namespace) -> int:
             print(f"  extended forecast RMSE {ext['prediction_rmse']:.4g}, gain {summary['gain']:.3f}")
         else:
             print("  no effect beyond heat diffusion found (gain 0)")
+        if "source_map" in summary:
+            sm = summary["source_map"]
+            print(
+                f"  source map: a = {sm['a']:.4g} mm^2/s, b = {sm['b']:.4g} 1/s, q {sm['q_min']:.4g} to "
+                f"{sm['q_max']:.4g} {video.unit}/s; forecast RMSE {sm['prediction_rmse']:.4g}, "
+                f"gain {sm['gain']:.3f}"
+            )
         print(
             f"  diagnosed frames 0-{result.split}, forecast {result.measured.shape[0]} held-out frames "
             f"in {result.elapsed:.1f} s"
@@ -745,6 +768,14 @@ def build_parser() -> argparse.ArgumentParser:
         "linear unit.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument(
+        "--threads",
+        type=_integer("threads", minimum=1),
+        default=None,
+        metavar="N",
+        help="torch CPU threads (default: torch's choice, all cores); 1 is fastest when other processes "
+        "share the cores, e.g. several 'anra batch' runs side by side",
+    )
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     formats = ", ".join(REGISTRY)
@@ -879,6 +910,12 @@ def build_parser() -> argparse.ArgumentParser:
     diagnose.add_argument(
         "--report", metavar="DIR", help="write report.md with figures (forecasts, residual, RMSE) to DIR"
     )
+    diagnose.add_argument(
+        "--source-map",
+        action="store_true",
+        help="also fit a stationary source map dT/dt = a Lap T - b T + q(x, y) on the same frames (a "
+        "measured beam that is not a Gaussian spot) and report its forecast RMSE and gain ('source_map')",
+    )
     diagnose.set_defaults(run=_run_diagnose)
 
     batch = commands.add_parser(
@@ -968,6 +1005,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     try:
         args = build_parser().parse_args(argv)
+        if args.threads is not None:
+            import torch
+
+            torch.set_num_threads(args.threads)
         return args.run(args)
     except SystemExit as done:  # --help, --version
         return done.code if isinstance(done.code, int) else 0 if done.code is None else 2

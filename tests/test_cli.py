@@ -404,3 +404,15 @@ def test_demo_full_size_is_accurate_and_quick(tmp_path: Path, capsys: pytest.Cap
     error = float(re.search(r"error ([-+][\d.e-]+) %", out).group(1))
     assert abs(error) < 1.0
     assert (tmp_path / "report.md").is_file() and len(list(tmp_path.glob("*.png"))) == 4
+
+
+def test_threads_option_sets_torch_threads(paper96: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    before = torch.get_num_threads()
+    try:
+        assert main(["--threads", "1", "estimate", str(paper96), "--json"]) == 0
+        assert torch.get_num_threads() == 1
+        assert json.loads(capsys.readouterr().out)["diffusivity"] == pytest.approx(0.2, rel=0.01)
+        assert main(["--threads", "0", "estimate", str(paper96)]) == 2
+        assert "argument --threads: must be an integer >= 1" in capsys.readouterr().err
+    finally:
+        torch.set_num_threads(before)

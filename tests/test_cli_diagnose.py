@@ -123,3 +123,32 @@ def test_no_activity_is_one_line_error(tmp_path: Path, capsys: pytest.CaptureFix
 def test_bad_fit_fraction(tmp_path: Path, capsys: pytest.CaptureFixture[str], value: str) -> None:
     code, out, err = run(capsys, "diagnose", tmp_path / "missing.npz", "--fit-fraction", value)
     assert code == 2 and err.startswith("anra: error: ") and err.count("\n") == 1 and "fit" in err
+
+
+def test_source_map_option_reports_the_beam_model(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A ring-shaped beam (not a Gaussian spot): --source-map forecasts it near the noise floor."""
+    import torch
+
+    from anra_torch.effects import Effect, simulate_effects
+
+    n, dx = 56, 0.5
+    y, x = torch.meshgrid(
+        torch.arange(n, dtype=torch.float64), torch.arange(n, dtype=torch.float64), indexing="ij"
+    )
+    r = torch.sqrt((x - 25.0) ** 2 + (y - 30.0) ** 2) * dx
+    beam = 6.0 * torch.exp(-((r - 4.0) ** 2) / (2 * 1.2**2))
+    loss = Effect("linear_loss", {"b": 0.05, "T_ref": 25.0})
+    u0 = torch.full((n, n), 25.0, dtype=torch.float64)
+    clean = simulate_effects(u0, a=0.12, dx=dx, dt=0.5, n_frames=40, effects=[loss], forcing=beam)
+    frames = clean + 0.05 * torch.randn(clean.shape, dtype=torch.float64)
+    path = save_npz(tmp_path / "beam.npz", frames.numpy(), dt=0.5, dx=dx)
+    code, out, err = run(capsys, "diagnose", path, "--json", "--source-map")
+    assert (code, err) == (0, "")
+    record = json.loads(out)
+    sm = record["source_map"]
+    assert set(sm) == {"equation", "a", "b", "q_max", "q_min", "prediction_rmse", "gain"}
+    assert sm["a"] == pytest.approx(0.12, rel=0.05) and sm["b"] == pytest.approx(0.05, rel=0.05)
+    assert sm["gain"] > 0.95 and sm["gain"] > record["gain"]
+    assert sm["prediction_rmse"] < 2 * record["noise_floor"]
+    code, out, _ = run(capsys, "diagnose", path, "--source-map")
+    assert code == 0 and "source map: a = 0.1" in out
