@@ -7,7 +7,7 @@ Every failure the user can cause (bad file, bad flag, a video without thermal ac
 ``anra estimate --json`` prints one object on one line:
 
 - ``path``; ``diffusivity`` and ``std_error`` (mm^2/s, null when no estimate); ``valid`` (bool) and
-  ``message`` (the reason when not valid, else "");
+  ``message`` (the reason when not valid, a warning for a significantly negative diffusivity, else "");
 - ``frames``, ``height``, ``width`` (px); ``dt`` (s); ``dx`` (mm); ``mode``;
 - ``smoothing_px`` (the Gaussian sigma chosen from the data); ``noise_sd`` (data units); ``reliability``
   (signal fraction of the regressor energy, 1 is noiseless); ``n_masked`` (non-finite pixel values);
@@ -227,6 +227,8 @@ def _print_summary(s: dict[str, Any]) -> None:
     )
     if s["n_masked"]:
         print(f"  masked {s['n_masked']} non-finite pixel values")
+    if s["message"]:
+        print(f"  {s['message']}")
     if s["window_px"] is not None:
         median = f"median {s['field_median']:.4g} mm^2/s" if s["field_median"] is not None else "no estimate"
         print(

@@ -287,11 +287,13 @@ class TissueFeatures(nn.Module):
         summary["n_masked"] = masked.flatten(1).sum(1)
         units |= {f"{name}_max": unit for name, unit in units.items()}
         units |= {"damaged_fraction": "1", "diffusivity_global": "mm^2/s", "n_masked": "samples"}
+        # The estimator's warning on a significantly negative a is the rule on heated scenes, where the
+        # source has its own map: only its reasons for no diffusivity are passed on.
         messages = tuple(
             "; ".join(
                 part
                 for part in (
-                    msg,
+                    "" if msg.startswith("warning:") else msg,
                     f"{int(n)} non-finite samples masked" if int(n) else "",
                 )
                 if part

@@ -654,3 +654,18 @@ def test_extra_repr_shows_the_configuration() -> None:
     default = repr(ANRAEstimator())
     assert f"smoothing={AUTO_SMOOTHING}" in default and "UniformAttention" in default
     assert "RTCAttention" in repr(ANRAEstimator(mode="ratio"))
+
+
+def test_significantly_negative_diffusivity_is_kept_with_a_warning() -> None:
+    """A heating spot (source, little diffusion) reads as a < 0: the value stays, the message says why."""
+    from anra_torch.effects import simulate_effects
+
+    y, x = torch.meshgrid(torch.arange(48.0), torch.arange(48.0), indexing="ij")
+    spot = torch.exp(-((x - 24) ** 2 + (y - 24) ** 2) / (2 * 4.0**2)).double()
+    video = simulate_effects(20 + 5 * spot, a=0.01, dx=0.2, dt=0.1, n_frames=20, forcing=3 * spot)
+    video = video + 0.01 * torch.randn(video.shape, dtype=video.dtype)
+    result = ANRAEstimator()(video, 0.1, 0.2)
+    assert bool(result.valid) and float(result.diffusivity) < -3 * float(result.std_error)
+    assert result.messages[0].startswith("warning: the diffusivity is significantly negative (")
+    clean = ANRAEstimator()(simulate_effects(20 + 5 * spot, a=0.1, dx=0.2, dt=0.1, n_frames=20), 0.1, 0.2)
+    assert clean.messages == ("",)

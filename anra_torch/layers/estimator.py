@@ -105,7 +105,8 @@ class ANRAResult:
         field: windowed diffusivity map aligned with the input frames, ``(B, H, W)`` (NaN where
             ``confidence == 0``: the border the filters cannot reach, or windows without signal), or None.
         confidence: reliability of each window in [0, 1], ``(B, H, W)``, or None.
-        messages: one line per video, empty when all went well.
+        messages: one line per video: the reason when not valid; for a valid video empty, or a warning
+            when the diffusivity is significantly negative (a source dominates; the value is kept).
     """
 
     diffusivity: Tensor
@@ -477,20 +478,26 @@ class ANRAEstimator(nn.Module):
         ).amin((1, 2, 3))
         valid = changing & measured & torch.isfinite(estimate)
         messages = tuple(
-            ""
+            (
+                "warning: the diffusivity is significantly negative "
+                f"({float(z):.1f} standard errors below 0): heat is added faster than it spreads "
+                "(a source?), the plain heat equation does not describe these frames; see anra diagnose"
+                if float(z) < -_MIN_SIGNIFICANCE
+                else ""
+            )
             if ok
             else "frames are constant: no thermal activity, no diffusivity estimated"
             if not moving
             else (
                 "frames show no thermal activity above the noise (signal fraction "
-                f"{float(rel):.3f}, estimate {float(z):.1f} standard errors from 0; need >= "
+                f"{float(rel):.3f}, estimate {abs(float(z)):.1f} standard errors from 0; need >= "
                 f"{_MIN_RELIABILITY} and >= {_MIN_SIGNIFICANCE:g}); no diffusivity estimated"
             )
             for ok, moving, rel, z in zip(
                 valid.tolist(),
                 changing.tolist(),
                 reliability.tolist(),
-                (estimate.abs() / std_error).tolist(),
+                (estimate / std_error).tolist(),
                 strict=True,
             )
         )
