@@ -520,8 +520,9 @@ def _clean_json(value: Any) -> Any:
     return value
 
 
-def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any]:
-    """The ``diagnose --json`` object and the :class:`GainResult` it was made from."""
+def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any, Any]:
+    """The ``diagnose --json`` object, the :class:`GainResult` it was made from, and the
+    :class:`SourceMapGain` with ``--source-map`` (else None)."""
     from anra_torch.prediction import assess_gain, extended_effects
 
     frames = video.frames
@@ -556,6 +557,7 @@ def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str,
             "noise_floor": result.noise_floor_raw,
         },
     }
+    mapped = None
     if getattr(args, "source_map", False):
         from anra_torch.source_map import source_map_gain
 
@@ -574,7 +576,7 @@ def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str,
         }
     if any(_input_record(video).values()):
         summary["input"] = _input_record(video)
-    return _clean_json(summary), result
+    return _clean_json(summary), result, mapped
 
 
 def _run_diagnose(args: argparse.Namespace) -> int:
@@ -584,7 +586,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
         video = _load_input(args)
         if video.dx is None:
             raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
-        summary, result = _diagnose_summary(video, args)
+        summary, result, mapped = _diagnose_summary(video, args)
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
             print(json.dumps({"path": str(args.video), "error": _one_line(err)}))
@@ -621,7 +623,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     if args.report is not None:
         from anra_torch.report import write_diagnosis_report
 
-        path = write_diagnosis_report(args.report, video, result.diagnosis, result)
+        path = write_diagnosis_report(args.report, video, result.diagnosis, result, source_map=mapped)
         if not args.json:
             print(f"  report: {path}")
     return 0

@@ -383,7 +383,7 @@ def write_estimate_report(
 
 # ------------------------------------------------------------------------------------------ diagnosis
 DIAGNOSIS_FIGURES = ("forecast.png", "maps.png", "rmse.png")
-"""File names of the figures of :func:`write_diagnosis_report`."""
+"""File names of the figures of :func:`write_diagnosis_report` (plus ``source_map.png`` with a source map)."""
 
 
 def _forecast_figure(video: Video, gain: Any, path: Path, mpl: tuple[Any, Any]) -> float:
@@ -496,7 +496,34 @@ def _rmse_figure(video: Video, gain: Any, path: Path, mpl: tuple[Any, Any]) -> N
     _save(fig, canvas, path)
 
 
-def write_diagnosis_report(out_dir: str | os.PathLike[str], video: Video, diagnosis: Any, gain: Any) -> Path:
+def _source_map_figure(video: Video, gain: Any, mapped: Any, path: Path, mpl: tuple[Any, Any]) -> None:
+    """The fitted map q(x, y) and the map model's deviation from the last held-out frame."""
+    Figure, canvas = mpl
+    h, w = video.frames.shape[-2:]
+    extent = _extent(h, w, video.dx)
+    m = gain.margin
+    inside = (slice(m, h - m), slice(m, w - m))
+    forcing = np.full((h, w), np.nan)
+    forcing[inside] = mapped.model.forcing.to(torch.float64).numpy()[inside]
+    deviation = (mapped.predicted[-1] - gain.measured[-1]).to(torch.float64).numpy()
+    limit = float(np.percentile(np.abs(deviation[inside]), 99.5)) or 1.0
+    fig = Figure(figsize=(12.4, 5.0), layout="constrained")
+    left, right = fig.subplots(1, 2)
+    image = left.imshow(forcing, extent=extent, cmap=_cmap("inferno"))
+    left.set_title(f"source map q(x, y); a = {mapped.model.a:.3g} mm^2/s, b = {mapped.model.b:.3g} 1/s")
+    fig.colorbar(image, ax=left, label=f"q ({video.unit}/s)", shrink=0.9)
+    dev = right.imshow(deviation, extent=extent, vmin=-limit, vmax=limit, cmap=_cmap("RdBu_r"))
+    right.set_title(f"source-map forecast - measured, t = {float(gain.times[-1]):.3f} s")
+    fig.colorbar(dev, ax=right, label=f"deviation ({video.unit})", shrink=0.9)
+    for ax in (left, right):
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+    _save(fig, canvas, path)
+
+
+def write_diagnosis_report(
+    out_dir: str | os.PathLike[str], video: Video, diagnosis: Any, gain: Any, source_map: Any = None
+) -> Path:
     """Write ``report.md`` with ``forecast.png``, ``maps.png`` and ``rmse.png`` for a diagnosis.
 
     Args:
@@ -504,6 +531,8 @@ def write_diagnosis_report(out_dir: str | os.PathLike[str], video: Video, diagno
         video: the whole video (``dt`` in s, ``dx`` in mm label the axes).
         diagnosis: :class:`anra_torch.diagnosis.Diagnosis` of its fit part.
         gain: :class:`anra_torch.prediction.GainResult` of the same split.
+        source_map: optional :class:`anra_torch.source_map.SourceMapGain` of the same split; adds
+            ``source_map.png`` (the map and its forecast's deviation) and its numbers.
 
     Returns:
         Path of ``report.md``.
@@ -543,6 +572,14 @@ def write_diagnosis_report(out_dir: str | os.PathLike[str], video: Video, diagno
         ),
         ("interior", f"{gain.margin} px left out at each edge"),
     ]
+    if source_map is not None:
+        _source_map_figure(video, gain, source_map, out / "source_map.png", mpl)
+        rows.append(
+            (
+                "source map dT/dt = a Lap T - b T + q(x, y)",
+                f"forecast RMSE {source_map.rmse:.4g} {video.unit}, gain {source_map.gain:.3f}",
+            )
+        )
     effects = [
         f"- **{e['name']}** (score {e['score']:.1f}): "
         + ", ".join(f"{k} = {v:.4g}" for k, v in e["params"].items())
@@ -582,6 +619,17 @@ def write_diagnosis_report(out_dir: str | os.PathLike[str], video: Video, diagno
         "a perfect model against noisy frames.",
         "",
     ]
+    if source_map is not None:
+        lines += [
+            "## Stationary source map",
+            "",
+            "![source map and its forecast's deviation](source_map.png)",
+            "",
+            "The heat input as a map (not a Gaussian spot), fitted on the same frames and scale; its "
+            f"forecast RMSE is {source_map.rmse:.4g} {video.unit} against {gain.base_rmse:.4g} for the plain "
+            f"model (gain {source_map.gain:.3f}).",
+            "",
+        ]
     report = out / "report.md"
     report.write_text("\n".join(lines), encoding="utf-8")
     return report

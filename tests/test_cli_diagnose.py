@@ -150,5 +150,8 @@ def test_source_map_option_reports_the_beam_model(tmp_path: Path, capsys: pytest
     assert sm["a"] == pytest.approx(0.12, rel=0.05) and sm["b"] == pytest.approx(0.05, rel=0.05)
     assert sm["gain"] > 0.95 and sm["gain"] > record["gain"]
     assert sm["prediction_rmse"] < 2 * record["noise_floor"]
-    code, out, _ = run(capsys, "diagnose", path, "--source-map")
+    code, out, _ = run(capsys, "diagnose", path, "--source-map", "--report", tmp_path / "rep")
     assert code == 0 and "source map: a = 0.1" in out
+    report = (tmp_path / "rep" / "report.md").read_text()
+    assert "![source map and its forecast's deviation](source_map.png)" in report
+    assert (tmp_path / "rep" / "source_map.png").stat().st_size > 10_000
