@@ -36,6 +36,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.effects import Effect, simulate_effects
+from anra_torch.layers.derivatives import laplacian
 from anra_torch.prediction import GainResult, at_scale, forecast_errors
 
 __all__ = ["SourceMapGain", "SourceMapModel", "fit_source_map", "source_map_gain"]
@@ -92,11 +93,6 @@ class SourceMapModel:
             effects=loss,
             forcing=self.forcing,
         )
-
-
-def _laplacian(u: Tensor, dx: float) -> Tensor:
-    p = F.pad(u.unsqueeze(1), (1, 1, 1, 1), mode="replicate").squeeze(1)
-    return (p[..., 1:-1, 2:] + p[..., 1:-1, :-2] + p[..., 2:, 1:-1] + p[..., :-2, 1:-1] - 4 * u) / dx**2
 
 
 def _nonnegative_pair(x: Tensor, y: Tensor) -> tuple[float, float]:
@@ -172,7 +168,7 @@ def fit_source_map(
     inner = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
     rate = ((smooth[2:] - smooth[:-2]) / (2 * dt))[inner]
     temp = smooth[1:-1]
-    lap = _laplacian(temp, dx)[inner]
+    lap = laplacian(temp, dx, size=3, border="replicate")[inner]  # the 5-point stencil
     temp = temp[inner]
 
     def centred(x: Tensor) -> Tensor:
