@@ -359,7 +359,7 @@ def assess_gain(
         >>> video = hidden_effect_video(["advection"], seed=0, size=64, duration=3.0)
         >>> result = assess_gain(video.frames, video.dt, video.dx)
         >>> [e.name for e in result.effects], round(result.gain, 2)
-        (['advection'], 0.8)
+        (['advection'], 0.96)
     """
     import time
 
