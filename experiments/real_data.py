@@ -33,7 +33,7 @@ Outputs in --out (default results/real_data): table.md, results.json, one Fig.-3
 and phase (measured, plain prediction and its deviation, extended prediction and its deviation, N s after
 the split) and the hot-spot signal with its phases per recording.
 
-    python experiments/real_data.py                      # all recordings (a few minutes)
+    python experiments/real_data.py                      # all recordings (about 15 s)
     python experiments/real_data.py --quick              # one laser run and one CSV file
 """
 
