@@ -179,7 +179,7 @@ def anra_phase(video: Video, phase: Phase, effects: list[str] | None = None) -> 
     mapped = source_map_gain(frames, video.dt, video.dx, result)
     source_map = mapped.model
     return {
-        "model": "ANRA estimator + diagnose_terms / assess_gain",
+        "model": "ANRA, diagnose_terms, assess_gain; extended: measured source map",
         "a_anra": a,
         "a_anra_interval": list(LASER_DX.diffusivity_interval(a)) if math.isfinite(a) else None,
         "a_anra_valid": bool(est.valid),
