@@ -558,7 +558,7 @@ def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str,
         },
     }
     mapped = None
-    if getattr(args, "source_map", False):
+    if args.source_map:
         from anra_torch.source_map import source_map_gain
 
         try:

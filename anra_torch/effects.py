@@ -873,12 +873,11 @@ def simulate_effects(
         substeps = _check_int(substeps, "substeps", 1)
     if forcing is not None:
         forcing = torch.as_tensor(forcing)
-        if forcing.shape != (height, width) or not bool(torch.isfinite(forcing).all()):
-            raise ValueError(
-                f"forcing must be a finite map of the frame's shape ({height}, {width}) in data units per s, "
-                f"got shape {tuple(forcing.shape)}"
-                + ("" if forcing.shape != (height, width) else " with non-finite values")
-            )
+        need = f"forcing must be a finite map of the frame's shape ({height}, {width}) in data units per s"
+        if forcing.shape != (height, width):
+            raise ValueError(f"{need}, got shape {tuple(forcing.shape)}")
+        if not bool(torch.isfinite(forcing).all()):
+            raise ValueError(f"{need}, got non-finite values")
         forcing = forcing.to(u0.dtype)
     duration = grid.duration
     low, high = float(u0.min()), float(u0.max())

@@ -287,18 +287,20 @@ class TissueFeatures(nn.Module):
         summary["n_masked"] = masked.flatten(1).sum(1)
         units |= {f"{name}_max": unit for name, unit in units.items()}
         units |= {"damaged_fraction": "1", "diffusivity_global": "mm^2/s", "n_masked": "samples"}
-        # The estimator's warning on a significantly negative a is the rule on heated scenes, where the
-        # source has its own map: only its reasons for no diffusivity are passed on.
+        # Only the estimator's reasons for no diffusivity are passed on: its warning on a valid, significantly
+        # negative a is the rule on heated scenes, where the source has its own map.
         messages = tuple(
             "; ".join(
                 part
                 for part in (
-                    "" if msg.startswith("warning:") else msg,
+                    "" if ok else msg,
                     f"{int(n)} non-finite samples masked" if int(n) else "",
                 )
                 if part
             )
-            for msg, n in zip(result.messages, summary["n_masked"].tolist(), strict=True)
+            for msg, ok, n in zip(
+                result.messages, result.valid.tolist(), summary["n_masked"].tolist(), strict=True
+            )
         )
         out = TissueFeatureMaps(maps, summary, units, masked, result.valid, messages)
         return out if batched else out.unbatched()

@@ -275,11 +275,19 @@ def evaluation_scale(diagnosis: Diagnosis, scale_px: float | None) -> float:
     Raises:
         ValueError: a ``scale_px`` that is not a finite number >= 0.
     """
-    scale = float(diagnosis.smoothing) if scale_px is None else scale_px
-    number = isinstance(scale, int | float) and not isinstance(scale, bool)
-    if not (number and math.isfinite(scale) and scale >= 0):
+    return check_scale(float(diagnosis.smoothing) if scale_px is None else scale_px)
+
+
+def check_scale(scale_px: object) -> float:
+    """``scale_px`` as a float, checked: a Gaussian sigma >= 0 in px (0: raw frames).
+
+    Raises:
+        ValueError: not a finite number >= 0.
+    """
+    number = isinstance(scale_px, int | float) and not isinstance(scale_px, bool)
+    if not (number and math.isfinite(scale_px) and scale_px >= 0):
         raise ValueError(f"scale_px must be a Gaussian sigma >= 0 in px, got {scale_px!r}")
-    return float(scale)
+    return float(scale_px)
 
 
 def at_scale(frames: Tensor, scale_px: float) -> Tensor:

@@ -35,9 +35,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from anra_torch._validation import as_spacing
 from anra_torch.effects import Effect, simulate_effects
 from anra_torch.layers.derivatives import laplacian
-from anra_torch.prediction import GainResult, at_scale, forecast_errors
+from anra_torch.prediction import GainResult, at_scale, check_scale, forecast_errors
 
 __all__ = ["SourceMapGain", "SourceMapModel", "fit_source_map", "source_map_gain"]
 
@@ -148,23 +149,20 @@ def fit_source_map(
     n, h, w = video.shape
     if n < 4:
         raise ValueError(f"frames must hold at least 4 frames for a per-pixel source map (2 rates), got {n}")
-    for value, name, unit in ((dt, "dt", "s"), (dx, "dx", "mm")):
-        number = isinstance(value, int | float) and not isinstance(value, bool)
-        if not (number and math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
+    video = video.to(_F64)
+    dt = float(as_spacing(dt, name="dt", unit="s", batch=1, like=video)[0])
+    dx = float(as_spacing(dx, name="dx", unit="mm", batch=1, like=video)[0])
     if isinstance(margin, bool) or not isinstance(margin, int) or margin < 1 or min(h, w) - 2 * margin < 3:
         raise ValueError(
             f"margin must be an integer >= 1 that leaves at least 3 x 3 px inside {h} x {w} frames, "
             f"got {margin!r}"
         )
-    if not (isinstance(scale_px, int | float) and math.isfinite(scale_px) and scale_px >= 0):
-        raise ValueError(f"scale_px must be a Gaussian sigma >= 0 in px, got {scale_px!r}")
-    video = video.to(_F64)
+    scale_px = check_scale(scale_px)
     if not bool(torch.isfinite(video).all()):
         raise ValueError(
             "frames must be finite to fit a source map; crop or fill the non-finite pixels first"
         )
-    smooth = at_scale(video, float(scale_px))
+    smooth = at_scale(video, scale_px)
     inner = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
     rate = ((smooth[2:] - smooth[:-2]) / (2 * dt))[inner]
     temp = smooth[1:-1]
@@ -177,7 +175,7 @@ def fit_source_map(
     a, b = _nonnegative_pair(torch.stack([centred(lap), -centred(temp)], dim=1), centred(rate))
     interior = (rate - a * lap + b * temp).mean(0)
     forcing = F.pad(interior[None, None], (margin,) * 4, mode="replicate")[0, 0]
-    return SourceMapModel(a=a, b=b, forcing=forcing, scale_px=float(scale_px), margin=margin, n_rates=n - 2)
+    return SourceMapModel(a=a, b=b, forcing=forcing, scale_px=scale_px, margin=margin, n_rates=n - 2)
 
 
 @dataclass(frozen=True)

@@ -17,9 +17,9 @@ Per recording, the phases (baseline / heating / cooling) come from the data
 - Laser silicone (frames 96 x 128 px): the ANRA estimate of ``a`` (plain heat equation), then
   :func:`anra_torch.prediction.assess_gain`: the diagnosis on the first 60 % of the phase names the
   effects, and the plain model forecasts the held-out rest from the measured frame at the split (RMSE on
-  the interior, degC, at the diagnosis' scale). The extended model is the diagnosed loss with the source
-  as its measured map (:mod:`anra_torch.source_map`, ``dT/dt = a Lap T - b T + q(x, y)``, fitted on the
-  same frames at the same scale): the beam from a fibre tip is not a Gaussian spot, and the parametric
+  the interior, degC, at the diagnosis' scale). The extended model is a loss plus the heat input as a
+  measured map (:mod:`anra_torch.source_map`, ``dT/dt = a Lap T - b T + q(x, y)``, fitted on the same
+  frames at the same scale): the beam from a fibre tip is not a Gaussian spot, and the parametric
   extension (a Gaussian spot on a straight path, extrapolated) is reported beside it as
   ``parametric_gain``.
 - FLIR CSV boxes (9-15 px wide) are smaller than the project's filters need (20-26 px), so a small-box
