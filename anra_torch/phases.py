@@ -1,10 +1,13 @@
 """Phase segmentation: find from the data when a local heat source is on (heating) and off (cooling).
 
 The hot-spot signal is the mean temperature of the 3 x 3 pixels around the pixel that rises most. The
-source is taken as switched off at the signal's peak (a surface under a source keeps warming until the
-source stops), and as switched on at the last frame before the peak where the rise is still below
+source is taken as switched off at the last frame before the steepest fall after the signal's peak that
+is still within ``onset`` of the total rise from the peak (a surface under a source keeps warming or
+holds a plateau until the source stops; on a noisy plateau the peak itself can come seconds before the
+switch-off), and as switched on at the last frame before the peak where the rise is still below
 ``onset`` of the total rise. Frames before the onset form a ``baseline`` phase, frames from the onset to
-the peak ``heating``, frames from the peak on ``cooling``. Shared boundary frames belong to both phases.
+the switch-off ``heating``, frames from the switch-off on ``cooling``. Shared boundary frames belong
+to both phases.
 """
 
 from __future__ import annotations
@@ -63,7 +66,8 @@ def segment_phases(
     Args:
         frames: temperatures.
         t: timestamps in s (default the frame index).
-        onset: fraction of the total rise that marks the source switching on.
+        onset: fraction of the total rise that marks the source switching on; also the band below
+            the peak within which the source still counts as on before it switches off.
         smooth: length of the running median on the signal (frames; 1 = none), against sensor noise;
             applied only to videos of at least ``10 * smooth`` frames.
 
@@ -92,5 +96,16 @@ def segment_phases(
         raise ValueError("no heating found: the hot-spot signal never rises above its first frame")
     below = torch.nonzero(signal[: peak + 1] - base <= onset * total).reshape(-1)
     start = int(below[-1]) if below.numel() else 0
-    bounds = [("baseline", 0, start + 1), ("heating", start, peak + 1), ("cooling", peak, n)]
+    off = _switch_off(signal, peak, onset * total)
+    bounds = [("baseline", 0, start + 1), ("heating", start, off + 1), ("cooling", off, n)]
     return [Phase(name, a, b, float(times[a]), float(times[b - 1])) for name, a, b in bounds if b - a >= 2]
+
+
+def _switch_off(signal: Tensor, peak: int, band: float) -> int:
+    """The last frame, up to the steepest fall after ``peak``, still within ``band`` of the peak value."""
+    step = signal[1:] - signal[:-1]  # step[i]: from frame i to i + 1
+    if peak >= step.numel() or not bool((step[peak:] < 0).any()):
+        return peak
+    fall = peak + int(step[peak:].argmin())
+    near = torch.nonzero(signal[peak : fall + 1] >= signal[peak] - band).reshape(-1)
+    return peak + int(near[-1])

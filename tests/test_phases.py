@@ -17,10 +17,13 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"measured data folder {DATA} is absent")
 
 
-def spot_video(on: int = 30, off: int = 120, n: int = 200, noise: float = 0.05) -> torch.Tensor:
-    """A Gaussian spot heated from frame ``on`` to ``off`` (exponential approach), then cooling."""
+def spot_video(
+    on: int = 30, off: int = 120, n: int = 200, noise: float = 0.05, tau: float = 30.0
+) -> torch.Tensor:
+    """A Gaussian spot heated from frame ``on`` to ``off`` (exponential approach over ``tau`` frames), then
+    cooling."""
     k = np.arange(n, dtype=float)
-    rise = np.where(k < on, 0, 1 - np.exp(-(np.minimum(k, off) - on) / 30))
+    rise = np.where(k < on, 0, 1 - np.exp(-(np.minimum(k, off) - on) / tau))
     rise = np.where(k > off, rise[off] * np.exp(-(k - off) / 40), rise)
     y, x = np.mgrid[:24, :24]
     shape = np.exp(-((x - 12) ** 2 + (y - 10) ** 2) / 18)
@@ -34,6 +37,14 @@ def test_synthetic_switch_on_and_off_are_found() -> None:
     baseline, heating, cooling = phases
     assert abs(heating.start - 30) <= 3 and abs(cooling.start - 120) <= 2
     assert cooling.stop == 200 and heating.t_start == pytest.approx(heating.start * 0.1)
+
+
+def test_switch_off_after_a_noisy_plateau_is_the_start_of_the_fall() -> None:
+    # Saturated after ~15 frames, then 75 frames of plateau: the noisy peak can fall anywhere on it.
+    for seed_noise in (0.3, 0.5):
+        phases = segment_phases(spot_video(tau=3.0, noise=seed_noise))
+        heating, cooling = phases[1], phases[2]
+        assert heating.stop - 1 == cooling.start and abs(cooling.start - 120) <= 2, cooling
 
 
 def test_no_rise_is_an_error() -> None:
