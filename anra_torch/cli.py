@@ -617,7 +617,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
                 f"gain {sm['gain']:.3f}"
             )
         print(
-            f"  diagnosed frames 0-{result.split}, forecast {result.measured.shape[0]} held-out frames "
+            f"  diagnosed frames 0-{result.split}, forecast {result.held_out} held-out frames "
             f"in {result.elapsed:.1f} s"
         )
     if args.report is not None:

@@ -2,21 +2,27 @@
 
 :func:`anra_torch.diagnosis.diagnose_terms` selects effects from how well the PDE balances on the frames.
 This module asks the question a user cares about: simulate forward
-(:func:`anra_torch.effects.simulate_effects`, RK4, zero-flux edges) from a measured frame with the plain
+(:func:`anra_torch.effects.simulate_effects`, RK4, zero-flux edges) from the measured state with the plain
 heat equation (``a_plain``) and with the extended model (``base`` plus the effects found), and compare
 both forecasts with frames the diagnosis never saw. The split: the diagnosis uses frames ``0 .. s``
-(``s + 1 = round(fit_fraction T)`` frames); both models start from the measured frame ``s`` (the split
-index) and predict frames ``s + 1 .. T - 1``.
+(``s + 1 = round(fit_fraction T)`` frames); both models start at frame ``s`` (the split index) and
+predict frames ``s + 1 .. T - 1``.
+
+Both forecasts start from the same **state at the split**: the measured split frame by default, or, with
+``initial_frames = n``, the least-squares line in time through the fit part's last ``n`` frames evaluated
+at the split frame (less sensor noise carried into both forecasts, but a lag wherever the field curves in
+time within those frames: at 15 frames, fast sources and advection were forecast measurably worse).
 
 Errors are taken on the interior (``diagnosis.margin`` px from each edge are left out: there the zero-flux
 boundary is an assumption, not a measurement) and at the **evaluation scale**: the spatial Gaussian the
-diagnosis identified the model at (``diagnosis.smoothing`` px, or ``scale_px``). Both forecasts start from
-the measured split frame smoothed by that Gaussian, and are compared with the held-out frames smoothed by
-the same Gaussian. For a linear model with constant coefficients smoothing commutes with the dynamics, so
-this leaves the model error unchanged (the consistency principle of the estimator) while it removes most
-of the white sensor noise, which no model can forecast. The noise floor is the RMSE a perfect model
-would reach at that scale: the smoothed noise of the held-out frames plus the smoothed noise of the
-split frame carried forward by the plain model's heat kernel.
+diagnosis identified the model at (``diagnosis.smoothing`` px, or ``scale_px``), then a moving average of
+:data:`TIME_WINDOW` frames in time, applied in the same way to the forecasts and to the held-out frames.
+The forecasts are simulated at full resolution and smoothed afterwards: a heterogeneous, nonlinear or
+forced model does not commute with the smoothing, so smoothing the initial state instead would make even
+the true model miss. Smoothing both sides leaves the model error (slow in time, smooth in space) while it
+removes most of the white sensor noise, which no model can forecast. The noise floor is the RMSE a
+perfect model would reach at that scale: the smoothed, averaged noise of the held-out frames plus the
+noise of the estimated split state carried forward by the plain model's heat kernel.
 The same quantities against the raw frames (forecasts from the raw split frame, noise floor = sensor sd)
 are kept as ``*_raw``: there the noise caps the gain: a model error ``e`` against noise ``sd`` gives at most
 ``1 - sd / sqrt(sd^2 + e^2)``.
@@ -38,9 +44,23 @@ from anra_torch.effects import EFFECTS, Effect, simulate_effects
 from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
 from anra_torch.layers.stencils import gaussian_taps
 
-__all__ = ["AT_FLOOR", "GainResult", "assess_gain", "extended_effects", "simulate_model"]
+__all__ = [
+    "AT_FLOOR",
+    "INITIAL_FRAMES",
+    "TIME_WINDOW",
+    "GainResult",
+    "assess_gain",
+    "extended_effects",
+    "simulate_model",
+]
 
 _F64 = torch.float64
+
+INITIAL_FRAMES = 1
+"""Fit frames the state at the split is estimated from by default (1: the measured split frame)."""
+
+TIME_WINDOW = 9
+"""Frames of the moving average in time at the evaluation scale (at most the held-out frames)."""
 
 
 def extended_effects(
@@ -156,12 +176,12 @@ class GainResult:
 
     Attributes:
         diagnosis: the diagnosis of the fit part.
-        split: index of the measured frame both forecasts start from (the fit part's last frame).
+        split: index of the fit part's last frame, where both forecasts start (from :func:`split_state`).
         effects: the extended model's effects, re-timed to the forecast (source path).
         base_a: ``a_plain`` (mm^2/s), the plain model's diffusivity.
         extended_a: ``diagnosis.base`` (mm^2/s), the extended model's base diffusivity.
-        times: times of the held-out frames in s from the first frame.
-        rmse_base: per held-out frame RMSE of the plain forecast (data units), interior pixels, at the
+        times: centre times of the evaluation windows over the held-out frames, s from the first frame.
+        rmse_base: per evaluation window RMSE of the plain forecast (data units), interior pixels, at the
             evaluation scale.
         rmse_extended: the same for the extended forecast.
         base_rmse: RMSE of the plain forecast over all held-out frames (interior, evaluation scale).
@@ -171,11 +191,12 @@ class GainResult:
         extended_sse: the same for the extended forecast.
         gain: ``1 - extended_rmse / base_rmse`` (0 when no effect was found).
         noise_floor: the RMSE a perfect model would reach at the evaluation scale (data units).
-        predicted_base: the plain forecast on the full frame.
-        predicted_extended: the extended forecast on the full frame.
-        measured: the held-out measured frames at the evaluation scale (smoothed).
+        predicted_base: the plain forecast on the full frame at the evaluation scale (smoothed in space,
+            averaged in time).
+        predicted_extended: the same for the extended forecast.
+        measured: the held-out measured frames at the evaluation scale.
         margin: pixels left out at each edge.
-        scale_px: the evaluation scale, a Gaussian sigma in px (0: raw frames).
+        scale_px: the evaluation scale in space, a Gaussian sigma in px (0: raw frames).
         base_rmse_raw: RMSE of the plain forecast against the raw held-out frames (interior).
         extended_rmse_raw: the same for the extended forecast.
         gain_raw: ``1 - extended_rmse_raw / base_rmse_raw`` (0 when no effect was found).
@@ -187,10 +208,12 @@ class GainResult:
             (evaluation scale); 0 when no effect was found or when the plain forecast is within
             :data:`AT_FLOOR` of the floor (nothing measurable to gain).
         elapsed: seconds spent (diagnosis and both simulations).
+        initial_frames: fit frames the state at the split was estimated from (1: the measured frame).
+        time_window: frames of the moving average in time at the evaluation scale (1: none).
 
     Shape:
         ``times``, ``rmse_base``, ``rmse_extended`` ``(K,)``; ``predicted_*``, ``measured`` ``(K, H, W)``
-        with ``K`` held-out frames.
+        with ``K = held_out - time_window + 1`` evaluation windows.
     """
 
     diagnosis: Diagnosis
@@ -219,6 +242,13 @@ class GainResult:
     gain_above_floor: float = 0.0
     effect_gains: tuple[float, ...] = ()
     elapsed: float = 0.0
+    initial_frames: int = 1
+    time_window: int = 1
+
+    @property
+    def held_out(self) -> int:
+        """Number of held-out frames forecast."""
+        return self.measured.shape[0] + self.time_window - 1
 
 
 def _interior(video: Tensor, margin: int) -> Tensor:
@@ -244,19 +274,70 @@ def _white_gain(sigma_px: float) -> float:
     return float(gaussian_taps(sigma_px).pow(2).sum()) ** 2
 
 
-def _forecast_floor(diagnosis: Diagnosis, scale_px: float, *, dt: float, dx: float, horizon: int) -> float:
+def _forecast_floor(
+    diagnosis: Diagnosis,
+    scale_px: float,
+    *,
+    dt: float,
+    dx: float,
+    held_out: int,
+    initial_frames: int,
+    window: int,
+) -> float:
     """RMSE of a perfect model at the evaluation scale over the held-out frames, data units.
 
-    A perfect model started from the smoothed split frame is wrong by the smoothed noise of each held-out
-    frame (variance ``sd^2 |g|^2``) plus the split frame's smoothed noise carried forward ``t`` seconds by
-    the plain model, a heat kernel that widens the Gaussian to ``sigma^2 = scale^2 + 2 a t / dx^2`` px^2
-    (variance ``sd^2 |g_t|^2``); the two are independent. ``|g|^2`` is the exact sum of squared weights of
-    the sampled Gaussian. Checked against the forecast RMSE of pure heat-transfer videos (tests).
+    A perfect model is wrong by the held-out frames' noise, smoothed by the Gaussian and averaged over
+    ``window`` frames (variance ``sd^2 |g|^2 / window``), plus the noise of the state at the split
+    carried forward ``t`` seconds by the plain model, a heat kernel that widens the Gaussian to
+    ``sigma^2 = scale^2 + 2 a t / dx^2`` px^2 (variance ``c sd^2 |g_t|^2``, ``t`` at each window's
+    centre, ``c = (4 n - 2) / (n (n + 1))`` the variance of a least-squares line's end value through
+    ``n = initial_frames`` frames); the two are independent. ``|g|^2`` is the exact sum of squared
+    weights of the sampled Gaussian. Checked against the forecast RMSE of pure heat-transfer videos (tests).
     """
     sd = float(diagnosis.noise_sd)
     spread = 2.0 * max(float(diagnosis.a_plain), 0.0) * dt / dx**2  # px^2 per frame
-    carried = [_white_gain(math.sqrt(scale_px**2 + spread * k)) for k in range(1, horizon)]
-    return sd * math.sqrt(_white_gain(scale_px) + sum(carried) / len(carried))
+    centres = [j + 1 + (window - 1) / 2 for j in range(held_out - window + 1)]  # frames after the split
+    carried = sum(_white_gain(math.sqrt(scale_px**2 + spread * k)) for k in centres) / len(centres)
+    n = initial_frames
+    return sd * math.sqrt(_white_gain(scale_px) / window + (4 * n - 2) / (n * (n + 1)) * carried)
+
+
+def _frame_count(value: object, name: str, default: int, available: int) -> int:
+    """``value`` checked against 1 .. ``available``; None: ``default`` capped at half of ``available``."""
+    if value is None:
+        return max(1, min(default, available // 2))
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= available:
+        raise ValueError(f"{name} must be an integer from 1 to {available} frames, got {value!r}")
+    return value
+
+
+def split_state(fit_frames: Tensor, n_frames: int) -> Tensor:
+    """The state at the last fit frame: per pixel, the least-squares line through the last ``n_frames``.
+
+    Uses the fit part only (no held-out frame). ``n_frames = 1`` returns the last frame itself.
+
+    Shape:
+        ``fit_frames`` ``(T, H, W)`` -> ``(H, W)``.
+    """
+    y = fit_frames[-n_frames:].to(_F64)
+    n = y.shape[0]
+    if n == 1:
+        return y[0]
+    t = torch.arange(n, dtype=_F64) - (n - 1)  # 0 at the last frame
+    centred = t - t.mean()
+    slope = (centred[:, None, None] * y).sum(0) / centred.pow(2).sum()
+    return y.mean(0) - slope * t.mean()
+
+
+def time_average(frames: Tensor, window: int) -> Tensor:
+    """Moving average of ``window`` frames (only full windows); the frames themselves at 1.
+
+    Shape:
+        ``(K, H, W)`` -> ``(K - window + 1, H, W)``.
+    """
+    if window == 1:
+        return frames
+    return frames.unfold(0, window, 1).mean(-1)
 
 
 def check_diagnosis_frames(diagnosis: Diagnosis, height: int, width: int) -> None:
@@ -339,6 +420,8 @@ def assess_gain(
     fit_fraction: float = 0.6,
     diagnosis: Diagnosis | None = None,
     scale_px: float | None = None,
+    initial_frames: int | None = None,
+    time_window: int | None = None,
 ) -> GainResult:
     """Diagnose the first part of a video and forecast the rest with the plain and the extended model.
 
@@ -350,6 +433,11 @@ def assess_gain(
         diagnosis: a diagnosis of exactly ``frames[: round(fit_fraction T)]``; default: made here.
         scale_px: evaluation scale, a Gaussian sigma in px (0 compares raw frames); default the
             diagnosis' smoothing.
+        initial_frames: fit frames the state at the split is estimated from (1: the measured split
+            frame); default :data:`INITIAL_FRAMES`, at most half the fit part.
+        time_window: frames of the moving average in time at the evaluation scale (1: none); default
+            :data:`TIME_WINDOW`, at most half the held-out frames. Use 1 and 1 for videos whose frames
+            are seconds apart, where a few frames already span the dynamics.
 
     Returns:
         :class:`GainResult`.
@@ -357,7 +445,9 @@ def assess_gain(
     Raises:
         ValueError: too short a video for the split (see :func:`split_index`), bad frames or spacing,
             or no thermal activity (from :func:`anra_torch.diagnosis.diagnose_terms`); a diagnosis whose
-            residual map does not fit the frame size; a negative or non-finite ``scale_px``.
+            residual map does not fit the frame size; a negative or non-finite ``scale_px``; an
+            ``initial_frames`` or ``time_window`` that is not an integer from 1 to the fit part's or the
+            held-out frames' count.
 
     Shape:
         ``frames`` ``(T, H, W)``.
@@ -367,7 +457,7 @@ def assess_gain(
         >>> video = hidden_effect_video(["advection"], seed=0, size=64, duration=3.0)
         >>> result = assess_gain(video.frames, video.dt, video.dx)
         >>> [e.name for e in result.effects], round(result.gain, 2)
-        (['advection'], 0.96)
+        (['advection'], 0.97)
     """
     import time
 
@@ -390,37 +480,44 @@ def assess_gain(
     )
     scale = evaluation_scale(diagnosis, scale_px)
     m = diagnosis.margin
+    held_out = horizon - 1
+    n_initial = _frame_count(initial_frames, "initial_frames", INITIAL_FRAMES, split + 1)
+    window = _frame_count(time_window, "time_window", TIME_WINDOW, held_out)
 
-    def forecast(initial: Tensor) -> tuple[Tensor, Tensor]:
-        base = simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=())[1:]
-        if not effects:
-            return base, base
-        return base, simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=effects)[1:]
+    def forecast(initial: Tensor, chosen: tuple[Effect, ...]) -> Tensor:
+        return simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=chosen)[1:]
+
+    def evaluate(forecast_frames: Tensor) -> Tensor:
+        return time_average(at_scale(forecast_frames, scale), window)
 
     raw = video[split + 1 :]
-    initial, measured = at_scale(video[split : split + 1], scale)[0], at_scale(raw, scale)
-    base, extended = forecast(initial)
+    initial = split_state(video[: split + 1], n_initial)
+    measured = evaluate(raw)
+    base = evaluate(forecast(initial, ()))
+    extended = evaluate(forecast(initial, effects)) if effects else base
     rmse_base, base_rmse, base_sse = forecast_errors(base, measured, m)
     rmse_ext, ext_rmse, ext_sse = forecast_errors(extended, measured, m)
-    raw_forecasts = (base, extended) if scale == 0 else forecast(video[split])
-    base_raw = forecast_errors(raw_forecasts[0], raw, m)[1]
-    ext_raw = forecast_errors(raw_forecasts[1], raw, m)[1]
+    base_raw = forecast_errors(forecast(video[split], ()), raw, m)[1]
+    ext_raw = forecast_errors(forecast(video[split], effects), raw, m)[1] if effects else base_raw
     found = bool(effects)
     gain = 1.0 - ext_rmse / base_rmse if found and base_rmse > 0 else 0.0
     effect_gains = [gain] if len(effects) == 1 else []
     for effect in effects if len(effects) > 1 else ():
-        alone = simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=(effect,))[1:]
+        alone = evaluate(forecast(initial, (effect,)))
         effect_gains.append(
             1.0 - forecast_errors(alone, measured, m)[1] / base_rmse if base_rmse > 0 else 0.0
         )
-    floor = _forecast_floor(diagnosis, float(scale), dt=dt, dx=dx, horizon=horizon)
+    floor = _forecast_floor(
+        diagnosis, float(scale), dt=dt, dx=dx, held_out=held_out, initial_frames=n_initial, window=window
+    )
+    centres = torch.arange(split + 1, n_frames - window + 1, dtype=_F64) + (window - 1) / 2
     return GainResult(
         diagnosis=diagnosis,
         split=split,
         effects=effects,
         base_a=diagnosis.a_plain,
         extended_a=diagnosis.base,
-        times=torch.arange(split + 1, n_frames, dtype=_F64) * dt,
+        times=centres * dt,
         rmse_base=rmse_base,
         rmse_extended=rmse_ext,
         base_rmse=base_rmse,
@@ -440,5 +537,7 @@ def assess_gain(
         noise_floor_raw=float(diagnosis.noise_sd),
         gain_above_floor=_gain_above_floor(base_rmse, ext_rmse, floor) if found else 0.0,
         effect_gains=tuple(effect_gains),
+        initial_frames=n_initial,
+        time_window=window,
         elapsed=time.perf_counter() - tick,
     )

@@ -556,7 +556,7 @@ def write_diagnosis_report(
     rows = [
         ("source", f"`{video.source}`" if video.source is not None else "in memory"),
         ("video", f"{t} frames of {h} x {w} px, dt = {video.dt:.6g} s, dx = {video.dx:.6g} mm"),
-        ("diagnosed frames", f"0-{gain.split}; forecast {gain.measured.shape[0]} held-out frames"),
+        ("diagnosed frames", f"0-{gain.split}; forecast {gain.held_out} held-out frames"),
         ("plain diffusivity a", f"{diagnosis.a_plain:.5g} mm^2/s"),
         ("extended base a", f"{diagnosis.base:.5g} mm^2/s"),
         ("forecast RMSE plain", f"{gain.base_rmse:.4g} {video.unit} (SSE {gain.base_sse:.4g})"),

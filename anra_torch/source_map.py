@@ -38,7 +38,14 @@ from torch import Tensor
 from anra_torch._validation import as_spacing
 from anra_torch.effects import Effect, simulate_effects
 from anra_torch.layers.derivatives import laplacian
-from anra_torch.prediction import GainResult, at_scale, check_scale, forecast_errors
+from anra_torch.prediction import (
+    GainResult,
+    at_scale,
+    check_scale,
+    forecast_errors,
+    split_state,
+    time_average,
+)
 
 __all__ = ["SourceMapGain", "SourceMapModel", "fit_source_map", "source_map_gain"]
 
@@ -201,7 +208,7 @@ class SourceMapGain:
 def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) -> SourceMapGain:
     """Fit the source map on ``result``'s fit part and forecast its held-out frames like the plain model.
 
-    Same split, evaluation scale, initial frame, interior and measured frames as ``result``
+    Same split, evaluation scale, state at the split, interior and measured frames as ``result``
     (:func:`anra_torch.prediction.assess_gain` on the same ``frames``), so ``gain`` compares like with like.
 
     Raises:
@@ -212,16 +219,18 @@ def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) ->
         ``frames`` ``(T, H, W)``.
     """
     video = torch.as_tensor(frames).to(_F64)
-    split, horizon = result.split, result.measured.shape[0]
-    if video.ndim != 3 or video.shape[0] != split + 1 + horizon:
+    split, held_out = result.split, result.held_out
+    if video.ndim != 3 or video.shape[0] != split + 1 + held_out:
         raise ValueError(
-            f"frames must be the (T, H, W) video the gain was assessed on ({split + 1 + horizon} frames), "
+            f"frames must be the (T, H, W) video the gain was assessed on ({split + 1 + held_out} frames), "
             f"got shape {tuple(video.shape)}"
         )
     scale, m = result.scale_px, result.margin
     model = fit_source_map(video[: split + 1], dt, dx, scale_px=scale, margin=max(m, 1))
-    initial = at_scale(video[split : split + 1], scale)[0]
-    predicted = model.forecast(initial, dt=dt, dx=dx, n_frames=horizon + 1)[1:]
+    # The map is fitted at the evaluation scale: the forecast starts from the smoothed state.
+    initial = at_scale(split_state(video[: split + 1], result.initial_frames)[None], scale)[0]
+    forecast = model.forecast(initial, dt=dt, dx=dx, n_frames=held_out + 1)[1:]
+    predicted = time_average(forecast, result.time_window)
     rmse = forecast_errors(predicted, result.measured, m)[1]
     gain = 1.0 - rmse / result.base_rmse if result.base_rmse > 0 else 0.0
     return SourceMapGain(model=model, predicted=predicted, rmse=rmse, gain=gain)
