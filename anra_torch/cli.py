@@ -549,6 +549,7 @@ def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str,
         "gain": result.gain,
         "noise_floor": result.noise_floor,
         "scale_px": result.scale_px,
+        "time_window": result.time_window,
         "gain_above_floor": result.gain_above_floor,
         "raw": {
             "base_rmse": result.base_rmse_raw,
@@ -600,7 +601,8 @@ def _run_diagnose(args: argparse.Namespace) -> int:
         print(
             f"  plain heat equation: a = {base['diffusivity']:.4g} mm^2/s, forecast RMSE "
             f"{base['prediction_rmse']:.4g} (noise floor {summary['noise_floor']:.4g} {video.unit}, frames "
-            f"smoothed by a {summary['scale_px']:g} px Gaussian)"
+            f"smoothed by a {summary['scale_px']:g} px Gaussian and averaged over {summary['time_window']} "
+            "frames)"
         )
         if summary["effects"]:
             found = ", ".join(f"{e['name']} (gain {e['gain']:.2f})" for e in summary["effects"])
@@ -891,9 +893,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="find hidden effects and test whether they forecast held-out frames better",
         description="Diagnose which effects beyond heat diffusion (linear_loss, source, advection, "
         "anisotropy, heterogeneity, nonlinear_diffusion) act in the first part of a video, then forecast "
-        "the rest from the (smoothed) measured frame at the split with the plain heat equation and with the "
-        "extended model (RK4, zero-flux edges) and compare their RMSE on the interior at the diagnosis' "
-        "spatial scale (held-out frames smoothed by the same Gaussian). gain = 1 - RMSE_extended / "
+        "the rest from the measured frame at the split with the plain heat equation and with the "
+        "extended model (RK4, zero-flux edges) and compare their RMSE on the interior at the evaluation "
+        "scale (forecasts and held-out frames smoothed alike by the diagnosis' Gaussian and a 9-frame "
+        "moving average in time). gain = 1 - RMSE_extended / "
         "RMSE_plain; the noise floor is a perfect model's RMSE at that scale; 'raw' holds the same against "
         "unsmoothed frames. Exit status 2 on bad input.",
     )

@@ -403,6 +403,7 @@ def _forecast_figure(video: Video, gain: Any, path: Path, mpl: tuple[Any, Any]) 
     extent = _extent(h, w, video.dx)
     image = axes[0, 0].imshow(measured, extent=extent, vmin=lo, vmax=hi, cmap="inferno")
     scale = f", {gain.scale_px:g} px Gaussian" if gain.scale_px > 0 else ""
+    scale += f", {gain.time_window}-frame mean" if gain.time_window > 1 else ""
     axes[0, 0].set_title(f"measured{scale}, t = {when:.3f} s")
     for ax, field, title in ((axes[0, 1], base, "plain heat equation"), (axes[0, 2], extended, "extended")):
         ax.imshow(field, extent=extent, vmin=lo, vmax=hi, cmap="inferno")
@@ -561,7 +562,11 @@ def write_diagnosis_report(
         ("extended base a", f"{diagnosis.base:.5g} mm^2/s"),
         ("forecast RMSE plain", f"{gain.base_rmse:.4g} {video.unit} (SSE {gain.base_sse:.4g})"),
         ("forecast RMSE extended", f"{gain.extended_rmse:.4g} {video.unit} (SSE {gain.extended_sse:.4g})"),
-        ("evaluation scale", f"frames smoothed by a {gain.scale_px:g} px Gaussian (both forecasts and data)"),
+        (
+            "evaluation scale",
+            f"frames smoothed by a {gain.scale_px:g} px Gaussian and averaged over {gain.time_window} "
+            "frames in time (both forecasts and data)",
+        ),
         ("gain 1 - RMSE_ext / RMSE_plain", f"{gain.gain:.3f}"),
         ("noise floor (perfect model)", f"{gain.noise_floor:.4g} {video.unit}"),
         ("gain above the noise floor", f"{gain.gain_above_floor:.3f}"),

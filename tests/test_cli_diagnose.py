@@ -37,6 +37,7 @@ def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[st
         "gain",
         "noise_floor",
         "scale_px",
+        "time_window",
         "gain_above_floor",
         "raw",
     }
