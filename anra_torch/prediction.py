@@ -8,10 +8,10 @@ both forecasts with frames the diagnosis never saw. The split: the diagnosis use
 (``s + 1 = round(fit_fraction T)`` frames); both models start at frame ``s`` (the split index) and
 predict frames ``s + 1 .. T - 1``.
 
-Both forecasts start from the same **state at the split**: the measured split frame by default, or, with
-``initial_frames = n``, the least-squares line in time through the fit part's last ``n`` frames evaluated
-at the split frame (less sensor noise carried into both forecasts, but a lag wherever the field curves in
-time within those frames: at 15 frames, fast sources and advection were forecast measurably worse).
+Both forecasts start from the measured split frame. (A least-squares line in time through the fit part's
+last 15 frames, evaluated at the split, carried less noise into both forecasts but lagged wherever the
+field curves in time within those frames: fast sources and advection were forecast measurably worse. It
+was not kept.)
 
 Errors are taken on the interior (``diagnosis.margin`` px from each edge are left out: there the zero-flux
 boundary is an assumption, not a measurement) and at the **evaluation scale**: the spatial Gaussian the
@@ -46,7 +46,6 @@ from anra_torch.layers.stencils import gaussian_taps
 
 __all__ = [
     "AT_FLOOR",
-    "INITIAL_FRAMES",
     "TIME_WINDOW",
     "GainResult",
     "assess_gain",
@@ -55,9 +54,6 @@ __all__ = [
 ]
 
 _F64 = torch.float64
-
-INITIAL_FRAMES = 1
-"""Fit frames the state at the split is estimated from by default (1: the measured split frame)."""
 
 TIME_WINDOW = 9
 """Frames of the moving average in time at the evaluation scale (at most the held-out frames)."""
@@ -176,7 +172,7 @@ class GainResult:
 
     Attributes:
         diagnosis: the diagnosis of the fit part.
-        split: index of the fit part's last frame, where both forecasts start (from :func:`split_state`).
+        split: index of the measured frame both forecasts start from (the fit part's last frame).
         effects: the extended model's effects, re-timed to the forecast (source path).
         base_a: ``a_plain`` (mm^2/s), the plain model's diffusivity.
         extended_a: ``diagnosis.base`` (mm^2/s), the extended model's base diffusivity.
@@ -208,7 +204,6 @@ class GainResult:
             (evaluation scale); 0 when no effect was found or when the plain forecast is within
             :data:`AT_FLOOR` of the floor (nothing measurable to gain).
         elapsed: seconds spent (diagnosis and both simulations).
-        initial_frames: fit frames the state at the split was estimated from (1: the measured frame).
         time_window: frames of the moving average in time at the evaluation scale (1: none).
 
     Shape:
@@ -242,7 +237,6 @@ class GainResult:
     gain_above_floor: float = 0.0
     effect_gains: tuple[float, ...] = ()
     elapsed: float = 0.0
-    initial_frames: int = 1
     time_window: int = 1
 
     @property
@@ -282,25 +276,22 @@ def _forecast_floor(
     dt: float,
     dx: float,
     held_out: int,
-    initial_frames: int,
     window: int,
 ) -> float:
     """RMSE of a perfect model at the evaluation scale over the held-out frames, data units.
 
     A perfect model is wrong by the held-out frames' noise, smoothed by the Gaussian and averaged over
-    ``window`` frames (variance ``sd^2 |g|^2 / window``), plus the noise of the state at the split
-    carried forward ``t`` seconds by the plain model, a heat kernel that widens the Gaussian to
-    ``sigma^2 = scale^2 + 2 a t / dx^2`` px^2 (variance ``c sd^2 |g_t|^2``, ``t`` at each window's
-    centre, ``c = (4 n - 2) / (n (n + 1))`` the variance of a least-squares line's end value through
-    ``n = initial_frames`` frames); the two are independent. ``|g|^2`` is the exact sum of squared
+    ``window`` frames (variance ``sd^2 |g|^2 / window``), plus the split frame's noise carried forward
+    ``t`` seconds by the plain model, a heat kernel that widens the Gaussian to
+    ``sigma^2 = scale^2 + 2 a t / dx^2`` px^2 (variance ``sd^2 |g_t|^2``, ``t`` at each window's centre);
+    the two are independent. ``|g|^2`` is the exact sum of squared
     weights of the sampled Gaussian. Checked against the forecast RMSE of pure heat-transfer videos (tests).
     """
     sd = float(diagnosis.noise_sd)
     spread = 2.0 * max(float(diagnosis.a_plain), 0.0) * dt / dx**2  # px^2 per frame
     centres = [j + 1 + (window - 1) / 2 for j in range(held_out - window + 1)]  # frames after the split
     carried = sum(_white_gain(math.sqrt(scale_px**2 + spread * k)) for k in centres) / len(centres)
-    n = initial_frames
-    return sd * math.sqrt(_white_gain(scale_px) / window + (4 * n - 2) / (n * (n + 1)) * carried)
+    return sd * math.sqrt(_white_gain(scale_px) / window + carried)
 
 
 def _frame_count(value: object, name: str, default: int, available: int) -> int:
@@ -310,24 +301,6 @@ def _frame_count(value: object, name: str, default: int, available: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= available:
         raise ValueError(f"{name} must be an integer from 1 to {available} frames, got {value!r}")
     return value
-
-
-def split_state(fit_frames: Tensor, n_frames: int) -> Tensor:
-    """The state at the last fit frame: per pixel, the least-squares line through the last ``n_frames``.
-
-    Uses the fit part only (no held-out frame). ``n_frames = 1`` returns the last frame itself.
-
-    Shape:
-        ``fit_frames`` ``(T, H, W)`` -> ``(H, W)``.
-    """
-    y = fit_frames[-n_frames:].to(_F64)
-    n = y.shape[0]
-    if n == 1:
-        return y[0]
-    t = torch.arange(n, dtype=_F64) - (n - 1)  # 0 at the last frame
-    centred = t - t.mean()
-    slope = (centred[:, None, None] * y).sum(0) / centred.pow(2).sum()
-    return y.mean(0) - slope * t.mean()
 
 
 def time_average(frames: Tensor, window: int) -> Tensor:
@@ -421,7 +394,6 @@ def assess_gain(
     fit_fraction: float = 0.6,
     diagnosis: Diagnosis | None = None,
     scale_px: float | None = None,
-    initial_frames: int | None = None,
     time_window: int | None = None,
 ) -> GainResult:
     """Diagnose the first part of a video and forecast the rest with the plain and the extended model.
@@ -434,11 +406,9 @@ def assess_gain(
         diagnosis: a diagnosis of exactly ``frames[: round(fit_fraction T)]``; default: made here.
         scale_px: evaluation scale, a Gaussian sigma in px (0 compares raw frames); default the
             diagnosis' smoothing.
-        initial_frames: fit frames the state at the split is estimated from (1: the measured split
-            frame); default :data:`INITIAL_FRAMES`, at most half the fit part.
         time_window: frames of the moving average in time at the evaluation scale (1: none); default
-            :data:`TIME_WINDOW`, at most half the held-out frames. Use 1 and 1 for videos whose frames
-            are seconds apart, where a few frames already span the dynamics.
+            :data:`TIME_WINDOW`, at most half the held-out frames. Use 1 for videos whose frames are
+            seconds apart, where a few frames already span the dynamics.
 
     Returns:
         :class:`GainResult`.
@@ -446,9 +416,8 @@ def assess_gain(
     Raises:
         ValueError: too short a video for the split (see :func:`split_index`), bad frames or spacing,
             or no thermal activity (from :func:`anra_torch.diagnosis.diagnose_terms`); a diagnosis whose
-            residual map does not fit the frame size; a negative or non-finite ``scale_px``; an
-            ``initial_frames`` or ``time_window`` that is not an integer from 1 to the fit part's or the
-            held-out frames' count.
+            residual map does not fit the frame size; a negative or non-finite ``scale_px``; a
+            ``time_window`` that is not an integer from 1 to the number of held-out frames.
 
     Shape:
         ``frames`` ``(T, H, W)``.
@@ -482,35 +451,31 @@ def assess_gain(
     scale = evaluation_scale(diagnosis, scale_px)
     m = diagnosis.margin
     held_out = horizon - 1
-    n_initial = _frame_count(initial_frames, "initial_frames", INITIAL_FRAMES, split + 1)
     window = _frame_count(time_window, "time_window", TIME_WINDOW, held_out)
 
-    def forecast(initial: Tensor, chosen: tuple[Effect, ...]) -> Tensor:
-        return simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=chosen)[1:]
+    def forecast(chosen: tuple[Effect, ...]) -> Tensor:  # from the measured split frame, full resolution
+        return simulate_model(video[split], diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=chosen)[1:]
 
-    def evaluate(forecast_frames: Tensor) -> Tensor:
-        return time_average(at_scale(forecast_frames, scale), window)
+    def evaluate(frames_: Tensor) -> Tensor:
+        return time_average(at_scale(frames_, scale), window)
 
     raw = video[split + 1 :]
-    initial = split_state(video[: split + 1], n_initial)
-    measured = evaluate(raw)
-    base = evaluate(forecast(initial, ()))
-    extended = evaluate(forecast(initial, effects)) if effects else base
+    base_full = forecast(())
+    extended_full = forecast(effects) if effects else base_full
+    measured, base, extended = evaluate(raw), evaluate(base_full), evaluate(extended_full)
     rmse_base, base_rmse, base_sse = forecast_errors(base, measured, m)
     rmse_ext, ext_rmse, ext_sse = forecast_errors(extended, measured, m)
-    base_raw = forecast_errors(forecast(video[split], ()), raw, m)[1]
-    ext_raw = forecast_errors(forecast(video[split], effects), raw, m)[1] if effects else base_raw
+    base_raw = forecast_errors(base_full, raw, m)[1]
+    ext_raw = forecast_errors(extended_full, raw, m)[1]
     found = bool(effects)
     gain = 1.0 - ext_rmse / base_rmse if found and base_rmse > 0 else 0.0
     effect_gains = [gain] if len(effects) == 1 else []
     for effect in effects if len(effects) > 1 else ():
-        alone = evaluate(forecast(initial, (effect,)))
+        alone = evaluate(forecast((effect,)))
         effect_gains.append(
             1.0 - forecast_errors(alone, measured, m)[1] / base_rmse if base_rmse > 0 else 0.0
         )
-    floor = _forecast_floor(
-        diagnosis, float(scale), dt=dt, dx=dx, held_out=held_out, initial_frames=n_initial, window=window
-    )
+    floor = _forecast_floor(diagnosis, float(scale), dt=dt, dx=dx, held_out=held_out, window=window)
     centres = torch.arange(split + 1, n_frames - window + 1, dtype=_F64) + (window - 1) / 2
     return GainResult(
         diagnosis=diagnosis,
@@ -538,7 +503,6 @@ def assess_gain(
         noise_floor_raw=float(diagnosis.noise_sd),
         gain_above_floor=_gain_above_floor(base_rmse, ext_rmse, floor) if found else 0.0,
         effect_gains=tuple(effect_gains),
-        initial_frames=n_initial,
         time_window=window,
         elapsed=time.perf_counter() - tick,
     )

@@ -43,7 +43,6 @@ from anra_torch.prediction import (
     at_scale,
     check_scale,
     forecast_errors,
-    split_state,
     time_average,
 )
 
@@ -208,7 +207,7 @@ class SourceMapGain:
 def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) -> SourceMapGain:
     """Fit the source map on ``result``'s fit part and forecast its held-out frames like the plain model.
 
-    Same split, evaluation scale, state at the split, interior and measured frames as ``result``
+    Same split, evaluation scale, initial frame, interior and measured frames as ``result``
     (:func:`anra_torch.prediction.assess_gain` on the same ``frames``), so ``gain`` compares like with like.
 
     Raises:
@@ -227,8 +226,8 @@ def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) ->
         )
     scale, m = result.scale_px, result.margin
     model = fit_source_map(video[: split + 1], dt, dx, scale_px=scale, margin=max(m, 1))
-    # The map is fitted at the evaluation scale: the forecast starts from the smoothed state.
-    initial = at_scale(split_state(video[: split + 1], result.initial_frames)[None], scale)[0]
+    # The map is fitted at the evaluation scale: its forecast starts from the smoothed split frame.
+    initial = at_scale(video[split : split + 1], scale)[0]
     forecast = model.forecast(initial, dt=dt, dx=dx, n_frames=held_out + 1)[1:]
     predicted = time_average(forecast, result.time_window)
     rmse = forecast_errors(predicted, result.measured, m)[1]

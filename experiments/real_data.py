@@ -43,6 +43,7 @@ the split) and the hot-spot signal with its phases per recording.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import sys
@@ -133,6 +134,14 @@ def box_forecast(
     return out
 
 
+@functools.cache
+def _laplace_inverse(height: int, width: int) -> np.ndarray:
+    """Inverse of the 5-point Laplacian on the interior of a ``height`` x ``width`` box (zero edges)."""
+    second = lambda n: np.diag(np.full(n, -2.0)) + np.diag(np.ones(n - 1), 1) + np.diag(np.ones(n - 1), -1)  # noqa: E731
+    laplace = np.kron(np.eye(height - 2), second(width - 2)) + np.kron(second(height - 2), np.eye(width - 2))
+    return np.linalg.inv(laplace)
+
+
 def harmonic_interior(frames: np.ndarray) -> np.ndarray:
     """Each frame's steady state for its measured edges: the interior solving the 5-point Laplace equation.
 
@@ -140,12 +149,10 @@ def harmonic_interior(frames: np.ndarray) -> np.ndarray:
         ``(T, H, W)`` -> ``(T, H - 2, W - 2)``.
     """
     t, h, w = frames.shape
-    second = lambda n: np.diag(np.full(n, -2.0)) + np.diag(np.ones(n - 1), 1) + np.diag(np.ones(n - 1), -1)  # noqa: E731
-    laplace = np.kron(np.eye(h - 2), second(w - 2)) + np.kron(second(h - 2), np.eye(w - 2))
     edges = frames.astype(np.float64).copy()
     edges[:, 1:-1, 1:-1] = 0.0
     rhs = -_lap(edges, 1.0).reshape(t, -1)  # the edges' pull on the interior
-    return np.linalg.solve(laplace, rhs.T).T.reshape(t, h - 2, w - 2)
+    return (rhs @ _laplace_inverse(h, w).T).reshape(t, h - 2, w - 2)
 
 
 def quasi_steady_forecast(frames: np.ndarray, fit_part: slice, start: int, n: int) -> np.ndarray:
@@ -197,7 +204,7 @@ def box_phase(video: Video, phase: Phase, window: int = BOX_FIT_WINDOW) -> dict[
     heating = phase.name == "heating"
     ext_name, other_name = ("quasi-steady source", "loss") if heating else ("loss", "quasi-steady source")
     pred_ext, pred_other = (pred_quasi, pred_loss) if heating else (pred_loss, pred_quasi)
-    ext_rmse = rmse(pred_ext)
+    ext_rmse, other_rmse = rmse(pred_ext), rmse(pred_other)
     if heating:
         cause = "source"
     else:  # the sign of the loss model's non-diffusive rate at the split (net heating or net loss)
@@ -216,8 +223,8 @@ def box_phase(video: Video, phase: Phase, window: int = BOX_FIT_WINDOW) -> dict[
         "extended_rmse": ext_rmse,
         "gain": gain(ext_rmse),
         "other_model": other_name,
-        "other_rmse": rmse(pred_other),
-        "other_gain": gain(rmse(pred_other)),
+        "other_rmse": other_rmse,
+        "other_gain": gain(other_rmse),
         "noise_floor": noise,
         "split": split,
         "horizon_frames": horizon,
@@ -232,10 +239,8 @@ def anra_phase(video: Video, phase: Phase, effects: list[str] | None = None) -> 
     est = ANRAEstimator(strict=False)(frames, video.dt, video.dx)
     split = split_index(frames.shape[0], 0.6)
     diagnosis = diagnose_terms(frames[: split + 1], video.dt, video.dx, effects=effects)
-    # Frames 5 s apart: the measured split frame and no averaging in time (a few frames span the dynamics).
-    result = assess_gain(
-        frames, video.dt, video.dx, fit_fraction=0.6, diagnosis=diagnosis, initial_frames=1, time_window=1
-    )
+    # Frames 5 s apart: no average in time (a few frames already span the dynamics).
+    result = assess_gain(frames, video.dt, video.dx, fit_fraction=0.6, diagnosis=diagnosis, time_window=1)
     a = float(est.diffusivity)
     k = result.held_out
     mapped = source_map_gain(frames, video.dt, video.dx, result)
@@ -384,6 +389,8 @@ def run(
             png = out / f"{name}_{phase.name}.png".replace(" ", "_")
             fig3(png, f"{name} {phase.name} ({fit['model']})", figure, video.unit)
             fit.update(
+                start_frame=phase.start,
+                stop_frame=phase.stop,
                 t_start=phase.t_start,
                 t_stop=phase.t_stop,
                 frames=phase.frames,
