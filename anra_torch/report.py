@@ -567,6 +567,12 @@ def write_diagnosis_report(
             f"frames smoothed by a {gain.scale_px:g} px Gaussian and averaged over {gain.time_window} "
             "frames in time (both forecasts and data)",
         ),
+        (
+            "forecast start",
+            f"each model's state assimilated from the last {gain.assimilated} fit frames"
+            if gain.assimilated > 1
+            else "the measured split frame",
+        ),
         ("gain 1 - RMSE_ext / RMSE_plain", f"{gain.gain:.3f}"),
         ("noise floor (perfect model)", f"{gain.noise_floor:.4g} {video.unit}"),
         ("gain above the noise floor", f"{gain.gain_above_floor:.3f}"),

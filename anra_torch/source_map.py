@@ -40,6 +40,7 @@ from anra_torch.effects import Effect, simulate_effects
 from anra_torch.layers.derivatives import laplacian
 from anra_torch.prediction import (
     GainResult,
+    assimilated_state,
     at_scale,
     check_scale,
     forecast_errors,
@@ -207,7 +208,7 @@ class SourceMapGain:
 def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) -> SourceMapGain:
     """Fit the source map on ``result``'s fit part and forecast its held-out frames like the plain model.
 
-    Same split, evaluation scale, initial frame, interior and measured frames as ``result``
+    Same split, evaluation scale, assimilated frames, interior and measured frames as ``result``
     (:func:`anra_torch.prediction.assess_gain` on the same ``frames``), so ``gain`` compares like with like.
 
     Raises:
@@ -226,8 +227,13 @@ def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) ->
         )
     scale, m = result.scale_px, result.margin
     model = fit_source_map(video[: split + 1], dt, dx, scale_px=scale, margin=max(m, 1))
-    # The map is fitted at the evaluation scale: its forecast starts from the smoothed split frame.
-    initial = at_scale(video[split : split + 1], scale)[0]
+    # The map is fitted at the evaluation scale: its forecast starts from the smoothed fit frames,
+    # assimilated like ``result``'s (the split frame itself when ``result.assimilated`` is 1).
+    n = result.assimilated
+    smoothed = at_scale(video[split + 1 - n : split + 1], scale)
+    initial = assimilated_state(
+        smoothed, lambda _, state: model.forecast(state, dt=dt, dx=dx, n_frames=2)[1], n
+    )
     forecast = model.forecast(initial, dt=dt, dx=dx, n_frames=held_out + 1)[1:]
     predicted = time_average(forecast, result.time_window)
     rmse = forecast_errors(predicted, result.measured, m)[1]

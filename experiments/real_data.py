@@ -239,8 +239,11 @@ def anra_phase(video: Video, phase: Phase, effects: list[str] | None = None) -> 
     est = ANRAEstimator(strict=False)(frames, video.dt, video.dx)
     split = split_index(frames.shape[0], 0.6)
     diagnosis = diagnose_terms(frames[: split + 1], video.dt, video.dx, effects=effects)
-    # Frames 5 s apart: no average in time (a few frames already span the dynamics).
-    result = assess_gain(frames, video.dt, video.dx, fit_fraction=0.6, diagnosis=diagnosis, time_window=1)
+    # Frames 5 s apart: no average in time (a few frames already span the dynamics), and forecasts from
+    # the measured split frame, as the source map's (source_map_gain compares like with like).
+    result = assess_gain(
+        frames, video.dt, video.dx, fit_fraction=0.6, diagnosis=diagnosis, time_window=1, assimilate=1
+    )
     a = float(est.diffusivity)
     k = result.held_out
     mapped = source_map_gain(frames, video.dt, video.dx, result)

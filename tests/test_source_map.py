@@ -75,7 +75,7 @@ def test_recovers_diffusivity_loss_and_the_beam_map() -> None:
 def test_map_forecast_beats_plain_and_gaussian_source_on_a_ring_beam() -> None:
     """Fit on 25 frames, forecast 15: the map model is near the noise floor, a Gaussian spot is not."""
     frames, dt, dx, _ = _beam_video(noise=0.05)
-    result = assess_gain(frames, dt, dx, fit_fraction=0.625)  # split at frame 24
+    result = assess_gain(frames, dt, dx, fit_fraction=0.625, assimilate=1)  # split at frame 24
     mapped = source_map_gain(frames, dt, dx, result)
     assert result.split == 24 and mapped.predicted.shape == result.measured.shape
     assert mapped.gain == pytest.approx(1 - mapped.rmse / result.base_rmse)
