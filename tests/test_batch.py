@@ -173,6 +173,7 @@ def test_cli_batch(videos: Path, tmp_path: Path, capsys) -> None:
     assert "--out must end in .csv or .parquet, got 'r.txt'" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_dask_two_worker_cluster_gives_the_local_rows(videos: Path, tmp_path: Path) -> None:
     pytest.importorskip("distributed", reason="the Dask engine needs the 'dask' extra")
     from anra_torch.distributed import run_batch_dask

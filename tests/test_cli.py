@@ -353,6 +353,7 @@ def test_help_texts_state_units(capsys: pytest.CaptureFixture[str]) -> None:
             assert unit in text, (command, unit)
 
 
+@pytest.mark.slow
 def test_entry_points_run_outside_the_process(tmp_path: Path) -> None:
     helped = subprocess.run(
         [sys.executable, "-m", "anra_torch", "--help"],

@@ -25,6 +25,7 @@ def loss_video(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return video.to_npz(tmp_path_factory.mktemp("diagnose") / "loss.npz")
 
 
+@pytest.mark.slow
 def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = run(capsys, "diagnose", loss_video, "--json")
     assert (code, err) == (0, "")

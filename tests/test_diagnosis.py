@@ -126,6 +126,7 @@ def test_plain_diffusivity_equals_the_estimator_with_the_same_filters() -> None:
     assert d.base == pytest.approx(d.a_plain)  # nothing found: base is the plain fit
 
 
+@pytest.mark.slow
 def test_result_fields_and_ranking() -> None:
     video = video_of(("linear_loss", "advection"), seed=2)
     d = diagnose(video)

@@ -68,6 +68,7 @@ def test_gain_is_clearly_positive_and_extended_reaches_noise_floor(
     ("name", "fine_gain", "above_floor"),
     [("anisotropy", 0.9, 0.9), ("heterogeneity", 0.85, 0.7)],
 )
+@pytest.mark.slow
 def test_diffusion_effects_gain_more_where_heat_moves_further_in_the_forecast(
     name: str, fine_gain: float, above_floor: float
 ) -> None:
@@ -148,6 +149,7 @@ def test_noise_floor_is_what_the_true_model_reaches_on_average() -> None:
     assert 0.97 < sum(ratios) / len(ratios) < 1.03
 
 
+@pytest.mark.slow
 def test_two_effects_each_get_their_own_gain() -> None:
     v = video(["linear_loss", "advection"], 1)
     result = assess_gain(v.frames, v.dt, v.dx)
