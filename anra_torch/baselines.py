@@ -14,7 +14,7 @@ import kornia
 import torch
 from torch import Tensor
 
-from anra_torch._validation import as_spacing, as_video
+from anra_torch.checks import as_spacing, as_video
 from anra_torch.layers.attention import rtc_attention
 
 __all__ = ["log_kernel", "backward_log_estimate", "BASELINES"]

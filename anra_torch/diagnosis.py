@@ -58,7 +58,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from anra_torch._validation import as_video
+from anra_torch.checks import as_video, positive
 from anra_torch.layers.derivatives import (
     GaussianSmoothing,
     Gradient,
@@ -773,16 +773,6 @@ def _background(frame: Tensor, ring: int = 2) -> float:
     return float(edge.median())
 
 
-def _positive(value: object, name: str, unit: str) -> float:
-    try:
-        number = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be a positive number in {unit}, got {value!r}") from err
-    if not (math.isfinite(number) and number > 0):
-        raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
-    return number
-
-
 class _Selection:
     """Stepwise selection state: the effects in the model and the fitted extra terms."""
 
@@ -904,7 +894,7 @@ def diagnose_terms(
         (['advection'], {'vx': 1.26, 'vy': -2.37})
     """
     video = _as_frames(frames)
-    dt, dx = _positive(dt, "dt", "s"), _positive(dx, "dx", "mm")
+    dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
     if not (0 < alpha < 1):
         raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
     names = list(EFFECT_GROUPS) if effects is None else list(effects)
@@ -930,9 +920,7 @@ def diagnose_terms(
         )
     if float(video.amax() - video.amin()) == 0.0:
         raise ValueError("frames are constant: no thermal activity to diagnose")
-    sd = (
-        float(estimate_noise_sd(video)) if noise_sd is None else _positive(noise_sd, "noise_sd", "data units")
-    )
+    sd = float(estimate_noise_sd(video)) if noise_sd is None else positive(noise_sd, "noise_sd", "data units")
 
     # Smoothing: the candidate with the smallest standard error of a in the plain model.
     best: tuple[float, _System, _Fit] | None = None

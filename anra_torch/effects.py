@@ -60,15 +60,13 @@ import torch
 from torch import Tensor, nn
 from torchdiffeq import odeint
 
+from anra_torch.checks import as_fields, check_choice, check_int, number
 from anra_torch.io import save_npz
 from anra_torch.simulate import (
     _SAFETY,
     BOUNDARIES,
     FIXED_STEP_METHODS,
     HeatRHS,
-    _as_fields,
-    _check_choice,
-    _check_int,
     gaussian_blobs,
 )
 
@@ -130,10 +128,10 @@ class Grid:
         ):
             raise ValueError(f"shape must be (H, W) with positive integers, got {shape!r}")
         object.__setattr__(self, "shape", (int(shape[0]), int(shape[1])))
-        object.__setattr__(self, "dx", _number(self.dx, "dx", "mm", positive=True))
-        object.__setattr__(self, "duration", _number(self.duration, "duration", "s", minimum=0.0))
-        _check_choice(self.boundary, "boundary", list(BOUNDARIES))
-        value = _number(self.boundary_value, "boundary_value", "units of T")
+        object.__setattr__(self, "dx", number(self.dx, "dx", "mm", positive=True))
+        object.__setattr__(self, "duration", number(self.duration, "duration", "s", minimum=0.0))
+        check_choice(self.boundary, "boundary", list(BOUNDARIES))
+        value = number(self.boundary_value, "boundary_value", "units of T")
         if value != 0.0 and not BOUNDARIES[self.boundary].uses_value:
             raise ValueError(
                 f"boundary_value applies to boundary='dirichlet' only, got boundary={self.boundary!r}"
@@ -590,7 +588,7 @@ class Effect:
                 f"effect {self.name!r} is missing {', '.join(missing)}; expected: "
                 + ", ".join(f"{k} ({u})" for k, u in spec.params.items())
             )
-        params = {k: _number(self.params[k], f"{self.name}.{k}", unit) for k, unit in spec.params.items()}
+        params = {k: number(self.params[k], f"{self.name}.{k}", unit) for k, unit in spec.params.items()}
         if spec.check is not None:
             spec.check(params)
         object.__setattr__(self, "params", params)
@@ -757,10 +755,10 @@ class ExtendedHeatRHS(nn.Module):
         super().__init__()
         if not isinstance(grid, Grid):
             raise TypeError(f"grid must be a Grid, got {type(grid).__name__}")
-        self.a = _number(a, "a", "mm^2/s", minimum=0.0)
+        self.a = number(a, "a", "mm^2/s", minimum=0.0)
         self.grid = grid
         self.effects = _check_effects(effects)
-        self.time_scale = _number(time_scale, "time_scale", "s", positive=True)
+        self.time_scale = number(time_scale, "time_scale", "s", positive=True)
         self._rhs = effect_rhs(self.a, [(e.spec, e.params) for e in self.effects], grid, self.time_scale)
 
     def forward(self, t: Tensor, u: Tensor) -> Tensor:
@@ -861,16 +859,16 @@ def simulate_effects(
         >>> round(video[-1, 0, 0].item(), 6), round(30 + 10 * math.exp(-0.5), 6)
         (36.065307, 36.065307)
     """
-    u0, batched = _as_fields(initial)
+    u0, batched = as_fields(initial)
     height, width = u0.shape[-2:]
-    a = _number(a, "a", "mm^2/s", minimum=0.0)
-    dx = _number(dx, "dx", "mm", positive=True)
-    dt = _number(dt, "dt", "s", positive=True)
-    n_frames = _check_int(n_frames, "n_frames", 1)
+    a = number(a, "a", "mm^2/s", minimum=0.0)
+    dx = number(dx, "dx", "mm", positive=True)
+    dt = number(dt, "dt", "s", positive=True)
+    n_frames = check_int(n_frames, "n_frames", 1)
     checked = _check_effects(effects)
     grid = Grid((height, width), dx, (n_frames - 1) * dt, boundary, boundary_value)
     if substeps is not None:
-        substeps = _check_int(substeps, "substeps", 1)
+        substeps = check_int(substeps, "substeps", 1)
     if forcing is not None:
         forcing = torch.as_tensor(forcing)
         need = f"forcing must be a finite map of the frame's shape ({height}, {width}) in data units per s"
@@ -1063,16 +1061,16 @@ def hidden_effect_video(
     for name in names:
         if name not in EFFECTS:
             raise _unknown(name)
-    seed = _check_int(seed, "seed", 0)
-    size = _check_int(size, "size", 16)
-    dx = _number(dx, "dx", "mm", positive=True)
-    fps = _number(fps, "fps", "Hz", positive=True)
-    duration = _number(duration, "duration", "s", positive=True)
-    a = _number(a, "a", "mm^2/s", minimum=0.0)
-    noise_frac = _number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)
+    seed = check_int(seed, "seed", 0)
+    size = check_int(size, "size", 16)
+    dx = number(dx, "dx", "mm", positive=True)
+    fps = number(fps, "fps", "Hz", positive=True)
+    duration = number(duration, "duration", "s", positive=True)
+    a = number(a, "a", "mm^2/s", minimum=0.0)
+    noise_frac = number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)
     if noise_sd is not None:
-        noise_sd = _number(noise_sd, "noise_sd", "data units", minimum=0.0)
-    background = _number(background, "background", "data units")
+        noise_sd = number(noise_sd, "noise_sd", "data units", minimum=0.0)
+    background = number(background, "background", "data units")
     if dtype not in (torch.float32, torch.float64):
         raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
     overrides = {} if params is None else dict(params)
@@ -1145,23 +1143,3 @@ def hidden_effect_video(
         seed=seed,
         a_map=a_map,
     )
-
-
-# ------------------------------------------------------------------------------------- validation
-def _number(
-    value: object, name: str, unit: str, *, positive: bool = False, minimum: float | None = None
-) -> float:
-    """A finite float (a number or a one-element tensor); positive or ``>= minimum`` when asked."""
-    if isinstance(value, bool):
-        raise TypeError(f"{name} must be a number in {unit}, got {value!r}")
-    try:
-        number = float(value.item() if isinstance(value, Tensor | np.ndarray) else value)  # type: ignore[union-attr,arg-type]
-    except (TypeError, ValueError, RuntimeError) as err:
-        raise TypeError(f"{name} must be a number in {unit}, got {value!r}") from err
-    if not math.isfinite(number):
-        raise ValueError(f"{name} must be a finite number in {unit}, got {value!r}")
-    if positive and number <= 0:
-        raise ValueError(f"{name} must be positive in {unit}, got {value!r}")
-    if minimum is not None and number < minimum:
-        raise ValueError(f"{name} must be >= {minimum:g} in {unit}, got {value!r}")
-    return number

@@ -50,7 +50,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from anra_torch._validation import as_spacing, as_video
+from anra_torch.checks import as_spacing, as_video
 from anra_torch.dose import (
     RULES,
     SKIN,

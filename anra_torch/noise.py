@@ -7,7 +7,7 @@ import math
 import torch
 from torch import Tensor
 
-from anra_torch._validation import as_video
+from anra_torch.checks import as_video
 
 __all__ = ["estimate_noise_sd"]
 

@@ -24,7 +24,7 @@ import torch
 from torch import Tensor, nn
 from torchdiffeq import odeint, odeint_adjoint
 
-from anra_torch._validation import as_spacing
+from anra_torch.checks import as_fields, as_spacing, check_choice, check_int, check_shape, positive
 
 __all__ = [
     "ADAPTIVE_METHODS",
@@ -130,26 +130,6 @@ _SAFETY = 0.9
 
 
 # ------------------------------------------------------------------------------------- validation
-def _as_fields(initial: object, *, name: str = "initial") -> tuple[Tensor, bool]:
-    """Return a floating ``(B, H, W)`` tensor and whether the input was batched."""
-    if not isinstance(initial, Tensor):
-        try:
-            initial = torch.as_tensor(initial)
-        except (TypeError, ValueError, RuntimeError) as err:
-            raise TypeError(f"{name} must be a tensor or array, got {type(initial).__name__}") from err
-    if initial.dtype == torch.bool or initial.is_complex():
-        raise TypeError(f"{name} must hold real temperatures, got dtype {initial.dtype}")
-    if not initial.is_floating_point():
-        initial = initial.to(torch.get_default_dtype())
-    elif initial.dtype not in (torch.float32, torch.float64):
-        initial = initial.to(torch.float32)
-    if initial.ndim not in (2, 3) or initial.numel() == 0:
-        raise ValueError(f"{name} must have shape (H, W) or (B, H, W), got {tuple(initial.shape)}")
-    if not bool(torch.isfinite(initial).all()):
-        bad = int((~torch.isfinite(initial)).sum())
-        raise ValueError(f"{name} must be finite, got {bad} non-finite values; mask or fill them first")
-    batched = initial.ndim == 3
-    return (initial if batched else initial.unsqueeze(0)), batched
 
 
 def _as_diffusivity(
@@ -193,27 +173,6 @@ def _as_times(times: object, *, like_dtype: torch.dtype, name: str = "times") ->
     return t
 
 
-def _check_choice(value: object, name: str, choices: Sequence[str]) -> None:
-    if not isinstance(value, str) or value not in choices:
-        raise ValueError(f"unknown {name} {value!r}; expected one of: {', '.join(choices)}")
-
-
-def _check_int(value: object, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return value
-
-
-def _check_positive(value: object, name: str, unit: str) -> float:
-    try:
-        number = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as err:
-        raise TypeError(f"{name} must be a positive finite number in {unit}, got {value!r}") from err
-    if not math.isfinite(number) or number <= 0:
-        raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
-    return number
-
-
 # ---------------------------------------------------------------------------------- right-hand side
 class HeatRHS(nn.Module):
     """Right-hand side ``dT/dt = div(a grad T)`` on the pixel grid, for ``torchdiffeq``.
@@ -250,7 +209,7 @@ class HeatRHS(nn.Module):
         time_scale: float | Tensor = 1.0,
     ) -> None:
         super().__init__()
-        _check_choice(boundary, "boundary", list(BOUNDARIES))
+        check_choice(boundary, "boundary", list(BOUNDARIES))
         a_tensor = a if isinstance(a, Tensor) else torch.as_tensor(float(a), dtype=torch.float64)
         values = a_tensor.detach()
         if not bool(torch.isfinite(values).all()) or bool((values < 0).any()):
@@ -365,11 +324,11 @@ def simulate_heat(
         >>> video.shape, round(video[-1].sum().item(), 12)
         (torch.Size([3, 16, 16]), 1.0)
     """
-    u0, batched = _as_fields(initial)
+    u0, batched = as_fields(initial)
     batch, height, width = u0.shape
-    n_frames = _check_int(n_frames, "n_frames", 1)
-    _check_choice(boundary, "boundary", list(BOUNDARIES))
-    _check_choice(method, "method", [*FIXED_STEP_METHODS, *ADAPTIVE_METHODS])
+    n_frames = check_int(n_frames, "n_frames", 1)
+    check_choice(boundary, "boundary", list(BOUNDARIES))
+    check_choice(method, "method", [*FIXED_STEP_METHODS, *ADAPTIVE_METHODS])
     dx_b = as_spacing(dx, name="dx", unit="mm", batch=batch, like=u0)
     dt_b = as_spacing(dt, name="dt", unit="s", batch=batch, like=u0)
     a_t, is_field = _as_diffusivity(a, batch=batch, height=height, width=width, like=u0)
@@ -377,9 +336,9 @@ def simulate_heat(
     if substeps is not None:
         if method not in FIXED_STEP_METHODS:
             raise ValueError(f"substeps applies to fixed-step methods only, got method={method!r}")
-        substeps = _check_int(substeps, "substeps", 1)
-    rtol = _check_positive(rtol, "rtol", "relative units")
-    atol = _check_positive(atol, "atol", "units of T")
+        substeps = check_int(substeps, "substeps", 1)
+    rtol = positive(rtol, "rtol", "relative units")
+    atol = positive(atol, "atol", "units of T")
     if n_frames == 1:
         out = u0.unsqueeze(1)
         return out if batched else out[0]
@@ -479,9 +438,9 @@ def heat_spectral(
         >>> torch.allclose(u[1], u0 * math.exp(-0.1 * (math.pi / 4) ** 2))
         True
     """
-    u0, batched = _as_fields(initial)
+    u0, batched = as_fields(initial)
     batch, height, width = u0.shape
-    _check_choice(boundary, "boundary", list(SPECTRAL_BOUNDARIES))
+    check_choice(boundary, "boundary", list(SPECTRAL_BOUNDARIES))
     dx_b = as_spacing(dx, name="dx", unit="mm", batch=batch, like=u0)
     a_t, _ = _as_diffusivity(a, batch=batch, height=height, width=width, like=u0, allow_field=False)
     t = _as_times(times, like_dtype=u0.dtype).to(u0.device)
@@ -539,8 +498,8 @@ def gaussian_blobs(
     """
     if dtype not in (torch.float32, torch.float64):
         raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
-    height, width = _check_shape(shape)
-    step = _check_positive(dx, "dx", "mm")
+    height, width = check_shape(shape)
+    step = positive(dx, "dx", "mm")
     t = _as_times(times, like_dtype=dtype)
     peak = _as_param(peaks, "peaks", dtype)
     sigma = _as_param(sigmas, "sigmas", dtype)
@@ -621,8 +580,8 @@ def gaussian_blob(
         >>> u[0, 32, 32].item(), round(u[1, 32, 32].item(), 4)  # 0.25 / (0.25 + 2 * 0.2 * 1.0)
         (1.0, 0.3846)
     """
-    height, width = _check_shape(shape)
-    step = _check_positive(dx, "dx", "mm")
+    height, width = check_shape(shape)
+    step = positive(dx, "dx", "mm")
     if centre is None:
         centre = (width * step / 2.0, height * step / 2.0)
     if len(centre) != 2:
@@ -642,16 +601,6 @@ def gaussian_blob(
         background=background,
         dtype=dtype,
     )
-
-
-def _check_shape(shape: object) -> tuple[int, int]:
-    if (
-        not isinstance(shape, Sequence)
-        or len(shape) != 2
-        or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in shape)
-    ):
-        raise ValueError(f"shape must be (H, W) with positive integers, got {shape!r}")
-    return int(shape[0]), int(shape[1])
 
 
 def _as_param(value: object, name: str, dtype: torch.dtype) -> Tensor:

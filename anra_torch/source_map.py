@@ -35,7 +35,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from anra_torch._validation import as_spacing
+from anra_torch.checks import as_spacing
 from anra_torch.effects import Effect, simulate_effects
 from anra_torch.layers.derivatives import laplacian
 from anra_torch.prediction import (

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from anra_torch.checks import check_dtype, check_int, number, positive
 from anra_torch.simulate import gaussian_blob, gaussian_blobs
 
 __all__ = ["SyntheticVideo", "blobs_video", "paper_video"]
@@ -121,21 +122,21 @@ def paper_video(
         >>> tuple(video.frames.shape), video.dt == 1 / 27, video.dx == 10.0 / 64
         ((2, 28, 32, 32), True, True)
     """
-    n_videos = _check_int(n_videos, "n_videos", 1)
-    seed = _check_int(seed, "seed", 0)
-    size = _check_int(size, "size", 1)
-    noise_sd = _check_number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
-    fps = _check_number(fps, "fps", "Hz")
-    duration = _check_number(duration, "duration", "s")
-    extent = _check_number(extent, "extent", "mm")
-    a = _check_number(a, "a", "mm^2/s", minimum=0.0)
-    peak = _check_number(peak, "peak", "units of temperature", minimum=-math.inf)
-    diameter_px = _check_number(diameter_px, "diameter_px", "px")
+    n_videos = check_int(n_videos, "n_videos", 1)
+    seed = check_int(seed, "seed", 0)
+    size = check_int(size, "size", 1)
+    noise_sd = number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
+    fps = positive(fps, "fps", "Hz")
+    duration = positive(duration, "duration", "s")
+    extent = positive(extent, "extent", "mm")
+    a = number(a, "a", "mm^2/s", minimum=0.0)
+    peak = number(peak, "peak", "units of temperature")
+    diameter_px = positive(diameter_px, "diameter_px", "px")
     if crop is not None:
-        crop = _check_int(crop, "crop", 1)
+        crop = check_int(crop, "crop", 1)
         if crop > size:
             raise ValueError(f"crop must be at most size={size} px, got {crop}")
-    _check_dtype(dtype)
+    check_dtype(dtype)
 
     dx = extent / size
     dt = 1.0 / fps
@@ -199,16 +200,16 @@ def blobs_video(
     Raises:
         ValueError: non-positive sizes or rates, bad ranges, blobs too wide to fit in the frame.
     """
-    n_videos = _check_int(n_videos, "n_videos", 1)
-    seed = _check_int(seed, "seed", 0)
-    n_blobs = _check_int(n_blobs, "n_blobs", 1)
-    size = _check_int(size, "size", 1)
-    n_frames = _check_int(n_frames, "n_frames", 1)
-    dx = _check_number(dx, "dx", "mm")
-    fps = _check_number(fps, "fps", "Hz")
-    a = _check_number(a, "a", "mm^2/s", minimum=0.0)
-    background = _check_number(background, "background", "units of temperature", minimum=-math.inf)
-    noise_sd = _check_number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
+    n_videos = check_int(n_videos, "n_videos", 1)
+    seed = check_int(seed, "seed", 0)
+    n_blobs = check_int(n_blobs, "n_blobs", 1)
+    size = check_int(size, "size", 1)
+    n_frames = check_int(n_frames, "n_frames", 1)
+    dx = positive(dx, "dx", "mm")
+    fps = positive(fps, "fps", "Hz")
+    a = number(a, "a", "mm^2/s", minimum=0.0)
+    background = number(background, "background", "units of temperature")
+    noise_sd = number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
     peak_lo, peak_hi = _check_range(peak_range, "peak_range", "units of temperature", minimum=-math.inf)
     sigma_lo, sigma_hi = _check_range(sigma_range_px, "sigma_range_px", "px", minimum=0.0)
     if sigma_lo <= 0:
@@ -218,7 +219,7 @@ def blobs_video(
             f"sigma_range_px must stay below size / 4 = {size / 4:g} px to keep blobs inside the "
             f"frame, got {sigma_hi:g}"
         )
-    _check_dtype(dtype)
+    check_dtype(dtype)
 
     generator = torch.Generator().manual_seed(seed)
     draws = torch.rand((n_videos, n_blobs, 4), generator=generator, dtype=torch.float64)
@@ -249,27 +250,6 @@ def blobs_video(
 
 
 # ------------------------------------------------------------------------------------- validation
-def _check_int(value: object, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return value
-
-
-def _check_number(value: object, name: str, unit: str, *, minimum: float | None = None) -> float:
-    """A finite float; positive by default, or ``>= minimum``."""
-    try:
-        number = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as err:
-        raise TypeError(f"{name} must be a number in {unit}, got {value!r}") from err
-    if minimum is None:
-        if not math.isfinite(number) or number <= 0:
-            raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
-    elif not math.isfinite(number) or number < minimum:
-        bound = "" if minimum == -math.inf else f" >= {minimum:g}"
-        raise ValueError(f"{name} must be a finite number{bound} in {unit}, got {value!r}")
-    return number
-
-
 def _check_range(value: object, name: str, unit: str, *, minimum: float) -> tuple[float, float]:
     try:
         low, high = (float(v) for v in value)  # type: ignore[union-attr]
@@ -278,8 +258,3 @@ def _check_range(value: object, name: str, unit: str, *, minimum: float) -> tupl
     if not (math.isfinite(low) and math.isfinite(high)) or low > high or low < minimum:
         raise ValueError(f"{name} must be a finite pair with low <= high in {unit}, got {value!r}")
     return low, high
-
-
-def _check_dtype(dtype: object) -> None:
-    if dtype not in (torch.float32, torch.float64):
-        raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")

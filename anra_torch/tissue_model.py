@@ -31,7 +31,7 @@ from torch import Tensor, nn
 from torchdiffeq import odeint
 from tqdm.auto import tqdm
 
-from anra_torch._validation import as_video
+from anra_torch.checks import as_video
 from anra_torch.layers.estimator import ANRAEstimator
 from anra_torch.simulate import HeatRHS
 

@@ -535,7 +535,7 @@ def test_model_level_errors() -> None:
         simulate_effects(u0, a=0.1, dx=0.5, dt=0.1, n_frames=3, effects=["linear_loss"])
     with pytest.raises(ValueError, match="unknown boundary 'open'"):
         simulate_effects(u0, a=0.1, dx=0.5, dt=0.1, n_frames=3, boundary="open")
-    with pytest.raises(ValueError, match="dt must be positive in s"):
+    with pytest.raises(ValueError, match="dt must be a positive finite number in s"):
         simulate_effects(u0, a=0.1, dx=0.5, dt=0.0, n_frames=3)
     with pytest.raises(ValueError, match=r"initial must have shape \(H, W\) or \(B, H, W\)"):
         simulate_effects(torch.zeros(8), a=0.1, dx=0.5, dt=0.1, n_frames=3)

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from anra_torch._validation import uniform_step
+from anra_torch.checks import uniform_step
 
 __all__ = ["FOLDER_REGISTRY", "REGISTRY", "TIMESTAMPS", "RawVideo", "Video", "load_video", "save_npz"]
 

@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from anra_torch._validation import as_spacing, as_video
+from anra_torch.checks import as_spacing, as_video
 from anra_torch.layers.attention import RTCAttention, UniformAttention
 from anra_torch.layers.derivatives import GaussianSmoothing, Laplacian, TimeDerivative
 from anra_torch.noise import estimate_noise_sd

@@ -1,0 +1,217 @@
+"""Input checks shared by every public entry point: one place for each kind of check and its message.
+
+Every check raises a one-line ``ValueError`` (bad value or shape) or ``TypeError`` (not a number or array)
+that names the argument, the requirement and what was received.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+__all__ = [
+    "as_fields",
+    "as_spacing",
+    "as_video",
+    "check_choice",
+    "check_dtype",
+    "check_int",
+    "check_shape",
+    "number",
+    "positive",
+    "uniform_step",
+]
+
+
+def number(
+    value: object, name: str, unit: str, *, positive: bool = False, minimum: float | None = None
+) -> float:
+    """``value`` as a finite float (a number or a one-element tensor or array); positive or ``>= minimum``
+    when asked.
+
+    Raises:
+        TypeError: not a number.
+        ValueError: not finite, not positive, or below ``minimum``.
+    """
+    if isinstance(value, bool):
+        raise TypeError(f"{name} must be a number in {unit}, got {value!r}")
+    try:
+        scalar = value.item() if isinstance(value, Tensor | np.ndarray) else value  # type: ignore[union-attr]
+        result = float(scalar)  # type: ignore[arg-type]
+    except (TypeError, ValueError, RuntimeError) as err:
+        raise TypeError(f"{name} must be a number in {unit}, got {value!r}") from err
+    if positive and not (math.isfinite(result) and result > 0):
+        raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
+    if not math.isfinite(result):
+        raise ValueError(f"{name} must be a finite number in {unit}, got {value!r}")
+    if minimum is not None and result < minimum:
+        raise ValueError(f"{name} must be a finite number >= {minimum:g} in {unit}, got {value!r}")
+    return result
+
+
+def positive(value: object, name: str, unit: str) -> float:
+    """``value`` as a positive finite float (see :func:`number`)."""
+    return number(value, name, unit, positive=True)
+
+
+def check_int(value: object, name: str, minimum: int) -> int:
+    """``value`` as an integer (not a bool) ``>= minimum``.
+
+    Raises:
+        ValueError: not such an integer.
+    """
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def check_choice(value: object, name: str, choices: Sequence[str]) -> str:
+    """``value`` if it is one of ``choices``.
+
+    Raises:
+        ValueError: unknown value, listing the choices.
+    """
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"unknown {name} {value!r}; expected one of: {', '.join(choices)}")
+    return value
+
+
+def check_dtype(dtype: object) -> torch.dtype:
+    """``dtype`` if it is float32 or float64.
+
+    Raises:
+        TypeError: another dtype.
+    """
+    if dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+    return dtype  # type: ignore[return-value]
+
+
+def check_shape(shape: object) -> tuple[int, int]:
+    """A frame size ``(H, W)`` of positive integers.
+
+    Raises:
+        ValueError: anything else.
+    """
+    if (
+        not isinstance(shape, Sequence)
+        or len(shape) != 2
+        or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in shape)
+    ):
+        raise ValueError(f"shape must be (H, W) with positive integers, got {shape!r}")
+    return int(shape[0]), int(shape[1])
+
+
+def as_fields(initial: object, *, name: str = "initial") -> tuple[Tensor, bool]:
+    """Return finite frames as a floating ``(B, H, W)`` tensor and whether the input was batched.
+
+    Raises:
+        TypeError: not real numbers.
+        ValueError: not ``(H, W)`` or ``(B, H, W)``, or non-finite values.
+    """
+    if not isinstance(initial, Tensor):
+        try:
+            initial = torch.as_tensor(initial)
+        except (TypeError, ValueError, RuntimeError) as err:
+            raise TypeError(f"{name} must be a tensor or array, got {type(initial).__name__}") from err
+    if initial.dtype == torch.bool or initial.is_complex():
+        raise TypeError(f"{name} must hold real temperatures, got dtype {initial.dtype}")
+    if not initial.is_floating_point():
+        initial = initial.to(torch.get_default_dtype())
+    elif initial.dtype not in (torch.float32, torch.float64):
+        initial = initial.to(torch.float32)
+    if initial.ndim not in (2, 3) or initial.numel() == 0:
+        raise ValueError(f"{name} must have shape (H, W) or (B, H, W), got {tuple(initial.shape)}")
+    if not bool(torch.isfinite(initial).all()):
+        bad = int((~torch.isfinite(initial)).sum())
+        raise ValueError(f"{name} must be finite, got {bad} non-finite values; mask or fill them first")
+    batched = initial.ndim == 3
+    return (initial if batched else initial.unsqueeze(0)), batched
+
+
+def as_video(frames: object, *, name: str = "frames", min_frames: int = 1) -> tuple[Tensor, bool]:
+    """Return ``frames`` as a floating ``(B, T, H, W)`` tensor and whether the input was batched.
+
+    Integer raw counts are converted to the default floating dtype; float32/float64 are kept.
+
+    Raises:
+        TypeError: not array-like.
+        ValueError: wrong number of dimensions or too few frames.
+    """
+    if not isinstance(frames, Tensor):
+        try:
+            frames = torch.as_tensor(frames)
+        except (TypeError, ValueError, RuntimeError) as err:
+            raise TypeError(f"{name} must be a tensor or array, got {type(frames).__name__}") from err
+    if frames.dtype == torch.bool or frames.is_complex():
+        raise TypeError(f"{name} must hold real temperatures, got dtype {frames.dtype}")
+    if not frames.is_floating_point():
+        frames = frames.to(torch.get_default_dtype())
+    elif frames.dtype not in (torch.float32, torch.float64):
+        frames = frames.to(torch.float32)
+    if frames.ndim not in (3, 4):
+        raise ValueError(f"{name} must have shape (T, H, W) or (B, T, H, W), got {tuple(frames.shape)}")
+    batched = frames.ndim == 4
+    video = frames if batched else frames.unsqueeze(0)
+    if video.shape[1] < min_frames:
+        raise ValueError(f"{name} needs at least {min_frames} frames for these filters, got {video.shape[1]}")
+    return video, batched
+
+
+def as_spacing(value: object, *, name: str, unit: str, batch: int, like: Tensor) -> Tensor:
+    """Return a positive finite spacing (``dt`` in s, ``dx`` in mm) as a ``(B,)`` tensor.
+
+    Raises:
+        ValueError: non-positive or non-finite value, or a tensor of the wrong length.
+    """
+    if isinstance(value, Tensor):
+        spacing = value.detach().to(like.dtype).reshape(-1)
+    else:
+        try:
+            spacing = torch.as_tensor(value, dtype=like.dtype).reshape(-1)
+        except (TypeError, ValueError, RuntimeError) as err:
+            raise ValueError(f"{name} must be a positive number in {unit}, got {value!r}") from err
+    if spacing.numel() == 1:
+        spacing = spacing.expand(batch)
+    if spacing.numel() != batch:
+        raise ValueError(
+            f"{name} must be a number or have shape ({batch},), got shape {tuple(spacing.shape)}"
+        )
+    if not bool(torch.isfinite(spacing).all()) or bool((spacing <= 0).any()):
+        shown = value if not isinstance(value, Tensor) else (value.tolist() if value.ndim else value.item())
+        raise ValueError(f"{name} must be a positive finite number in {unit}, got {shown}")
+    return spacing.to(like.device)
+
+
+def uniform_step(times: object, *, name: str = "t", rtol: float = 1e-3) -> float:
+    """Return the constant step of increasing, uniform timestamps (s).
+
+    Raises:
+        ValueError: fewer than two stamps, non-finite, not strictly increasing, or non-uniform.
+    """
+    t = torch.as_tensor(times, dtype=torch.float64).reshape(-1)
+    if t.numel() < 2:
+        raise ValueError(f"{name} needs at least 2 timestamps, got {t.numel()}")
+    if not bool(torch.isfinite(t).all()):
+        raise ValueError(f"{name} must be finite timestamps in s, got non-finite values")
+    steps = torch.diff(t)
+    if bool((steps <= 0).any()):
+        k = int(torch.nonzero(steps <= 0)[0])
+        raise ValueError(
+            f"{name} must be strictly increasing, got t[{k}]={t[k].item():g} s "
+            f"then t[{k + 1}]={t[k + 1].item():g} s"
+        )
+    mean = float(steps.mean())
+    spread = float((steps - mean).abs().max())
+    if spread > rtol * mean:
+        raise ValueError(
+            f"{name} must be uniformly spaced, got steps from {float(steps.min()):g} "
+            f"to {float(steps.max()):g} s; resample the video first"
+        )
+    if not math.isfinite(mean):
+        raise ValueError(f"{name} must be finite timestamps in s")
+    return mean
