@@ -5,6 +5,7 @@ derivatives on fixed kernels, RTC attention, and a direct estimator of the therm
 ``dT/dt = a (d11 + d22) T`` that never solves the PDE. Units: mm, s, mm^2/s.
 """
 
+from anra_torch.balance.noise import estimate_noise_sd
 from anra_torch.batch import run_batch
 from anra_torch.diagnosis import Diagnosis, diagnose_terms
 from anra_torch.dose import SKIN, ArrheniusConstants, arrhenius_omega, cem43, time_above
@@ -28,7 +29,6 @@ from anra_torch.layers import (
     second_derivatives,
     time_derivative,
 )
-from anra_torch.noise import estimate_noise_sd
 from anra_torch.phases import Phase, segment_phases
 from anra_torch.prediction import GainResult, assess_gain
 from anra_torch.refine import Refinement, refine_model

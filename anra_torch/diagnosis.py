@@ -58,6 +58,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from anra_torch.balance.noise import estimate_noise_sd
 from anra_torch.checks import as_video, positive
 from anra_torch.layers.derivatives import (
     GaussianSmoothing,
@@ -66,7 +67,6 @@ from anra_torch.layers.derivatives import (
     SecondDerivatives,
     TimeDerivative,
 )
-from anra_torch.noise import estimate_noise_sd
 from anra_torch.simulate import HeatRHS
 
 __all__ = [

@@ -50,6 +50,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from anra_torch.balance.filters import MatchedFilters
+from anra_torch.balance.moments import Moments, TermNoise, accumulate
+from anra_torch.balance.noise import estimate_noise_sd
 from anra_torch.checks import as_spacing, as_video
 from anra_torch.dose import (
     RULES,
@@ -62,9 +65,8 @@ from anra_torch.dose import (
     to_celsius,
 )
 from anra_torch.layers.attention import rtc_attention
-from anra_torch.layers.derivatives import GaussianSmoothing, Laplacian, TimeDerivative
+from anra_torch.layers.derivatives import GaussianSmoothing
 from anra_torch.layers.estimator import ANRAEstimator
-from anra_torch.noise import estimate_noise_sd
 
 __all__ = ["MAPS", "TissueFeatureMaps", "TissueFeatures", "feature_summary", "save_feature_maps"]
 
@@ -215,9 +217,16 @@ class TissueFeatures(nn.Module):
         self.thresholds = tuple(float(t) for t in thresholds)
         self.sharpness = float(sharpness)
         self.history_smoother = GaussianSmoothing(smoothing, border="reflect")
-        self.term_smoother = GaussianSmoothing(term_smoothing, border="reflect")
-        self.time = TimeDerivative("smooth", time_length)
-        self.laplacian = Laplacian(3, family="holoborodko", border="replicate")  # the 5-point stencil
+        # The balance's terms at every pixel (padding borders): the 5-point Laplacian (partner: identity).
+        self.filters = MatchedFilters(
+            term_smoothing,
+            time_length=time_length,
+            laplacian_size=3,
+            laplacian_family="holoborodko",
+            border="replicate",
+            smoothing_border="reflect",
+        )
+        self.time = self.filters.time
         self.estimator = ANRAEstimator(window=window, strict=False)
         self.window = window
 
@@ -265,7 +274,8 @@ class TissueFeatures(nn.Module):
         maps["cem43_minutes"] = cem43(history_masked, dt_, rule=self.rule)
         maps["omega"] = arrhenius_omega(history_masked, dt_, constants=self.constants, rule=self.rule)
 
-        rate, _ = self.time.with_average(self.term_smoother(filled), dt_)  # (B, K, H, W)
+        terms = self.filters.terms(filled, dt_, dx_, ("U", "L", "T"))  # each (B, K, H, W)
+        rate = terms["U"]
         maps["heating_rate"] = rate.amax(1).clamp_min(0)
         maps["cooling_rate"] = (-rate).amax(1).clamp_min(0)
         attention = rtc_attention(rate, sharpness=self.sharpness, unit_invariant=True)
@@ -277,7 +287,7 @@ class TissueFeatures(nn.Module):
         maps["diffusivity"] = torch.nan_to_num(field, nan=0.0)
         maps["confidence"] = result.confidence
         noise_sd = estimate_noise_sd(filled).reshape(b).to(_F64)
-        loss, source = self._effects(filled, maps["diffusivity"], noise_sd, dt_, dx_)
+        loss, source = self._effects(terms, maps["diffusivity"], noise_sd, dt_, dx_)
         maps["loss_rate"], maps["source"] = loss, source
 
         units = {name: _UNITS.get(name, "s") for name in maps}
@@ -305,28 +315,8 @@ class TissueFeatures(nn.Module):
         out = TissueFeatureMaps(maps, summary, units, masked, result.valid, messages)
         return out if batched else out.unbatched()
 
-    def _terms(self, frames: Tensor, dt: Tensor, dx: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """``U = D_t G T``, ``S_t G T`` and ``L = Lap S_t G T``, each ``(B, K, H, W)``."""
-        rate, average = self.time.with_average(self.term_smoother(frames), dt)
-        return rate, average, self.laplacian(average, dx)
-
-    def _noise_gains(self, dt: Tensor, dx: Tensor) -> tuple[Tensor, Tensor]:
-        """``(var L, cov(U, L))`` per unit white-noise variance, ``(B,)``, from the filters' impulse
-        responses."""
-        r = self.term_smoother.radius + 1
-        side = 2 * r + 1
-        n = self.time.length
-        # One impulse per frame of the time window, as a batch of n videos: the space-time kernel.
-        probe = torch.zeros(n, n, side + 2 * r, side + 2 * r, dtype=_F64)
-        probe[torch.arange(n), torch.arange(n), side // 2 + r, side // 2 + r] = 1.0
-        ones = torch.ones(n, dtype=_F64)
-        rate, _, lap = self._terms(probe, ones, ones)
-        uu = float((rate[:, 0] * lap[:, 0]).sum())
-        ll = float(lap[:, 0].pow(2).sum())
-        return ll / dx**4, uu / (dt * dx**2)
-
     def _effects(
-        self, frames: Tensor, fallback: Tensor, noise_sd: Tensor, dt: Tensor, dx: Tensor
+        self, terms: dict[str, Tensor], fallback: Tensor, noise_sd: Tensor, dt: Tensor, dx: Tensor
     ) -> tuple[Tensor, Tensor]:
         """Loss-rate (1/s) and source (K) maps from the balance ``U = a L - b (T - T_0) + q``.
 
@@ -334,30 +324,37 @@ class TissueFeatures(nn.Module):
         peak) of a ``window`` around each pixel, with the noise energy of ``L`` removed
         (errors-in-variables); where that 2 x 2 system is ill-conditioned ``a`` is ``fallback`` and ``b`` 0.
         """
-        rate, average, lap = self._terms(frames, dt, dx)
+        rate, lap, average = terms["U"], terms["L"], terms["T"]
         rise = average - average[:, :1]
         k = torch.arange(average.shape[1], device=average.device).view(1, -1, 1, 1)
         cooling = (k > average.argmax(1, keepdim=True)).to(_F64)
-        var_l, cov_ul = self._noise_gains(dt, dx)
-        sd2 = (noise_sd**2).view(-1, 1, 1)
+        # The noise of U and L (rise's is left uncorrected: it enters b only through its own energy).
+        covariance = torch.zeros(len(noise_sd), 3, 3, dtype=_F64)
+        covariance[:, :2, :2] = self.filters.noise_covariance(("U", "L"), noise_sd**2, dt, dx)
+        per_pixel = accumulate(
+            {"U": rate, "L": lap, "R": rise},
+            ("U", "L", "R"),
+            dims=(1,),
+            weights=cooling,
+            noise=TermNoise(covariance),
+        ).map(lambda x: x.movedim((-2, -1), (1, 2)))  # (B, 3, 3, H, W)
         n = self.window
 
         def box(x: Tensor) -> Tensor:
-            return F.avg_pool2d(x.unsqueeze(1), n, stride=1, padding=n // 2, count_include_pad=False)[:, 0]
+            flat = x.reshape(-1, 1, *x.shape[-2:])
+            pooled = F.avg_pool2d(flat, n, stride=1, padding=n // 2, count_include_pad=False)
+            return pooled.reshape(x.shape)
 
-        frames_used = cooling.sum(1)
-        sums = [
-            (cooling * lap * lap).sum(1) - frames_used * sd2 * var_l.view(-1, 1, 1),
-            (cooling * lap * rise).sum(1),
-            (cooling * rise * rise).sum(1),
-            (cooling * rate * lap).sum(1) - frames_used * sd2 * cov_ul.view(-1, 1, 1),
-            (cooling * rate * rise).sum(1),
-        ]
+        def sums(moments: Moments) -> tuple[Tensor, ...]:
+            c = moments.corrected  # (B, 3, 3, ...): U, L, R
+            return c[:, 1, 1], c[:, 1, 2], c[:, 2, 2], c[:, 0, 1], c[:, 0, 2]
+
         # Whole video first (the fallback), then each window.
-        a_video, b_video, ok_video = _solve(*(x.sum((1, 2), keepdim=True) for x in sums))
+        whole = per_pixel.map(lambda x: x.sum((-2, -1), keepdim=True))
+        a_video, b_video, ok_video = _solve(*sums(whole))
         a_video = torch.where(ok_video, a_video, fallback.flatten(1).median(1).values.view(-1, 1, 1))
         b_video = torch.where(ok_video, b_video, 0.0)
-        s_ll, s_lt, s_tt, s_ul, s_ut = (box(x) for x in sums)
+        s_ll, s_lt, s_tt, s_ul, s_ut = sums(per_pixel.map(box))
         a, b, ok = _solve(s_ll, s_lt, s_tt, s_ul, s_ut)
         # Ill-conditioned window (a single spot cooling: L follows T - T_0): the video's a, local b.
         b_local = torch.where(s_tt > 0, -(s_ut - a_video * s_lt) / torch.where(s_tt > 0, s_tt, 1.0), b_video)

@@ -35,9 +35,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from anra_torch.balance.filters import MatchedFilters
+from anra_torch.balance.moments import Moments, accumulate
 from anra_torch.checks import as_spacing
 from anra_torch.effects import Effect, simulate_effects
-from anra_torch.layers.derivatives import laplacian
 from anra_torch.prediction import (
     GainResult,
     assimilated_state,
@@ -103,15 +104,20 @@ class SourceMapModel:
         )
 
 
-def _nonnegative_pair(x: Tensor, y: Tensor) -> tuple[float, float]:
-    """Least squares ``y ~ x @ (a, b)`` with ``a, b >= 0`` (the two columns are few: try every face)."""
-    best = (0.0, 0.0, float(y.pow(2).sum()))
+def _nonnegative_pair(moments: Moments) -> tuple[float, float]:
+    """Least squares ``U ~ a L - b T`` with ``a, b >= 0`` from the moments (two columns: try every face)."""
+    sign = torch.tensor([1.0, -1.0], dtype=_F64)  # the columns are L and -T
+    gram, cross = moments.normal_equations(("L", "T"))
+    gram, cross = gram * sign[:, None] * sign[None, :], cross * sign
+    total = float(moments.block(["U"], ["U"])[0, 0])
+    best = (0.0, 0.0, total)
     for columns in ((0, 1), (0,), (1,)):
-        sub = x[:, columns]
-        coef = torch.linalg.lstsq(sub, y.unsqueeze(1)).solution[:, 0]
+        index = list(columns)
+        sub_gram, sub_cross = gram[index][:, index], cross[index]
+        coef = torch.linalg.pinv(sub_gram) @ sub_cross
         if bool((coef < 0).any()) or not bool(torch.isfinite(coef).all()):
             continue
-        sse = float((y - sub @ coef).pow(2).sum())
+        sse = total - 2.0 * float(coef @ sub_cross) + float(coef @ sub_gram @ coef)
         if sse < best[2]:
             full = [0.0, 0.0]
             for i, c in zip(columns, coef.tolist(), strict=True):
@@ -169,18 +175,21 @@ def fit_source_map(
         raise ValueError(
             "frames must be finite to fit a source map; crop or fill the non-finite pixels first"
         )
-    smooth = at_scale(video, scale_px)
+    filters = MatchedFilters(
+        scale_px,
+        time_family="centred",
+        time_length=3,
+        laplacian_size=3,
+        laplacian_family="holoborodko",
+        border="replicate",
+        smoothing_border="reflect",
+    )
     inner = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
-    rate = ((smooth[2:] - smooth[:-2]) / (2 * dt))[inner]
-    temp = smooth[1:-1]
-    lap = laplacian(temp, dx, size=3, border="replicate")[inner]  # the 5-point stencil
-    temp = temp[inner]
-
-    def centred(x: Tensor) -> Tensor:
-        return (x - x.mean(0, keepdim=True)).reshape(-1)
-
-    a, b = _nonnegative_pair(torch.stack([centred(lap), -centred(temp)], dim=1), centred(rate))
-    interior = (rate - a * lap + b * temp).mean(0)
+    terms = {k: v[inner] for k, v in filters.terms(video, dt, dx, ("U", "L", "T")).items()}
+    # Fixed effects: each pixel's time mean removed from every term removes q exactly.
+    within = {k: v - v.mean(0, keepdim=True) for k, v in terms.items()}
+    a, b = _nonnegative_pair(accumulate(within, ("U", "L", "T")))
+    interior = (terms["U"] - a * terms["L"] + b * terms["T"]).mean(0)
     forcing = F.pad(interior[None, None], (margin,) * 4, mode="replicate")[0, 0]
     return SourceMapModel(a=a, b=b, forcing=forcing, scale_px=scale_px, margin=margin, n_rates=n - 2)
 

@@ -39,10 +39,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from anra_torch.layers.derivatives import GaussianSmoothing, Laplacian, TimeDerivative
-from anra_torch.noise import estimate_noise_sd
+from anra_torch.balance.filters import MatchedFilters
+from anra_torch.balance.moments import Moments, accumulate
+from anra_torch.balance.noise import estimate_noise_sd
 
 __all__ = ["NpyFrames", "StreamingEstimate", "StreamingEstimator", "estimate_long"]
+
+_NAMES = ("U", "L")
 
 
 @dataclass(frozen=True)
@@ -86,7 +89,7 @@ class StreamingEstimator:
         laplacian_family: ``"central"`` (offline lsq default) or ``"holoborodko"``.
         eiv_correction: subtract the noise variance/covariance (as offline).
         noise_sd: known noise sd (data units); None estimates it once from the first ``noise_frames``
-            frames with :func:`anra_torch.noise.estimate_noise_sd`.
+            frames with :func:`anra_torch.balance.noise.estimate_noise_sd`.
         noise_frames: frames used for that estimate (>= 5).
         dtype: computation dtype (float32 is ~2x faster; float64 reproduces the offline float64 result).
 
@@ -128,28 +131,23 @@ class StreamingEstimator:
         if dtype not in (torch.float32, torch.float64):
             raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         self.dt, self.dx, self.dtype = float(dt), float(dx), dtype
-        self.time = TimeDerivative(time_family, time_length)
-        self.laplacian = Laplacian(laplacian_size, family=laplacian_family)
-        self.smoother = GaussianSmoothing(smoothing)
+        self.filters = MatchedFilters(
+            smoothing,
+            time_family=time_family,
+            time_length=time_length,
+            laplacian_size=laplacian_size,
+            laplacian_family=laplacian_family,
+        )
+        self.time, self.smoother, self.laplacian = (
+            self.filters.time,
+            self.filters.smoother,
+            self.filters.laplacian,
+        )
         self.eiv_correction = eiv_correction
         self.noise_frames = noise_frames
         self._taps = (self.time.taps / self.dt).tolist()
         self._pair = self.time.pair.tolist()
-        self.margin = self.smoother.radius + self.laplacian.support // 2
-        # Noise gains of the composite filters for unit spacing (as the offline estimator computes them).
-        g = self.smoother.taps
-        n = self.laplacian.support
-        g2 = torch.outer(g, g)[None, None]
-
-        def compose(kernel: Tensor) -> Tensor:
-            return F.conv2d(F.pad(g2, (n - 1,) * 4), kernel.flip((-2, -1))[None, None])[0, 0]
-
-        lap_g = compose(self.laplacian.kernels[0])
-        partner_g = compose(self.laplacian.partner.kernels[0])
-        self._lap_gain = float((self.time.pair**2).sum()) * float((lap_g**2).sum()) / self.dx**4
-        self._cross_gain = (
-            float((self.time.taps * self.time.pair).sum()) * float((lap_g * partner_g).sum())
-        ) / (self.dt * self.dx**2)
+        self.margin = self.filters.margin
         self._given_noise = noise_sd
         self.reset()
 
@@ -163,8 +161,7 @@ class StreamingEstimator:
         self._offset: Tensor | None = None
         self.frames_seen = 0
         self.windows = 0
-        self._sum_ul = 0.0  # sum over windows of the frame mean of U Lap
-        self._sum_ll = 0.0  # ... of Lap^2
+        self._sums: Moments | None = None  # of (U, Lap) over windows, each window's pixels weighted 1/count
         self._last = (math.nan, math.nan)  # newest window's (mean U Lap, mean Lap^2)
         self.noise_sd = math.nan if self._given_noise is None else float(self._given_noise)
 
@@ -238,7 +235,7 @@ class StreamingEstimator:
             laps = torch.stack(self._lap_ring)
             u = sum(tap * rates[i : i + n_new] for i, tap in enumerate(self._taps) if tap != 0.0)
             lp = sum(tap * laps[i : i + n_new] for i, tap in enumerate(self._pair) if tap != 0.0)
-            products = torch.stack([u * lp, lp * lp], 1)  # (n_new, 2, H'', W'')
+            weights = None
             if any(m is not None for m in self._mask_ring):
                 masks = torch.stack(
                     [torch.ones_like(laps[0], dtype=torch.bool) if m is None else m for m in self._mask_ring]
@@ -246,16 +243,16 @@ class StreamingEstimator:
                 window = masks[0:n_new].clone()
                 for i in range(1, length):
                     window &= masks[i : i + n_new]
-                weights = window.to(products.dtype)
-                counts = weights.sum((-2, -1)).clamp_min(1)
-                means = (products * weights[:, None]).sum((-2, -1)) / counts[:, None]
-                means = torch.where((window.flatten(1).any(1))[:, None], means, torch.zeros_like(means))
-            else:
-                means = products.mean((-2, -1))
-            sums = means.double().sum(0)
-            self._sum_ul += float(sums[0])
-            self._sum_ll += float(sums[1])
-            self._last = (float(means[-1, 0]), float(means[-1, 1]))
+                counts = window.sum((-2, -1), keepdim=True).clamp_min(1)
+                weights = window.to(u.dtype) / counts
+            terms = {"U": u, "L": lp}
+            windows = accumulate(terms, _NAMES, dims=(-2, -1), weights=weights)  # (n_new, 2, 2)
+            if weights is None:  # frame means
+                windows = windows.map(lambda x: x / (u.shape[-2] * u.shape[-1]))
+            windows = windows.map(lambda x: x.double())
+            self._last = (float(windows.raw[-1, 0, 1]), float(windows.raw[-1, 1, 1]))
+            total = windows.map(lambda x: x.sum(0))
+            self._sums = total if self._sums is None else self._sums + total
             self.windows += n_new
         keep = length - 1
         self._rate_ring = self._rate_ring[-keep:] if keep else []
@@ -295,10 +292,13 @@ class StreamingEstimator:
             )
         var = cov = 0.0
         if self.eiv_correction:
-            var, cov = self.noise_sd**2 * self._lap_gain, self.noise_sd**2 * self._cross_gain
-        num = self._sum_ul - self.windows * cov
-        den = self._sum_ll - self.windows * var
-        reliability = den / self._sum_ll if self._sum_ll > 0 else 0.0
+            covariance = self.filters.noise_covariance(_NAMES, self.noise_sd**2, self.dt, self.dx)
+            var, cov = float(covariance[1, 1]), float(covariance[0, 1])
+        assert self._sums is not None
+        sum_ul, sum_ll = float(self._sums.raw[0, 1]), float(self._sums.raw[1, 1])
+        num = sum_ul - self.windows * cov
+        den = sum_ll - self.windows * var
+        reliability = den / sum_ll if sum_ll > 0 else 0.0
         if not den > 0:
             return StreamingEstimate(
                 math.nan,

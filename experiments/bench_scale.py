@@ -123,7 +123,7 @@ def numpy_same_estimate(frames: np.ndarray, dt: float, dx: float, sigma: float =
     d2 = laplacian_kernel(5, "central").numpy()[2].copy()  # the cross's horizontal arm
     d2[2] /= 2  # its centre holds both arms' centre taps
     x = frames - frames.mean(dtype=np.float64).astype(frames.dtype)
-    # noise: median absolute fourth difference along t, y, x; median of the three (anra_torch.noise)
+    # noise: median absolute fourth difference along t, y, x; median of the three (anra_torch.balance.noise)
     fourth = np.array([1.0, -4.0, 6.0, -4.0, 1.0], dtype=x.dtype)
     sds = []
     for axis in range(3):

@@ -1,11 +1,11 @@
-"""Tests for anra_torch.noise.estimate_noise_sd: accuracy on smooth fields, robustness, masks, batches."""
+"""Tests for anra_torch.balance.noise.estimate_noise_sd: accuracy on smooth fields, robustness, masks, batches."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from anra_torch.noise import estimate_noise_sd
+from anra_torch.balance.noise import estimate_noise_sd
 
 F64 = torch.float64
 

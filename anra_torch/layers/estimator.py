@@ -27,10 +27,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from anra_torch.balance.filters import MatchedFilters
+from anra_torch.balance.moments import TermNoise, accumulate
+from anra_torch.balance.noise import estimate_noise_sd
 from anra_torch.checks import as_spacing, as_video
 from anra_torch.layers.attention import RTCAttention, UniformAttention
-from anra_torch.layers.derivatives import GaussianSmoothing, Laplacian, TimeDerivative
-from anra_torch.noise import estimate_noise_sd
 
 __all__ = ["ANRAEstimator", "ANRAResult", "MODES", "AUTO_SMOOTHING"]
 
@@ -43,8 +44,7 @@ _MIN_SIGNIFICANCE = 3.0  # |a| / std_error below this is indistinguishable from 
 _MIN_VALID_PX = 8  # a candidate smoothing must leave at least this many pixels per side
 
 
-def _float64(values: list[float]) -> Tensor:
-    return torch.tensor(values, dtype=torch.float64)
+_NAMES = ("U", "L")  # the plain balance dT/dt = a Lap T
 
 
 _MAX_STUCK_FRACTION = 0.01  # more constant pixels than this is a static region, not dead elements
@@ -243,9 +243,19 @@ class ANRAEstimator(nn.Module):
         self.noise_sd = noise_sd
         self.window = window
         self.strict = strict
-        self.time = TimeDerivative(time_family, time_length)
-        self.laplacian = Laplacian(laplacian_size, family=laplacian_family)
-        self.smoothers = nn.ModuleList(GaussianSmoothing(s) for s in sigmas)
+        # One set of matched filters per smoothing candidate; they share the time filter and Laplacian.
+        self.filters = nn.ModuleList(
+            MatchedFilters(
+                s,
+                time_family=time_family,
+                time_length=time_length,
+                laplacian_size=laplacian_size,
+                laplacian_family=laplacian_family,
+            )
+            for s in sigmas
+        )
+        self.time = self.filters[0].time
+        self.laplacian = self.filters[0].laplacian
         if attention is None:
             attention = UniformAttention() if mode == "lsq" else RTCAttention()
         if not hasattr(attention, "with_slope"):
@@ -254,54 +264,11 @@ class ANRAEstimator(nn.Module):
                 f"got {type(attention).__name__}"
             )
         self.attention = attention
-        # Noise gains of the composite filters for unit dt, dx (fixed per candidate).
-        pair_norm2 = float((self.time.pair**2).sum())
-        cross_t = float((self.time.taps * self.time.pair).sum())
-        gains = [self._spatial_gains(s) for s in self.smoothers]
-        taps_norm2 = float((self.time.taps**2).sum())
-        self.register_buffer("_rate_var", _float64([taps_norm2 * g[2] for g in gains]), persistent=False)
-        self.register_buffer("_lap_var", _float64([pair_norm2 * g[0] for g in gains]), persistent=False)
-        self.register_buffer("_cross_cov", _float64([cross_t * g[1] for g in gains]), persistent=False)
-
-    def _spatial_gains(self, smoother: GaussianSmoothing) -> tuple[float, float, float]:
-        """(||Lap o G||^2, <P o G, Lap o G>, ||P o G||^2) for unit dx: noise variance/covariance factors.
-
-        ``P`` is the Laplacian's partner smoothing applied to dT/dt.
-        """
-        g = smoother.taps
-        g2 = torch.outer(g, g)[None, None]
-        n = self.laplacian.support
-
-        def compose(kernel: Tensor) -> Tensor:
-            return F.conv2d(F.pad(g2, (n - 1,) * 4), kernel.flip((-2, -1))[None, None])[0, 0]
-
-        lap_g = compose(self.laplacian.kernels[0])
-        partner_g = compose(self.laplacian.partner.kernels[0])
-        return (
-            float((lap_g**2).sum()),
-            float((lap_g * partner_g).sum()),
-            float((partner_g**2).sum()),
-        )
 
     @property
     def sigmas(self) -> tuple[float, ...]:
         """Spatial smoothing candidates (px)."""
-        return tuple(s.sigma for s in self.smoothers)
-
-    def _margin(self, smoother: GaussianSmoothing) -> int:
-        return smoother.radius + self.laplacian.support // 2
-
-    # --------------------------------------------------------------------------------- the terms
-    def _spatial_terms(
-        self, rate_raw: Tensor, average_raw: Tensor, dx: Tensor, smoother: GaussianSmoothing
-    ) -> tuple[Tensor, Tensor]:
-        """Aligned (dT/dt, Laplacian) after smoothing, both ``(B, K, H'', W'')``; linear in the inputs.
-
-        Time filtering happened once on the raw frames (it commutes with the spatial filters).
-        """
-        rate = self.laplacian.partner(smoother(rate_raw))
-        lap = self.laplacian(smoother(average_raw), dx)
-        return rate, lap
+        return tuple(f.sigma for f in self.filters)
 
     def _valid_mask(self, finite: Tensor, margin: int) -> Tensor:
         """True where the whole filter support of an output pixel is finite; ``(B, K, H'', W'')``."""
@@ -321,64 +288,49 @@ class ANRAEstimator(nn.Module):
         dx: Tensor,
         noise_sd: Tensor,
     ) -> _Candidate:
-        smoother = self.smoothers[index]
-        rate, lap = self._spatial_terms(*time_terms, dx, smoother)
-        valid = self._valid_mask(finite, self._margin(smoother)) if not bool(finite.all()) else None
+        filters = self.filters[index]
+        # Time filtering happened once on the raw frames (it commutes with the spatial filters).
+        terms = filters.terms(None, dt, dx, _NAMES, time_stage=time_terms)
+        rate, lap = terms["U"], terms["L"]
+        valid = self._valid_mask(finite, filters.margin) if not bool(finite.all()) else None
         weights, slope = self.attention.with_slope(rate, valid)
-        b, dtype = rate.shape[0], rate.dtype
+        noise = None
         if self.eiv_correction and self.mode == "lsq":
-            var = noise_sd**2 * self._lap_var[index].to(dtype) / dx**4
-            cov = noise_sd**2 * self._cross_cov[index].to(dtype) / (dt * dx**2)
-            rate_var = noise_sd**2 * self._rate_var[index].to(dtype) / dt**2
-        else:
-            var = cov = rate_var = torch.zeros_like(dx)
-        var, cov, rate_var = (v.view(b, 1, 1, 1) for v in (var, cov, rate_var))
-        # Stein: E[w(U) nU] = var(nU) E[dw/dU], so noisy weights inflate sum(w U L) by this much.
-        num_map = weights * (rate * lap - cov) - rate_var * slope * lap
-        den_map = weights * (lap * lap - var)
-        energy_map = weights * lap * lap
+            covariance = filters.noise_covariance(_NAMES, noise_sd.double() ** 2, dt, dx).to(rate.dtype)
+            noise = TermNoise(covariance, slope=slope)  # Stein: noisy weights inflate sum(w U L)
+        per_frame = accumulate(terms, _NAMES, dims=(-2, -1), weights=weights, noise=noise)
+        num, den, energy = (
+            per_frame.corrected[..., 0, 1],
+            per_frame.corrected[..., 1, 1],
+            per_frame.raw[..., 1, 1],
+        )
         if self.mode == "ratio":  # the paper's pointwise ratios; lsq never needs them
             safe_lap = torch.where(lap == 0, torch.ones_like(lap), lap)
-            ratio_map = torch.where(lap == 0, torch.zeros_like(lap), weights * rate / safe_lap)
+            ratio = torch.where(lap == 0, torch.zeros_like(lap), weights * rate / safe_lap).sum((-2, -1))
         else:
-            ratio_map = torch.zeros_like(lap[..., :1, :1])
-        num, den = num_map.sum((-2, -1)), den_map.sum((-2, -1))
-        energy, ratio = energy_map.sum((-2, -1)), ratio_map.sum((-2, -1))
+            ratio = torch.zeros_like(num)
         if self.mode == "lsq":
             total = den.sum(1)
             estimate = num.sum(1) / torch.where(total == 0, torch.ones_like(total), total)
-            spread = self._residual_sd(time_terms, dt, dx, smoother, weights * lap, estimate)
-            std_error = noise_sd * spread / total.abs().clamp_min(torch.finfo(dtype).tiny)
+            # Sandwich for one regressor: sd |A^T (w L)| / |sum w (L^2 - var)|.
+            lever = (weights * lap).detach()
+            a = estimate.detach().view(-1, 1, 1, 1)
+            back = filters.adjoint({"U": lever, "L": -a * lever}, dt.detach(), dx.detach())
+            spread = back.pow(2).sum((1, 2, 3)).sqrt()
+            std_error = noise_sd * spread / total.abs().clamp_min(torch.finfo(rate.dtype).tiny)
         else:
             spread = ratio.std(dim=1) if ratio.shape[1] > 1 else ratio.abs()[:, 0]
             std_error = spread / ratio.shape[1] ** 0.5
         maps = (None, None, None)
         if self.window is not None:
+            field = accumulate(
+                terms, _NAMES, reduce=lambda x: self._box(x.sum(1)), weights=weights, noise=noise
+            )
             maps = tuple(
-                self._to_frame(self._box(m.sum(1)), self._margin(smoother))
-                for m in (num_map, den_map, energy_map)
+                self._to_frame(m, filters.margin)
+                for m in (field.corrected[..., 0, 1], field.corrected[..., 1, 1], field.raw[..., 1, 1])
             )
         return _Candidate(num, den, energy, ratio, std_error, *maps)
-
-    def _residual_sd(
-        self,
-        time_terms: tuple[Tensor, Tensor],
-        dt: Tensor,
-        dx: Tensor,
-        smoother: GaussianSmoothing,
-        lever: Tensor,
-        estimate: Tensor,
-    ) -> Tensor:
-        """``||A^T lever||`` for the linear map A: frames -> U - a L (unit white noise -> its sd).
-
-        Pushes ``lever`` back through the transposed filters: partner, Laplacian, smoothing, time.
-        """
-        lever = lever.detach()
-        estimate = estimate.detach().view(-1, 1, 1, 1)
-        rate_back = smoother.adjoint(self.laplacian.partner.adjoint(lever, 1.0))
-        lap_back = smoother.adjoint(self.laplacian.adjoint(-estimate * lever, dx.detach()))
-        adjoint = self.time.adjoint(rate_back, lap_back, dt.detach())
-        return adjoint.pow(2).sum((1, 2, 3)).sqrt()
 
     def _box(self, m: Tensor) -> Tensor:
         w = self.window
@@ -444,11 +396,11 @@ class ANRAEstimator(nn.Module):
         else:
             noise_sd = estimate_noise_sd(video.detach(), mask=finite)
             noise_sd = noise_sd.reshape(b).to(video.dtype)
-        usable = [i for i, s in enumerate(self.smoothers) if min(h, w) - 2 * self._margin(s) >= _MIN_VALID_PX]
+        usable = [i for i, f in enumerate(self.filters) if min(h, w) - 2 * f.margin >= _MIN_VALID_PX]
         if not usable:
-            need = min(2 * self._margin(s) for s in self.smoothers) + _MIN_VALID_PX
+            need = min(2 * f.margin for f in self.filters) + _MIN_VALID_PX
             raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
-        time_terms = self.time.with_average(video, dt_)
+        time_terms = self.filters[0].time_stage(video, dt_)
         candidates = [self._candidate(i, time_terms, finite, dt_, dx_, noise_sd) for i in usable]
         # A candidate without measurable signal (e.g. all of its pixels masked) must not win on a zero error.
         measurable = torch.stack([c.measurable(self.mode) for c in candidates], dim=1)
@@ -464,7 +416,7 @@ class ANRAEstimator(nn.Module):
         num, den, energy, ratio = pick("num"), pick("den"), pick("energy"), pick("ratio")
         std_error = pick("std_error")
         measured = measurable.gather(1, choice[:, None])[:, 0]
-        sigmas = torch.tensor([self.smoothers[i].sigma for i in usable], dtype=video.dtype)
+        sigmas = torch.tensor([self.filters[i].sigma for i in usable], dtype=video.dtype)
         total_den, total_energy = den.sum(1), energy.sum(1)
         reliability = _reliability(total_den, total_energy)
         if self.mode == "lsq":

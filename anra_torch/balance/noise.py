@@ -1,4 +1,5 @@
-"""Sensor-noise level estimated from the video itself (the noise floor every estimate is judged against)."""
+"""The noise model of the balance: the sensor-noise level estimated from the video itself, and how noise
+propagates into the balanced terms and the estimates."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from torch import Tensor
 
 from anra_torch.checks import as_video
 
-__all__ = ["estimate_noise_sd"]
+__all__ = ["WhiteNoise", "estimate_noise_sd"]
 
 # Fourth difference [1, -4, 6, -4, 1]: annihilates cubics, so smooth thermal fields barely leak in.
 _TAPS = (1.0, -4.0, 6.0, -4.0, 1.0)
@@ -64,3 +65,32 @@ def estimate_noise_sd(frames: Tensor, *, mask: Tensor | None = None) -> Tensor:
     stacked = torch.nan_to_num(stacked, nan=0.0)
     sd = stacked.median(dim=1).values if stacked.shape[1] != 2 else stacked.mean(dim=1)
     return sd if batched else sd[0]
+
+
+class WhiteNoise:
+    """White sensor noise of standard deviation ``sd`` per video: the balance's noise model.
+
+    The noise of a filtered term at one output point is the sensor noise through the term's impulse
+    response ``k``, so two terms' noise parts have the covariance ``sd^2 <k_a, k_b>`` per point
+    (:meth:`MatchedFilters.noise_inner <anra_torch.balance.filters.MatchedFilters.noise_inner>`), and a
+    linear statistic ``sum x . A(frames)`` has the variance ``sd^2 |A^T x|^2``
+    (:meth:`quadratic` of the pushed-back lever ``A^T x``).
+
+    Args:
+        sd: noise standard deviation (units of the data), a number or ``(B,)``.
+
+    Shape:
+        :attr:`variance` like ``sd``; :meth:`quadratic` ``(P, N) -> (P, P)``.
+    """
+
+    def __init__(self, sd: float | Tensor) -> None:
+        self.sd = sd
+
+    @property
+    def variance(self) -> float | Tensor:
+        """``sd^2`` (data units squared)."""
+        return self.sd**2
+
+    def quadratic(self, backs: Tensor) -> Tensor:
+        """``Cov(<b_i, n>, <b_j, n>) = sd^2 <b_i, b_j>`` for pushed-back levers ``b`` (rows)."""
+        return self.variance * (backs @ backs.T)

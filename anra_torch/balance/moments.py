@@ -1,0 +1,227 @@
+"""The balance's normal equations: sums of weighted products of its terms, minus their noise parts.
+
+Every estimate in the package is a least-squares fit of ``U = sum_j beta_j X_j`` over some set of output
+points (all of them, each frame's pixels, a window around each pixel, a stream of chunks). Its sufficient
+statistics are the weighted sums of products ``sum w z_a z_b`` of the terms ``z = (U, X_1, ...)``
+(:class:`Moments`). Noise in the regressors biases plain least squares towards zero; the expected noise
+part of each sum, ``sum w w_a w_b`` times the noise covariance per point ``s_ab`` of the two terms, is
+known from the filters (:meth:`~anra_torch.balance.filters.MatchedFilters.noise_inner`) and the noise model,
+so it is subtracted (errors-in-variables). When the weights ``w`` are computed from the noisy ``U`` itself
+(RTC attention), Stein's identity ``E[w(U) n_U] = var(n_U) E[dw/dU]`` adds ``s_UU sum (dw/dU) X_b`` to the
+noise part of ``sum w U X_b``.
+
+Moments of disjoint sets of points add (:meth:`Moments.__add__`), so a long recording can be accumulated
+chunk by chunk. Standard errors come from pushing each regressor back through the transposed filters
+(the sandwich covariance, :func:`sandwich`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+__all__ = ["Moments", "TermNoise", "accumulate", "pushback", "sandwich"]
+
+Reduce = Callable[[Tensor], Tensor]
+"""Sums a product map over the points of one statistic, e.g. over each frame's pixels."""
+
+
+@dataclass(frozen=True)
+class TermNoise:
+    """The noise of the terms in a balance, per output point.
+
+    Attributes:
+        covariance: ``s_ab``, the noise covariance per point of terms ``a`` and ``b`` (in the order of the
+            names given to :func:`accumulate`), ``(P, P)`` or per video ``(B, P, P)``.
+        weights: for a term whose noise varies over the points (``N``: ``T`` times ``L``'s noise; a
+            fitted shape), its weight map broadcastable to the terms; absent terms have weight 1.
+        slope: ``dw/dU`` of weights computed from ``U`` (Stein correction), or None.
+    """
+
+    covariance: Tensor
+    weights: Mapping[str, Tensor] | None = None
+    slope: Tensor | None = None
+
+
+@dataclass(frozen=True)
+class Moments:
+    """Sufficient statistics of a balance over a set of points.
+
+    Attributes:
+        names: the terms, ``U`` first by convention.
+        raw: ``sum w z_a z_b``, ``(..., P, P)``.
+        noise: its expected noise part, ``(..., P, P)`` (zeros without a noise model).
+
+    Shape:
+        Leading dims ``...`` index the statistics (videos, frames, windows).
+    """
+
+    names: tuple[str, ...]
+    raw: Tensor
+    noise: Tensor
+
+    @property
+    def corrected(self) -> Tensor:
+        """``raw - noise``: the products of the noise-free terms, in expectation."""
+        return self.raw - self.noise
+
+    def index(self, names: Sequence[str]) -> list[int]:
+        """Positions of ``names`` in :attr:`names`."""
+        return [self.names.index(n) for n in names]
+
+    def block(self, rows: Sequence[str], cols: Sequence[str], *, corrected: bool = True) -> Tensor:
+        """The ``rows x cols`` block, ``(..., len(rows), len(cols))``."""
+        source = self.corrected if corrected else self.raw
+        r, c = self.index(rows), self.index(cols)
+        return source[..., r, :][..., :, c]
+
+    def normal_equations(self, columns: Sequence[str], target: str = "U") -> tuple[Tensor, Tensor]:
+        """``(X^T X, X^T U)`` of the fit of ``target`` on ``columns``, noise parts removed.
+
+        Shape:
+            ``(..., k, k)`` and ``(..., k)``.
+        """
+        return self.block(columns, columns), self.block(columns, [target])[..., 0]
+
+    def map(self, fn: Reduce) -> Moments:
+        """The same statistics with ``fn`` applied over the leading dims (e.g. a sum over frames).
+
+        ``fn`` acts on tensors whose last two dims are ``(P, P)``.
+        """
+        return Moments(self.names, fn(self.raw), fn(self.noise))
+
+    def __add__(self, other: Moments) -> Moments:
+        if other.names != self.names:
+            raise ValueError(f"moments of terms {other.names} cannot be added to {self.names}")
+        return Moments(self.names, self.raw + other.raw, self.noise + other.noise)
+
+
+def _sum_over(dims: Sequence[int] | None) -> Reduce:
+    return (lambda x: x.sum()) if dims is None else (lambda x: x.sum(tuple(dims)))
+
+
+def _raw(
+    terms: Sequence[Tensor], weights: Tensor | None, reduce: Reduce, dims: Sequence[int] | None
+) -> Tensor:
+    """``reduce(w z_a z_b)`` for every pair, ``(..., P, P)``."""
+    p = len(terms)
+    if (
+        weights is None
+        and dims is not None
+        and sorted(d % terms[0].ndim for d in dims) == list(range(terms[0].ndim - len(dims), terms[0].ndim))
+    ):
+        # Trailing dims summed: one batched matrix product of the flattened terms.
+        lead = terms[0].shape[: terms[0].ndim - len(dims)]
+        flat = torch.stack([t.expand_as(terms[0]).reshape(*lead, -1) for t in terms], -1)
+        return flat.transpose(-1, -2) @ flat
+    products = {}
+    for i in range(p):
+        for j in range(i, p):
+            product = terms[i] * terms[j] if weights is None else weights * terms[i] * terms[j]
+            products[i, j] = products[j, i] = reduce(product)
+    return torch.stack([torch.stack([products[i, j] for j in range(p)], -1) for i in range(p)], -2)
+
+
+def _noise(
+    names: Sequence[str], terms: Sequence[Tensor], weights: Tensor | None, reduce: Reduce, noise: TermNoise
+) -> Tensor:
+    """``s_ab reduce(w w_a w_b)`` (plus the Stein part) for every pair, ``(..., P, P)``."""
+    p = len(names)
+    extra = dict(noise.weights or {})
+    ones = torch.ones_like(terms[0]) if weights is None else weights
+    counts: dict[tuple, Tensor] = {}
+
+    def count(a: str, b: str) -> Tensor:
+        key = tuple(sorted(n for n in (a, b) if n in extra))
+        if key not in counts:
+            field = ones
+            for n in (a, b):
+                if n in extra:
+                    field = field * extra[n]
+            counts[key] = reduce(field.expand_as(terms[0]))
+        return counts[key]
+
+    table = torch.stack([torch.stack([count(a, b) for b in names], -1) for a in names], -2)
+    cov = noise.covariance
+    cov = cov.reshape(*cov.shape[:-2], *([1] * (table.ndim - cov.ndim)), p, p) if cov.ndim > 2 else cov
+    out = table * cov
+    if noise.slope is not None and "U" in names:
+        u = names.index("U")
+        stein = torch.stack([reduce(noise.slope * t) for t in terms], -1) * cov[..., u, u : u + 1]
+        out = out.clone()
+        out[..., u, :] += stein
+        out[..., :, u] += stein
+        out[..., u, u] -= stein[..., u]
+    return out
+
+
+def accumulate(
+    terms: Mapping[str, Tensor],
+    names: Sequence[str],
+    *,
+    dims: Sequence[int] | None = None,
+    reduce: Reduce | None = None,
+    weights: Tensor | None = None,
+    noise: TermNoise | None = None,
+) -> Moments:
+    """The :class:`Moments` of the named terms over the points that ``dims`` or ``reduce`` sums.
+
+    Args:
+        terms: term maps by name, all broadcastable to the first one's shape.
+        names: the terms to include, in order (``U`` first by convention).
+        dims: dims summed (default all), unless ``reduce`` is given.
+        reduce: a custom sum over the points of each statistic (e.g. a box window).
+        weights: per-point weights ``w`` (default 1).
+        noise: the terms' noise model; None leaves the noise parts zero (no errors-in-variables).
+
+    Returns:
+        :class:`Moments` with leading dims those that ``dims``/``reduce`` keep.
+
+    Shape:
+        Terms ``(..., h, w)`` alike; output ``(*kept, P, P)``.
+    """
+    names = tuple(names)
+    fields = [terms[n] for n in names]
+    fields = [f.expand_as(fields[0]) if f.shape != fields[0].shape else f for f in fields]
+    summed = reduce if reduce is not None else _sum_over(dims)
+    raw = _raw(
+        fields, weights, summed, None if reduce is not None else (dims or tuple(range(fields[0].ndim)))
+    )
+    if noise is None:
+        return Moments(names, raw, torch.zeros_like(raw))
+    return Moments(names, raw, _noise(names, fields, weights, summed, noise).to(raw.dtype))
+
+
+def pushback(outputs: Tensor, frames: Tensor, levers: Sequence[Tensor]) -> Tensor:
+    """``A^T x`` for each lever ``x``, where ``A`` is the (linearised) map from ``frames`` to ``outputs``.
+
+    Through the autograd graph that built ``outputs`` from ``frames``: the transposed filters, exactly.
+
+    Shape:
+        ``outputs`` like each lever; ``frames`` any; output ``(len(levers), frames.numel())``.
+    """
+    backs = []
+    for lever in levers:
+        (back,) = torch.autograd.grad(
+            outputs, frames, grad_outputs=lever.expand_as(outputs), retain_graph=True
+        )
+        backs.append(back.flatten())
+    return torch.stack(backs)
+
+
+def sandwich(inverse: Tensor, backs: Tensor, noise: object) -> Tensor:
+    """Covariance ``G^-1 M G^-1`` of coefficients ``G^-1 X^T U`` with ``M = Cov(A^T X)`` from the noise model.
+
+    Args:
+        inverse: ``G^-1``, ``(k, k)``.
+        backs: the regressors pushed back onto the frames, ``A^T x_j`` (rows), ``(k, N)``.
+        noise: a noise model with ``quadratic(backs) -> (k, k)``
+            (:class:`~anra_torch.balance.noise.WhiteNoise`).
+
+    Shape:
+        Output ``(k, k)``.
+    """
+    return inverse @ noise.quadratic(backs) @ inverse  # type: ignore[attr-defined]
