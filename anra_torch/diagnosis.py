@@ -56,17 +56,13 @@ from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
-from torch import Tensor, nn
+from torch import Tensor
 
-from anra_torch.balance.noise import estimate_noise_sd
+from anra_torch.balance.filters import TERMS, MatchedFilters
+from anra_torch.balance.moments import TermNoise, accumulate, extend, pushback, sandwich
+from anra_torch.balance.noise import WhiteNoise, estimate_noise_sd
 from anra_torch.checks import as_video, positive
-from anra_torch.layers.derivatives import (
-    GaussianSmoothing,
-    Gradient,
-    Laplacian,
-    SecondDerivatives,
-    TimeDerivative,
-)
+from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
 from anra_torch.simulate import HeatRHS
 
 __all__ = [
@@ -98,71 +94,7 @@ SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
 _MIN_VALID_PX = 16  # a smoothing candidate must leave at least this many pixels per side
 _MIN_SIGNIFICANCE = 3.0  # |a| / std_error below this (and no effect): no thermal activity
 _F64 = torch.float64
-
-
-# ------------------------------------------------------------------------------------------ terms
-class _Terms(nn.Module):
-    """``U`` and the candidate regressors at consistent instants, all through the same filters.
-
-    Shape:
-        ``frames`` ``(T, H, W)``; every output ``(T - L + 1, H - 2 m, W - 2 m)`` for a time window of
-        ``L`` frames, ``m = r + 1`` for a Gaussian of radius ``r``.
-    """
-
-    def __init__(self, sigma: float, *, time_length: int = 5) -> None:
-        super().__init__()
-        self.time = TimeDerivative("smooth", time_length)
-        self.smoother = GaussianSmoothing(sigma)
-        self.laplacian = Laplacian(3, family="holoborodko")  # the 5-point stencil; partner = 1-px crop
-        self.gradient = Gradient(3)
-        self.second = SecondDerivatives(3)
-
-    @property
-    def margin(self) -> int:
-        """Pixels lost on each side."""
-        return self.smoother.radius + 1
-
-    def finish(self, field: Tensor) -> Tensor:
-        """Smooth and crop a full-frame, time-averaged term like ``U``: ``(K, H, W) -> (K, h, w)``."""
-        return self.laplacian.partner(self.smoother(field))
-
-    def forward(self, frames: Tensor, dt: float, dx: float, mean: float) -> dict[str, Tensor]:
-        centred = frames - mean
-        rate, average = self.time.with_average(centred, dt)
-        square = self.time.average(0.5 * centred * centred)
-        g_rate, g_avg, g_square = (self.smoother(x) for x in (rate, average, square))
-        grad = self.gradient(g_avg, dx)
-        second = self.second(g_avg, dx)
-        t = self.laplacian.partner(g_avg)
-        return {
-            "U": self.laplacian.partner(g_rate),
-            "L": self.laplacian(g_avg, dx),
-            "T": t,
-            "1": torch.ones_like(t),
-            "T_x": grad[:, 0],
-            "T_y": grad[:, 1],
-            "D": second[:, 0] - second[:, 1],
-            "T_xy": second[:, 2],
-            "N": self.laplacian(g_square, dx),
-            "_average": average,  # S_t (T - Tbar) before smoothing, for H
-        }
-
-    def kernels(self, names: Sequence[str], dt: float, dx: float) -> Tensor:
-        """Space-time impulse responses of linear terms at one output point, ``(P, L, S, S)``.
-
-        Their inner products are the noise covariances per output point for unit noise variance.
-        """
-        side = 2 * self.margin + 1
-        probe = torch.zeros(self.time.length, side, side, dtype=_F64, requires_grad=True)
-        out = self(probe, dt, dx, 0.0)
-        rows = []
-        for name in names:
-            term = out[name]
-            grad = None
-            if term.requires_grad:
-                (grad,) = torch.autograd.grad(term.sum(), probe, retain_graph=True, allow_unused=True)
-            rows.append(torch.zeros_like(probe) if grad is None else grad)
-        return torch.stack(rows).detach()
+_TRIAL = "_trial"  # a trial shape's term while its shape is fitted
 
 
 # ------------------------------------------------------------------------------------- statistics
@@ -170,7 +102,7 @@ class _Terms(nn.Module):
 class _Noise:
     """Noise of a term: ``weight(p)`` times the white noise through ``kernel``'s filters (linearised)."""
 
-    kernel: str  # a name in _System.inner
+    kernel: str | None  # the term whose impulse response carries this noise (None: no noise)
     weight: Tensor | None = None  # broadcastable to the term; None is 1
 
 
@@ -236,101 +168,102 @@ def _search_discount(name: str, score: float) -> float:
 
 
 class _System:
-    """The terms of one video at one smoothing, their noise model and least-squares fits."""
+    """The terms of one video at one smoothing, their noise model and least-squares fits.
+
+    The term bank, its moments (with their errors-in-variables noise parts) and the sandwich covariance
+    all come from :mod:`anra_torch.balance`; this class keeps the fitted shapes' extra terms beside them.
+    """
 
     def __init__(self, frames: Tensor, dt: float, dx: float, sigma: float, noise_sd: float) -> None:
-        self.module = _Terms(sigma)
+        self.filters = MatchedFilters(
+            sigma, time_family="smooth", time_length=5, laplacian_size=3, laplacian_family="holoborodko"
+        )  # the 5-point stencil (its partner: a 1-px crop) and the operators of a finite-difference model
         self.dt, self.dx, self.sigma, self.noise_sd = dt, dx, sigma, noise_sd
+        self.noise = WhiteNoise(noise_sd)
         self.mean = float(frames.mean())
         self.frames = frames.detach().clone().requires_grad_(True)
         self.shape = tuple(frames.shape)
-        terms = self.module(self.frames, dt, dx, self.mean)
-        self.average = terms.pop("_average")
-        self.terms: dict[str, Tensor] = terms
+        centred = self.frames - self.mean
+        stage = self.filters.time_stage(centred, dt)
+        self.average = stage[1]  # S_t (T - Tbar) before smoothing, for H
         names = ("U", *REGRESSORS)
-        k = self.module.kernels(names, dt, dx).flatten(1)
-        inner = k @ k.T
-        self.inner = {(a, b): float(inner[i, j]) for i, a in enumerate(names) for j, b in enumerate(names)}
-        self.noise: dict[str, _Noise | None] = {name: _Noise(name) for name in names}
-        self.noise["1"] = None
-        # N = Lap G S_t (T - Tbar)^2 / 2: its noise is Lap G S_t ((T - Tbar) n), about (T - Tbar) times L's.
-        self.noise["N"] = _Noise("L", terms["T"].detach())
-        self.n = terms["U"].numel()
-        flat = torch.stack([terms[c].detach().flatten() for c in names], 1)
-        self._products = flat.T @ flat  # cached [U, X]^T [U, X] of the global terms
-        self._index = {c: i for i, c in enumerate(names)}
+        self.terms: dict[str, Tensor] = self.filters.terms(centred, dt, dx, names, time_stage=stage)
+        self._detached = {k: v.detach() for k, v in self.terms.items()}
+        kernels = sorted({TERMS[n].noise_kernel for n in names} - {None})
+        unit = self.filters.noise_covariance(kernels, 1.0, dt, dx)
+        self._unit = {(a, b): unit[i, j] for i, a in enumerate(kernels) for j, b in enumerate(kernels)}
+        self.kernels: dict[str, str | None] = {n: TERMS[n].noise_kernel for n in names}
+        self.weights: dict[str, Tensor] = {n: self._detached[TERMS[n].noise_weight] for n in names
+                                           if TERMS[n].noise_weight}  # fmt: skip
+        self.n = self.terms["U"].numel()
+        self._base = accumulate(self._detached, names, noise=self._term_noise(names))
+        self.moments = self._base
 
     @property
     def u(self) -> Tensor:
         return self.terms["U"]
 
+    @property
+    def margin(self) -> int:
+        """Pixels lost on each side."""
+        return self.filters.margin
+
+    def finish(self, field: Tensor) -> Tensor:
+        """Smooth and crop a full-frame, time-averaged term like ``U``: ``(K, H, W) -> (K, h, w)``."""
+        return self.filters.laplacian.partner(self.filters.smoother(field))
+
+    def _term_noise(self, names: Sequence[str], extra: _Noise | None = None) -> TermNoise:
+        """The noise of ``names`` (and of one more, trial term ``extra`` last) per output point."""
+        kernels = [self.kernels[n] for n in names] + ([] if extra is None else [extra.kernel])
+        zero = torch.zeros((), dtype=_F64)
+        covariance = torch.stack(
+            [
+                torch.stack([self._unit.get((a, b), zero) if a and b else zero for b in kernels])
+                for a in kernels
+            ]
+        )
+        weights = dict(self.weights)
+        if extra is not None and extra.weight is not None:
+            weights[_TRIAL] = extra.weight
+        return TermNoise(self.noise.variance * covariance, weights)
+
     def add(self, name: str, term: Tensor, noise: _Noise | None) -> None:
-        """Register an extra term (source, heterogeneity) on the output grid."""
+        """Register (or replace) an extra term (source, heterogeneity) on the output grid."""
         self.terms[name] = term
-        self.noise[name] = noise
-
-    def _noise_product(self, a: str, b: str) -> float:
-        return float(self._noise_inner(self.noise[a], self.noise[b]))
-
-    def _noise_inner(self, na: _Noise | None, nb: _Noise | None) -> Tensor:
-        """Expected product of the noise parts of two terms over all output points (differentiable in
-        the weights): ``sd^2 <k_a, k_b> sum(w_a w_b)``."""
-        if na is None or nb is None:
-            return torch.zeros((), dtype=_F64)
-        if na.weight is None and nb.weight is None:
-            total = torch.tensor(float(self.n), dtype=_F64)
-        else:
-            wa = na.weight if na.weight is not None else torch.ones((), dtype=_F64)
-            wb = nb.weight if nb.weight is not None else torch.ones((), dtype=_F64)
-            product = wa * wb
-            total = product.sum() * (self.n / product.numel())
-        return self.noise_sd**2 * self.inner[(na.kernel, nb.kernel)] * total
-
-    def _product(self, a: str, b: str) -> Tensor:
-        if a in self._index and b in self._index:
-            return self._products[self._index[a], self._index[b]]
-        return (self.terms[a].detach() * self.terms[b].detach()).sum()
+        self._detached[name] = term.detach()
+        self.kernels[name] = None if noise is None else noise.kernel
+        self.weights.pop(name, None)
+        if noise is not None and noise.weight is not None:
+            self.weights[name] = noise.weight
+        extras = [n for n in self._detached if n not in self._base.names]
+        names = (*self._base.names, *extras)
+        self.moments = extend(self._base, self._detached, extras, noise=self._term_noise(names))
 
     def normal_equations(self, columns: Sequence[str]) -> tuple[Tensor, Tensor]:
         """``(X^T X, X^T U)`` minus their expected noise parts (errors-in-variables)."""
-        p = len(columns)
-        gram = torch.empty(p, p, dtype=_F64)
-        cross = torch.empty(p, dtype=_F64)
-        for i, a in enumerate(columns):
-            cross[i] = self._product(a, "U") - self._noise_product(a, "U")
-            for j in range(i, p):
-                b = columns[j]
-                gram[i, j] = gram[j, i] = self._product(a, b) - self._noise_product(a, b)
-        return gram, cross
+        return self.moments.normal_equations(columns)
 
     def fit(self, columns: Sequence[str]) -> _Fit:
         """Least squares of U on ``columns`` and the white-noise covariance of the coefficients.
 
         The residual map ``frames -> U - sum beta_j X_j`` (linearised) is pushed back through the
-        transposed filters with each regressor as the lever: ``Cov = G^-1 M G^-1`` with
-        ``M_ij = sd^2 <A^T x_i, A^T x_j>`` (sandwich form, exact for white noise).
+        transposed filters with each regressor as the lever (the sandwich form, exact for white noise).
         """
         columns = tuple(columns)
         gram, cross = self.normal_equations(columns)
         inverse = torch.linalg.pinv(gram, hermitian=True)
         beta = inverse @ cross
         residual = self.u - sum(float(beta[i]) * self.terms[c] for i, c in enumerate(columns))
-        backs = []
-        for c in columns:
-            lever = self.terms[c].detach().expand_as(residual)
-            (back,) = torch.autograd.grad(residual, self.frames, grad_outputs=lever, retain_graph=True)
-            backs.append(back.flatten())
-        stacked = torch.stack(backs)
-        cov = inverse @ (self.noise_sd**2 * (stacked @ stacked.T)) @ inverse
+        backs = pushback(residual, self.frames, [self._detached[c] for c in columns])
+        cov = sandwich(inverse, backs, self.noise)
         rss = float(residual.detach().pow(2).sum())
         return _Fit(columns, beta, cov, rss)
 
     def expected_rss(self, fit: _Fit) -> float:
         """Expected residual sum of squares of ``fit`` if the data were its model plus white noise."""
-        weights = {"U": 1.0} | {c: -float(b) for c, b in zip(fit.columns, fit.beta, strict=True)}
-        return sum(
-            wa * wb * self._noise_product(a, b) for a, wa in weights.items() for b, wb in weights.items()
-        )
+        names = ("U", *fit.columns)
+        weights = torch.cat([torch.ones(1, dtype=_F64), -fit.beta.to(_F64)])
+        return float(weights @ self.moments.subset(names).noise @ weights)
 
     def residual(self, fit: _Fit) -> Tensor:
         """``U - X beta`` of a fit, detached, ``(K, h, w)``."""
@@ -352,32 +285,25 @@ class _System:
         would otherwise make the loss arbitrarily negative (in one benchmark case a disc fitted to nothing
         reached -46,000 against +1,000 for the plain model).
         """
+        names = ("U", *columns)
         p = len(columns)
-
-        def corrected(a: str, b: str) -> Tensor:
-            return self._product(a, b) - self._noise_product(a, b)
-
-        raw_base = torch.stack([torch.stack([self._product(a, b) for b in columns]) for a in columns])
-        gram_base = torch.stack([torch.stack([corrected(a, b) for b in columns]) for a in columns])
-        cross_base = torch.stack([corrected(a, "U") for a in columns])
+        trial = extend(
+            self.moments.subset(names),
+            {**self._detached, _TRIAL: extra},
+            [_TRIAL],
+            noise=self._term_noise(names, noise if noise is not None else _Noise(None)),
+        )
+        raw, cor = trial.raw, trial.corrected
+        base, x = slice(1, p + 1), p + 1
+        raw_base, gram_base, cross_base = raw[base, base], cor[base, base], cor[base, 0]
         # A tiny ridge keeps the solves defined when a trial shape leaves the frame or copies a column.
         ridge = 1e-10 * raw_base.diagonal().abs().max() * torch.eye(p, dtype=_F64)
         beta_base = torch.linalg.solve(gram_base + ridge, cross_base)
-        raw_extra = torch.stack([(self.terms[c].detach() * extra).sum() for c in columns])
-        cross_extra = raw_extra - torch.stack([self._noise_inner(self.noise[c], noise) for c in columns])
-        energy = (extra * extra).sum()
-        q_raw = energy - raw_extra @ torch.linalg.solve(raw_base + ridge, raw_extra)
-        q = (
-            energy
-            - self._noise_inner(noise, noise)
-            - cross_extra @ torch.linalg.solve(gram_base + ridge, cross_extra)
-        )
-        r = (
-            (self.u.detach() * extra).sum()
-            - self._noise_inner(self.noise["U"], noise)
-            - cross_extra @ beta_base
-        )
-        base_excess = corrected("U", "U") - cross_base @ beta_base
+        raw_extra, cross_extra = raw[base, x], cor[base, x]
+        q_raw = raw[x, x] - raw_extra @ torch.linalg.solve(raw_base + ridge, raw_extra)
+        q = cor[x, x] - cross_extra @ torch.linalg.solve(gram_base + ridge, cross_extra)
+        r = cor[0, x] - cross_extra @ beta_base
+        base_excess = cor[0, 0] - cross_base @ beta_base
         return base_excess - r * r / torch.maximum(q, 0.1 * q_raw).clamp_min(1e-300)
 
 
@@ -459,7 +385,7 @@ def _source_term(system: _System, theta: Tensor) -> Tensor:
     gx = torch.exp(-((x[None, :] - cx[:, None]) ** 2) * inv)  # (T, W)
     gy = torch.exp(-((y[None, :] - cy[:, None]) ** 2) * inv)  # (T, H)
     field = gy[:, :, None] * gx[:, None, :]
-    return system.module.finish(system.module.time.average(field))
+    return system.finish(system.filters.time.average(field))
 
 
 _MIN_RADIUS_PX = 2.0  # a smaller disc is below the smoothing scale: not identifiable
@@ -483,7 +409,7 @@ def _heterogeneity_term(system: _System, theta: Tensor, average: Tensor) -> Tens
     """``H = G div(disc grad S_t T)`` (flux form) on the output grid."""
     disc = _disc(system, theta)
     flux = HeatRHS(disc, dx=system.dx)(torch.zeros((), dtype=_F64), average)
-    return system.module.finish(flux)
+    return system.finish(flux)
 
 
 def _optimise(
@@ -536,13 +462,13 @@ def _peak(image: Tensor, radius: int) -> tuple[float, float]:
 def _fit_source(system: _System, fit: _Fit, start: Tensor | None) -> _Shape:
     """Fit the source's path and width to the residual of ``fit`` (or refine ``start``)."""
     residual = system.residual(fit)
-    m = system.module.margin
+    m = system.margin
     k = residual.shape[0]
     third = max(k // 3, 1)
     radius = 4 * int(math.ceil(system.sigma)) + 6
     early = _peak(residual[:third].mean(0), radius)
     late = _peak(residual[-third:].mean(0), radius)
-    centre = system.module.time.centre
+    centre = system.filters.time.centre
     t_early = (0.5 * (third - 1) + centre) / (system.shape[0] - 1)
     t_late = (k - 0.5 * (third + 1) + centre) / (system.shape[0] - 1)
     span = max(t_late - t_early, 1e-6)
@@ -576,7 +502,7 @@ def _activity_centres(system: _System, count: int = 2) -> list[tuple[float, floa
     pooled = F.max_pool2d(energy[None, None], size, stride=1, padding=size // 2)[0, 0]
     peaks = ((energy == pooled) & (energy > 0.2 * energy.max())).nonzero().tolist()
     peaks.sort(key=lambda rc: -float(energy[rc[0], rc[1]]))
-    m = system.module.margin
+    m = system.margin
     return [(c + m + 0.5, r + m + 0.5) for r, c in peaks[:count]]
 
 
@@ -592,7 +518,7 @@ def _local_diffusivity(system: _System, window: int) -> tuple[Tensor, Tensor]:
             0, 0
         ]
 
-    noise = system.noise_sd**2 * system.inner[("L", "L")] * u.shape[0]
+    noise = float(system.moments.subset(["L"]).noise[0, 0]) / (u.shape[-2] * u.shape[-1])
     energy = box((lap * lap).sum(0)) - noise
     a = box((u * lap).sum(0)) / energy.clamp_min(1e-300)
     return a, energy.clamp_min(0)
@@ -601,7 +527,7 @@ def _local_diffusivity(system: _System, window: int) -> tuple[Tensor, Tensor]:
 def _heterogeneity_starts(system: _System) -> list[Tensor]:
     """Discs to start from: the two regions of the windowed ``a`` field (split where the weighted
     between-class variance is largest) and circles about where heat flows."""
-    m = system.module.margin
+    m = system.margin
     a, energy = _local_diffusivity(system, 2 * int(math.ceil(2 * system.sigma)) + 5)
     ok = energy > 0.05 * energy.max()
     starts = []
@@ -636,7 +562,7 @@ def _fit_heterogeneity(system: _System, fit: _Fit, start: Tensor | None) -> _Sha
     columns = list(fit.columns)
     average = system.average.detach()
     scale = fit.rss
-    m = system.module.margin
+    m = system.margin
 
     def loss(theta: Tensor) -> Tensor:
         noise = _Noise("L", _disc(system, theta)[m:-m, m:-m])
@@ -972,5 +898,5 @@ def diagnose_terms(
         mean=system.mean,
         fit_ratio=final.rss / system.expected_rss(final),
         residual_map=system.residual(final).mean(0),
-        margin=system.module.margin,
+        margin=system.margin,
     )

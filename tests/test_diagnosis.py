@@ -221,7 +221,7 @@ def test_shape_profile_loss_is_the_fit_residual_above_noise() -> None:
     video = video_of(("heterogeneity",), seed=2)
     system = _System(video.frames.double(), video.dt, video.dx, 2.0, video.noise_sd)
     theta = torch.tensor([30.0, 34.0, math.log(8.0)], dtype=torch.float64)
-    m = system.module.margin
+    m = system.margin
     noise = _Noise("L", _disc(system, theta).detach()[m:-m, m:-m])
     term = _heterogeneity_term(system, theta, system.average)
     loss = float(system.profile_loss(["L", "T", "1"], term.detach(), noise))

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-__all__ = ["Moments", "TermNoise", "accumulate", "pushback", "sandwich"]
+__all__ = ["Moments", "TermNoise", "accumulate", "extend", "pushback", "sandwich"]
 
 Reduce = Callable[[Tensor], Tensor]
 """Sums a product map over the points of one statistic, e.g. over each frame's pixels."""
@@ -85,6 +85,13 @@ class Moments:
             ``(..., k, k)`` and ``(..., k)``.
         """
         return self.block(columns, columns), self.block(columns, [target])[..., 0]
+
+    def subset(self, names: Sequence[str]) -> Moments:
+        """The statistics of ``names`` only, in that order."""
+        index = self.index(names)
+        return Moments(
+            tuple(names), self.raw[..., index, :][..., :, index], self.noise[..., index, :][..., :, index]
+        )
 
     def map(self, fn: Reduce) -> Moments:
         """The same statistics with ``fn`` applied over the leading dims (e.g. a sum over frames).
@@ -193,6 +200,63 @@ def accumulate(
     if noise is None:
         return Moments(names, raw, torch.zeros_like(raw))
     return Moments(names, raw, _noise(names, fields, weights, summed, noise).to(raw.dtype))
+
+
+def extend(
+    moments: Moments,
+    terms: Mapping[str, Tensor],
+    names: Sequence[str],
+    *,
+    noise: TermNoise | None = None,
+) -> Moments:
+    """``moments`` with more terms: only the products involving the new ones are computed.
+
+    For sums over all points (the leading dims of ``moments`` empty) with unit weights: a fitted shape
+    added to a fixed bank, or a trial shape while it is fitted (differentiable in the new terms and in
+    their noise weights).
+
+    Args:
+        moments: moments of ``moments.names`` over every point of ``terms``.
+        terms: every term by name (old and new), broadcastable to ``terms[moments.names[0]]``.
+        names: the new terms.
+        noise: the noise model over ``(*moments.names, *names)`` (``covariance`` of that size).
+
+    Shape:
+        Output ``(P + E, P + E)``.
+    """
+    old, new = list(moments.names), list(names)
+    every = old + new
+    like = terms[old[0]]
+    fields = {n: terms[n] if terms[n].shape == like.shape else terms[n].expand_as(like) for n in every}
+    weights = dict(noise.weights or {}) if noise is not None else {}
+    p = len(every)
+
+    def noise_part(a: str, b: str) -> Tensor:
+        if noise is None:
+            return torch.zeros((), dtype=moments.raw.dtype)
+        field = torch.ones((), dtype=like.dtype)
+        for n in (a, b):
+            if n in weights:
+                field = field * weights[n]
+        count = field.expand_as(like).sum() if field.ndim else field * like.numel()
+        return noise.covariance[every.index(a), every.index(b)] * count
+
+    raw = [[None] * p for _ in range(p)]
+    part = [[None] * p for _ in range(p)]
+    for i, a in enumerate(every):
+        for j, b in enumerate(every):
+            if i < len(old) and j < len(old):
+                raw[i][j], part[i][j] = moments.raw[i, j], moments.noise[i, j]
+            elif j >= i:
+                raw[i][j] = raw[j][i] = (fields[a] * fields[b]).sum()
+                part[i][j] = part[j][i] = noise_part(a, b)
+    return Moments(
+        tuple(every),
+        torch.stack([torch.stack(list(row)) for row in raw]),
+        torch.stack(
+            [torch.stack([torch.as_tensor(v, dtype=moments.raw.dtype) for v in row]) for row in part]
+        ),
+    )
 
 
 def pushback(outputs: Tensor, frames: Tensor, levers: Sequence[Tensor]) -> Tensor:
