@@ -511,16 +511,17 @@ def _local_diffusivity(system: _System, window: int) -> tuple[Tensor, Tensor]:
 
     ``a = sum U L / (sum L^2 - noise)`` over a ``window`` x ``window`` box and all frames.
     """
-    u, lap = system.u.detach(), system.terms["L"].detach()
 
     def box(m: Tensor) -> Tensor:
-        return F.avg_pool2d(m[None, None], window, stride=1, padding=window // 2, count_include_pad=False)[
-            0, 0
-        ]
+        pooled = F.avg_pool2d(
+            m.sum(0)[None, None], window, stride=1, padding=window // 2, count_include_pad=False
+        )
+        return pooled[0, 0]
 
-    noise = float(system.moments.subset(["L"]).noise[0, 0]) / (u.shape[-2] * u.shape[-1])
-    energy = box((lap * lap).sum(0)) - noise
-    a = box((u * lap).sum(0)) / energy.clamp_min(1e-300)
+    names = ("U", "L")
+    local = accumulate(system._detached, names, reduce=box, noise=system._term_noise(names))
+    energy = local.corrected[..., 1, 1]
+    a = local.raw[..., 0, 1] / energy.clamp_min(1e-300)
     return a, energy.clamp_min(0)
 
 
