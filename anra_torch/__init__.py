@@ -7,7 +7,6 @@ derivatives on fixed kernels, RTC attention, and a direct estimator of the therm
 
 from anra_torch.balance.noise import estimate_noise_sd
 from anra_torch.batch import run_batch
-from anra_torch.diagnosis import Diagnosis, diagnose_terms
 from anra_torch.dose import SKIN, ArrheniusConstants, arrhenius_omega, cem43, time_above
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
 from anra_torch.features import TissueFeatureMaps, TissueFeatures
@@ -33,6 +32,7 @@ from anra_torch.phases import Phase, segment_phases
 from anra_torch.prediction import GainResult, assess_gain
 from anra_torch.refine import Refinement, refine_model
 from anra_torch.resample import resample_uniform
+from anra_torch.selection import Diagnosis, diagnose_terms
 from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
 from anra_torch.source_map import SourceMapModel, fit_source_map
 from anra_torch.streaming import StreamingEstimator, estimate_long

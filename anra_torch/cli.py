@@ -31,7 +31,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from anra_torch.effects import EFFECTS, HiddenEffectVideo, hidden_effect_video
+from anra_torch.effects import EFFECTS, HiddenEffectVideo, equation_text, hidden_effect_video
 from anra_torch.io import REGISTRY, Video, load_video, save_npz
 from anra_torch.layers.estimator import MODES, ANRAEstimator, ANRAResult
 from anra_torch.report import format_pm, write_estimate_report
@@ -471,44 +471,6 @@ def _run_simulate(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------------------------- diagnose
-def _signed(value: float, spec: str) -> str:
-    """``+ 0.20`` or ``- 0.20``: a term joined to the previous one."""
-    return f"{'-' if value < 0 else '+'} {abs(value):{spec}}"
-
-
-def _equation(a: float, effects: Sequence[Any]) -> str:
-    """A human-readable ``dT/dt = ...`` of the extended model (``effects``: :class:`Effect` s)."""
-    byname = {e.name: e.params for e in effects}
-    if "anisotropy" in byname:
-        p = byname["anisotropy"]
-        diffusion = f"{p['a_x']:.3f} T_xx + {p['a_y']:.3f} T_yy {_signed(2 * p['a_xy'], '.3f')} T_xy"
-    elif "heterogeneity" in byname:
-        p = byname["heterogeneity"]
-        diffusion = (
-            f"div(a grad T) [a = {p['a_inside']:.3f} in the disc r < {p['radius']:.2f} mm around "
-            f"({p['x']:.2f}, {p['y']:.2f}) mm, {p['a_outside']:.3f} outside]"
-        )
-    elif "nonlinear_diffusion" in byname:
-        p = byname["nonlinear_diffusion"]
-        diffusion = f"div({p['a0']:.3f} (1 + {p['beta']:.3g} (T - {p['T_ref']:.1f})) grad T)"
-    else:
-        diffusion = f"{a:.3f} Lap T"
-    terms = [diffusion]
-    if "linear_loss" in byname:
-        p = byname["linear_loss"]
-        terms.append(f"{_signed(-p['b'], '.2f')} (T - {p['T_ref']:.1f})")
-    if "advection" in byname:
-        p = byname["advection"]
-        terms.append(f"- ({p['vx']:.2f} dT/dx {_signed(p['vy'], '.2f')} dT/dy)")
-    if "source" in byname:
-        p = byname["source"]
-        terms.append(
-            f"+ {p['rate']:.2f} G(width {p['width']:.2f} mm, ({p['x0']:.2f}, {p['y0']:.2f}) -> "
-            f"({p['x1']:.2f}, {p['y1']:.2f}) mm)"
-        )
-    return "dT/dt = " + " ".join(terms)
-
-
 def _clean_json(value: Any) -> Any:
     """NaN and infinities -> None, recursively (JSON has no NaN)."""
     if isinstance(value, dict):
@@ -544,7 +506,7 @@ def _diagnose_summary(video: Video, args: argparse.Namespace) -> tuple[dict[str,
         "base": {"diffusivity": diagnosis.a_plain, "prediction_rmse": result.base_rmse},
         "effects": per_effect,
         "extended": {
-            "equation": _equation(diagnosis.base, diagnosed),
+            "equation": equation_text(diagnosis.base, diagnosed),
             "params": params,
             "prediction_rmse": result.extended_rmse,
         },

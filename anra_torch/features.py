@@ -25,7 +25,7 @@ map                    unit         how
 
 ``U`` and ``L`` are ANRA's balanced terms: the Holoborodko time derivative ``D_t`` and the Laplacian of
 its temporal partner average ``S_t`` of the Gaussian-smoothed frames (the same filters on both sides, as
-in :mod:`anra_torch.diagnosis`, here window by window); ``T_0`` is the pixel's first averaged value (the
+in :mod:`anra_torch.selection`, here window by window); ``T_0`` is the pixel's first averaged value (the
 tissue is assumed to start at the temperature the loss pulls towards). ``a`` and ``b`` are fitted
 jointly, with the errors-in-variables correction of ``L``, on the frames after each pixel's peak (no
 source acts there in a heating-then-cooling history) within a ``window``; the source is what the balance

@@ -1,6 +1,6 @@
 """Does a diagnosed effect predict the future? Forecast held-out frames with and without it.
 
-:func:`anra_torch.diagnosis.diagnose_terms` selects effects from how well the PDE balances on the frames.
+:func:`anra_torch.selection.diagnose_terms` selects effects from how well the PDE balances on the frames.
 This module asks the question a user cares about: simulate forward
 (:func:`anra_torch.effects.simulate_effects`, RK4, zero-flux edges) from the measured frames with the plain
 heat equation (``a_plain``) and with the extended model (``base`` plus the effects found), and compare
@@ -46,10 +46,10 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from anra_torch.diagnosis import Diagnosis, diagnose_terms
 from anra_torch.effects import EFFECTS, Effect, simulate_effects
 from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
 from anra_torch.layers.stencils import gaussian_taps
+from anra_torch.selection import Diagnosis, diagnose_terms
 
 __all__ = [
     "AT_FLOOR",
@@ -89,7 +89,7 @@ def extended_effects(
     motion puts it at those times, extrapolated beyond the diagnosed video.
 
     Args:
-        diagnosis: from :func:`anra_torch.diagnosis.diagnose_terms`.
+        diagnosis: from :func:`anra_torch.selection.diagnose_terms`.
         fit_duration: length of the diagnosed video in s (needed only for re-timing).
         start: time of the simulation's first frame in s.
         duration: length of the simulation in s; None keeps the diagnosed timing.
@@ -119,26 +119,13 @@ def extended_effects(
             )
         spec = EFFECTS[name]
         params = {k: float(v) for k, v in record["params"].items() if k not in spec.derived_units}
-        if name == "source" and retime:
-            params = _retime_source(params, fit_duration, start, duration)  # type: ignore[arg-type]
+        if retime and spec.retime is not None:
+            params = spec.retime(params, fit_duration, start, duration)  # type: ignore[arg-type]
         try:
             effects.append(Effect(name, params))
         except (TypeError, ValueError) as err:
             raise ValueError(f"diagnosed effect {name!r} cannot be simulated: {err}") from err
     return tuple(effects)
-
-
-def _retime_source(
-    params: dict[str, float], fit_duration: float, start: float, duration: float | None
-) -> dict[str, float]:
-    """Path ends at ``start`` and ``start + duration`` of the linear motion fitted over ``fit_duration``."""
-    length = fit_duration if duration is None else duration
-    out = dict(params)
-    for s_key, e_key in (("x0", "x1"), ("y0", "y1")):
-        p0, velocity = params[s_key], (params[e_key] - params[s_key]) / fit_duration
-        out[s_key] = p0 + velocity * start
-        out[e_key] = p0 + velocity * (start + length)
-    return out
 
 
 def simulate_model(
@@ -461,7 +448,7 @@ def assess_gain(
 
     Raises:
         ValueError: too short a video for the split (see :func:`split_index`), bad frames or spacing,
-            or no thermal activity (from :func:`anra_torch.diagnosis.diagnose_terms`); a diagnosis whose
+            or no thermal activity (from :func:`anra_torch.selection.diagnose_terms`); a diagnosis whose
             residual map does not fit the frame size; a negative or non-finite ``scale_px``; a
             ``time_window`` that is not an integer from 1 to the number of held-out frames, or an
             ``assimilate`` that is not one from 1 to the fit part's frames.

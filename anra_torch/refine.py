@@ -1,6 +1,6 @@
 """Refine a diagnosed model by PDE-constrained optimisation: the paper's Problem 1, from the direct estimate.
 
-The direct estimate (:func:`anra_torch.diagnosis.diagnose_terms`) never solves the PDE. Problem 1 does:
+The direct estimate (:func:`anra_torch.selection.diagnose_terms`) never solves the PDE. Problem 1 does:
 it simulates the model from the first frame and minimises the squared difference between the simulated
 trajectory and the measured frames over the model's parameters. Here the simulation is the method of lines
 of :mod:`anra_torch.effects` (5-point stencils, fixed-step RK4 through ``torchdiffeq.odeint``, zero-flux
@@ -30,14 +30,14 @@ import torch
 from torch import Tensor
 from torchdiffeq import odeint
 
-from anra_torch.diagnosis import Diagnosis
-from anra_torch.effects import Effect, Grid, _step_rates, _substeps, effect_rhs
+from anra_torch.effects import Effect, Grid, effect_rhs
+from anra_torch.effects.model import stable_substeps, step_rates
 from anra_torch.prediction import at_scale, check_diagnosis_frames, evaluation_scale, extended_effects
+from anra_torch.selection import Diagnosis
 
 __all__ = ["Refinement", "refine_model"]
 
 _F64 = torch.float64
-_POSITIVE = frozenset({"a", "a0", "a_x", "a_y", "a_inside", "a_outside", "width", "radius"})
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,9 @@ class _Model:
         values = [a] + [float(v) for e in effects for v in e.params.values()]
         units = ["mm^2/s"] + [e.spec.params[k] for e in effects for k in e.params]
         self.start = torch.tensor(values, dtype=_F64)
-        positive = [k in _POSITIVE and v > 0 for (_, k), v in zip(self.names, values, strict=True)]
+        # The base diffusivity and each effect's positive parameters move in log space.
+        allowed = [True] + [k in e.spec.positive for e in effects for k in e.params]
+        positive = [ok and v > 0 for ok, v in zip(allowed, values, strict=True)]
         self.log = torch.tensor(positive)
         self.scale = torch.tensor(
             [
@@ -140,7 +142,7 @@ def refine_model(
         frames: the frames the diagnosis was made on.
         dt: frame period in s.
         dx: pixel size in mm.
-        diagnosis: from :func:`anra_torch.diagnosis.diagnose_terms` on exactly ``frames``.
+        diagnosis: from :func:`anra_torch.selection.diagnose_terms` on exactly ``frames``.
         iterations: L-BFGS iterations (>= 1).
         scale_px: evaluation scale, a Gaussian sigma in px (0: raw frames); default the diagnosis'.
 
@@ -173,8 +175,8 @@ def refine_model(
     model = _Model(a0, effects, dx=dx, spread=spread, duration=duration)
     grid = Grid((h, w), dx, duration)
     low, high = float(target[0].min()), float(target[0].max())
-    a_max, speed, decay = _step_rates(a0, effects, low, high, duration)
-    substeps = 2 * _substeps(dt, dx, a_max, speed, decay)[0]  # room for the parameters to grow
+    a_max, speed, decay = step_rates(a0, effects, low, high, duration)
+    substeps = 2 * stable_substeps(dt, dx, a_max, speed, decay)[0]  # room for the parameters to grow
     times = torch.arange(n, dtype=_F64) * substeps
     interior = (slice(1, None), slice(m, h - m), slice(m, w - m))
 

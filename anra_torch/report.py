@@ -439,7 +439,8 @@ def _residual_panel(fig: Any, ax: Any, residual: Tensor, video: Video, margin: i
 def _maps_figure(video: Video, diagnosis: Any, gain: Any, path: Path, mpl: tuple[Any, Any]) -> list[str]:
     """Time-mean PDE residual of the plain model and of the selected one, with the effects' shapes."""
     Figure, canvas = mpl
-    from anra_torch.diagnosis import diagnose_terms
+    from anra_torch.effects import EFFECTS
+    from anra_torch.selection import diagnose_terms
 
     h, w = video.frames.shape[-2:]
     try:  # the plain model's residual on the same frames, smoothing and noise level
@@ -458,23 +459,13 @@ def _maps_figure(video: Video, diagnosis: Any, gain: Any, path: Path, mpl: tuple
         _residual_panel(fig, ax, residual, video, diagnosis.margin, f"mean PDE residual, {title}")
     drawn = []
     for effect in diagnosis.effects:
-        p = effect["params"]
+        draw = EFFECTS[effect["name"]].draw
         for ax in axes:
-            if effect["name"] == "source":
-                ax.annotate(
-                    "", xy=(p["x1"], p["y1"]), xytext=(p["x0"], p["y0"]),
-                    arrowprops={"arrowstyle": "->", "color": "k", "lw": 2},
-                )  # fmt: skip
-                ax.plot([p["x0"]], [p["y0"]], "ko", ms=4)
-            if effect["name"] == "heterogeneity":
-                angle = np.linspace(0.0, 2.0 * np.pi, 200)
-                ax.plot(p["x"] + p["radius"] * np.cos(angle), p["y"] + p["radius"] * np.sin(angle), "k--")
+            caption = draw(ax, effect["params"]) if draw is not None else None
             ax.set_xlim(0, w * video.dx)
             ax.set_ylim(h * video.dx, 0)
-        if effect["name"] == "source":
-            drawn.append(f"source path ({p['x0']:.2f}, {p['y0']:.2f}) -> ({p['x1']:.2f}, {p['y1']:.2f}) mm")
-        if effect["name"] == "heterogeneity":
-            drawn.append(f"heterogeneity disc r = {p['radius']:.2f} mm at ({p['x']:.2f}, {p['y']:.2f}) mm")
+        if draw is not None:
+            drawn.append(caption)
     _save(fig, canvas, path)
     return drawn
 
@@ -530,7 +521,7 @@ def write_diagnosis_report(
     Args:
         out_dir: directory to write into (created if needed).
         video: the whole video (``dt`` in s, ``dx`` in mm label the axes).
-        diagnosis: :class:`anra_torch.diagnosis.Diagnosis` of its fit part.
+        diagnosis: :class:`anra_torch.selection.Diagnosis` of its fit part.
         gain: :class:`anra_torch.prediction.GainResult` of the same split.
         source_map: optional :class:`anra_torch.source_map.SourceMapGain` of the same split; adds
             ``source_map.png`` (the map and its forecast's deviation) and its numbers.

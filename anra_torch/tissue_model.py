@@ -273,14 +273,14 @@ class LearnedTissueModel(nn.Module):
         ``a`` starts at the estimator's windowed field averaged over each coarse cell (weighted by its
         confidence; the global estimate where a cell has none), kept within a factor 4 of the global
         estimate. ``b`` and ``T_body`` start at the
-        ``linear_loss`` found by :func:`anra_torch.diagnosis.diagnose_terms` (restricted to that effect);
+        ``linear_loss`` found by :func:`anra_torch.selection.diagnose_terms` (restricted to that effect);
         without one, ``b = 1e-3 1/s`` and ``T_body`` the median of the first frame. A given
         ``body_temperature`` overrides the diagnosed one.
 
         Raises:
             ValueError: bad shape, or no measurable thermal activity.
         """
-        from anra_torch.diagnosis import diagnose_terms
+        from anra_torch.selection import diagnose_terms
 
         video, batched = as_video(frames, name="frames")
         if batched:

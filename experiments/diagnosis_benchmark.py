@@ -1,4 +1,4 @@
-"""Benchmark :func:`anra_torch.diagnosis.diagnose_terms` on random hidden-effect videos, against weak SINDy.
+"""Benchmark :func:`anra_torch.selection.diagnose_terms` on random hidden-effect videos, against weak SINDy.
 
 Cases: ``--cases`` random videos per effect (linear_loss, source, advection, anisotropy, heterogeneity,
 nonlinear_diffusion) plus ``--cases`` pure heat-transfer videos, from
@@ -234,8 +234,8 @@ def run_case(job: tuple) -> dict:
     group, index, gi, options = job
     import torch
 
-    from anra_torch.diagnosis import diagnose_terms
     from anra_torch.effects import hidden_effect_video
+    from anra_torch.selection import diagnose_terms
 
     case = _draw_case(gi, index, options["dx_range"])
     names = () if group == PURE else (group,)

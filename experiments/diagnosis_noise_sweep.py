@@ -1,7 +1,7 @@
 """How much noise does the diagnosis take? Name accuracy against noise, for the anchors of the issue.
 
 The anchors: PDE-FIND picks wrong terms at 1 % noise on 2-D reaction-diffusion; weak SINDy holds to about
-20 % noise. This sweep runs :func:`anra_torch.diagnosis.diagnose_terms` on
+20 % noise. This sweep runs :func:`anra_torch.selection.diagnose_terms` on
 :func:`anra_torch.effects.hidden_effect_video` cases (64 px, 30 fps, 3 s, dx 0.15 mm; effect parameters
 drawn from the generator's ranges) at noise sd 1, 5, 10 and 20 % of the peak rise, ``--cases`` seeds per
 effect and noise level, plus pure heat-transfer videos for false positives, and writes
@@ -31,8 +31,8 @@ def main() -> None:
     import torch
     from tqdm import tqdm
 
-    from anra_torch.diagnosis import diagnose_terms
     from anra_torch.effects import hidden_effect_video
+    from anra_torch.selection import diagnose_terms
 
     torch.set_num_threads(1)
     jobs = [(g, n, s) for g in GROUPS for n in NOISE for s in range(args.cases)]

@@ -56,11 +56,11 @@ import numpy as np
 import torch
 
 from anra_torch.calibration import PixelSize, apply_calibration, load_calibration
-from anra_torch.diagnosis import diagnose_terms
 from anra_torch.io import Video, load_video
 from anra_torch.layers.estimator import ANRAEstimator
 from anra_torch.phases import Phase, hot_spot_signal, segment_phases
 from anra_torch.prediction import assess_gain, split_index
+from anra_torch.selection import diagnose_terms
 from anra_torch.source_map import source_map_gain
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

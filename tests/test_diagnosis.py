@@ -1,4 +1,4 @@
-"""Tests for anra_torch.diagnosis: which hidden effect a video holds, found without solving the PDE.
+"""Tests for anra_torch.selection: which hidden effect a video holds, found without solving the PDE.
 
 Videos come from :func:`anra_torch.effects.hidden_effect_video` (64 px, 3 s at 30 Hz, noise 1 % of the rise).
 Tolerances were measured on seeds 0-19 of each effect (see the comments: worst case over those seeds);
@@ -13,9 +13,9 @@ import statistics
 import pytest
 import torch
 
-from anra_torch.diagnosis import EFFECT_GROUPS, Diagnosis, diagnose_terms
 from anra_torch.effects import EFFECTS, Effect, HiddenEffectVideo, hidden_effect_video
 from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.selection import Diagnosis, diagnose_terms
 
 SIZE = 64
 SEEDS = (0, 1, 2, 3, 4)
@@ -137,7 +137,7 @@ def test_result_fields_and_ranking() -> None:
         spec = EFFECTS[entry["name"]]  # the registry's parameter names: a valid effect record
         Effect(entry["name"], {k: entry["params"][k] for k in spec.params})
         assert entry["score"] > d.thresholds[entry["name"]]
-    assert set(d.scores) == set(EFFECT_GROUPS)
+    assert set(d.scores) == {n for n, spec in EFFECTS.items() if spec.searched}
     assert d.base == pytest.approx(video.a, rel=0.02)
     assert {"L", "T", "1", "T_x", "T_y"} == set(d.coefficients)
 
@@ -216,13 +216,14 @@ def test_benchmark_cases_once_misnamed_are_named_right(name: str, index: int) ->
 
 def test_shape_profile_loss_is_the_fit_residual_above_noise() -> None:
     """The shape fits minimise exactly what the selection compares: rss - expected rss of the full fit."""
-    from anra_torch.diagnosis import _disc, _heterogeneity_term, _Noise, _System
+    from anra_torch.balance.system import BalanceSystem, NoiseSpec
+    from anra_torch.effects.heterogeneity import _disc, _heterogeneity_term
 
     video = video_of(("heterogeneity",), seed=2)
-    system = _System(video.frames.double(), video.dt, video.dx, 2.0, video.noise_sd)
+    system = BalanceSystem(video.frames.double(), video.dt, video.dx, 2.0, video.noise_sd)
     theta = torch.tensor([30.0, 34.0, math.log(8.0)], dtype=torch.float64)
     m = system.margin
-    noise = _Noise("L", _disc(system, theta).detach()[m:-m, m:-m])
+    noise = NoiseSpec("L", _disc(system, theta).detach()[m:-m, m:-m])
     term = _heterogeneity_term(system, theta, system.average)
     loss = float(system.profile_loss(["L", "T", "1"], term.detach(), noise))
     system.add("H", term, noise)

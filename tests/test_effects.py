@@ -35,6 +35,7 @@ PARAMS = {
     "anisotropy": ["a_x", "a_y", "a_xy"],
     "heterogeneity": ["x", "y", "radius", "a_inside", "a_outside"],
     "nonlinear_diffusion": ["a0", "beta", "T_ref"],
+    "periodic_source": ["x", "y", "width", "rate", "frequency", "phase"],
 }
 """The fixed names of the truth records (a later JSON relies on them)."""
 
@@ -45,6 +46,7 @@ EXAMPLES = {
     "anisotropy": {"a_x": 0.2, "a_y": 0.08, "a_xy": 0.06},
     "heterogeneity": {"x": 8.0, "y": 8.0, "radius": 4.0, "a_inside": 0.3, "a_outside": 0.1},
     "nonlinear_diffusion": {"a0": 0.1, "beta": 0.05, "T_ref": 30.0},
+    "periodic_source": {"x": 8.0, "y": 7.0, "width": 1.2, "rate": 4.0, "frequency": 0.5, "phase": 1.0},
 }
 
 

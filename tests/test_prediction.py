@@ -13,7 +13,6 @@ import math
 import pytest
 import torch
 
-from anra_torch.diagnosis import diagnose_terms
 from anra_torch.effects import hidden_effect_video, simulate_effects
 from anra_torch.prediction import (
     assess_gain,
@@ -22,6 +21,7 @@ from anra_torch.prediction import (
     forecast_errors,
     split_index,
 )
+from anra_torch.selection import diagnose_terms
 
 
 def video(names: list[str], seed: int, **kwargs: float):

@@ -11,9 +11,9 @@ import math
 import pytest
 import torch
 
-from anra_torch.diagnosis import diagnose_terms
 from anra_torch.effects import hidden_effect_video
 from anra_torch.refine import refine_model
+from anra_torch.selection import diagnose_terms
 
 
 def small(names: list[str]):

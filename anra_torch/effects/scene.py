@@ -1,0 +1,268 @@
+"""Hidden-effect scenes: random hot spots, effects drawn to be detectable, their simulation plus noise.
+
+The ground truth that the diagnosis is tested against (:func:`hidden_effect_video`), with the true
+effects recorded for every output (:class:`HiddenEffectVideo`, ``anra simulate --effect``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from anra_torch.checks import check_int, number
+from anra_torch.effects.base import Geometry, Grid
+from anra_torch.effects.model import Effect, check_effects, effects_to_json, simulate_effects
+from anra_torch.effects.registry import EFFECTS, unknown_effect
+from anra_torch.io import save_npz
+from anra_torch.simulate import gaussian_blobs
+
+__all__ = ["HiddenEffectVideo", "hidden_effect_video"]
+
+
+@dataclass(frozen=True)
+class HiddenEffectVideo:
+    """A synthetic thermal video with hidden effects and their true parameters.
+
+    Attributes:
+        frames: noisy temperatures.
+        clean: the noise-free simulation.
+        dt: frame period in s.
+        dx: pixel size in mm.
+        a: the reference diffusivity in mm^2/s: the base ``a``, or the effect's own when one replaces
+            the diffusion term (``a_outside``, ``a0``, or ``sqrt(det A)`` for anisotropy).
+        times: frame times ``k dt`` in s.
+        effects: the effects with their true parameters.
+        noise_sd: standard deviation of the added white noise (data units).
+        seed: the seed everything was drawn from.
+        a_map: the diffusivity field ``(H, W)`` in mm^2/s for ``heterogeneity``, else None.
+
+    Shape:
+        ``frames``, ``clean`` ``(T, H, W)``; ``times`` ``(T,)``; ``a_map`` ``(H, W)``.
+    """
+
+    frames: Tensor
+    clean: Tensor
+    dt: float
+    dx: float
+    a: float
+    times: Tensor
+    effects: tuple[Effect, ...]
+    noise_sd: float
+    seed: int
+    a_map: Tensor | None = None
+
+    @property
+    def truth_json(self) -> str:
+        """The true effects as JSON (:func:`effects_to_json`)."""
+        return effects_to_json(self.effects)
+
+    def crop(self, top: int, left: int, height: int, width: int) -> HiddenEffectVideo:
+        """The window ``[top:top + height, left:left + width]`` with positions in the truth shifted to it.
+
+        Heat then crosses the window's edges (the simulation ran on the full frame).
+
+        Raises:
+            ValueError: a window outside the frame.
+        """
+        rows, cols = self.frames.shape[-2:]
+        if not (0 <= top and 0 <= left and 1 <= height and 1 <= width and top + height <= rows
+                and left + width <= cols):  # fmt: skip
+            raise ValueError(
+                f"crop window (top={top}, left={left}, height={height}, width={width}) must lie inside the "
+                f"{rows} x {cols} px frame"
+            )
+        window = (..., slice(top, top + height), slice(left, left + width))
+        shift = {"x": left * self.dx, "y": top * self.dx}
+        effects = []
+        for effect in self.effects:
+            params = dict(effect.params)
+            for kx, ky in effect.spec.positions:
+                params[kx] -= shift["x"]
+                params[ky] -= shift["y"]
+            effects.append(Effect(effect.name, params))
+        return replace(
+            self,
+            frames=self.frames[window].contiguous(),
+            clean=self.clean[window].contiguous(),
+            effects=tuple(effects),
+            a_map=None if self.a_map is None else self.a_map[window].contiguous(),
+        )
+
+    def to_npz(self, path: str | os.PathLike[str], **extra: Any) -> Path:
+        """Save as ``.npz`` readable by ``anra estimate``.
+
+        Keys: ``frames``, ``dt``, ``dx``, ``t``, ``a_true``, ``noise_sd``, ``seed``, ``effects`` (the JSON
+        truth, a string) and ``a_map`` when there is one.
+
+        Args:
+            path: output file (``.npz`` appended when missing).
+            **extra: more scalars or arrays to store.
+
+        Returns:
+            The path written.
+        """
+        if self.a_map is not None:
+            extra = {"a_map": self.a_map, **extra}
+        return save_npz(
+            path,
+            self.frames,
+            dt=self.dt,
+            dx=self.dx,
+            t=self.times,
+            a_true=np.float64(self.a),
+            noise_sd=np.float64(self.noise_sd),
+            seed=np.int64(self.seed),
+            effects=self.truth_json,
+            **extra,
+        )
+
+
+def hidden_effect_video(
+    effect_names: Sequence[str] | str = (),
+    *,
+    seed: int,
+    size: int = 96,
+    dx: float = 0.5,
+    fps: float = 30.0,
+    duration: float = 3.0,
+    a: float = 0.15,
+    noise_frac: float = 0.01,
+    noise_sd: float | None = None,
+    params: Mapping[str, Mapping[str, float]] | None = None,
+    background: float = 30.0,
+    dtype: torch.dtype = torch.float64,
+) -> HiddenEffectVideo:
+    """A random scene with the named hidden effects, simulated by :func:`simulate_effects`, plus noise.
+
+    From ``numpy.random.default_rng(seed)``, in this order: one or two Gaussian hot spots on the uniform
+    ``background`` (rise 5-20, sigma 3-8 px, centres at least ``2.5 sigma + 10`` px inside the frame), then
+    each effect's parameters from its :attr:`EffectSpec.sample` in the order given (ranges in the
+    module's docs and the registry). ``params`` overrides drawn values after the draw, so the other
+    parameters do not depend on which were overridden. The noise is white, sd ``noise_sd`` or else
+    ``noise_frac`` times the peak initial rise, from ``torch.Generator().manual_seed(seed)``. The scene
+    is simulated in float64 with zero-flux edges and cast to ``dtype``.
+
+    Args:
+        effect_names: keys of :data:`EFFECTS` (distinct); ``()`` gives pure heat transfer.
+        seed: seed of the scene, the effect parameters and the noise (>= 0).
+        size: frame side in px (>= 16).
+        dx: pixel size in mm.
+        fps: frame rate in Hz.
+        duration: length in s: ``round(duration * fps) + 1`` frames.
+        a: base diffusivity in mm^2/s.
+        noise_frac: noise sd as a fraction of the peak initial rise (>= 0).
+        noise_sd: absolute noise sd (data units); overrides ``noise_frac``.
+        params: ``{effect: {parameter: value}}`` fixed instead of drawn.
+        background: temperature of the background.
+        dtype: float32 or float64.
+
+    Returns:
+        A :class:`HiddenEffectVideo` holding the true effects.
+
+    Shape:
+        ``frames`` ``(T, size, size)``.
+
+    Raises:
+        ValueError: unknown or repeated effects, two diffusion-replacing effects, ``params`` for an effect
+            not named, bad sizes or rates.
+
+    Example:
+        >>> video = hidden_effect_video(["advection"], seed=1, size=32, duration=0.5)
+        >>> tuple(video.frames.shape), [e.name for e in video.effects]
+        ((16, 32, 32), ['advection'])
+    """
+    names = (effect_names,) if isinstance(effect_names, str) else effect_names
+    if not isinstance(names, Sequence) or not all(isinstance(n, str) for n in names):
+        raise TypeError(f"effect_names must be a sequence of effect names, got {effect_names!r}")
+    for name in names:
+        if name not in EFFECTS:
+            raise unknown_effect(name)
+    seed = check_int(seed, "seed", 0)
+    size = check_int(size, "size", 16)
+    dx = number(dx, "dx", "mm", positive=True)
+    fps = number(fps, "fps", "Hz", positive=True)
+    duration = number(duration, "duration", "s", positive=True)
+    a = number(a, "a", "mm^2/s", minimum=0.0)
+    noise_frac = number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)
+    if noise_sd is not None:
+        noise_sd = number(noise_sd, "noise_sd", "data units", minimum=0.0)
+    background = number(background, "background", "data units")
+    if dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+    overrides = {} if params is None else dict(params)
+    for name in overrides:
+        if name not in names:
+            raise ValueError(
+                f"params given for effect {name!r}, which is not among the effects "
+                f"({', '.join(names) or 'none'}); add it to effect_names"
+            )
+    n_frames = round(duration * fps) + 1
+    if n_frames < 2:
+        raise ValueError(f"duration * fps must give at least 2 frames, got duration={duration} s at {fps} Hz")
+    length = (n_frames - 1) / fps
+
+    rng = np.random.default_rng(seed)
+    n_spots = int(rng.integers(1, 3))
+    spots = []
+    for _ in range(n_spots):
+        rise, sigma = rng.uniform(5.0, 20.0), rng.uniform(3.0, 8.0)
+        margin = min(2.5 * sigma + 10.0, size / 2.0)
+        spots.append((rise, sigma, rng.uniform(margin, size - margin), rng.uniform(margin, size - margin)))
+    initial = gaussian_blobs(
+        [0.0],
+        shape=(size, size),
+        dx=dx,
+        a=0.0,
+        peaks=[s[0] for s in spots],
+        sigmas=[s[1] * dx for s in spots],
+        centres=[[s[2] * dx, s[3] * dx] for s in spots],
+        background=background,
+    )[0]
+    peak_rise = float(initial.max()) - background
+    geometry = Geometry(
+        shape=(size, size),
+        dx=dx,
+        duration=length,
+        a=a,
+        rise=peak_rise,
+        background=background,
+        hotspots=tuple((s[2] * dx, s[3] * dx, s[1] * dx) for s in spots),
+    )
+    effects = []
+    for name in names:
+        drawn = EFFECTS[name].sample(rng, geometry)
+        drawn.update(overrides.get(name, {}))
+        effects.append(Effect(name, drawn))
+    checked = check_effects(effects)
+
+    dt = 1.0 / fps
+    clean = simulate_effects(initial, a=a, dx=dx, dt=dt, n_frames=n_frames, effects=checked).to(dtype)
+    sd = noise_sd if noise_sd is not None else noise_frac * peak_rise
+    generator = torch.Generator().manual_seed(seed)
+    frames = clean + sd * torch.randn(clean.shape, generator=generator, dtype=dtype)
+    reference, a_map = a, None
+    grid = Grid((size, size), dx, length)
+    for effect in checked:
+        if effect.spec.reference_a is not None:
+            reference = effect.spec.reference_a(effect.params)
+        if effect.spec.diffusivity_map is not None:
+            a_map = effect.spec.diffusivity_map(effect.params, grid).to(dtype)
+    return HiddenEffectVideo(
+        frames=frames,
+        clean=clean,
+        dt=dt,
+        dx=dx,
+        a=reference,
+        times=torch.arange(n_frames, dtype=dtype) * dt,
+        effects=checked,
+        noise_sd=sd,
+        seed=seed,
+        a_map=a_map,
+    )

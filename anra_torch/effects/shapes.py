@@ -1,0 +1,69 @@
+"""Helpers shared by the effects whose regressor is a fitted shape (a source's path, a disc)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+if TYPE_CHECKING:
+    from anra_torch.balance.system import BalanceSystem
+
+__all__ = ["optimise", "peak", "pixel_grid"]
+
+_F64 = torch.float64
+
+
+def pixel_grid(system: BalanceSystem) -> tuple[Tensor, Tensor]:
+    """Pixel-centre coordinates (mm) of the full frame: x along columns ``(W,)``, y along rows ``(H,)``."""
+    _, h, w = system.shape
+    return (torch.arange(w, dtype=_F64) + 0.5) * system.dx, (torch.arange(h, dtype=_F64) + 0.5) * system.dx
+
+
+def optimise(
+    loss: Callable[[Tensor], Tensor], starts: Sequence[Tensor], *, iterations: int, runs: int
+) -> Tensor:
+    """L-BFGS from the ``runs`` best of ``starts`` (by loss); returns the best parameters seen."""
+    with torch.no_grad():
+        values = [float(loss(s)) for s in starts]
+    order = sorted(range(len(starts)), key=values.__getitem__)
+    best = (values[order[0]], starts[order[0]].clone())
+    for index in order[:runs]:
+        theta = starts[index].clone().requires_grad_(True)
+        # The loss is relative to the current model's residual: one unit of chi-square is ~1e-5 of it.
+        optimiser = torch.optim.LBFGS(
+            [theta], lr=1.0, max_iter=iterations, tolerance_change=1e-8, line_search_fn="strong_wolfe"
+        )
+
+        def closure(theta: Tensor = theta, optimiser: torch.optim.LBFGS = optimiser) -> Tensor:
+            optimiser.zero_grad()
+            value = loss(theta)
+            value.backward()
+            nonlocal best
+            if float(value.detach()) < best[0] and bool(torch.isfinite(theta).all()):
+                best = (float(value.detach()), theta.detach().clone())
+            return value
+
+        optimiser.step(closure)
+    return best[1]
+
+
+def peak(image: Tensor, radius: int) -> tuple[float, float]:
+    """Centroid (column, row) in px of the positive part of ``image`` around its maximum."""
+    h, w = image.shape
+    row, col = divmod(int(image.argmax()), w)
+    r0, r1, c0, c1 = (
+        max(row - radius, 0),
+        min(row + radius + 1, h),
+        max(col - radius, 0),
+        min(col + radius + 1, w),
+    )
+    patch = image[r0:r1, c0:c1].clamp_min(0)
+    total = float(patch.sum())
+    if total <= 0:
+        return float(col), float(row)
+    rows = torch.arange(r0, r1, dtype=_F64)[:, None]
+    cols = torch.arange(c0, c1, dtype=_F64)[None, :]
+    return float((patch * cols).sum()) / total, float((patch * rows).sum()) / total

@@ -1,0 +1,11 @@
+"""Which effects act in a thermal video: model selection on the PDE balance, without solving the PDE.
+
+:func:`diagnose_terms` balances candidate terms (:data:`anra_torch.effects.EFFECTS`) on the frames through
+the balance core (:mod:`anra_torch.balance`), tests them with Wald tests against exactly propagated
+standard errors (:mod:`~anra_torch.selection.statistics`) and selects them stepwise
+(:mod:`~anra_torch.selection.stepwise`).
+"""
+
+from anra_torch.selection.diagnose import ALPHA, SMOOTHING, Diagnosis, diagnose_terms
+
+__all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms"]

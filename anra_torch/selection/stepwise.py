@@ -1,0 +1,109 @@
+"""Stepwise selection of effects (forward, then backward elimination) with Wald tests.
+
+An effect enters when its p-value beats ``alpha / (effects left)`` (Bonferroni) plus its look-elsewhere
+penalty (:attr:`~anra_torch.effects.base.EffectSpec.look_elsewhere`, for a fitted shape). Among the
+significant candidates, the one that lowers the residual above its expected noise part most enters, a
+fitted shape's drop discounted by the share of its statistic that its penalty stands for (Wald statistics
+of non-nested models measure significance, not fit).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from torch import Tensor
+
+from anra_torch.balance.system import BalanceSystem, Fit
+from anra_torch.effects import EFFECTS
+from anra_torch.effects.base import Context
+from anra_torch.selection.statistics import search_discount, wald_score
+
+__all__ = ["Selection"]
+
+
+class Selection:
+    """Stepwise selection state: the effects in the model and the fitted extra terms."""
+
+    def __init__(self, system: BalanceSystem, alpha: float, names: Sequence[str], background: float) -> None:
+        self.system, self.alpha, self.names, self.background = system, alpha, list(names), background
+        self.selected: list[str] = []
+        self.shapes: dict[str, dict[str, float]] = {}
+        self.thetas: dict[str, Tensor] = {}
+        self.scores: dict[str, float] = {}
+        self.thresholds: dict[str, float] = {}
+
+    def columns(self, effects: Sequence[str]) -> list[str]:
+        return ["L"] + [r for e in effects for r in EFFECTS[e].regressors]
+
+    def context(self) -> Context:
+        return Context(mean=self.system.mean, background=self.background, shape=self.shapes)
+
+    def discount(self, name: str) -> float:
+        """Share of ``name``'s last statistic that is not owed to the search over its shape."""
+        spec = EFFECTS[name]
+        return search_discount(spec.look_elsewhere, len(spec.regressors), self.scores[name])
+
+    def threshold(self, name: str, tested: int) -> float:
+        return -math.log10(self.alpha / tested) + EFFECTS[name].look_elsewhere
+
+    def allowed(self, name: str, effects: Sequence[str]) -> bool:
+        group = EFFECTS[name]
+        return name not in effects and not (
+            group.replaces_diffusion and any(EFFECTS[e].replaces_diffusion for e in effects)
+        )
+
+    def prepare(self, name: str, current: Fit, *, refine: bool = False) -> None:
+        """Fit a localised effect's shape to what the current model leaves unexplained."""
+        group = EFFECTS[name]
+        if group.shape is None:
+            return
+        fitted = group.shape(self.system, current, self.thetas.get(name) if refine else None)
+        self.system.add(group.regressors[0], fitted.term, fitted.noise)
+        self.shapes[name] = fitted.params
+        self.thetas[name] = fitted.theta
+
+    def forward(self) -> None:
+        while True:
+            candidates = [n for n in self.names if self.allowed(n, self.selected)]
+            if not candidates:
+                return
+            current = self.system.fit(self.columns(self.selected))
+            current_excess = current.rss - self.system.expected_rss(current)
+            eligible = {}
+            for name in candidates:
+                self.prepare(name, current, refine=name in self.thetas)
+                fit = self.system.fit(self.columns([*self.selected, name]))
+                self.scores[name] = wald_score(fit, EFFECTS[name].regressors)
+                self.thresholds[name] = self.threshold(name, len(candidates))
+                params = EFFECTS[name].from_coefficients(fit.coefficients(), self.context())
+                if self.scores[name] > self.thresholds[name] and EFFECTS[name].valid(params):
+                    explained = current_excess - (fit.rss - self.system.expected_rss(fit))
+                    eligible[name] = explained * search_discount(
+                        EFFECTS[name].look_elsewhere, len(EFFECTS[name].regressors), self.scores[name]
+                    )
+            if not eligible:
+                return
+            # Among the significant effects the one that explains most enters: Wald statistics of
+            # different (non-nested) models measure significance, not which model fits better. "Most"
+            # is the drop of the residual above its expected noise part (the errors-in-variables fit does
+            # not minimise the raw residual, and each model's noise part differs), less the share a
+            # fitted shape owes to its search (_search_discount).
+            self.selected.append(max(eligible, key=eligible.__getitem__))
+
+    def backward(self) -> Fit:
+        """Drop effects that are no longer significant given the others; return the final fit."""
+        while True:
+            final = self.system.fit(self.columns(self.selected))
+            if not self.selected:
+                return final
+            tested = len(self.names)
+            excess = {}
+            for name in self.selected:
+                self.scores[name] = wald_score(final, EFFECTS[name].regressors)
+                self.thresholds[name] = self.threshold(name, tested)
+                excess[name] = self.scores[name] - self.thresholds[name]
+            worst = min(excess, key=excess.__getitem__)
+            if excess[worst] > 0:
+                return final
+            self.selected.remove(worst)
