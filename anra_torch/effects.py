@@ -20,7 +20,7 @@ used in every JSON record of the truth (:data:`EFFECTS`, parameters in brackets)
 - ``nonlinear_diffusion`` (``a0`` mm^2/s, ``beta`` 1/K, ``T_ref``): replaces ``D`` by
   ``div(a0 (1 + beta (T - T_ref)) grad T)``.
 
-At most one effect per model may replace the diffusion term. Coordinates as in :mod:`anra_torch.simulate`:
+At most one effect per model may replace the diffusion term. Coordinates as in :mod:`anra_torch.simulation`:
 x along columns, y along rows, pixel centres at ``(j + 0.5) dx``; mm, s, mm^2/s; temperatures in the
 data's unit (K for the rates).
 
@@ -62,13 +62,7 @@ from torchdiffeq import odeint
 
 from anra_torch.checks import as_fields, check_choice, check_int, number
 from anra_torch.io import save_npz
-from anra_torch.simulate import (
-    _SAFETY,
-    BOUNDARIES,
-    FIXED_STEP_METHODS,
-    HeatRHS,
-    gaussian_blobs,
-)
+from anra_torch.simulation import BOUNDARIES, FIXED_STEP_METHODS, SAFETY, HeatRHS, gaussian_blobs
 
 __all__ = [
     "DIFFUSION_EFFECTS",
@@ -106,7 +100,7 @@ class Grid:
         shape: frame size ``(H, W)`` in px.
         dx: pixel size in mm.
         duration: time of the last frame in s (the source's path ends there; 0 keeps it at its start).
-        boundary: a key of :data:`anra_torch.simulate.BOUNDARIES`.
+        boundary: a key of :data:`anra_torch.simulation.BOUNDARIES`.
         boundary_value: ghost temperature for ``"dirichlet"``.
 
     Shape:
@@ -731,7 +725,7 @@ def effect_rhs(
 class ExtendedHeatRHS(nn.Module):
     """Right-hand side ``dT/dt = D[T] + sum of effect terms`` on the pixel grid, for ``torchdiffeq``.
 
-    ``D[T]`` is ``a`` times the 5-point Laplacian (:class:`anra_torch.simulate.HeatRHS`) unless an effect
+    ``D[T]`` is ``a`` times the 5-point Laplacian (:class:`anra_torch.simulation.HeatRHS`) unless an effect
     replaces it. Gradients are central differences; the ghost pixel around the frame comes from
     ``grid.boundary`` (zero flux by default). The solver's time ``t`` is in units of ``time_scale`` seconds
     (the output is multiplied by it), so a fixed step of 1 can be one substep exactly.
@@ -789,18 +783,18 @@ def _substeps(dt: float, dx: float, a_max: float, speed: float, decay: float) ->
 
     The spectrum lies in ``[-8 a / dx^2 - b, 0] x i [-speed / dx, speed / dx]``. Stable: inside RK4's
     region (its real-axis limit for a real spectrum, else the largest half-disc). Automatic: also the
-    monotone limit ``a ds / dx^2 <= 0.9 * 0.25`` of :func:`anra_torch.simulate.simulate_heat`, so that
+    monotone limit ``a ds / dx^2 <= 0.9 * 0.25`` of :func:`anra_torch.simulation.simulate_heat`, so that
     without effects both take the same steps.
     """
     limit = FIXED_STEP_METHODS["rk4"]
     real, imag = 8.0 * a_max / dx**2 + decay, speed / dx
-    radius = 8.0 * limit.stable if imag == 0 else _RK4_RADIUS
+    radius = limit.real if imag == 0 else _RK4_RADIUS
     size = math.hypot(real, imag) * dt
     needed = max(1, math.ceil(size / radius))
     auto = max(
         needed,
-        math.ceil(size / (_SAFETY * radius)),
-        math.ceil(a_max * dt / dx**2 / (_SAFETY * limit.monotone)),
+        math.ceil(size / (SAFETY * radius)),
+        math.ceil(a_max * dt / dx**2 / (SAFETY * limit.monotone)),
     )
     return auto, needed
 
@@ -833,7 +827,7 @@ def simulate_effects(
         n_frames: number of frames T (>= 1).
         effects: distinct :class:`Effect` s, at most one of ``anisotropy``, ``heterogeneity``,
             ``nonlinear_diffusion``.
-        boundary: a key of :data:`anra_torch.simulate.BOUNDARIES` (default zero flux).
+        boundary: a key of :data:`anra_torch.simulation.BOUNDARIES` (default zero flux).
         boundary_value: ghost temperature for ``"dirichlet"``.
         substeps: RK4 steps per frame; default automatic (see above).
         forcing: a stationary heat-input map in data units per s, added to the right-hand side at every

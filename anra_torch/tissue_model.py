@@ -4,7 +4,7 @@ The model (Pennes-like bioheat equation per unit heat capacity, on the pixel gri
 
     dT/dt = div(a(x, y) grad T) - b(x, y) (T - T_body) + q(t, x, y)
 
-* ``a`` diffusivity field (mm^2/s), conservative flux form of :class:`anra_torch.simulate.HeatRHS`
+* ``a`` diffusivity field (mm^2/s), conservative flux form of :class:`anra_torch.simulation.HeatRHS`
   (zero-flux edges);
 * ``b`` perfusion / loss-rate field (1/s) pulling towards the body temperature ``T_body``;
 * ``q`` an optional :class:`MovingSource` (K/s): a Gaussian spot moving along a straight path while it
@@ -33,7 +33,7 @@ from tqdm.auto import tqdm
 
 from anra_torch.checks import as_video
 from anra_torch.layers.estimator import ANRAEstimator
-from anra_torch.simulate import HeatRHS
+from anra_torch.simulation import HeatRHS
 
 __all__ = ["LearnedTissueModel", "MovingSource", "TissueRHS", "relative_error", "simulate_tissue"]
 

@@ -9,7 +9,7 @@ import torch
 
 from anra_torch.dose import arrhenius_omega, cem43, time_above
 from anra_torch.features import MAPS, TissueFeatures
-from anra_torch.simulate import gaussian_blob
+from anra_torch.simulation import gaussian_blob
 from anra_torch.tissue_model import MovingSource, simulate_tissue
 
 DX, DT = 0.2, 0.1

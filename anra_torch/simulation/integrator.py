@@ -208,7 +208,7 @@ def integrate(
     rtol: float = 1e-7,
     atol: float = 1e-9,
     adjoint: bool = False,
-    adjoint_params: Sequence[Tensor] = (),
+    adjoint_params: Sequence[Tensor] | None = None,
     perturb: bool = False,
 ) -> Tensor:
     """Integrate ``dU/dt = rhs(t, U)`` from ``initial`` and return ``U`` at every frame.
@@ -230,7 +230,9 @@ def integrate(
         atol: absolute tolerance of adaptive methods (units of ``U``).
         adjoint: use ``odeint_adjoint`` (memory O(1) in the number of steps) instead of backpropagating
             through the solver.
-        adjoint_params: the tensors ``rhs`` uses that need gradients, for ``adjoint=True``.
+        adjoint_params: for ``adjoint=True``, the tensors ``rhs`` uses that need gradients; default
+            ``rhs.adjoint_params`` when ``rhs`` names them (as :class:`~anra_torch.simulation.HeatRHS`
+            does), else the parameters of ``rhs`` (an ``nn.Module``).
         perturb: fixed-step methods call ``rhs`` just after the start and just before the end of each
             step, so a forcing that switches on a step boundary is integrated exactly.
 
@@ -257,8 +259,32 @@ def integrate(
         raise TypeError(f"initial must be a tensor, got {type(initial).__name__}")
     n_frames = check_int(n_frames, "n_frames", 1)
     check_choice(method, "method", [*FIXED_STEP_METHODS, *ADAPTIVE_METHODS])
-    if adjoint_params and not adjoint:
+    if adjoint_params is not None and not adjoint:
         raise ValueError("adjoint_params applies to adjoint=True only; pass adjoint=True or drop them")
+    t, kwargs = _solver_grid(
+        initial, n_frames, method=method, substeps=substeps, rtol=rtol, atol=atol, perturb=perturb
+    )
+    if n_frames == 1:
+        return initial.unsqueeze(0)
+    if adjoint:
+        params = getattr(rhs, "adjoint_params", None) if adjoint_params is None else adjoint_params
+        return odeint_adjoint(
+            rhs, initial, t, adjoint_params=None if params is None else tuple(params), **kwargs
+        )
+    return odeint(rhs, initial, t, **kwargs)
+
+
+def _solver_grid(
+    initial: Tensor,
+    n_frames: int,
+    *,
+    method: str,
+    substeps: int | None,
+    rtol: float,
+    atol: float,
+    perturb: bool,
+) -> tuple[Tensor, dict[str, object]]:
+    """The frame times in solver units ``(n_frames,)`` and the solver's keyword arguments, checked."""
     kwargs: dict[str, object] = {"method": method}
     if method in FIXED_STEP_METHODS:
         if substeps is None:
@@ -266,15 +292,10 @@ def integrate(
         substeps = check_int(substeps, "substeps", 1)
         t = torch.arange(n_frames, dtype=initial.dtype, device=initial.device) * substeps
         kwargs["options"] = {"step_size": 1.0, "perturb": True} if perturb else {"step_size": 1.0}
-    else:
-        if substeps is not None:
-            raise ValueError(f"substeps applies to fixed-step methods only, got method={method!r}")
-        t = torch.arange(n_frames, dtype=initial.dtype, device=initial.device)
-        kwargs["options"] = None
-        kwargs["rtol"] = positive(rtol, "rtol", "relative units")
-        kwargs["atol"] = positive(atol, "atol", "units of U")
-    if n_frames == 1:
-        return initial.unsqueeze(0)
-    if adjoint:
-        return odeint_adjoint(rhs, initial, t, adjoint_params=tuple(adjoint_params), **kwargs)
-    return odeint(rhs, initial, t, **kwargs)
+        return t, kwargs
+    if substeps is not None:
+        raise ValueError(f"substeps applies to fixed-step methods only, got method={method!r}")
+    kwargs.update(
+        options=None, rtol=positive(rtol, "rtol", "relative units"), atol=positive(atol, "atol", "units of U")
+    )
+    return torch.arange(n_frames, dtype=initial.dtype, device=initial.device), kwargs
