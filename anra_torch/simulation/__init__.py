@@ -6,6 +6,8 @@
   and :func:`simulate_heat`.
 - :mod:`~anra_torch.simulation.analytic`: :func:`gaussian_blob`, :func:`gaussian_blobs` (infinite plane)
   and :func:`heat_spectral` (the frame's rectangle), exact solutions the simulators are tested against.
+- :mod:`~anra_torch.simulation.tissue`: :class:`TissueRHS` (the Pennes-like tissue model with a
+  :class:`MovingSource`) and :func:`simulate_tissue`.
 
 :func:`anra_torch.effects.simulate_effects` and :func:`anra_torch.refine.refine_model` integrate their
 right-hand sides with the same :func:`integrate`. Units: mm, s, mm^2/s.
@@ -24,6 +26,7 @@ from anra_torch.simulation.integrator import (
     integrate,
     stable_substeps,
 )
+from anra_torch.simulation.tissue import MovingSource, TissueRHS, simulate_tissue
 
 __all__ = [
     "ADAPTIVE_METHODS",
@@ -33,13 +36,16 @@ __all__ = [
     "SAFETY",
     "SPECTRAL_BOUNDARIES",
     "HeatRHS",
+    "MovingSource",
     "StabilityRegion",
     "StepCount",
     "StepPolicy",
+    "TissueRHS",
     "gaussian_blob",
     "gaussian_blobs",
     "heat_spectral",
     "integrate",
     "simulate_heat",
+    "simulate_tissue",
     "stable_substeps",
 ]
