@@ -242,7 +242,7 @@ def simulate_heat(
         substeps: solver steps per frame for fixed-step methods (default: automatic, see above).
         rtol: relative tolerance of adaptive methods.
         atol: absolute tolerance of adaptive methods (units of T).
-        adjoint: use ``odeint_adjoint`` (memory O(1) in the number of steps).
+        adjoint: integrate by the adjoint method (memory O(1) in the number of steps, see :func:`integrate`).
 
     Returns:
         The video, in the dtype of ``initial``.
