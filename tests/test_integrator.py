@@ -13,12 +13,20 @@ import math
 import pytest
 import torch
 
+import anra_torch.effects as effects_module
+import anra_torch.refine as refine_module
+import anra_torch.simulation.heat as simulation_heat
+import anra_torch.simulation.tissue as simulation_tissue
+from anra_torch.diagnosis import Diagnosis
+from anra_torch.effects import Effect, simulate_effects
+from anra_torch.refine import refine_model
 from anra_torch.simulation import (
     FIXED_STEP_METHODS,
     SAFETY,
     HeatRHS,
     integrate,
     simulate_heat,
+    simulate_tissue,
     stable_substeps,
 )
 
@@ -213,3 +221,144 @@ def test_integrate_errors_are_one_line() -> None:
         assert "\n" not in str(err.value)
     with pytest.raises(TypeError, match="initial must be a tensor, got list"):
         integrate(rhs, [1.0], n_frames=2, substeps=1)
+
+
+# -------------------------------------------------------------- the former callers keep their counts
+# (automatic, minimum) substeps per frame each caller computed before it used the integrator (its own
+# rule, run on these cases at commit 8ca9d02); refine: its automatic count only (twice the effects' rule).
+HEAT_COUNTS = [
+    ({"a": 0.2, "dx": 0.1, "dt": 0.05}, "rk4", F64, (5, 3)),
+    ({"a": 10.0, "dx": 0.1, "dt": 0.1}, "rk4", F64, (445, 288)),
+    ({"a": 1.0, "dx": 0.1, "dt": 0.25}, "euler", F64, (112, 100)),
+    ({"a": 1.0, "dx": 0.1, "dt": 0.25}, "midpoint", torch.float32, (112, 100)),
+    ({"a": torch.tensor([0.5, 1.0], dtype=F64), "dx": 0.1, "dt": 0.01}, "rk4", F64, (5, 3)),
+    (
+        {"a": 0.1 + torch.linspace(0, 0.4, 36).reshape(6, 6), "dx": 0.2, "dt": 0.3},
+        "rk4",
+        torch.float32,
+        (17, 11),
+    ),
+]
+EFFECT_COUNTS = {
+    "plain": (0.2, 0.5, 0.1, [], (1, 1)),
+    "advection and loss": (
+        0.1,
+        0.5,
+        0.5,
+        [Effect("advection", {"vx": 6.0, "vy": -4.0}), Effect("linear_loss", {"b": 20.0, "T_ref": 30.0})],
+        (7, 6),
+    ),
+    "anisotropy": (0.05, 0.1, 0.2, [Effect("anisotropy", {"a_x": 0.3, "a_y": 0.1, "a_xy": 0.05})], (19, 13)),
+    "heterogeneity": (
+        0.2,
+        0.25,
+        1 / 30,
+        [Effect("heterogeneity", {"x": 1.0, "y": 1.0, "radius": 0.5, "a_inside": 0.5, "a_outside": 0.2})],
+        (2, 1),
+    ),
+    "nonlinear": (
+        0.05,
+        0.1,
+        0.2,
+        [Effect("nonlinear_diffusion", {"a0": 0.2, "beta": 0.05, "T_ref": 30.0})],
+        (26, 17),
+    ),
+}
+FIELD_A = 0.05 + torch.linspace(0, 0.25, 36, dtype=F64).reshape(6, 6)
+FIELD_B = torch.linspace(0, 2.0, 36, dtype=F64).reshape(6, 6)
+TISSUE_COUNTS = [
+    (0.2, 0.5, 0.5, 0.1, (1, 1)),
+    (1.0, 0.0, 0.1, 0.1, (32, 32)),
+    (0.1, 30.0, 0.25, 0.05, (1, 1)),
+    (FIELD_A, FIELD_B, 0.1, 0.05, (5, 5)),
+]
+REFINE_COUNTS = {
+    "plain": (0.3, 0.1, 0.1, [], 28),
+    "loss and advection": (
+        0.1,
+        0.25,
+        0.2,
+        [Effect("linear_loss", {"b": 0.5, "T_ref": 30.0}), Effect("advection", {"vx": 0.8, "vy": 0.3})],
+        4,
+    ),
+    "anisotropy": (0.05, 0.1, 0.2, [Effect("anisotropy", {"a_x": 0.3, "a_y": 0.1, "a_xy": 0.05})], 38),
+}
+
+
+@pytest.fixture
+def substeps_used(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The substeps every caller hands to integrate (the call goes through unchanged)."""
+    used: list[int] = []
+
+    def spy(*args: object, **kwargs: object) -> torch.Tensor:
+        used.append(kwargs["substeps"])  # type: ignore[arg-type]
+        return integrate(*args, **kwargs)  # type: ignore[arg-type]
+
+    for module in (simulation_heat, simulation_tissue, effects_module, refine_module):
+        monkeypatch.setattr(module, "integrate", spy)
+    return used
+
+
+def assert_minimum(run: object, minimum: int) -> None:
+    """``run(substeps)`` rejects ``minimum - 1`` naming ``minimum`` and accepts ``minimum``."""
+    if minimum > 1:
+        with pytest.raises(
+            ValueError, match=rf"substeps={minimum - 1} is unstable .*need at least {minimum}\b"
+        ):
+            run(minimum - 1)  # type: ignore[operator]
+    run(minimum)  # type: ignore[operator]
+
+
+@pytest.mark.parametrize(("spacing", "method", "dtype", "counts"), HEAT_COUNTS)
+def test_simulate_heat_keeps_its_substeps(substeps_used, spacing, method, dtype, counts) -> None:
+    u0 = torch.rand(2, 6, 6, dtype=dtype)
+    simulate_heat(u0, **spacing, n_frames=2, method=method)
+    assert substeps_used == [counts[0]]
+    assert_minimum(lambda s: simulate_heat(u0, **spacing, n_frames=2, method=method, substeps=s), counts[1])
+
+
+@pytest.mark.parametrize("name", list(EFFECT_COUNTS))
+def test_simulate_effects_keeps_its_substeps(substeps_used, name: str) -> None:
+    a, dx, dt, effects, counts = EFFECT_COUNTS[name]
+    u0 = torch.linspace(30.0, 38.0, 64, dtype=F64).reshape(8, 8)  # the range sets the rates
+    simulate_effects(u0, a=a, dx=dx, dt=dt, n_frames=2, effects=effects)
+    assert substeps_used == [counts[0]]
+    assert_minimum(
+        lambda s: simulate_effects(u0, a=a, dx=dx, dt=dt, n_frames=2, effects=effects, substeps=s), counts[1]
+    )
+
+
+@pytest.mark.parametrize(("a", "b", "dx", "dt", "counts"), TISSUE_COUNTS)
+def test_simulate_tissue_keeps_its_substeps(substeps_used, a, b, dx, dt, counts) -> None:
+    u0 = torch.full((6, 6), 40.0, dtype=F64)
+    simulate_tissue(u0, a, b, dx=dx, dt=dt, n_frames=2)
+    assert substeps_used == [counts[0]]
+    assert_minimum(lambda s: simulate_tissue(u0, a, b, dx=dx, dt=dt, n_frames=2, substeps=s), counts[1])
+
+
+@pytest.mark.parametrize("name", list(REFINE_COUNTS))
+def test_refine_model_keeps_its_substeps(substeps_used, name: str) -> None:
+    a, dx, dt, effects, automatic = REFINE_COUNTS[name]
+    r2 = ((torch.arange(12, dtype=F64) - 6.0) ** 2) / 8
+    u0 = 30.0 + 8.0 * torch.exp(-r2[:, None] - r2[None, :])
+    frames = simulate_effects(u0, a=a, dx=dx, dt=dt, n_frames=5, effects=effects)
+    records = [{"name": e.name, "params": dict(e.params), "score": 1.0} for e in effects]
+    diagnosis = Diagnosis(
+        base=a,
+        base_std_error=0.0,
+        effects=records,
+        a_plain=a,
+        scores={},
+        thresholds={},
+        coefficients={},
+        std_errors={},
+        noise_sd=0.01,
+        smoothing=0.0,  # compare the raw frames: the first frame's range sets the rates
+        mean=35.0,
+        fit_ratio=1.0,
+        residual_map=torch.zeros(8, 8, dtype=F64),
+        margin=2,
+    )
+    substeps_used.clear()  # the simulation of the frames above went through the spy too
+    refine_model(frames, dt, dx, diagnosis, iterations=1)
+    assert substeps_used and set(substeps_used) == {automatic}
