@@ -784,7 +784,7 @@ def step_rates(
             that turns negative).
 
     Shape:
-        Numbers only (no tensors).
+        No tensors.
     """
     effects, a = _check_effects(effects), number(a, "a", "mm^2/s", minimum=0.0)
     low, high = number(low, "low", "units of T"), number(high, "high", "units of T")

@@ -262,10 +262,14 @@ def simulate_heat(
         (torch.Size([3, 16, 16]), 1.0)
     """
     u0, batched = as_fields(initial)
+    batch, height, width = u0.shape
     n_frames = check_int(n_frames, "n_frames", 1)
-    a_t, dx_b, dt_b, value = _check_inputs(
-        u0, a=a, dx=dx, dt=dt, boundary=boundary, boundary_value=boundary_value, method=method
-    )
+    check_choice(boundary, "boundary", list(BOUNDARIES))
+    check_choice(method, "method", [*FIXED_STEP_METHODS, *ADAPTIVE_METHODS])
+    dx_b = as_spacing(dx, name="dx", unit="mm", batch=batch, like=u0)
+    dt_b = as_spacing(dt, name="dt", unit="s", batch=batch, like=u0)
+    a_t, _ = as_diffusivity(a, batch=batch, height=height, width=width, like=u0)
+    value = _boundary_value(boundary_value, boundary, batch=batch, like=u0)
     if substeps is not None and method not in FIXED_STEP_METHODS:
         raise ValueError(f"substeps applies to fixed-step methods only, got method={method!r}")
     substeps = None if substeps is None else check_int(substeps, "substeps", 1)
@@ -273,7 +277,6 @@ def simulate_heat(
     if n_frames == 1:
         out = u0.unsqueeze(1)
         return out if batched else out[0]
-
     substeps, time_scale = _time_step(a_t, dx_b, dt_b, method=method, substeps=substeps)
     rhs = HeatRHS(a_t, dx=dx_b, boundary=boundary, boundary_value=value, time_scale=time_scale)
     out = integrate(
@@ -281,27 +284,6 @@ def simulate_heat(
     )
     out = out.movedim(0, 1)  # (T, B, H, W) -> (B, T, H, W)
     return out if batched else out[0]
-
-
-def _check_inputs(
-    u0: Tensor,
-    *,
-    a: object,
-    dx: object,
-    dt: object,
-    boundary: str,
-    boundary_value: object,
-    method: str,
-) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """``a`` (graph kept), ``dx`` and ``dt`` as ``(B,)`` and the Dirichlet value ``(B,)`` of a simulation."""
-    batch, height, width = u0.shape
-    check_choice(boundary, "boundary", list(BOUNDARIES))
-    check_choice(method, "method", [*FIXED_STEP_METHODS, *ADAPTIVE_METHODS])
-    dx_b = as_spacing(dx, name="dx", unit="mm", batch=batch, like=u0)
-    dt_b = as_spacing(dt, name="dt", unit="s", batch=batch, like=u0)
-    a_t, _ = as_diffusivity(a, batch=batch, height=height, width=width, like=u0)
-    value = _boundary_value(boundary_value, boundary, batch=batch, like=u0)
-    return a_t, dx_b, dt_b, value
 
 
 def _time_step(

@@ -51,6 +51,9 @@ class StabilityRegion:
             when the region holds no part of the imaginary axis (then no advection is stable).
         monotone: the largest ``a ds / dx^2`` for which one step on the 5-point Laplacian is a
             non-negative combination of the neighbours (no overshoot).
+
+    Shape:
+        No tensors.
     """
 
     real: float
@@ -59,14 +62,14 @@ class StabilityRegion:
 
 
 FIXED_STEP_METHODS: dict[str, StabilityRegion] = {
-    # Euler R = 1 + z: stable on [-2, 0], monotone while 1 - 4c >= 0 (c = a ds / dx^2). Midpoint
-    # R = 1 + z + z^2 / 2: stable on [-2, 0], and R'(z) = 1 + z >= 0 at the centre weight z = -4c.
-    # Neither reaches the imaginary axis: |R(iy)| > 1 for every y != 0.
+    # One step is R(c (S - 4I)) with c = a ds / dx^2 and S the neighbour sum. Euler R = 1 + z: stable on
+    # [-2, 0], centre weight 1 - 4c. Midpoint R = 1 + z + z^2 / 2: stable on [-2, 0], neighbour weight
+    # c (1 - 4c). Neither reaches the imaginary axis: |R(iy)| > 1 for every y != 0.
     "euler": StabilityRegion(real=2.0, half_disc=None, monotone=0.25),
     "midpoint": StabilityRegion(real=2.0, half_disc=None, monotone=0.25),
     # RK4 crosses the real axis at -2.7853 and the imaginary at 2.8284; its boundary comes closest to 0
-    # at about 123 degrees, |z| = 2.6156. Stable up to c = 0.348, but the S^3 coefficient of
-    # R(c (S - 4I)), S the neighbour sum, is c^3/6 (1 - 4c): above c = 0.25 a sharp peak overshoots.
+    # at about 123 degrees, |z| = 2.6156. Stable up to c = 0.348, but the S^3 coefficient is
+    # c^3/6 (1 - 4c): above c = 0.25 a sharp peak overshoots three pixels away.
     "rk4": StabilityRegion(real=2.7853, half_disc=2.6155, monotone=0.25),
 }
 """Fixed-step ``torchdiffeq`` methods :func:`integrate` accepts, with their stability regions."""
@@ -85,6 +88,9 @@ class StepPolicy:
     Attributes:
         monotone: the automatic count also keeps the diffusion part inside ``SAFETY`` of the monotone limit.
         strict: the fewest accepted is the automatic count itself, not the bare stability limit.
+
+    Shape:
+        No tensors.
     """
 
     monotone: bool
@@ -103,7 +109,11 @@ margin in the minimum."""
 
 
 class StepCount(NamedTuple):
-    """Substeps per frame: the automatic choice and the fewest accepted (both ``>= 1``)."""
+    """Substeps per frame: the automatic choice and the fewest accepted (both ``>= 1``).
+
+    Shape:
+        No tensors.
+    """
 
     automatic: int
     minimum: int
@@ -160,7 +170,7 @@ def stable_substeps(
         ``(automatic, minimum)`` substeps per frame.
 
     Shape:
-        Numbers only (no tensors).
+        No tensors.
 
     Raises:
         ValueError: non-positive ``dt`` / ``dx``, negative rates, unknown ``method`` / ``policy``, or
@@ -188,7 +198,7 @@ def stable_substeps(
         )
     else:
         radius = region.half_disc
-    size = math.hypot(real, imag) * dt  # the largest |lambda| dt: one frame as a single step
+    size = math.hypot(real, imag) * dt  # the box's far corner: the largest |lambda| dt over one frame
     stable = max(1, math.ceil(size / radius))
     safe = max(1, math.ceil(size / (SAFETY * radius)))
     minimum = safe if rule.strict else stable
