@@ -33,11 +33,18 @@ from anra_torch.prediction import GainResult, assess_gain
 from anra_torch.refine import Refinement, refine_model
 from anra_torch.resample import resample_uniform
 from anra_torch.selection import Diagnosis, diagnose_terms
-from anra_torch.simulate import gaussian_blob, gaussian_blobs, heat_spectral, simulate_heat
+from anra_torch.simulation import (
+    MovingSource,
+    gaussian_blob,
+    gaussian_blobs,
+    heat_spectral,
+    simulate_heat,
+    simulate_tissue,
+)
 from anra_torch.source_map import SourceMapModel, fit_source_map
 from anra_torch.streaming import StreamingEstimator, estimate_long
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
-from anra_torch.tissue_model import LearnedTissueModel, MovingSource, simulate_tissue
+from anra_torch.tissue_model import LearnedTissueModel
 
 __version__ = "0.1.0"
 

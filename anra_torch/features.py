@@ -178,7 +178,7 @@ class TissueFeatures(nn.Module):
         floats or ``(B,)``; maps ``(B, H, W)``.
 
     Example:
-        >>> from anra_torch.simulate import gaussian_blob
+        >>> from anra_torch.simulation import gaussian_blob
         >>> t = torch.arange(20) * 0.5
         >>> video = 37.0 + gaussian_blob(t, shape=(32, 32), dx=0.1, a=0.01, peak=30.0, sigma=0.5)
         >>> out = TissueFeatures()(video, dt=0.5, dx=0.1)

@@ -3,9 +3,10 @@
 The direct estimate (:func:`anra_torch.selection.diagnose_terms`) never solves the PDE. Problem 1 does:
 it simulates the model from the first frame and minimises the squared difference between the simulated
 trajectory and the measured frames over the model's parameters. Here the simulation is the method of lines
-of :mod:`anra_torch.effects` (5-point stencils, fixed-step RK4 through ``torchdiffeq.odeint``, zero-flux
-edges) with every parameter a tensor, so autograd gives the exact gradient of the discrete trajectory;
-L-BFGS (strong Wolfe line search) takes the steps, started from the direct estimate.
+of :mod:`anra_torch.effects` (5-point stencils, zero-flux edges, fixed-step RK4 through
+:func:`anra_torch.simulation.integrate`) with every parameter a tensor, so autograd gives the exact gradient
+of the discrete trajectory; L-BFGS (strong Wolfe line search) takes the steps, started from the direct
+estimate.
 
 Both sides are compared at the diagnosis' spatial scale: the simulation starts from the first frame
 smoothed by the same Gaussian as the frames it is compared with (see :mod:`anra_torch.prediction`), on
@@ -28,12 +29,11 @@ from dataclasses import dataclass
 
 import torch
 from torch import Tensor
-from torchdiffeq import odeint
 
-from anra_torch.effects import Effect, Grid, effect_rhs
-from anra_torch.effects.model import stable_substeps, step_rates
+from anra_torch.effects import Effect, Grid, effect_rhs, step_rates
 from anra_torch.prediction import at_scale, check_diagnosis_frames, evaluation_scale, extended_effects
 from anra_torch.selection import Diagnosis
+from anra_torch.simulation import integrate, stable_substeps
 
 __all__ = ["Refinement", "refine_model"]
 
@@ -127,6 +127,36 @@ class _Model:
         )
 
 
+def _misfit(
+    model: _Model,
+    target: Tensor,
+    grid: Grid,
+    *,
+    a: float,
+    effects: tuple[Effect, ...],
+    dt: float,
+    margin: int,
+) -> Callable[[Tensor], Tensor]:
+    """Problem 1's error as a function of the parameter step ``delta``: the model simulated from the first
+    target frame, squared differences summed over the later frames and the interior (data units^2).
+
+    Shape:
+        ``target`` ``(T, H, W)``; ``delta`` ``(P,)``; output a scalar.
+    """
+    n, h, w = target.shape
+    low, high = float(target[0].min()), float(target[0].max())
+    a_max, speed, decay = step_rates(a, effects, low, high, grid.duration)
+    count = stable_substeps(dt, grid.dx, diffusivity=a_max, speed=speed, decay=decay)
+    substeps = 2 * count.automatic  # room for the parameters to grow
+    interior = (slice(1, None), slice(margin, h - margin), slice(margin, w - margin))
+
+    def sse(delta: Tensor) -> Tensor:
+        path = integrate(model.rhs(delta, grid, dt / substeps), target[0], n_frames=n, substeps=substeps)
+        return (path - target)[interior].pow(2).sum()
+
+    return sse
+
+
 def refine_model(
     frames: Tensor,
     dt: float,
@@ -161,7 +191,6 @@ def refine_model(
     video = torch.as_tensor(frames).detach().to(_F64)
     if video.ndim != 3 or video.shape[0] < 2:
         raise ValueError(f"frames must have shape (T >= 2, H, W), got {tuple(video.shape)}")
-    m = diagnosis.margin
     n, h, w = video.shape
     check_diagnosis_frames(diagnosis, h, w)
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
@@ -174,17 +203,7 @@ def refine_model(
     spread = float(target.std()) or 1.0
     model = _Model(a0, effects, dx=dx, spread=spread, duration=duration)
     grid = Grid((h, w), dx, duration)
-    low, high = float(target[0].min()), float(target[0].max())
-    a_max, speed, decay = step_rates(a0, effects, low, high, duration)
-    substeps = 2 * stable_substeps(dt, dx, a_max, speed, decay)[0]  # room for the parameters to grow
-    times = torch.arange(n, dtype=_F64) * substeps
-    interior = (slice(1, None), slice(m, h - m), slice(m, w - m))
-
-    def sse(delta: Tensor) -> Tensor:
-        f = model.rhs(delta, grid, dt / substeps)
-        path = odeint(f, target[0], times, method="rk4", options={"step_size": 1.0})
-        return (path - target)[interior].pow(2).sum()
-
+    sse = _misfit(model, target, grid, a=a0, effects=effects, dt=dt, margin=diagnosis.margin)
     delta = torch.zeros(len(model.names), dtype=_F64, requires_grad=True)
     with torch.no_grad():
         sse_before = float(sse(delta))

@@ -97,7 +97,7 @@ class StreamingEstimator:
         :meth:`push` takes ``(H, W)`` or ``(n, H, W)``; every frame of a stream must have the same ``(H, W)``.
 
     Example:
-        >>> from anra_torch.simulate import gaussian_blob
+        >>> from anra_torch.simulation import gaussian_blob
         >>> video = gaussian_blob(torch.arange(12) / 27.0, shape=(48, 48), dx=0.1, a=0.2, peak=3.0, sigma=1.0)
         >>> stream = StreamingEstimator(dt=1 / 27, dx=0.1, smoothing=1.0, noise_sd=0.0)
         >>> for frame in video:

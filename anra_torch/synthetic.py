@@ -1,4 +1,4 @@
-"""Synthetic thermal videos of known diffusivity, from the analytic solutions of :mod:`simulate`.
+"""Synthetic thermal videos of known diffusivity, from the exact solutions of :mod:`anra_torch.simulation`.
 
 - :func:`paper_video`: the simulation case of El-Kebir, Lee and Bentsman (arXiv 2203.13148).
 - :func:`blobs_video`: several Gaussian blobs at random positions on a warm background.
@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.checks import check_dtype, check_int, number, positive
-from anra_torch.simulate import gaussian_blob, gaussian_blobs
+from anra_torch.simulation import gaussian_blob, gaussian_blobs
 
 __all__ = ["SyntheticVideo", "blobs_video", "paper_video"]
 

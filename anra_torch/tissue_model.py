@@ -1,17 +1,12 @@
-"""A tissue model with spatial fields, simulated on torchdiffeq and learned end to end from video.
+"""A tissue model learned end to end from video, through the simulator of :mod:`anra_torch.simulation.tissue`.
 
 The model (Pennes-like bioheat equation per unit heat capacity, on the pixel grid)::
 
     dT/dt = div(a(x, y) grad T) - b(x, y) (T - T_body) + q(t, x, y)
 
-* ``a`` diffusivity field (mm^2/s), conservative flux form of :class:`anra_torch.simulate.HeatRHS`
-  (zero-flux edges);
-* ``b`` perfusion / loss-rate field (1/s) pulling towards the body temperature ``T_body``;
-* ``q`` an optional :class:`MovingSource` (K/s): a Gaussian spot moving along a straight path while it
-  is on, e.g. an electrosurgical tip.
-
-:func:`simulate_tissue` integrates it with fixed-step RK4 (``torchdiffeq.odeint``), every step inside
-RK4's stability limit; gradients flow to tensor fields that require them.
+with ``a`` the diffusivity field (mm^2/s), ``b`` the perfusion / loss-rate field (1/s) and ``q`` an optional
+:class:`anra_torch.simulation.MovingSource` (K/s); :func:`anra_torch.simulation.simulate_tissue` integrates it
+with fixed-step RK4, and gradients flow to the fields.
 
 :class:`LearnedTissueModel` holds ``log a`` and ``log b`` on a coarse grid (bilinear up-sampling to the
 frame: a smooth, positive field with few parameters), initialised from ANRA's direct estimate
@@ -23,181 +18,20 @@ back-propagating the frame misfit through the ODE solver.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
-from torchdiffeq import odeint
 from tqdm.auto import tqdm
 
 from anra_torch.checks import as_video
 from anra_torch.layers.estimator import ANRAEstimator
-from anra_torch.simulate import HeatRHS
+from anra_torch.simulation import simulate_tissue
 
-__all__ = ["LearnedTissueModel", "MovingSource", "TissueRHS", "relative_error", "simulate_tissue"]
+__all__ = ["LearnedTissueModel", "relative_error"]
 
 _F64 = torch.float64
-_RK4_REAL_LIMIT = 2.7853  # RK4 is stable for real eigenvalues in [-2.785, 0] (times the step)
-_SAFETY = 0.9
 _SPAN = math.log(10.0)  # learned fields stay within a factor 10 of their start (keeps RK4 steps bounded)
-
-
-@dataclass(frozen=True)
-class MovingSource:
-    """A Gaussian heat source moving at constant speed from ``start`` to ``end`` while on.
-
-    Attributes:
-        start: ``(x, y)`` in mm at ``t = t_on``.
-        end: ``(x, y)`` in mm at ``t = t_off``.
-        width: Gaussian sigma in mm.
-        power: heating rate at the spot centre in K/s.
-        t_on: switch-on time in s.
-        t_off: switch-off time in s (``> t_on``); on during ``[t_on, t_off)``. :func:`simulate_tissue`
-            integrates the switching exactly when both fall on its RK4 substeps (multiples of
-            ``dt / substeps``); otherwise with an error up to ``power`` times one substep.
-    """
-
-    start: tuple[float, float]
-    end: tuple[float, float]
-    width: float
-    power: float
-    t_on: float = 0.0
-    t_off: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not (self.width > 0 and math.isfinite(self.width)):
-            raise ValueError(f"width must be a positive finite number in mm, got {self.width!r}")
-        if not math.isfinite(self.power):
-            raise ValueError(f"power must be a finite number in K/s, got {self.power!r}")
-        if not (self.t_off > self.t_on):
-            raise ValueError(f"t_off must be after t_on (s), got t_on={self.t_on!r}, t_off={self.t_off!r}")
-
-    def field(self, t: Tensor, x: Tensor, y: Tensor) -> Tensor:
-        """Heating rate (K/s) at time ``t`` (s) on the grid ``x`` ``(W,)``, ``y`` ``(H,)``: ``(H, W)``."""
-        s = ((t - self.t_on) / (self.t_off - self.t_on)).clamp(0, 1)
-        on = ((t >= self.t_on) & (t < self.t_off)).to(x.dtype)
-        cx = self.start[0] + (self.end[0] - self.start[0]) * s
-        cy = self.start[1] + (self.end[1] - self.start[1]) * s
-        inv = 0.5 / self.width**2
-        gx = torch.exp(-((x - cx) ** 2) * inv)
-        gy = torch.exp(-((y - cy) ** 2) * inv)
-        return on * self.power * gy[:, None] * gx[None, :]
-
-
-class TissueRHS(nn.Module):
-    """``dT/dt = div(a grad T) - b (T - T_body) + q`` for ``torchdiffeq``, time in units of ``time_scale`` s.
-
-    Args:
-        diffusivity: ``a`` in mm^2/s, a number or a field ``(H, W)`` (kept as given: may require grad).
-        perfusion: ``b`` in 1/s, a number or a field ``(H, W)``.
-        dx: pixel size in mm.
-        body_temperature: ``T_body``, units of T.
-        source: optional :class:`MovingSource`.
-        time_scale: seconds per unit of solver time.
-
-    Shape:
-        ``forward(t, T)``: ``T`` ``(H, W)`` or ``(B, H, W)``; output like ``T``.
-    """
-
-    def __init__(
-        self,
-        diffusivity: float | Tensor,
-        perfusion: float | Tensor,
-        *,
-        dx: float,
-        body_temperature: float | Tensor = 37.0,
-        source: MovingSource | None = None,
-        time_scale: float = 1.0,
-    ) -> None:
-        super().__init__()
-        self.heat = HeatRHS(diffusivity, dx=dx)
-        b = perfusion if isinstance(perfusion, Tensor) else torch.tensor(float(perfusion), dtype=_F64)
-        if not bool(torch.isfinite(b.detach()).all()) or bool((b.detach() < 0).any()):
-            raise ValueError("perfusion must be finite and non-negative in 1/s")
-        self.perfusion, self.source = b, source
-        self.body_temperature = (
-            body_temperature
-            if isinstance(body_temperature, Tensor)
-            else torch.tensor(float(body_temperature))
-        )
-        self.dx, self.time_scale = float(dx), float(time_scale)
-
-    def forward(self, t: Tensor, u: Tensor) -> Tensor:
-        seconds = t * self.time_scale
-        excess = u - self.body_temperature.to(u)
-        out = self.heat(seconds, u).reshape(u.shape) - self.perfusion.to(u) * excess
-        if self.source is not None:
-            h, w = u.shape[-2:]
-            x = (torch.arange(w, dtype=u.dtype) + 0.5) * self.dx
-            y = (torch.arange(h, dtype=u.dtype) + 0.5) * self.dx
-            out = out + self.source.field(seconds.to(u.dtype), x, y)
-        return out * self.time_scale
-
-
-def _max_value(v: float | Tensor) -> float:
-    return float(v.detach().max()) if isinstance(v, Tensor) else float(v)
-
-
-def simulate_tissue(
-    initial: Tensor,
-    diffusivity: float | Tensor,
-    perfusion: float | Tensor = 0.0,
-    *,
-    dx: float,
-    dt: float,
-    n_frames: int,
-    body_temperature: float | Tensor = 37.0,
-    source: MovingSource | None = None,
-    substeps: int | None = None,
-) -> Tensor:
-    """Simulate a thermal video of the tissue model (RK4, zero-flux edges); differentiable in the fields.
-
-    Args:
-        initial: first frame (temperatures).
-        diffusivity: ``a`` (mm^2/s), number or ``(H, W)``, non-negative.
-        perfusion: ``b`` (1/s), number or ``(H, W)``, non-negative.
-        dx: pixel size in mm.
-        dt: frame period in s.
-        n_frames: frames ``T`` (>= 2); frame 0 is ``initial``.
-        body_temperature: ``T_body`` the perfusion pulls towards.
-        source: optional :class:`MovingSource`.
-        substeps: RK4 steps per frame; default the fewest inside ``0.9`` of RK4's stability limit
-            ``(8 a_max / dx^2 + b_max) ds <= 2.785``.
-
-    Returns:
-        Video ``(T, H, W)`` in the dtype of ``initial``.
-
-    Raises:
-        ValueError: bad spacing, frame count, negative or non-finite fields.
-
-    Shape:
-        ``initial`` ``(H, W)``; fields scalar or ``(H, W)``; output ``(T, H, W)``.
-    """
-    if initial.ndim != 2:
-        raise ValueError(f"initial must have shape (H, W), got {tuple(initial.shape)}")
-    for name, value, unit in (("dx", dx, "mm"), ("dt", dt, "s")):
-        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive finite number in {unit}, got {value!r}")
-    if not (isinstance(n_frames, int) and n_frames >= 2):
-        raise ValueError(f"n_frames must be an integer >= 2, got {n_frames!r}")
-    stiffness = 8.0 * _max_value(diffusivity) / dx**2 + _max_value(perfusion)
-    needed = max(1, math.ceil(stiffness * dt / (_SAFETY * _RK4_REAL_LIMIT)))
-    steps = needed if substeps is None else int(substeps)
-    if steps < needed:
-        raise ValueError(f"substeps={substeps} is unstable for RK4 here; need at least {needed}")
-    rhs = TissueRHS(
-        diffusivity,
-        perfusion,
-        dx=dx,
-        body_temperature=body_temperature,
-        source=source,
-        time_scale=dt / steps,
-    )
-    times = torch.arange(n_frames, dtype=initial.dtype) * steps
-    # perturb: each step sees t just after its start and just before its end, so a source switching on
-    # or off on a substep boundary is integrated exactly.
-    return odeint(rhs, initial, times, method="rk4", options={"step_size": 1.0, "perturb": True})
 
 
 def _pool(field: Tensor, weight: Tensor, grid: tuple[int, int]) -> Tensor:

@@ -90,7 +90,7 @@ def make_videos(size: str, batch: int, seed: int = 0) -> tuple[np.ndarray, float
     """
     import torch
 
-    from anra_torch.simulate import gaussian_blob
+    from anra_torch.simulation import gaussian_blob
     from anra_torch.synthetic import paper_video
 
     h, w = SIZES[size]
@@ -259,7 +259,7 @@ def write_long_video(path: Path, n_frames: int, *, size: int = 128, chunk: int =
     """A diffusing Gaussian (a = 0.02 mm^2/s, dx 0.1 mm, 27 Hz) plus noise 0.01 as a float32 .npy, chunked."""
     import torch
 
-    from anra_torch.simulate import gaussian_blob
+    from anra_torch.simulation import gaussian_blob
 
     dt, dx = 1 / FPS, 0.1
     out = np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=(n_frames, size, size))

@@ -3,7 +3,7 @@
 Scene (per seed): textured tissue (37-47 C), 32 x 32 px of 0.25 mm, a planted diffusivity bump
 ``a = 0.10 + 0.15 exp(-r^2 / (2 (2 mm)^2))`` mm^2/s around (4, 4) mm and a perfusion ramp
 ``b = 0.05 + 0.15 x / 8 mm`` 1/s towards 37 C, simulated with
-:func:`anra_torch.tissue_model.simulate_tissue` for 4 s at 10 Hz (41 frames), white noise 0.05 K.
+:func:`anra_torch.simulation.simulate_tissue` for 4 s at 10 Hz (41 frames), white noise 0.05 K.
 
 Model: :class:`anra_torch.tissue_model.LearnedTissueModel` (``log a``, ``log b`` on a 6 x 6 grid,
 bilinear; ``T_body`` learned too), initialised from ANRA's direct estimate (windowed field for ``a``;
@@ -31,7 +31,8 @@ import numpy as np
 import torch
 
 from anra_torch.layers.derivatives import GaussianSmoothing
-from anra_torch.tissue_model import LearnedTissueModel, relative_error, simulate_tissue
+from anra_torch.simulation import simulate_tissue
+from anra_torch.tissue_model import LearnedTissueModel, relative_error
 
 F64 = torch.float64
 SIZE, DX, DT, FRAMES, NOISE = 32, 0.25, 0.1, 41, 0.05

@@ -3,7 +3,7 @@
 Scene (synthetic electrosurgery): tissue at 37 C, 48 x 48 px of 0.2 mm, with a smooth random diffusivity
 field (0.08-0.20 mm^2/s) and perfusion field (0.05-0.50 1/s). A Gaussian tip (sigma 0.5-1.0 mm, peak
 heating 15-120 K/s) sweeps a straight 0-4 mm path for 1-10 s, then the tissue cools until 12 s.
-:func:`anra_torch.tissue_model.simulate_tissue` integrates it (RK4 on torchdiffeq) at 50 Hz.
+:func:`anra_torch.simulation.simulate_tissue` integrates it (RK4 on torchdiffeq) at 50 Hz.
 
 Truth: Arrhenius Omega (skin constants) of the noiseless 50 Hz temperature (piecewise-linear rule);
 a pixel is damaged when ``Omega >= 1``.
@@ -46,7 +46,7 @@ from tqdm import tqdm
 from anra_torch.dose import arrhenius_omega
 from anra_torch.features import TissueFeatures
 from anra_torch.layers.derivatives import GaussianSmoothing
-from anra_torch.tissue_model import MovingSource, simulate_tissue
+from anra_torch.simulation import MovingSource, simulate_tissue
 
 F64 = torch.float64
 SIZE, DX = 48, 0.2  # px, mm

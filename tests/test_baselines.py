@@ -17,7 +17,7 @@ from scipy import ndimage
 
 from anra_torch.baselines import BASELINES, backward_log_estimate, log_kernel
 from anra_torch.layers.estimator import ANRAEstimator
-from anra_torch.simulate import gaussian_blob
+from anra_torch.simulation import gaussian_blob
 from anra_torch.synthetic import paper_video
 
 F64 = torch.float64

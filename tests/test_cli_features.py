@@ -15,7 +15,7 @@ from anra_torch.dose import arrhenius_omega, cem43
 from anra_torch.features import TissueFeatures
 from anra_torch.io import save_npz
 from anra_torch.layers.derivatives import GaussianSmoothing
-from anra_torch.tissue_model import MovingSource, simulate_tissue
+from anra_torch.simulation import MovingSource, simulate_tissue
 
 DT, DX = 0.1, 0.2
 

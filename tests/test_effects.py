@@ -24,7 +24,7 @@ from anra_torch.effects import (
     simulate_effects,
 )
 from anra_torch.io import load_video
-from anra_torch.simulate import HeatRHS, gaussian_blob, simulate_heat
+from anra_torch.simulation import HeatRHS, gaussian_blob, simulate_heat
 
 F64 = torch.float64
 

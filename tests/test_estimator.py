@@ -17,7 +17,7 @@ from torch import Tensor, nn
 
 from anra_torch.layers.attention import RTCAttention
 from anra_torch.layers.estimator import AUTO_SMOOTHING, ANRAEstimator, ANRAResult
-from anra_torch.simulate import gaussian_blob
+from anra_torch.simulation import gaussian_blob
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
 
 F64 = torch.float64

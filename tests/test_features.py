@@ -9,8 +9,7 @@ import torch
 
 from anra_torch.dose import arrhenius_omega, cem43, time_above
 from anra_torch.features import MAPS, TissueFeatures
-from anra_torch.simulate import gaussian_blob
-from anra_torch.tissue_model import MovingSource, simulate_tissue
+from anra_torch.simulation import MovingSource, gaussian_blob, simulate_tissue
 
 DX, DT = 0.2, 0.1
 POWER, ON = 10.0, 2.0  # K/s at the spot centre, s

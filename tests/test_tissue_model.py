@@ -8,12 +8,8 @@ import pytest
 import torch
 
 from anra_torch.layers.derivatives import GaussianSmoothing
-from anra_torch.tissue_model import (
-    LearnedTissueModel,
-    MovingSource,
-    relative_error,
-    simulate_tissue,
-)
+from anra_torch.simulation import MovingSource, simulate_tissue
+from anra_torch.tissue_model import LearnedTissueModel, relative_error
 
 F64 = torch.float64
 

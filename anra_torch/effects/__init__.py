@@ -24,6 +24,7 @@ from anra_torch.effects.model import (
     effects_to_json,
     equation_text,
     simulate_effects,
+    step_rates,
 )
 from anra_torch.effects.registry import DIFFUSION_EFFECTS, EFFECTS
 from anra_torch.effects.scene import HiddenEffectVideo, hidden_effect_video
@@ -44,4 +45,5 @@ __all__ = [
     "equation_text",
     "hidden_effect_video",
     "simulate_effects",
+    "step_rates",
 ]

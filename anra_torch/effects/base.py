@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.checks import check_choice, number
-from anra_torch.simulate import BOUNDARIES
+from anra_torch.simulation import BOUNDARIES
 
 if TYPE_CHECKING:
     from anra_torch.balance.system import BalanceSystem, Fit, NoiseSpec
@@ -48,7 +48,7 @@ class Grid:
         shape: frame size ``(H, W)`` in px.
         dx: pixel size in mm.
         duration: time of the last frame in s (the source's path ends there; 0 keeps it at its start).
-        boundary: a key of :data:`anra_torch.simulate.BOUNDARIES`.
+        boundary: a key of :data:`anra_torch.simulation.BOUNDARIES`.
         boundary_value: ghost temperature for ``"dirichlet"``.
 
     Shape:

@@ -25,7 +25,7 @@ from anra_torch.balance.moments import accumulate
 from anra_torch.balance.system import BalanceSystem, Fit, NoiseSpec
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Shape, Term, require
 from anra_torch.effects.shapes import optimise, pixel_grid
-from anra_torch.simulate import HeatRHS
+from anra_torch.simulation import HeatRHS
 
 __all__ = ["SPEC"]
 

@@ -3,7 +3,7 @@
 :class:`Effect` is a (name, parameters) pair checked against :data:`~anra_torch.effects.registry.EFFECTS`;
 :func:`effect_rhs` assembles ``dT/dt = D[T] + sum of effect terms`` (``D[T]`` is ``a`` times the 5-point
 Laplacian unless an effect replaces it); :func:`simulate_effects` integrates it (method of lines, fixed-step
-RK4 on ``torchdiffeq`` with stable substeps); :func:`equation_text` writes it.
+RK4 with stable substeps, :func:`anra_torch.simulation.integrate`); :func:`equation_text` writes it.
 """
 
 from __future__ import annotations
@@ -16,12 +16,11 @@ from typing import Any
 
 import torch
 from torch import Tensor, nn
-from torchdiffeq import odeint
 
 from anra_torch.checks import as_fields, check_int, number
 from anra_torch.effects.base import EffectSpec, Grid
 from anra_torch.effects.registry import DIFFUSION_EFFECTS, EFFECTS, unknown_effect
-from anra_torch.simulate import _SAFETY, BOUNDARIES, FIXED_STEP_METHODS, HeatRHS
+from anra_torch.simulation import BOUNDARIES, HeatRHS, integrate, stable_substeps
 
 __all__ = [
     "Effect",
@@ -32,13 +31,8 @@ __all__ = [
     "effects_to_json",
     "equation_text",
     "simulate_effects",
-    "stable_substeps",
     "step_rates",
 ]
-
-_RK4_RADIUS = 2.6155
-"""Radius of the largest left half-disc inside RK4's stability region (the boundary comes closest to
-0 at about 123 degrees, |z| = 2.6156; it crosses the real axis at 2.785 and the imaginary at 2.828)."""
 
 
 @dataclass(frozen=True)
@@ -221,7 +215,7 @@ def effect_rhs(
 class ExtendedHeatRHS(nn.Module):
     """Right-hand side ``dT/dt = D[T] + sum of effect terms`` on the pixel grid, for ``torchdiffeq``.
 
-    ``D[T]`` is ``a`` times the 5-point Laplacian (:class:`anra_torch.simulate.HeatRHS`) unless an effect
+    ``D[T]`` is ``a`` times the 5-point Laplacian (:class:`anra_torch.simulation.HeatRHS`) unless an effect
     replaces it. Gradients are central differences; the ghost pixel around the frame comes from
     ``grid.boundary`` (zero flux by default). The solver's time ``t`` is in units of ``time_scale`` seconds
     (the output is multiplied by it), so a fixed step of 1 can be one substep exactly.
@@ -261,9 +255,34 @@ class ExtendedHeatRHS(nn.Module):
 
 # --------------------------------------------------------------------------------------- simulate
 def step_rates(
-    a: float, effects: tuple[Effect, ...], low: float, high: float, duration: float
+    a: float, effects: Sequence[Effect], low: float, high: float, duration: float
 ) -> tuple[float, float, float]:
-    """Largest effective diffusivity, speed and decay rate for the step size."""
+    """What a model does to the stable step: its largest diffusivity, speed and decay rate.
+
+    Each effect bounds the temperatures (``low`` .. ``high``, units of T, widened by what it can add over
+    ``duration`` s) and reports its rates over that range (:attr:`EffectSpec.rates`). The result is what
+    :func:`anra_torch.simulation.stable_substeps` takes.
+
+    Args:
+        a: base diffusivity in mm^2/s (the diffusivity unless an effect replaces the diffusion term).
+        effects: validated :class:`Effect` s (as :func:`simulate_effects` and the refinement hold them).
+        low: lowest initial temperature (units of T).
+        high: highest initial temperature (units of T).
+        duration: simulated time in s.
+
+    Returns:
+        ``(diffusivity mm^2/s, speed mm/s, decay 1/s)``.
+
+    Raises:
+        ValueError: a model that is ill-posed over the temperature range (e.g. a nonlinear diffusivity
+            that turns negative).
+
+    Shape:
+        No tensors.
+    """
+    effects, a = check_effects(effects), number(a, "a", "mm^2/s", minimum=0.0)
+    low, high = number(low, "low", "units of T"), number(high, "high", "units of T")
+    duration = number(duration, "duration", "s", minimum=0.0)
     for effect in effects:  # a range the temperatures cannot leave
         low, high = effect.spec.bounds(effect.params, low, high, duration)
     margin = 0.1 * (high - low)  # central-difference advection can overshoot a little
@@ -272,27 +291,6 @@ def step_rates(
     diffusivity = [r.diffusivity for r in rates if r.diffusivity is not None]
     a_max = diffusivity[0] if diffusivity else a
     return a_max, sum(r.speed for r in rates), sum(r.decay for r in rates)
-
-
-def stable_substeps(dt: float, dx: float, a_max: float, speed: float, decay: float) -> tuple[int, int]:
-    """(automatic, minimum stable) RK4 substeps per frame.
-
-    The spectrum lies in ``[-8 a / dx^2 - b, 0] x i [-speed / dx, speed / dx]``. Stable: inside RK4's
-    region (its real-axis limit for a real spectrum, else the largest half-disc). Automatic: also the
-    monotone limit ``a ds / dx^2 <= 0.9 * 0.25`` of :func:`anra_torch.simulate.simulate_heat`, so that
-    without effects both take the same steps.
-    """
-    limit = FIXED_STEP_METHODS["rk4"]
-    real, imag = 8.0 * a_max / dx**2 + decay, speed / dx
-    radius = 8.0 * limit.stable if imag == 0 else _RK4_RADIUS
-    size = math.hypot(real, imag) * dt
-    needed = max(1, math.ceil(size / radius))
-    auto = max(
-        needed,
-        math.ceil(size / (_SAFETY * radius)),
-        math.ceil(a_max * dt / dx**2 / (_SAFETY * limit.monotone)),
-    )
-    return auto, needed
 
 
 def simulate_effects(
@@ -310,10 +308,9 @@ def simulate_effects(
 ) -> Tensor:
     """Simulate a thermal video of ``dT/dt = D[T] + sum of effect terms (+ forcing)`` (method of lines, RK4).
 
-    Fixed-step RK4 (``torchdiffeq``) with an integer number of substeps per frame, by default the fewest
-    that are stable for the whole spectrum (diffusion up to the largest diffusivity the model can reach,
-    the advection CFL ``|v| ds / dx``, the loss rate ``b``) and monotone for the diffusion part. Frame 0 is
-    ``initial``; the source moves over ``duration = (n_frames - 1) dt``.
+    Fixed-step RK4 with an integer number of substeps per frame, by default the fewest stable for the whole
+    spectrum (the largest diffusivity the model reaches, advection ``|v| ds / dx``, the loss rate ``b``: see
+    :func:`step_rates`) and monotone for diffusion. The source moves over ``(n_frames - 1) dt``.
 
     Args:
         initial: first frame (temperatures).
@@ -323,7 +320,7 @@ def simulate_effects(
         n_frames: number of frames T (>= 1).
         effects: distinct :class:`Effect` s, at most one of ``anisotropy``, ``heterogeneity``,
             ``nonlinear_diffusion``.
-        boundary: a key of :data:`anra_torch.simulate.BOUNDARIES` (default zero flux).
+        boundary: a key of :data:`anra_torch.simulation.BOUNDARIES` (default zero flux).
         boundary_value: ghost temperature for ``"dirichlet"``.
         substeps: RK4 steps per frame; default automatic (see above).
         forcing: a stationary heat-input map in data units per s, added to the right-hand side at every
@@ -333,14 +330,12 @@ def simulate_effects(
         The video in the dtype of ``initial``.
 
     Shape:
-        ``initial`` ``(H, W)`` or ``(B, H, W)``; ``forcing`` ``(H, W)``; output ``(T, H, W)`` or
-        ``(B, T, H, W)``.
+        ``initial`` ``(B, H, W)`` -> output ``(B, T, H, W)`` (no ``B``: unbatched); ``forcing`` ``(H, W)``.
 
     Raises:
         TypeError: ``initial`` not real numbers, effects not :class:`Effect`.
         ValueError: bad shapes or spacings, unknown boundary, duplicate effects, two effects replacing the
-            diffusion term, an ill-posed model (a negative nonlinear diffusivity over the temperature
-            range), or ``substeps`` below the stability limit.
+            diffusion term, an ill-posed model (see :func:`step_rates`), or ``substeps`` below the limit.
 
     Example:
         >>> u0 = torch.full((8, 8), 40.0, dtype=torch.float64)
@@ -352,13 +347,11 @@ def simulate_effects(
     u0, batched = as_fields(initial)
     height, width = u0.shape[-2:]
     a = number(a, "a", "mm^2/s", minimum=0.0)
-    dx = number(dx, "dx", "mm", positive=True)
-    dt = number(dt, "dt", "s", positive=True)
+    dx, dt = number(dx, "dx", "mm", positive=True), number(dt, "dt", "s", positive=True)
     n_frames = check_int(n_frames, "n_frames", 1)
     checked = check_effects(effects)
     grid = Grid((height, width), dx, (n_frames - 1) * dt, boundary, boundary_value)
-    if substeps is not None:
-        substeps = check_int(substeps, "substeps", 1)
+    substeps = None if substeps is None else check_int(substeps, "substeps", 1)
     if forcing is not None:
         forcing = torch.as_tensor(forcing)
         need = f"forcing must be a finite map of the frame's shape ({height}, {width}) in data units per s"
@@ -367,28 +360,18 @@ def simulate_effects(
         if not bool(torch.isfinite(forcing).all()):
             raise ValueError(f"{need}, got non-finite values")
         forcing = forcing.to(u0.dtype)
-    duration = grid.duration
     low, high = float(u0.min()), float(u0.max())
     if BOUNDARIES[boundary].uses_value:
         low, high = min(low, grid.boundary_value), max(high, grid.boundary_value)
-    a_max, speed, decay = step_rates(a, checked, low, high, duration)
-    auto, needed = stable_substeps(dt, dx, a_max, speed, decay)
-    if substeps is None:
-        substeps = auto
-    elif substeps < needed:
-        raise ValueError(
-            f"substeps={substeps} is unstable for RK4 here (a_max={a_max:.4g} mm^2/s, speed={speed:.4g} "
-            f"mm/s, decay={decay:.4g} 1/s); need at least {needed} (or leave substeps=None)"
-        )
-    if n_frames == 1:
-        out = u0.unsqueeze(1)
-        return out if batched else out[0]
+    a_max, speed, decay = step_rates(a, checked, low, high, grid.duration)
+    count = stable_substeps(dt, dx, diffusivity=a_max, speed=speed, decay=decay)
+    rates = f"a_max={a_max:.4g} mm^2/s, speed={speed:.4g} mm/s, decay={decay:.4g} 1/s"
+    substeps = count.choose(substeps, context=f"RK4 here ({rates})")
     rhs = ExtendedHeatRHS(a, grid=grid, effects=checked, time_scale=dt / substeps)
     if forcing is not None:
         heat, step_input = rhs, forcing * (dt / substeps)
         rhs = lambda t, u: heat(t, u) + step_input  # noqa: E731
-    t = torch.arange(n_frames, dtype=u0.dtype) * substeps
-    out = odeint(rhs, u0, t, method="rk4", options={"step_size": 1.0}).movedim(0, 1)
+    out = integrate(rhs, u0, n_frames=n_frames, substeps=substeps).movedim(0, 1)  # (B, T, H, W)
     return out if batched else out[0]
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from torch import Tensor
 
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Term, require
-from anra_torch.simulate import HeatRHS
+from anra_torch.simulation import HeatRHS
 
 __all__ = ["SPEC"]
 

@@ -21,7 +21,7 @@ from anra_torch.effects.base import Geometry, Grid
 from anra_torch.effects.model import Effect, check_effects, effects_to_json, simulate_effects
 from anra_torch.effects.registry import EFFECTS, unknown_effect
 from anra_torch.io import save_npz
-from anra_torch.simulate import gaussian_blobs
+from anra_torch.simulation import gaussian_blobs
 
 __all__ = ["HiddenEffectVideo", "hidden_effect_video"]
 

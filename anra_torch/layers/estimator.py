@@ -194,7 +194,7 @@ class ANRAEstimator(nn.Module):
         ``frames`` ``(B, T, H, W)`` or ``(T, H, W)``; ``dt`` (s) and ``dx`` (mm/px) floats or ``(B,)``.
 
     Example:
-        >>> from anra_torch.simulate import gaussian_blob
+        >>> from anra_torch.simulation import gaussian_blob
         >>> t = torch.arange(12) / 27.0
         >>> video = gaussian_blob(t, shape=(48, 48), dx=0.1, a=0.2, peak=3.0, sigma=1.0)
         >>> est = ANRAEstimator(smoothing=1.0)(video, dt=1 / 27, dx=0.1)

@@ -22,7 +22,7 @@ parameters (path and width; centre and radius) fitted by least squares with the 
 profiled out, starting from the structure left in the residual (source) or from where heat flows
 (heterogeneity). The spatial operators are the size-3 members of :mod:`anra_torch.layers.derivatives`
 (5-point Laplacian, central gradient, ``[1, -2, 1]``, 4-point mixed derivative) and the flux form of
-:class:`anra_torch.simulate.HeatRHS`: after the Gaussian smoothing they need no more noise suppression,
+:class:`anra_torch.simulation.HeatRHS`: after the Gaussian smoothing they need no more noise suppression,
 and they are the operators of a finite-difference heat model, so simulated effects are fitted exactly.
 
 Model selection is stepwise (forward, then backward elimination) with Wald tests. Each effect's

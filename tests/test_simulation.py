@@ -1,4 +1,4 @@
-"""Tests for anra_torch.simulate: analytic solutions, convergence, py-pde, boundaries."""
+"""Tests for anra_torch.simulation (heat, analytic): analytic solutions, convergence, py-pde, boundaries."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 import torch
 from tolerances import assert_rounding_close
 
-from anra_torch.simulate import (
+from anra_torch.simulation import (
     BOUNDARIES,
     HeatRHS,
     gaussian_blob,
