@@ -33,6 +33,7 @@ from typing import Any
 
 import torch
 
+from anra_torch.checks import one_line
 from anra_torch.io import FOLDER_REGISTRY, REGISTRY, Video, load_video
 from anra_torch.layers.estimator import ANRAEstimator
 
@@ -68,10 +69,6 @@ BATCH_COLUMNS: dict[str, type] = {
 
 _DIAGNOSIS_COLUMNS = ("top_effect", "effects", "gain", "noise_floor", "base_rmse", "extended_rmse")
 _FORMATS = (".csv", ".parquet")
-
-
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or type(err).__name__
 
 
 # ------------------------------------------------------------------------------------------- inputs
@@ -312,7 +309,7 @@ def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> N
     try:
         result = assess_gain(video.frames, video.dt, video.dx, fit_fraction=options.fit_fraction)
     except (ValueError, TypeError) as err:
-        row.update(status="error", error=f"{video.source}: diagnose: {_one_line(err)}")
+        row.update(status="error", error=f"{video.source}: diagnose: {one_line(err)}")
         return
     names = [e["name"] for e in result.diagnosis.effects]
     row.update(
@@ -338,7 +335,7 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
         try:
             video = _load(path, options)
         except (ValueError, TypeError, OSError) as err:
-            rows[i] = _error_row(path, _one_line(err))
+            rows[i] = _error_row(path, one_line(err))
             continue
         groups.setdefault(tuple(video.frames.shape), []).append((i, video))
     for members in groups.values():
@@ -351,7 +348,7 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
                 try:
                     found.extend(_estimate_group([video], options))
                 except (ValueError, TypeError, RuntimeError) as err:
-                    found.append(_error_row(paths[i], f"{video.source}: {_one_line(err)}"))
+                    found.append(_error_row(paths[i], f"{video.source}: {one_line(err)}"))
         for (i, video), row in zip(members, found, strict=True):
             row["path"] = paths[i]
             if options.diagnose and row["status"] == "ok":

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from anra_torch.checks import one_line
 from anra_torch.effects import EFFECTS, HiddenEffectVideo, hidden_effect_video
 from anra_torch.io import REGISTRY, Video, load_video, save_npz
 from anra_torch.layers.estimator import MODES, ANRAEstimator, ANRAResult
@@ -593,7 +594,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
         summary, result, mapped = _diagnose_summary(video, args)
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
-            print(json.dumps({"path": str(args.video), "error": _one_line(err)}))
+            print(json.dumps({"path": str(args.video), "error": one_line(err)}))
         raise
     if args.json:
         print(json.dumps(summary, allow_nan=False))
@@ -1011,10 +1012,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or type(err).__name__
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``anra`` command line; returns the exit status (0 ok, 2 error).
 
@@ -1034,7 +1031,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: error: {err}", file=sys.stderr)
         return 2
     except (ValueError, TypeError, OSError, ImportError) as err:
-        print(f"{PROG}: error: {_one_line(err)}", file=sys.stderr)
+        print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from anra_torch.io.video import RawVideo, one_line
+from anra_torch.checks import one_line
+from anra_torch.io.video import RawVideo
 
 __all__ = ["load_npy", "load_npz"]
 
@@ -29,7 +30,7 @@ def _value_error(path: Path, err: ValueError, kind: str, save: str) -> ValueErro
         return ValueError(
             f"{path}: holds pickled Python objects, which are never loaded; save {save} instead"
         )
-    return ValueError(f"{path}: cannot read as {kind} ({one_line(err)}); the file may be corrupt")
+    return ValueError(f"{path}: cannot read as {kind} ({one_line(err, kind=True)}); the file may be corrupt")
 
 
 def load_npz(path: Path) -> RawVideo:
@@ -45,7 +46,7 @@ def load_npz(path: Path) -> RawVideo:
         raise _value_error(path, err, ".npz", "numeric arrays (numpy.savez)") from err
     except (zipfile.BadZipFile, EOFError, zlib.error, pickle.UnpicklingError, KeyError, OSError) as err:
         raise ValueError(
-            f"{path}: cannot read as .npz ({one_line(err)}); the file may be truncated or corrupt"
+            f"{path}: cannot read as .npz ({one_line(err, kind=True)}); the file may be truncated or corrupt"
         ) from err
     if "frames" not in data:
         found = ", ".join(repr(k) for k in data) or "nothing"
@@ -69,7 +70,7 @@ def load_npy(path: Path) -> RawVideo:
         raise _value_error(path, err, ".npy", "a numeric array (numpy.save)") from err
     except (EOFError, OSError, pickle.UnpicklingError) as err:
         raise ValueError(
-            f"{path}: cannot read as .npy ({one_line(err)}); the file may be truncated or corrupt"
+            f"{path}: cannot read as .npy ({one_line(err, kind=True)}); the file may be truncated or corrupt"
         ) from err
     if not isinstance(frames, np.ndarray):
         frames.close()

@@ -105,12 +105,6 @@ Loader = Callable[[Path], RawVideo]
 
 
 # ----------------------------------------------------------------------------------------------- helpers
-def one_line(err: BaseException) -> str:
-    """``"TypeName: message"`` on one line, for wrapping a library's error."""
-    text = " ".join(str(err).split()) or type(err).__name__
-    return f"{type(err).__name__}: {text}"
-
-
 def stack_frames(frames: list[np.ndarray], names: list[Path], folder: Path) -> np.ndarray:
     """Stack per-frame 2D arrays into ``(T, H, W)``; a frame of another size is a one-line error naming it."""
     first = frames[0].shape
