@@ -1,7 +1,7 @@
 """Many videos in one run: input expansion, batched estimation, resumable atomic CSV/Parquet tables.
 
 :func:`run_batch` reads every input (files, folders, glob patterns; any format in
-:data:`anra_torch.io.REGISTRY`), sends same-shaped videos through one
+:data:`anra_torch.video.REGISTRY`), sends same-shaped videos through one
 :class:`~anra_torch.layers.estimator.ANRAEstimator` call as a batch, optionally diagnoses each video
 (:func:`anra_torch.prediction.assess_gain`) and writes one row per input:
 
@@ -34,8 +34,8 @@ from typing import Any
 import torch
 
 from anra_torch.checks import one_line
-from anra_torch.io import FOLDER_REGISTRY, REGISTRY, Video, load_video
 from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.video import FOLDER_REGISTRY, REGISTRY, Video, load_video
 
 __all__ = ["BATCH_COLUMNS", "BatchSummary", "expand_inputs", "read_table", "run_batch", "write_table"]
 
@@ -78,7 +78,7 @@ def _is_video_file(path: Path) -> bool:
 
 
 def _is_video_folder(path: Path) -> bool:
-    """A folder that is itself one video (:data:`anra_torch.io.FOLDER_REGISTRY`): one file per frame.
+    """A folder that is itself one video (:data:`anra_torch.video.FOLDER_REGISTRY`): one file per frame.
 
     JPEGs are always single frames (FLIR radiometric JPEGs), so a folder holding them is one video. A
     ``.csv`` / ``.txt`` file is either a per-frame matrix (its first line is numbers) or a whole video (a
@@ -242,7 +242,7 @@ class BatchOptions:
         dtype: ``"float32"`` (fast) or ``"float64"``.
         fit_fraction: fraction of the frames diagnosed with ``diagnose``.
         resample: resample non-uniform timestamps (FLIR JPEG folders) onto their median step
-            (:func:`anra_torch.resample.resample_uniform`); otherwise such a video is an error row.
+            (:func:`anra_torch.video.resample_uniform`); otherwise such a video is an error row.
     """
 
     dt: float | None = None

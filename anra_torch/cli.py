@@ -33,10 +33,10 @@ from typing import Any
 
 from anra_torch.checks import one_line
 from anra_torch.effects import EFFECTS, HiddenEffectVideo, hidden_effect_video
-from anra_torch.io import REGISTRY, Video, load_video, save_npz
 from anra_torch.layers.estimator import MODES, ANRAEstimator, ANRAResult
 from anra_torch.report import format_pm, write_estimate_report
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
+from anra_torch.video import REGISTRY, Video, load_video, save_npz
 
 __all__ = ["PRESETS", "main", "build_parser"]
 
@@ -96,11 +96,11 @@ def _load_input(args: argparse.Namespace) -> Video:
             str(err).replace("(timestamps='resample' or 'keep' in load_video)", "(--resample)")
         ) from None
     if args.roi is not None:
-        from anra_torch.roi import crop, parse_roi
+        from anra_torch.video.roi import crop, parse_roi
 
         video = crop(video, parse_roi(args.roi))
     if args.calibration is not None:
-        from anra_torch.calibration import apply_calibration, load_calibration
+        from anra_torch.video.calibration import apply_calibration, load_calibration
 
         video = apply_calibration(video, load_calibration(args.calibration))
     return video

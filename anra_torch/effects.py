@@ -61,7 +61,6 @@ from torch import Tensor, nn
 from torchdiffeq import odeint
 
 from anra_torch.checks import as_fields, check_choice, check_int, number
-from anra_torch.io import save_npz
 from anra_torch.simulate import (
     _SAFETY,
     BOUNDARIES,
@@ -69,6 +68,7 @@ from anra_torch.simulate import (
     HeatRHS,
     gaussian_blobs,
 )
+from anra_torch.video import save_npz
 
 __all__ = [
     "DIFFUSION_EFFECTS",

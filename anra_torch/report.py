@@ -23,10 +23,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from anra_torch.io import Video
 from anra_torch.layers.attention import RTCAttention
 from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
 from anra_torch.layers.estimator import ANRAEstimator, ANRAResult
+from anra_torch.video import Video
 
 __all__ = ["FIGURES", "attention_map", "format_pm", "write_estimate_report"]
 

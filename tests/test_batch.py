@@ -16,9 +16,9 @@ from anra_torch import batch as batch_module
 from anra_torch.batch import BATCH_COLUMNS, expand_inputs, read_table, run_batch, write_table
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
-from anra_torch.io import save_npz
 from anra_torch.layers.estimator import ANRAEstimator
 from anra_torch.synthetic import paper_video
+from anra_torch.video import save_npz
 
 
 @pytest.fixture(scope="module")

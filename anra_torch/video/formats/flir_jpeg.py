@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from anra_torch.checks import one_line
-from anra_torch.io.video import RawVideo, stack_frames
+from anra_torch.video.core import RawVideo, stack_frames
 
 __all__ = ["flir_timestamp", "load_flir_jpeg", "load_flir_jpeg_folder"]
 

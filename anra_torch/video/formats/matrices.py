@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from anra_torch.checks import one_line
-from anra_torch.io.flir_csv import is_flir_csv
-from anra_torch.io.video import RawVideo, stack_frames
+from anra_torch.video.core import RawVideo, stack_frames
+from anra_torch.video.formats.flir_csv import is_flir_csv
 
 __all__ = ["load_matrix_folder"]
 

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from anra_torch.checks import one_line
-from anra_torch.io.video import RawVideo
+from anra_torch.video.core import RawVideo
 
 __all__ = ["load_hdf5", "load_mat", "load_tiff"]
 
