@@ -1,7 +1,8 @@
 """Many videos in one run: input expansion, batched estimation, resumable atomic CSV/Parquet tables.
 
 :func:`run_batch` reads every input (files, folders, glob patterns; any format in
-:data:`anra_torch.video.REGISTRY`), sends same-shaped videos through one
+:data:`anra_torch.video.REGISTRY`) as :func:`anra_torch.video.prepare_video` does for every command (resample,
+region of interest, calibration), sends same-shaped videos through one
 :class:`~anra_torch.layers.estimator.ANRAEstimator` call as a batch, optionally diagnoses each video
 (:func:`anra_torch.prediction.assess_gain`) and writes one row per input:
 
@@ -10,7 +11,9 @@
   ``reliability``; ``n_masked``; ``frames``, ``height``, ``width`` (px); ``dt`` (s); ``dx`` (mm);
   ``a_true`` (mm^2/s, when the file records it); ``seconds`` (this video's share of its batch's time);
 - with ``diagnose``: ``top_effect`` (``"none"`` for pure heat diffusion), ``effects`` (``;``-separated),
-  ``gain``, ``noise_floor`` (data units), ``base_rmse``, ``extended_rmse`` (data units).
+  ``gain``, ``noise_floor`` (data units), ``base_rmse``, ``extended_rmse`` (data units);
+- ``roi`` (``"X0,Y0,W,H"`` px) and ``calibration`` (the table's path) when the video was cropped or
+  calibrated, else empty.
 
 A bad input (missing, unreadable, too small, no thermal activity) gets an ``error`` row and never stops the
 others. The table is rewritten after every batch through a temporary file and :func:`os.replace`, so an
@@ -35,7 +38,16 @@ import torch
 
 from anra_torch.checks import one_line
 from anra_torch.layers.estimator import ANRAEstimator
-from anra_torch.video import FOLDER_REGISTRY, REGISTRY, Video, load_video
+from anra_torch.video import (
+    FOLDER_REGISTRY,
+    REGISTRY,
+    ROI,
+    CalibrationTable,
+    Video,
+    load_calibration,
+    parse_roi,
+    prepare_video,
+)
 
 __all__ = ["BATCH_COLUMNS", "BatchSummary", "expand_inputs", "read_table", "run_batch", "write_table"]
 
@@ -64,6 +76,8 @@ BATCH_COLUMNS: dict[str, type] = {
     "noise_floor": float,
     "base_rmse": float,
     "extended_rmse": float,
+    "roi": str,
+    "calibration": str,
 }
 """Output columns and their types (missing values are empty cells in CSV, nulls in Parquet)."""
 
@@ -243,6 +257,9 @@ class BatchOptions:
         fit_fraction: fraction of the frames diagnosed with ``diagnose``.
         resample: resample non-uniform timestamps (FLIR JPEG folders) onto their median step
             (:func:`anra_torch.video.resample_uniform`); otherwise such a video is an error row.
+        roi: region ``(x0, y0, width, height)`` in px analysed in every video, or None.
+        calibration: apparent -> true temperature table applied to every video, or None (the table
+            itself, not its path: Dask workers need not read it).
     """
 
     dt: float | None = None
@@ -251,6 +268,8 @@ class BatchOptions:
     dtype: str = "float32"
     fit_fraction: float = 0.6
     resample: bool = False
+    roi: ROI | None = None
+    calibration: CalibrationTable | None = None
 
 
 def _error_row(path: str, message: str) -> dict[str, Any]:
@@ -258,11 +277,24 @@ def _error_row(path: str, message: str) -> dict[str, Any]:
 
 
 def _load(path: str, options: BatchOptions) -> Video:
-    timestamps = "resample" if options.resample else "uniform"
-    video = load_video(path, dt=options.dt, dx=options.dx, timestamps=timestamps)
-    if video.dx is None:
-        raise ValueError(f"{path}: no pixel size: the file has no 'dx'; pass --dx in mm")
-    return video
+    return prepare_video(
+        path,
+        dt=options.dt,
+        dx=options.dx,
+        timestamps="resample" if options.resample else "uniform",
+        roi=options.roi,
+        calibration=options.calibration,
+    )
+
+
+def _preparation(video: Video) -> dict[str, Any]:
+    """The ``roi`` and ``calibration`` cells: what :func:`prepare_video` did to this video."""
+    roi = video.meta.get("roi")
+    calibration = video.meta.get("calibration")
+    return {
+        "roi": ",".join(str(v) for v in roi) if roi else None,
+        "calibration": calibration["table"] if calibration else None,
+    }
 
 
 def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str, Any]]:
@@ -295,8 +327,9 @@ def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str
                 "width": w,
                 "dt": video.dt,
                 "dx": video.dx,
-                "a_true": video.meta.get("a_true"),
+                "a_true": video.truth.a if video.truth is not None else None,
                 "seconds": share,
+                **_preparation(video),
             }
         )
     return rows
@@ -410,6 +443,8 @@ def run_batch(
     progress: bool = True,
     runner: Runner | None = None,
     resample: bool = False,
+    roi: ROI | str | None = None,
+    calibration: CalibrationTable | PathLike | None = None,
 ) -> BatchSummary:
     """Estimate (and optionally diagnose) every input video into a resumable table.
 
@@ -426,13 +461,18 @@ def run_batch(
         progress: show a tqdm progress bar on stderr.
         runner: how chunks are processed; default in this process (see :mod:`anra_torch.distributed`).
         resample: resample non-uniform timestamps onto their median step instead of an error row.
+        roi: analyse only this region of every video: ``(x0, y0, width, height)`` px or ``"X0,Y0,W,H"``; a
+            video it does not fit gets an error row.
+        calibration: map apparent to true temperature in every video: a table or the path of a
+            ``true,apparent`` CSV (read once, here).
 
     Returns:
         :class:`BatchSummary`.
 
     Raises:
-        ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, or an existing ``out`` that
-            is not a batch table. Bad inputs never raise: they get error rows.
+        ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, a malformed ``roi``, a bad
+            calibration file, or an existing ``out`` that is not a batch table. Bad inputs never raise: they
+            get error rows.
     """
     out = Path(out)
     _check_format(out)
@@ -442,7 +482,13 @@ def run_batch(
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
     if out.suffix.lower() == ".parquet":
         _parquet()
-    options = BatchOptions(dt=dt, dx=dx, diagnose=diagnose, dtype=dtype, resample=resample)
+    if roi is not None:  # a malformed region is the caller's mistake, not one row's
+        roi = parse_roi(roi if isinstance(roi, str) else ",".join(str(v) for v in roi))
+    if calibration is not None and not isinstance(calibration, CalibrationTable):
+        calibration = load_calibration(calibration)
+    options = BatchOptions(
+        dt=dt, dx=dx, diagnose=diagnose, dtype=dtype, resample=resample, roi=roi, calibration=calibration
+    )
     start = time.perf_counter()
     paths = expand_inputs(inputs)
     table = {_key(row["path"]): row for row in read_table(out)}

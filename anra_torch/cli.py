@@ -36,7 +36,7 @@ from anra_torch.effects import EFFECTS, HiddenEffectVideo, hidden_effect_video
 from anra_torch.layers.estimator import MODES, ANRAEstimator, ANRAResult
 from anra_torch.report import format_pm, write_estimate_report
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
-from anra_torch.video import REGISTRY, Video, load_video, save_npz
+from anra_torch.video import REGISTRY, Video, load_video, prepare_video, save_npz
 
 __all__ = ["PRESETS", "main", "build_parser"]
 
@@ -63,7 +63,7 @@ def _add_spacing_arguments(parser: argparse.ArgumentParser, source: str) -> None
 
 
 def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
-    """VIDEO, --dt, --dx, --roi and --calibration, shared by the commands that read a video."""
+    """VIDEO, --dt, --dx, --resample, --roi and --calibration, shared by the commands that read a video."""
     parser.add_argument(
         "video",
         metavar="VIDEO",
@@ -71,6 +71,11 @@ def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
         "frames (T, H, W)",
     )
     _add_spacing_arguments(parser, "the file")
+    _add_region_arguments(parser)
+
+
+def _add_region_arguments(parser: argparse.ArgumentParser) -> None:
+    """--roi and --calibration: what :func:`prepare_video` does after loading."""
     parser.add_argument(
         "--roi",
         metavar="X0,Y0,W,H",
@@ -85,25 +90,21 @@ def _add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
 
 
 def _load_input(args: argparse.Namespace) -> Video:
-    """The video of VIDEO with --dt/--dx, resampled when its timestamps are not uniform, then --roi and
+    """The video of VIDEO prepared by :func:`prepare_video` with --dt, --dx, --resample, --roi and
     --calibration; ``meta`` says what was done."""
     try:
-        video = load_video(
-            args.video, dt=args.dt, dx=args.dx, timestamps="resample" if args.resample else "uniform"
+        return prepare_video(
+            args.video,
+            dt=args.dt,
+            dx=args.dx,
+            timestamps="resample" if args.resample else "uniform",
+            roi=args.roi,
+            calibration=args.calibration,
         )
-    except ValueError as err:
+    except ValueError as err:  # the library's hint names its argument; here the flag is the fix
         raise ValueError(
             str(err).replace("(timestamps='resample' or 'keep' in load_video)", "(--resample)")
         ) from None
-    if args.roi is not None:
-        from anra_torch.video.roi import crop, parse_roi
-
-        video = crop(video, parse_roi(args.roi))
-    if args.calibration is not None:
-        from anra_torch.video.calibration import apply_calibration, load_calibration
-
-        video = apply_calibration(video, load_calibration(args.calibration))
-    return video
 
 
 def _input_record(video: Video) -> dict[str, Any]:
@@ -194,7 +195,7 @@ def _summary(video: Video, result: ANRAResult, est: ANRAEstimator, elapsed: floa
         "window_px": est.window,
         "field_median": None,
         "field_coverage": None,
-        "a_true": video.meta.get("a_true"),
+        "a_true": video.truth.a if video.truth is not None else None,
         "elapsed_s": round(elapsed, 3),
         "units": {
             "diffusivity": "mm^2/s",
@@ -245,8 +246,6 @@ def _print_summary(s: dict[str, Any]) -> None:
 def _run_estimate(args: argparse.Namespace) -> int:
     est = ANRAEstimator(mode=args.mode, window=args.window, strict=False)
     video = _load_input(args)
-    if video.dx is None:
-        raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
     start = time.perf_counter()
     try:
         result = est(video.frames, video.dt, video.dx)
@@ -589,8 +588,6 @@ def _run_diagnose(args: argparse.Namespace) -> int:
         if not 0 < args.fit_fraction < 1:
             raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
         video = _load_input(args)
-        if video.dx is None:
-            raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
         summary, result, mapped = _diagnose_summary(video, args)
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
@@ -640,8 +637,6 @@ def _run_features(args: argparse.Namespace) -> int:
     from anra_torch.features import feature_summary, save_feature_maps
 
     video = _load_input(args)
-    if video.dx is None:
-        raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
     try:
         record, maps = feature_summary(video.frames, video.dt, video.dx, units=args.units)
     except (ValueError, TypeError) as err:
@@ -685,6 +680,8 @@ def _run_batch(args: argparse.Namespace) -> int:
         "dtype": "float64" if args.float64 else "float32",
         "progress": not args.no_progress,
         "resample": args.resample,
+        "roi": args.roi,
+        "calibration": args.calibration,
     }
     if args.dask or args.scheduler:
         from anra_torch.distributed import run_batch_dask
@@ -952,6 +949,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--diagnose", action="store_true", help="also diagnose hidden effects (top_effect, gain, noise_floor)"
     )
     _add_spacing_arguments(batch, "the files")
+    _add_region_arguments(batch)
     batch.add_argument(
         "--batch-size",
         type=_integer("videos", minimum=1),

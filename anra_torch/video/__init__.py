@@ -7,6 +7,7 @@
 - the steps: :func:`resample_uniform` (non-uniform timestamps, :mod:`~anra_torch.video.resample`),
   :func:`crop` and pixel masks (:mod:`~anra_torch.video.roi`), calibration tables, units and pixel-size
   intervals (:mod:`~anra_torch.video.calibration`);
+- :func:`prepare_video`: load -> resample -> roi -> calibration in one call, as every command does it;
 - :func:`segment_phases`: baseline / heating / cooling from the data (:mod:`~anra_torch.video.phases`).
 
 Shape:
@@ -25,6 +26,7 @@ from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
 from anra_torch.video.formats.numpy_formats import save_npz
 from anra_torch.video.load import TIMESTAMPS, load_video
 from anra_torch.video.phases import Phase, hot_spot_signal, segment_phases
+from anra_torch.video.prepare import STEPS, prepare_video
 from anra_torch.video.resample import resample_uniform
 from anra_torch.video.roi import ROI, apply_mask, crop, dead_pixel_mask, parse_roi, reflection_mask
 
@@ -32,6 +34,7 @@ __all__ = [
     "FOLDER_REGISTRY",
     "REGISTRY",
     "ROI",
+    "STEPS",
     "TIMESTAMPS",
     "CalibrationTable",
     "PathLike",
@@ -48,6 +51,7 @@ __all__ = [
     "load_calibration",
     "load_video",
     "parse_roi",
+    "prepare_video",
     "reflection_mask",
     "resample_uniform",
     "save_npz",
