@@ -81,6 +81,8 @@ BATCH_COLUMNS: dict[str, type] = {
 }
 """Output columns and their types (missing values are empty cells in CSV, nulls in Parquet)."""
 
+_RECORD_COLUMNS = ("diffusivity", "std_error", "smoothing_px", "noise_sd", "reliability", "n_masked")
+"""The columns taken as they are from :meth:`~anra_torch.layers.estimator.ANRAResult.to_record`."""
 _DIAGNOSIS_COLUMNS = ("top_effect", "effects", "gain", "noise_floor", "base_rmse", "extended_rmse")
 _FORMATS = (".csv", ".parquet")
 
@@ -310,18 +312,14 @@ def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str
     rows = []
     for i, video in enumerate(videos):
         t, h, w = video.frames.shape
-        ok = bool(result.valid[i])
+        record = result.to_record(i)
+        ok = record["valid"]
         rows.append(
             {
                 "path": str(video.source),
                 "status": "ok" if ok else "error",
-                "error": "" if ok else f"{video.source}: {result.messages[i]}",
-                "diffusivity": float(result.diffusivity[i]),
-                "std_error": float(result.std_error[i]),
-                "smoothing_px": float(result.smoothing[i]),
-                "noise_sd": float(result.noise_sd[i]),
-                "reliability": float(result.reliability[i]),
-                "n_masked": int(result.n_masked[i]),
+                "error": "" if ok else f"{video.source}: {record['message']}",
+                **{key: record[key] for key in _RECORD_COLUMNS},
                 "frames": t,
                 "height": h,
                 "width": w,

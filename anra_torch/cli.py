@@ -169,41 +169,32 @@ def _integer(unit: str, *, minimum: int, odd: bool = False) -> Callable[[str], i
 
 
 # ------------------------------------------------------------------------------------- estimate
-def _finite(value: float) -> float | None:
-    return value if math.isfinite(value) else None
-
-
 def _summary(video: Video, result: ANRAResult, est: ANRAEstimator, elapsed: float) -> dict[str, Any]:
-    """The ``estimate --json`` object (also the source of the human summary)."""
+    """The ``estimate --json`` object (also the source of the human summary): the result's
+    :meth:`~ANRAResult.to_record` with the video's shape and spacing, the estimator's settings and timing."""
     t, h, w = video.frames.shape
+    record = result.to_record(unit=video.unit)
+    units = record["units"]
     summary: dict[str, Any] = {
         "path": str(video.source),
-        "diffusivity": _finite(float(result.diffusivity)),
-        "std_error": _finite(float(result.std_error)),
-        "valid": bool(result.valid),
-        "message": result.messages[0],
+        **{key: record[key] for key in ("diffusivity", "std_error", "valid", "message")},
         "frames": t,
         "height": h,
         "width": w,
         "dt": video.dt,
         "dx": video.dx,
         "mode": est.mode,
-        "smoothing_px": float(result.smoothing),
-        "noise_sd": float(result.noise_sd),
-        "reliability": float(result.reliability),
-        "n_masked": int(result.n_masked),
+        **{key: record[key] for key in ("smoothing_px", "noise_sd", "reliability", "n_masked")},
         "window_px": est.window,
         "field_median": None,
         "field_coverage": None,
         "a_true": video.truth.a if video.truth is not None else None,
         "elapsed_s": round(elapsed, 3),
         "units": {
-            "diffusivity": "mm^2/s",
-            "std_error": "mm^2/s",
+            **{key: units[key] for key in ("diffusivity", "std_error")},
             "dt": "s",
             "dx": "mm",
-            "smoothing_px": "px",
-            "noise_sd": video.unit,
+            **{key: units[key] for key in ("smoothing_px", "noise_sd")},
             "elapsed_s": "s",
         },
     }
