@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 
-import anra_torch.cli as cli
+import anra_torch.cli.demo as demo_command
 from anra_torch import ANRAEstimator
 from anra_torch.cli import main
 from anra_torch.synthetic import paper_video
@@ -397,7 +397,7 @@ def test_demo_writes_report_and_figures(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # The same pipeline on the central 96 px of the paper's video, to keep the fast suite fast.
-    monkeypatch.setattr(cli, "paper_video", lambda **kw: paper_video(crop=96, **kw))
+    monkeypatch.setattr(demo_command, "paper_video", lambda **kw: paper_video(crop=96, **kw))
     code, out, err = run(capsys, "demo", "--out", tmp_path / "demo")
     assert (code, err) == (0, "")
     for name in (

@@ -110,6 +110,29 @@ def _frames(array: Any, path: Path) -> Tensor:
     return torch.from_numpy(np.ascontiguousarray(array))
 
 
+def _step_of(t: Tensor, stored: Any, path: Path, timestamps: str) -> tuple[float, bool]:
+    """The frame period (s) of timestamps ``t`` and whether to resample them; a ``dt`` stored next to
+    uniform timestamps must agree with their step."""
+    if t.numel() < 2:
+        raise ValueError(f"{path}: a single frame has no frame period; pass dt in s (--dt)")
+    resample = False
+    try:
+        step = uniform_step(t, rtol=UNIFORM_RTOL)
+    except ValueError as err:
+        if timestamps == "uniform":
+            raise ValueError(f"{path}: {err} (timestamps='resample' or 'keep' in load_video)") from err
+        step, resample = float(torch.diff(t).median()), timestamps == "resample"
+    if stored is not None and not resample and timestamps != "keep":
+        file_step = positive_spacing(stored, path, "dt", "s", "in the file")
+        if abs(file_step - step) > 1e-3 * step:
+            raise ValueError(
+                f"{path}: dt = {file_step:g} s disagrees with the step of t = {step:g} s; fix the file "
+                "or pass dt explicitly (--dt)"
+            )
+        step = file_step
+    return step, resample
+
+
 def load_video(
     path: PathLike,
     *,
@@ -172,22 +195,7 @@ def load_video(
         step = positive_spacing(dt, path, "dt", "s", "(argument)")
         meta["dt_source"], t = "argument", None
     elif t is not None:
-        if n < 2:
-            raise ValueError(f"{path}: a single frame has no frame period; pass dt in s (--dt)")
-        try:
-            step = uniform_step(t, rtol=UNIFORM_RTOL)
-        except ValueError as err:
-            if timestamps == "uniform":
-                raise ValueError(f"{path}: {err} (timestamps='resample' or 'keep' in load_video)") from err
-            step, resample = float(torch.diff(t).median()), timestamps == "resample"
-        if raw.dt is not None and not resample and timestamps != "keep":
-            stored = positive_spacing(raw.dt, path, "dt", "s", "in the file")
-            if abs(stored - step) > 1e-3 * step:
-                raise ValueError(
-                    f"{path}: dt = {stored:g} s disagrees with the step of t = {step:g} s; fix the file "
-                    "or pass dt explicitly (--dt)"
-                )
-            step = stored
+        step, resample = _step_of(t, raw.dt, path, timestamps)
         meta["dt_source"] = "t"
     elif raw.dt is not None:
         step = positive_spacing(raw.dt, path, "dt", "s", "in the file")
@@ -197,13 +205,11 @@ def load_video(
             f"{path}: no frame period: the file has neither 'dt' nor 't'; "
             "pass dt in s (--dt on the command line)"
         )
-
     spacing = None
-    if dx is not None:
-        spacing = positive_spacing(dx, path, "dx", "mm", "(argument)")
-        meta["dx_source"] = "argument"
-    elif raw.dx is not None:
-        spacing = positive_spacing(raw.dx, path, "dx", "mm", "in the file")
-        meta["dx_source"] = "file"
+    if dx is not None or raw.dx is not None:  # the argument wins over the file
+        origin = "argument" if dx is not None else "file"
+        where = "(argument)" if dx is not None else "in the file"
+        spacing = positive_spacing(dx if dx is not None else raw.dx, path, "dx", "mm", where)
+        meta["dx_source"] = origin
     video = Video(frames=frames, dt=step, dx=spacing, t=t, source=path, meta=meta, truth=raw.truth)
     return resample_uniform(video) if resample else video
