@@ -262,6 +262,9 @@ class BatchOptions:
         roi: region ``(x0, y0, width, height)`` in px analysed in every video, or None.
         calibration: apparent -> true temperature table applied to every video, or None (the table
             itself, not its path: Dask workers need not read it).
+
+    Shape:
+        No tensors.
     """
 
     dt: float | None = None
@@ -466,6 +469,9 @@ def run_batch(
 
     Returns:
         :class:`BatchSummary`.
+
+    Shape:
+        No tensors: each video is read as ``(T, H, W)`` frames and estimated with same-shaped others.
 
     Raises:
         ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, a malformed ``roi``, a bad

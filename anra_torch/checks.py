@@ -61,6 +61,9 @@ def one_line(err: BaseException, *, kind: bool = False) -> str:
         err: the exception.
         kind: prefix the type name (``"BadZipFile: ..."``), for quoting another library's error inside ours.
 
+    Shape:
+        No tensors.
+
     Example:
         >>> one_line(ValueError("no   such  file")), one_line(KeyError(), kind=True)
         ('no such file', 'KeyError: KeyError')

@@ -151,6 +151,9 @@ class RawVideo:
         t: timestamps in s, or None.
         meta: extra facts (see :attr:`Video.meta`).
         truth: the simulation's truth when the file records it (see :class:`Truth`).
+
+    Shape:
+        ``frames`` ``(T, H, W)`` once checked; ``t`` ``(T,)``.
     """
 
     frames: Any
@@ -166,7 +169,11 @@ Loader = Callable[[Path], RawVideo]
 
 
 def stack_frames(frames: list[np.ndarray], names: list[Path], folder: Path) -> np.ndarray:
-    """Stack per-frame 2D arrays into ``(T, H, W)``; a frame of another size is a one-line error naming it."""
+    """Stack per-frame 2D arrays into one video; a frame of another size is a one-line error naming it.
+
+    Shape:
+        ``T`` arrays ``(H, W)`` -> ``(T, H, W)``.
+    """
     first = frames[0].shape
     for array, name in zip(frames, names, strict=True):
         if array.ndim != 2:
@@ -182,6 +189,9 @@ def stack_frames(frames: list[np.ndarray], names: list[Path], folder: Path) -> n
 def positive_spacing(value: object, path: Path, name: str, unit: str, origin: str) -> float:
     """A positive finite float from a scalar-like ``value`` (``origin``: ``"in the file"`` or
     ``"(argument)"``, for the message).
+
+    Shape:
+        A scalar or one-element array -> float.
 
     Raises:
         ValueError: not one positive finite number.

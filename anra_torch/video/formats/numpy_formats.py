@@ -40,7 +40,11 @@ def _value_error(path: Path, err: ValueError, kind: str, save: str) -> ValueErro
 
 
 def load_npz(path: Path) -> RawVideo:
-    """An ``.npz`` archive: ``frames``, ``dt`` / ``t``, ``dx``, scalars to ``meta``, a simulation's truth."""
+    """An ``.npz`` archive: ``frames``, ``dt`` / ``t``, ``dx``, scalars to ``meta``, a simulation's truth.
+
+    Shape:
+        ``frames`` as stored (:func:`~anra_torch.video.load_video` requires ``(T, H, W)``); ``t`` ``(T,)``.
+    """
     try:
         archive = np.load(path, allow_pickle=False)
         if not isinstance(archive, np.lib.npyio.NpzFile):
@@ -72,7 +76,11 @@ def load_npz(path: Path) -> RawVideo:
 
 
 def load_npy(path: Path) -> RawVideo:
-    """A bare ``.npy`` array of frames (no spacing: pass ``dt`` and ``dx``)."""
+    """A bare ``.npy`` array of frames (no spacing: pass ``dt`` and ``dx``).
+
+    Shape:
+        ``frames`` as stored (:func:`~anra_torch.video.load_video` requires ``(T, H, W)``).
+    """
     try:
         frames = np.load(path, allow_pickle=False)
     except ValueError as err:
