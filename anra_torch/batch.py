@@ -1,7 +1,8 @@
 """Many videos in one run: input expansion, batched estimation, resumable atomic CSV/Parquet tables.
 
 :func:`run_batch` reads every input (files, folders, glob patterns; any format in
-:data:`anra_torch.io.REGISTRY`), sends same-shaped videos through one
+:data:`anra_torch.video.REGISTRY`) as :func:`anra_torch.video.prepare_video` does for every command (resample,
+region of interest, calibration), sends same-shaped videos through one
 :class:`~anra_torch.layers.estimator.ANRAEstimator` call as a batch, optionally diagnoses each video
 (:func:`anra_torch.prediction.assess_gain`) and writes one row per input:
 
@@ -10,7 +11,9 @@
   ``reliability``; ``n_masked``; ``frames``, ``height``, ``width`` (px); ``dt`` (s); ``dx`` (mm);
   ``a_true`` (mm^2/s, when the file records it); ``seconds`` (this video's share of its batch's time);
 - with ``diagnose``: ``top_effect`` (``"none"`` for pure heat diffusion), ``effects`` (``;``-separated),
-  ``gain``, ``noise_floor`` (data units), ``base_rmse``, ``extended_rmse`` (data units).
+  ``gain``, ``noise_floor`` (data units), ``base_rmse``, ``extended_rmse`` (data units);
+- ``roi`` (``"X0,Y0,W,H"`` px) and ``calibration`` (the table's path) when the video was cropped or
+  calibrated, else empty.
 
 A bad input (missing, unreadable, too small, no thermal activity) gets an ``error`` row and never stops the
 others. The table is rewritten after every batch through a temporary file and :func:`os.replace`, so an
@@ -33,8 +36,18 @@ from typing import Any
 
 import torch
 
-from anra_torch.io import FOLDER_REGISTRY, REGISTRY, Video, load_video
+from anra_torch.checks import one_line
 from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.video import (
+    FOLDER_REGISTRY,
+    REGISTRY,
+    ROI,
+    CalibrationTable,
+    Video,
+    load_calibration,
+    parse_roi,
+    prepare_video,
+)
 
 __all__ = ["BATCH_COLUMNS", "BatchSummary", "expand_inputs", "read_table", "run_batch", "write_table"]
 
@@ -63,15 +76,15 @@ BATCH_COLUMNS: dict[str, type] = {
     "noise_floor": float,
     "base_rmse": float,
     "extended_rmse": float,
+    "roi": str,
+    "calibration": str,
 }
 """Output columns and their types (missing values are empty cells in CSV, nulls in Parquet)."""
 
+_RECORD_COLUMNS = ("diffusivity", "std_error", "smoothing_px", "noise_sd", "reliability", "n_masked")
+"""The columns taken as they are from :meth:`~anra_torch.layers.estimator.ANRAResult.to_record`."""
 _DIAGNOSIS_COLUMNS = ("top_effect", "effects", "gain", "noise_floor", "base_rmse", "extended_rmse")
 _FORMATS = (".csv", ".parquet")
-
-
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or type(err).__name__
 
 
 # ------------------------------------------------------------------------------------------- inputs
@@ -81,7 +94,7 @@ def _is_video_file(path: Path) -> bool:
 
 
 def _is_video_folder(path: Path) -> bool:
-    """A folder that is itself one video (:data:`anra_torch.io.FOLDER_REGISTRY`): one file per frame.
+    """A folder that is itself one video (:data:`anra_torch.video.FOLDER_REGISTRY`): one file per frame.
 
     JPEGs are always single frames (FLIR radiometric JPEGs), so a folder holding them is one video. A
     ``.csv`` / ``.txt`` file is either a per-frame matrix (its first line is numbers) or a whole video (a
@@ -245,7 +258,13 @@ class BatchOptions:
         dtype: ``"float32"`` (fast) or ``"float64"``.
         fit_fraction: fraction of the frames diagnosed with ``diagnose``.
         resample: resample non-uniform timestamps (FLIR JPEG folders) onto their median step
-            (:func:`anra_torch.resample.resample_uniform`); otherwise such a video is an error row.
+            (:func:`anra_torch.video.resample_uniform`); otherwise such a video is an error row.
+        roi: region ``(x0, y0, width, height)`` in px analysed in every video, or None.
+        calibration: apparent -> true temperature table applied to every video, or None (the table
+            itself, not its path: Dask workers need not read it).
+
+    Shape:
+        No tensors.
     """
 
     dt: float | None = None
@@ -254,6 +273,8 @@ class BatchOptions:
     dtype: str = "float32"
     fit_fraction: float = 0.6
     resample: bool = False
+    roi: ROI | None = None
+    calibration: CalibrationTable | None = None
 
 
 def _error_row(path: str, message: str) -> dict[str, Any]:
@@ -261,11 +282,24 @@ def _error_row(path: str, message: str) -> dict[str, Any]:
 
 
 def _load(path: str, options: BatchOptions) -> Video:
-    timestamps = "resample" if options.resample else "uniform"
-    video = load_video(path, dt=options.dt, dx=options.dx, timestamps=timestamps)
-    if video.dx is None:
-        raise ValueError(f"{path}: no pixel size: the file has no 'dx'; pass --dx in mm")
-    return video
+    return prepare_video(
+        path,
+        dt=options.dt,
+        dx=options.dx,
+        timestamps="resample" if options.resample else "uniform",
+        roi=options.roi,
+        calibration=options.calibration,
+    )
+
+
+def _preparation(video: Video) -> dict[str, Any]:
+    """The ``roi`` and ``calibration`` cells: what :func:`prepare_video` did to this video."""
+    roi = video.meta.get("roi")
+    calibration = video.meta.get("calibration")
+    return {
+        "roi": ",".join(str(v) for v in roi) if roi else None,
+        "calibration": calibration["table"] if calibration else None,
+    }
 
 
 def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str, Any]]:
@@ -281,25 +315,22 @@ def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str
     rows = []
     for i, video in enumerate(videos):
         t, h, w = video.frames.shape
-        ok = bool(result.valid[i])
+        record = result.to_record(i)
+        ok = record["valid"]
         rows.append(
             {
                 "path": str(video.source),
                 "status": "ok" if ok else "error",
-                "error": "" if ok else f"{video.source}: {result.messages[i]}",
-                "diffusivity": float(result.diffusivity[i]),
-                "std_error": float(result.std_error[i]),
-                "smoothing_px": float(result.smoothing[i]),
-                "noise_sd": float(result.noise_sd[i]),
-                "reliability": float(result.reliability[i]),
-                "n_masked": int(result.n_masked[i]),
+                "error": "" if ok else f"{video.source}: {record['message']}",
+                **{key: record[key] for key in _RECORD_COLUMNS},
                 "frames": t,
                 "height": h,
                 "width": w,
                 "dt": video.dt,
                 "dx": video.dx,
-                "a_true": video.meta.get("a_true"),
+                "a_true": video.truth.a if video.truth is not None else None,
                 "seconds": share,
+                **_preparation(video),
             }
         )
     return rows
@@ -312,7 +343,7 @@ def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> N
     try:
         result = assess_gain(video.frames, video.dt, video.dx, fit_fraction=options.fit_fraction)
     except (ValueError, TypeError) as err:
-        row.update(status="error", error=f"{video.source}: diagnose: {_one_line(err)}")
+        row.update(status="error", error=f"{video.source}: diagnose: {one_line(err)}")
         return
     names = [e["name"] for e in result.diagnosis.effects]
     row.update(
@@ -338,7 +369,7 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
         try:
             video = _load(path, options)
         except (ValueError, TypeError, OSError) as err:
-            rows[i] = _error_row(path, _one_line(err))
+            rows[i] = _error_row(path, one_line(err))
             continue
         groups.setdefault(tuple(video.frames.shape), []).append((i, video))
     for members in groups.values():
@@ -351,7 +382,7 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
                 try:
                     found.extend(_estimate_group([video], options))
                 except (ValueError, TypeError, RuntimeError) as err:
-                    found.append(_error_row(paths[i], f"{video.source}: {_one_line(err)}"))
+                    found.append(_error_row(paths[i], f"{video.source}: {one_line(err)}"))
         for (i, video), row in zip(members, found, strict=True):
             row["path"] = paths[i]
             if options.diagnose and row["status"] == "ok":
@@ -413,6 +444,8 @@ def run_batch(
     progress: bool = True,
     runner: Runner | None = None,
     resample: bool = False,
+    roi: ROI | str | None = None,
+    calibration: CalibrationTable | PathLike | None = None,
 ) -> BatchSummary:
     """Estimate (and optionally diagnose) every input video into a resumable table.
 
@@ -429,13 +462,21 @@ def run_batch(
         progress: show a tqdm progress bar on stderr.
         runner: how chunks are processed; default in this process (see :mod:`anra_torch.distributed`).
         resample: resample non-uniform timestamps onto their median step instead of an error row.
+        roi: analyse only this region of every video: ``(x0, y0, width, height)`` px or ``"X0,Y0,W,H"``; a
+            video it does not fit gets an error row.
+        calibration: map apparent to true temperature in every video: a table or the path of a
+            ``true,apparent`` CSV (read once, here).
 
     Returns:
         :class:`BatchSummary`.
 
+    Shape:
+        No tensors: each video is read as ``(T, H, W)`` frames and estimated with same-shaped others.
+
     Raises:
-        ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, or an existing ``out`` that
-            is not a batch table. Bad inputs never raise: they get error rows.
+        ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, a malformed ``roi``, a bad
+            calibration file, or an existing ``out`` that is not a batch table. Bad inputs never raise: they
+            get error rows.
     """
     out = Path(out)
     _check_format(out)
@@ -445,7 +486,13 @@ def run_batch(
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
     if out.suffix.lower() == ".parquet":
         _parquet()
-    options = BatchOptions(dt=dt, dx=dx, diagnose=diagnose, dtype=dtype, resample=resample)
+    if roi is not None:  # a malformed region is the caller's mistake, not one row's
+        roi = parse_roi(roi if isinstance(roi, str) else ",".join(str(v) for v in roi))
+    if calibration is not None and not isinstance(calibration, CalibrationTable):
+        calibration = load_calibration(calibration)
+    options = BatchOptions(
+        dt=dt, dx=dx, diagnose=diagnose, dtype=dtype, resample=resample, roi=roi, calibration=calibration
+    )
     start = time.perf_counter()
     paths = expand_inputs(inputs)
     table = {_key(row["path"]): row for row in read_table(out)}

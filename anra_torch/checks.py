@@ -22,6 +22,7 @@ __all__ = [
     "check_int",
     "check_shape",
     "number",
+    "one_line",
     "positive",
     "uniform_step",
 ]
@@ -51,6 +52,24 @@ def number(
     if minimum is not None and result < minimum:
         raise ValueError(f"{name} must be a finite number >= {minimum:g} in {unit}, got {value!r}")
     return result
+
+
+def one_line(err: BaseException, *, kind: bool = False) -> str:
+    """The message of ``err`` on one line (its type name when it has none).
+
+    Args:
+        err: the exception.
+        kind: prefix the type name (``"BadZipFile: ..."``), for quoting another library's error inside ours.
+
+    Shape:
+        No tensors.
+
+    Example:
+        >>> one_line(ValueError("no   such  file")), one_line(KeyError(), kind=True)
+        ('no such file', 'KeyError: KeyError')
+    """
+    text = " ".join(str(err).split()) or type(err).__name__
+    return f"{type(err).__name__}: {text}" if kind else text
 
 
 def positive(value: object, name: str, unit: str) -> float:

@@ -58,15 +58,10 @@ class SyntheticVideo:
 
         ``numpy.savez`` appends ``.npz`` to a path without that suffix.
         """
+        from anra_torch.video import save_npz  # the one .npz writer (atomic, same keys as anra simulate)
+
         frames = self.frames[0] if self.frames.shape[0] == 1 else self.frames
-        np.savez(
-            path,
-            frames=frames.detach().cpu().numpy(),
-            dt=np.float64(self.dt),
-            dx=np.float64(self.dx),
-            t=self.times.detach().cpu().numpy(),
-            a_true=np.float64(self.a),
-        )
+        save_npz(path, frames, dt=self.dt, dx=self.dx, t=self.times, batch=True, a_true=np.float64(self.a))
 
 
 def paper_video(

@@ -12,7 +12,7 @@ Recordings:
   assumptions) are used and every diffusivity from them is conditional on them.
 
 Per recording, the phases (baseline / heating / cooling) come from the data
-(:func:`anra_torch.phases.segment_phases`). Per phase:
+(:func:`anra_torch.video.segment_phases`). Per phase:
 
 - Laser silicone (frames 96 x 128 px): the ANRA estimate of ``a`` (plain heat equation), then
   :func:`anra_torch.prediction.assess_gain`: the diagnosis on the first 60 % of the phase names the
@@ -55,13 +55,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from anra_torch.calibration import PixelSize, apply_calibration, load_calibration
-from anra_torch.io import Video, load_video
 from anra_torch.layers.estimator import ANRAEstimator
-from anra_torch.phases import Phase, hot_spot_signal, segment_phases
 from anra_torch.prediction import assess_gain, split_index
 from anra_torch.selection import diagnose_terms
 from anra_torch.source_map import source_map_gain
+from anra_torch.video import Video, load_video
+from anra_torch.video.calibration import PixelSize, apply_calibration, load_calibration
+from anra_torch.video.phases import Phase, hot_spot_signal, segment_phases
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 LASER_DX = PixelSize(0.55, 0.5, 0.6)  # mm/px, C3-X 41 x 31 deg over 128 x 96 px at about 10 cm

@@ -5,7 +5,7 @@ Written from the published record layout (ExifTool's FLIR tags: CameraInfo offse
 transmission, 0x3c relative humidity, 0x58 R1, 0x5c B, 0x60 F, 0x70-0x80 atmospheric constants,
 0x308 O, 0x30c R2, 0x384 DateTimeOriginal) and the raw -> temperature formula with atmospheric
 transmission (as in ExifTool's documentation and R's Thermimage::raw2temp). Shares no code with flyr or
-anra_torch.io.
+anra_torch.video.
 """
 
 from __future__ import annotations

@@ -16,9 +16,9 @@ from anra_torch import batch as batch_module
 from anra_torch.batch import BATCH_COLUMNS, expand_inputs, read_table, run_batch, write_table
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
-from anra_torch.io import save_npz
 from anra_torch.layers.estimator import ANRAEstimator
 from anra_torch.synthetic import paper_video
+from anra_torch.video import prepare_video, save_npz
 
 
 @pytest.fixture(scope="module")
@@ -171,6 +171,55 @@ def test_cli_batch(videos: Path, tmp_path: Path, capsys) -> None:
     assert "1 ok, 2 failed, 3 already done (6 inputs)" in captured.out
     assert main(["batch", str(videos), "--out", str(tmp_path / "r.txt")]) == 2
     assert "--out must end in .csv or .parquet, got 'r.txt'" in capsys.readouterr().err
+
+
+def test_roi_and_calibration_are_applied_and_recorded(
+    videos: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    table = tmp_path / "double.csv"
+    table.write_text("T,IR\n-100,-50\n100,50\n")  # true = 2 x apparent: a unchanged, noise doubled
+    out = tmp_path / "r.csv"
+    summary = run_batch(
+        [videos / "p0.npz", videos / "p1.npz", videos / "sub" / "q.npz"],
+        out,
+        roi="8,4,48,40",
+        calibration=table,
+        dtype="float64",
+        progress=False,
+    )
+    assert (summary.ok, summary.failed) == (3, 0)
+    rows = {Path(r["path"]).name: r for r in read_table(out)}
+    for name in ("p0.npz", "p1.npz"):
+        row = rows[name]
+        assert (row["roi"], row["calibration"], row["height"], row["width"]) == (
+            "8,4,48,40",
+            str(table),
+            40,
+            48,
+        )
+        video = prepare_video(videos / name, roi="8,4,48,40", calibration=table)
+        offline = ANRAEstimator(strict=False)(video.frames, video.dt, video.dx)
+        assert row["diffusivity"] == pytest.approx(float(offline.diffusivity), rel=1e-9)
+        assert row["noise_sd"] == pytest.approx(float(offline.noise_sd), rel=1e-9)
+    assert rows["q.npz"]["height"] == 40  # the 72 px video, cropped alike
+    # The CLI flags give the same rows; a region that does not fit is one video's error row.
+    cli_out = tmp_path / "cli.csv"
+    argv = ["batch", str(videos / "p0.npz"), "--roi", "8,4,48,40", "--calibration", str(table)]
+    assert main([*argv, "--float64", "--out", str(cli_out), "--no-progress"]) == 0
+    (row,) = read_table(cli_out)
+    assert row["diffusivity"] == rows["p0.npz"]["diffusivity"] and row["roi"] == "8,4,48,40"
+    wide = run_batch([videos / "p0.npz"], tmp_path / "wide.csv", roi=(40, 0, 30, 10), progress=False)
+    assert wide.failed == 1
+    (row,) = read_table(tmp_path / "wide.csv")
+    assert "roi 40,0,30,10 (x0,y0,W,H px) does not fit in the 64 x 64 px frame" in row["error"]
+    assert row["roi"] is None  # the cells record what was done
+    with pytest.raises(ValueError, match=r"roi must be X0,Y0,W,H in px \(four integers\), got '1,2'"):
+        run_batch([videos / "p0.npz"], tmp_path / "x.csv", roi="1,2", progress=False)
+    assert (
+        main(["batch", str(videos / "p0.npz"), "--out", str(tmp_path / "y.csv"), "--calibration", "none.csv"])
+        == 2
+    )
+    assert capsys.readouterr().err.strip() == "anra: error: none.csv: no such calibration file"
 
 
 @pytest.mark.slow

@@ -19,10 +19,11 @@ import numpy as np
 import pytest
 import torch
 
-import anra_torch.cli as cli
+import anra_torch.cli.demo as demo_command
 from anra_torch import ANRAEstimator
 from anra_torch.cli import main
 from anra_torch.synthetic import paper_video
+from anra_torch.video import load_video
 
 JSON_KEYS = {
     "path",
@@ -146,6 +147,22 @@ def test_estimate_json_recovers_the_paper_diffusivity(
     assert s["a_true"] == 0.2 and s["path"] == str(paper96)
     assert s["units"]["diffusivity"] == "mm^2/s" and s["units"]["dt"] == "s" and s["units"]["dx"] == "mm"
     assert (s["window_px"], s["field_median"], s["field_coverage"]) == (None, None, None)
+
+
+def test_to_record_is_what_estimate_json_prints(paper96: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    s = estimate_json(capsys, paper96)
+    video = load_video(paper96)
+    record = ANRAEstimator(strict=False)(video.frames, video.dt, video.dx).to_record(unit=video.unit)
+    units = record.pop("units")
+    assert {k: s[k] for k in record} == record
+    assert {k: s["units"][k] for k in units} == units
+    # A batched result: one record per video, the same as each video's own.
+    frames = torch.stack([video.frames, video.frames.flip(-1)])
+    batched = ANRAEstimator(strict=False)(frames, video.dt, video.dx)
+    alone = ANRAEstimator(strict=False)(frames[1], video.dt, video.dx)
+    assert batched.to_record(1)["diffusivity"] == pytest.approx(alone.to_record()["diffusivity"], rel=1e-9)
+    with pytest.raises(ValueError, match=r"index must be an integer in \[0, 2\) for this result, got 2"):
+        batched.to_record(2)
 
 
 def test_estimate_human_summary(paper96: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -380,7 +397,7 @@ def test_demo_writes_report_and_figures(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # The same pipeline on the central 96 px of the paper's video, to keep the fast suite fast.
-    monkeypatch.setattr(cli, "paper_video", lambda **kw: paper_video(crop=96, **kw))
+    monkeypatch.setattr(demo_command, "paper_video", lambda **kw: paper_video(crop=96, **kw))
     code, out, err = run(capsys, "demo", "--out", tmp_path / "demo")
     assert (code, err) == (0, "")
     for name in (

@@ -10,7 +10,7 @@ import pytest
 
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
-from anra_torch.io import save_npz
+from anra_torch.video import save_npz
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:

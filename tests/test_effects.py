@@ -23,8 +23,8 @@ from anra_torch.effects import (
     hidden_effect_video,
     simulate_effects,
 )
-from anra_torch.io import load_video
 from anra_torch.simulation import HeatRHS, gaussian_blob, simulate_heat
+from anra_torch.video import load_video
 
 F64 = torch.float64
 

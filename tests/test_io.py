@@ -1,4 +1,4 @@
-"""Tests for anra_torch.io: npz/npy round trips, explicit spacing overrides, the registry, one-line errors."""
+"""Tests for load_video: npz/npy round trips, explicit spacing overrides, the registry, one-line errors."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.io import REGISTRY, RawVideo, Video, load_video, save_npz
 from anra_torch.synthetic import paper_video
+from anra_torch.video import REGISTRY, RawVideo, Video, load_video, save_npz
 
 DT, DX = 1 / 27, 0.05
 

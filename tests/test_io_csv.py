@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from anra_torch.io import load_video
+from anra_torch.video import load_video
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "flir_csv"
 EXPECTED = {

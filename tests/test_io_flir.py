@@ -11,9 +11,9 @@ import pytest
 import torch
 from flir_reference import decode
 
-from anra_torch.io import load_video
-from anra_torch.io.flir_jpeg import flir_timestamp
-from anra_torch.resample import resample_uniform
+from anra_torch.video import load_video
+from anra_torch.video.formats.flir_jpeg import flir_timestamp
+from anra_torch.video.resample import resample_uniform
 
 pytest.importorskip("flyr", reason="the formats extra (flyr) is not installed")
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "laser_silicone"

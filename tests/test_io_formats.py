@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from anra_torch.io import load_video
+from anra_torch.video import load_video
 
 VIDEO = np.random.default_rng(1).normal(30, 2, (6, 5, 7))
 

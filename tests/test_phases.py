@@ -8,10 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.calibration import CalibrationTable, PixelSize, apply_calibration, load_calibration, to_unit
-from anra_torch.io import Video, load_video
-from anra_torch.phases import segment_phases
-from anra_torch.roi import apply_mask, crop, dead_pixel_mask, parse_roi, reflection_mask
+from anra_torch.video import Video, load_video
+from anra_torch.video.calibration import (
+    CalibrationTable,
+    PixelSize,
+    apply_calibration,
+    load_calibration,
+    to_unit,
+)
+from anra_torch.video.phases import segment_phases
+from anra_torch.video.roi import apply_mask, crop, dead_pixel_mask, parse_roi, reflection_mask
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"measured data folder {DATA} is absent")

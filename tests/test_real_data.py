@@ -71,7 +71,7 @@ def test_quasi_steady_forecast_is_exact_for_a_stationary_source_under_moving_edg
 @needs_data
 def test_csv_phase_gain_is_measured(tmp_path: Path) -> None:
     video = real_data.load("Sample2 RT M1", DATA / "flir_csv" / "Sample2 RT M1.csv")
-    from anra_torch.phases import segment_phases
+    from anra_torch.video.phases import segment_phases
 
     cooling = segment_phases(video.frames)[-1]
     fit = real_data.box_phase(video, cooling)
@@ -83,7 +83,7 @@ def test_csv_phase_gain_is_measured(tmp_path: Path) -> None:
 @needs_data
 def test_csv_heating_plateau_is_forecast_by_the_quasi_steady_source() -> None:
     """Q 100 Silver 1 heating: a plateau the loss model cannot forecast; the edges and a source map can."""
-    from anra_torch.phases import segment_phases
+    from anra_torch.video.phases import segment_phases
 
     video = real_data.load("Q 100 Silver 1", DATA / "flir_csv" / "Q 100 Silver 1.csv")
     heating = segment_phases(video.frames)[1]
@@ -103,7 +103,7 @@ def test_laser_heating_source_map_forecasts_better_than_plain_and_gaussian_spot(
 
     import torch
 
-    from anra_torch.phases import segment_phases
+    from anra_torch.video.phases import segment_phases
 
     video = real_data.load("Nov19_2", DATA / "laser_silicone" / "Nov19_2")
     video = replace(video, t=torch.arange(video.frames.shape[0], dtype=torch.float64) * video.dt)

@@ -131,6 +131,47 @@ class ANRAResult:
         }
         return replace(self, **changes)
 
+    def to_record(self, index: int = 0, *, unit: str = "data units") -> dict[str, object]:
+        """The numbers of one video as a JSON-ready record (``anra estimate --json``, batch rows, reports).
+
+        Args:
+            index: the video in a batched result (0 for an unbatched one).
+            unit: the data's temperature unit, for ``noise_sd``.
+
+        Returns:
+            ``{"diffusivity", "std_error"`` (mm^2/s, None when not finite), ``"valid"``, ``"message"``,
+            ``"smoothing_px"`` (px), ``"noise_sd"`` (``unit``), ``"reliability"``, ``"n_masked"``,
+            ``"units"}`` (key -> unit).
+
+        Shape:
+            Tensors ``(B,)`` or unbatched scalars; the record holds Python numbers.
+
+        Raises:
+            ValueError: ``index`` outside the batch.
+        """
+        size = self.diffusivity.shape[0] if self.diffusivity.ndim else 1
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < size:
+            raise ValueError(f"index must be an integer in [0, {size}) for this result, got {index!r}")
+
+        def pick(values: Tensor) -> Tensor:
+            return values[index] if values.ndim else values
+
+        def finite(values: Tensor) -> float | None:  # JSON has no NaN: no estimate is null
+            value = pick(values)
+            return float(value) if bool(torch.isfinite(value)) else None
+
+        return {
+            "diffusivity": finite(self.diffusivity),
+            "std_error": finite(self.std_error),
+            "valid": bool(pick(self.valid)),
+            "message": self.messages[index],
+            "smoothing_px": float(pick(self.smoothing)),
+            "noise_sd": float(pick(self.noise_sd)),
+            "reliability": float(pick(self.reliability)),
+            "n_masked": int(pick(self.n_masked)),
+            "units": {"diffusivity": "mm^2/s", "std_error": "mm^2/s", "smoothing_px": "px", "noise_sd": unit},
+        }
+
 
 @dataclass
 class _Candidate:

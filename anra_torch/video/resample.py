@@ -8,11 +8,10 @@ returned video says what it was resampled from in ``meta["resampled"]``.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import torch
+from torch import Tensor
 
-from anra_torch.io import Video
+from anra_torch.video.core import Video
 
 __all__ = ["resample_uniform"]
 
@@ -49,8 +48,11 @@ def resample_uniform(video: Video, dt: float | None = None) -> Video:
     right = torch.searchsorted(t, grid, right=True).clamp(1, t.numel() - 1)
     left = right - 1
     weight = ((grid - t[left]) / (t[right] - t[left])).clamp(0, 1).view(-1, 1, 1)
-    frames = video.frames.double()
-    resampled = (1 - weight) * frames[left] + weight * frames[right]
+
+    def interpolate(frames: Tensor) -> Tensor:
+        frames = frames.double()
+        return (1 - weight) * frames[left] + weight * frames[right]
+
     meta = dict(video.meta)
     meta["resampled"] = {
         "from_frames": int(t.numel()),
@@ -60,4 +62,4 @@ def resample_uniform(video: Video, dt: float | None = None) -> Video:
         "method": "linear interpolation in time",
     }
     meta["dt_source"] = "resampled"
-    return replace(video, frames=resampled, dt=step, t=grid, meta=meta)
+    return video.map_frames(interpolate, dt=step, t=grid, meta=meta)

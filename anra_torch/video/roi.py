@@ -11,7 +11,7 @@ from dataclasses import replace
 import torch
 from torch import Tensor
 
-from anra_torch.io import Video
+from anra_torch.video.core import Video
 
 __all__ = ["ROI", "apply_mask", "crop", "dead_pixel_mask", "parse_roi", "reflection_mask"]
 
@@ -50,8 +50,10 @@ def crop(video: Video, roi: ROI) -> Video:
             f"{video.name}: roi {x0},{y0},{w},{h} (x0,y0,W,H px) does not fit in the "
             f"{width} x {height} px frame"
         )
-    frames = video.frames[:, y0 : y0 + h, x0 : x0 + w].contiguous()
-    return replace(video, frames=frames, meta={**video.meta, "roi": [x0, y0, w, h]})
+    return video.map_frames(
+        lambda frames: frames[:, y0 : y0 + h, x0 : x0 + w].contiguous(),
+        meta={**video.meta, "roi": [x0, y0, w, h]},
+    )
 
 
 def dead_pixel_mask(frames: Tensor, *, spike: float = 8.0) -> Tensor:

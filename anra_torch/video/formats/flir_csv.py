@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from anra_torch.io.video import RawVideo
+from anra_torch.video.core import RawVideo
 
 __all__ = ["is_flir_csv", "load_flir_csv"]
 

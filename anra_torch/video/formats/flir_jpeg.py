@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from anra_torch.io.video import RawVideo, one_line, stack_frames
+from anra_torch.checks import one_line
+from anra_torch.video.core import RawVideo, stack_frames
 
 __all__ = ["flir_timestamp", "load_flir_jpeg", "load_flir_jpeg_folder"]
 
@@ -98,7 +99,9 @@ def _celsius(path: Path) -> tuple[np.ndarray, dict]:
         celsius = np.asarray(thermogram.celsius, dtype=np.float64)
         params = dict(thermogram.metadata)
     except Exception as err:  # flyr raises many kinds on a damaged file
-        raise ValueError(f"{path}: cannot decode the FLIR thermal image ({one_line(err)})") from err
+        raise ValueError(
+            f"{path}: cannot decode the FLIR thermal image ({one_line(err, kind=True)})"
+        ) from err
     if celsius.ndim != 2 or not np.isfinite(celsius).all():
         raise ValueError(f"{path}: the decoded thermal image is not a finite 2D matrix")
     return celsius, params

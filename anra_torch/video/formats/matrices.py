@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from anra_torch.io.flir_csv import is_flir_csv
-from anra_torch.io.video import RawVideo, one_line, stack_frames
+from anra_torch.checks import one_line
+from anra_torch.video.core import RawVideo, stack_frames
+from anra_torch.video.formats.flir_csv import is_flir_csv
 
 __all__ = ["load_matrix_folder"]
 
@@ -33,7 +34,7 @@ def _matrix(path: Path) -> np.ndarray:
     try:
         matrix = np.loadtxt(path, delimiter=delimiter, dtype=np.float64, ndmin=2, encoding="utf-8-sig")
     except (ValueError, UnicodeDecodeError) as err:
-        raise ValueError(f"{path}: cannot read as a numeric matrix ({one_line(err)})") from err
+        raise ValueError(f"{path}: cannot read as a numeric matrix ({one_line(err, kind=True)})") from err
     if matrix.size == 0:
         raise ValueError(f"{path}: empty matrix; every frame file must hold H x W temperatures")
     return matrix

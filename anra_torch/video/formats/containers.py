@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from anra_torch.io.video import RawVideo, one_line
+from anra_torch.checks import one_line
+from anra_torch.video.core import RawVideo
 
 __all__ = ["load_hdf5", "load_mat", "load_tiff"]
 
@@ -59,7 +60,9 @@ def load_mat(path: Path) -> RawVideo:
     except NotImplementedError as err:
         raise ValueError(f"{path}: MATLAB v7.3 file; it is HDF5 inside: rename it to .h5") from err
     except Exception as err:  # scipy raises ValueError, TypeError, OSError... on a damaged file
-        raise ValueError(f"{path}: cannot read as .mat ({one_line(err)}); the file may be corrupt") from err
+        raise ValueError(
+            f"{path}: cannot read as .mat ({one_line(err, kind=True)}); the file may be corrupt"
+        ) from err
     arrays = {k: v for k, v in data.items() if not k.startswith("__")}
     return _raw(arrays, _pick_frames(arrays, path, "variable"), "mat")
 
@@ -80,7 +83,7 @@ def load_hdf5(path: Path) -> RawVideo:
             values.update({k: v for k, v in handle[key].attrs.items() if k in (*_SPACING, "unit")})
     except (OSError, KeyError, RuntimeError) as err:
         raise ValueError(
-            f"{path}: cannot read as HDF5 ({one_line(err)}); the file may be truncated or corrupt"
+            f"{path}: cannot read as HDF5 ({one_line(err, kind=True)}); the file may be truncated or corrupt"
         ) from err
     return _raw(values, key, "hdf5")
 
@@ -94,7 +97,7 @@ def load_tiff(path: Path) -> RawVideo:
             imagej = tif.imagej_metadata or {}
     except Exception as err:  # tifffile raises TiffFileError, ValueError, OSError... on a damaged file
         raise ValueError(
-            f"{path}: cannot read as TIFF ({one_line(err)}); the file may be truncated or corrupt"
+            f"{path}: cannot read as TIFF ({one_line(err, kind=True)}); the file may be truncated or corrupt"
         ) from err
     if frames.ndim == 2:
         frames = frames[None]

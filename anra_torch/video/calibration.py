@@ -10,14 +10,14 @@ size becomes an interval on ``a`` (:meth:`PixelSize.diffusivity_interval`).
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from anra_torch.io import Video
+from anra_torch.video.core import Video
 
 __all__ = ["CalibrationTable", "PixelSize", "apply_calibration", "load_calibration", "to_unit"]
 
@@ -108,7 +108,7 @@ def apply_calibration(video: Video, table: CalibrationTable) -> Video:
     frames = video.frames.double()
     meta = dict(video.meta)
     meta["calibration"] = {"table": table.source, "outside_fraction": table.outside(frames)}
-    return replace(video, frames=table.to_true(frames), meta=meta)
+    return video.map_frames(table.to_true, meta=meta)
 
 
 def to_unit(video: Video, unit: str) -> Video:
@@ -122,8 +122,10 @@ def to_unit(video: Video, unit: str) -> Video:
     if video.unit not in UNITS:
         raise ValueError(f"{video.name}: cannot convert {video.unit!r} to {unit}; set the video's unit first")
     shift = UNITS[unit] - UNITS[video.unit]
-    frames = video.frames.double() + shift if shift else video.frames
-    return replace(video, frames=frames, meta={**video.meta, "unit": "K" if unit == "K" else "degC"})
+    return video.map_frames(
+        lambda frames: frames.double() + shift if shift else frames,
+        meta={**video.meta, "unit": "K" if unit == "K" else "degC"},
+    )
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,78 @@
+"""Command line: ``anra estimate``, ``simulate``, ``diagnose``, ``batch``, ``demo``, ``features`` (also
+``python -m anra_torch``).
+
+One module per command (:mod:`~anra_torch.cli.estimate`, :mod:`~anra_torch.cli.simulate`, ...), each adding
+its own subparser (``add_parser``) and running it (``run``); the flags and helpers they share are in
+:mod:`~anra_torch.cli.arguments`. A new command is one module and one entry in :data:`COMMANDS`.
+
+Units everywhere: lengths in mm, times in s, diffusivity in mm^2/s, temperatures in the data's own unit.
+Every failure the user can cause (bad file, bad flag, a video without thermal activity) ends in one line
+``anra: error: <message>`` on stderr and exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from anra_torch.checks import one_line
+from anra_torch.cli import batch, demo, diagnose, estimate, features, simulate
+from anra_torch.cli.arguments import PROG, Parser, UsageError, integer
+from anra_torch.cli.simulate import PRESETS
+
+__all__ = ["COMMANDS", "PRESETS", "build_parser", "main"]
+
+COMMANDS = (estimate, simulate, diagnose, batch, demo, features)
+"""The command modules, in the order ``anra --help`` lists them."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``anra`` argument parser (usage errors raise instead of exiting; :func:`main` reports them)."""
+    from anra_torch import __version__
+
+    parser = Parser(
+        prog=PROG,
+        description="Estimate the thermal diffusivity a of dT/dt = a (d11 + d22) T directly from thermal "
+        "video (ANRA, El-Kebir et al., arXiv 2203.13148). Units: mm, s, mm^2/s; temperatures in any "
+        "linear unit.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument(
+        "--threads",
+        type=integer("threads", minimum=1),
+        default=None,
+        metavar="N",
+        help="torch CPU threads (default: torch's choice, all cores); 1 is fastest when other processes "
+        "share the cores, e.g. several 'anra batch' runs side by side",
+    )
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for command in COMMANDS:
+        command.add_parser(commands)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``anra`` command line; returns the exit status (0 ok, 2 error).
+
+    Args:
+        argv: arguments without the program name; default ``sys.argv[1:]``.
+    """
+    try:
+        args = build_parser().parse_args(argv)
+        if args.threads is not None:
+            import torch
+
+            torch.set_num_threads(args.threads)
+        return args.run(args)
+    except SystemExit as done:  # --help, --version
+        return done.code if isinstance(done.code, int) else 0 if done.code is None else 2
+    except UsageError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except (ValueError, TypeError, OSError, ImportError) as err:
+        print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,159 @@
+"""What the ``anra`` commands share: the parser class, flag types, the video flags and the input preparation.
+
+Every command that reads a video adds its flags with :func:`add_video_arguments` (``batch``: the spacing and
+region flags without VIDEO) and reads it with :func:`load_input`, i.e. :func:`anra_torch.video.prepare_video`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+from typing import Any
+
+from anra_torch.video import REGISTRY, Video, prepare_video
+
+PROG = "anra"
+
+
+def format_list() -> str:
+    """The video file suffixes ``anra`` reads, for help texts (``.npz, .npy, ...``)."""
+    return ", ".join(REGISTRY)
+
+
+def add_spacing_arguments(parser: argparse.ArgumentParser, source: str) -> None:
+    """--dt, --dx and --resample, shared by every command that reads videos (``source``: "the file(s)")."""
+    parser.add_argument(
+        "--dt", type=number("s", positive=True), metavar="S", help=f"frame period in s (overrides {source})"
+    )
+    parser.add_argument(
+        "--dx", type=number("mm", positive=True), metavar="MM", help=f"pixel size in mm (overrides {source})"
+    )
+    parser.add_argument(
+        "--resample",
+        action="store_true",
+        help="interpolate non-uniform timestamps (e.g. FLIR EXIF times) linearly onto their median step; "
+        "the output states it",
+    )
+
+
+def add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
+    """VIDEO, --dt, --dx, --resample, --roi and --calibration, shared by the commands that read a video."""
+    parser.add_argument(
+        "video",
+        metavar="VIDEO",
+        help=f"video file ({formats}) or a folder with one file per frame (FLIR .jpg, .csv/.txt matrices); "
+        "frames (T, H, W)",
+    )
+    add_spacing_arguments(parser, "the file")
+    add_region_arguments(parser)
+
+
+def add_region_arguments(parser: argparse.ArgumentParser) -> None:
+    """--roi and --calibration: what :func:`prepare_video` does after loading."""
+    parser.add_argument(
+        "--roi",
+        metavar="X0,Y0,W,H",
+        help="analyse only this region (px: first column, first row, width, height)",
+    )
+    parser.add_argument(
+        "--calibration",
+        metavar="CSV",
+        help="map apparent to true temperature with a table of 'true,apparent' rows "
+        "(e.g. calibration_og.csv)",
+    )
+
+
+def load_input(args: argparse.Namespace) -> Video:
+    """The video of VIDEO prepared by :func:`prepare_video` with --dt, --dx, --resample, --roi and
+    --calibration; ``meta`` says what was done."""
+    try:
+        return prepare_video(
+            args.video,
+            dt=args.dt,
+            dx=args.dx,
+            timestamps="resample" if args.resample else "uniform",
+            roi=args.roi,
+            calibration=args.calibration,
+        )
+    except ValueError as err:  # the library's hint names its argument; here the flag is the fix
+        raise ValueError(
+            str(err).replace("(timestamps='resample' or 'keep' in load_video)", "(--resample)")
+        ) from None
+
+
+def input_record(video: Video) -> dict[str, Any]:
+    """What the loading did: ``resampled`` (from what), ``roi`` (px), ``calibration``; null when not done."""
+    return {key: video.meta.get(key) for key in ("resampled", "roi", "calibration")}
+
+
+def print_input(video: Video) -> None:
+    """The human lines saying what :func:`load_input` did (resampling, region, calibration)."""
+    r = video.meta.get("resampled")
+    if r:
+        print(
+            f"  resampled: {r['from_frames']} frames with non-uniform steps "
+            f"{r['step_min']:.3g}-{r['step_max']:.3g} s "
+            f"-> {video.frames.shape[0]} frames at dt = {r['dt']:.4g} s ({r['method']})"
+        )
+    if video.meta.get("roi"):
+        print(f"  roi (x0, y0, width, height px): {video.meta['roi']}")
+    c = video.meta.get("calibration")
+    if c:
+        print(f"  calibrated with {c['table']} ({100 * c['outside_fraction']:.1f} % of values extrapolated)")
+
+
+class UsageError(Exception):
+    """A command-line mistake found by argparse (reported in one line, exit 2)."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse that raises on a usage error instead of printing the usage block and exiting."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
+# ----------------------------------------------------------------------------------- flag types
+def number(unit: str, *, positive: bool) -> Callable[[str], float]:
+    """A flag type: a finite number in ``unit``, positive or non-negative."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value) or (value <= 0 if positive else value < 0):
+            need = "positive" if positive else "non-negative"
+            raise argparse.ArgumentTypeError(f"must be a {need} number in {unit}, got {text!r}")
+        return value
+
+    return parse
+
+
+def integer(unit: str, *, minimum: int, odd: bool = False) -> Callable[[str], int]:
+    """A flag type: an integer ``>= minimum`` (``unit`` for the message), odd when asked."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum or (odd and value % 2 == 0):
+            kind = "an odd" if odd else "an"
+            bound = f"{minimum} {unit}".strip()
+            raise argparse.ArgumentTypeError(f"must be {kind} integer >= {bound}, got {text!r}")
+        return value
+
+    return parse
+
+
+def clean_json(value: Any) -> Any:
+    """NaN and infinities -> None, recursively (JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {k: clean_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [clean_json(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

@@ -1,0 +1,191 @@
+"""``anra diagnose``: which effects beyond heat diffusion act in a video, and do they forecast it better.
+
+``anra diagnose --json`` prints one object: ``base`` (plain diffusivity, forecast RMSE), ``effects`` (name,
+params, gain each), ``extended`` (equation, params, forecast RMSE), ``gain``, ``noise_floor``, ``scale_px``,
+``time_window``, ``assimilated``, ``gain_above_floor``, ``raw``; ``source_map`` with ``--source-map``;
+``input`` when the video was prepared by --resample, --roi or --calibration. On failure:
+``{"path", "error"}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from anra_torch.checks import one_line
+from anra_torch.cli.arguments import (
+    add_video_arguments,
+    clean_json,
+    format_list,
+    input_record,
+    integer,
+    load_input,
+    number,
+    print_input,
+)
+from anra_torch.effects import equation_text
+from anra_torch.video import Video
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    """Add ``diagnose`` to the ``anra`` subcommands (``commands``: what ``add_subparsers`` returned)."""
+    parser = commands.add_parser(
+        "diagnose",
+        help="find hidden effects and test whether they forecast held-out frames better",
+        description="Diagnose which effects beyond heat diffusion (linear_loss, source, advection, "
+        "anisotropy, heterogeneity, nonlinear_diffusion) act in the first part of a video, then forecast "
+        "the rest with the plain heat equation and with the extended model (RK4, zero-flux edges), each "
+        "from its own state assimilated from the fit frames, and compare their RMSE on the interior at "
+        "the evaluation scale (forecasts and held-out frames smoothed alike by the diagnosis' Gaussian "
+        "and a 9-frame moving average in time). gain = 1 - RMSE_extended / "
+        "RMSE_plain; the noise floor is a perfect model's RMSE at that scale; 'raw' holds the same against "
+        "unsmoothed frames. Exit status 2 on bad input.",
+    )
+    add_video_arguments(parser, format_list())
+    parser.add_argument(
+        "--fit-fraction",
+        type=number("fraction of the frames", positive=True),
+        default=0.6,
+        metavar="F",
+        help="fraction of the frames diagnosed, in (0, 1); the rest is forecast (default 0.6)",
+    )
+    parser.add_argument(
+        "--assimilate",
+        type=integer("frames", minimum=1),
+        default=None,
+        metavar="N",
+        help="fit frames (the last N) assimilated into each model's starting state; 1 starts from the "
+        "measured split frame (default: all the fit frames)",
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object: base, effects (with per-effect gain), extended, gain, noise_floor "
+        "(an object with 'error' on failure)",
+    )
+    parser.add_argument(
+        "--report", metavar="DIR", help="write report.md with figures (forecasts, residual, RMSE) to DIR"
+    )
+    parser.add_argument(
+        "--source-map",
+        action="store_true",
+        help="also fit a stationary source map dT/dt = a Lap T - b T + q(x, y) on the same frames (a "
+        "measured beam that is not a Gaussian spot) and report its forecast RMSE and gain ('source_map')",
+    )
+    parser.set_defaults(run=run)
+
+
+def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any, Any]:
+    """The ``diagnose --json`` object, the :class:`GainResult` it was made from, and the
+    :class:`SourceMapGain` with ``--source-map`` (else None)."""
+    from anra_torch.prediction import assess_gain, extended_effects
+
+    frames = video.frames
+    try:
+        result = assess_gain(
+            frames, video.dt, video.dx, fit_fraction=args.fit_fraction, assimilate=args.assimilate
+        )
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{video.source}: {err}") from err
+    diagnosis = result.diagnosis
+    per_effect = [
+        {"name": record["name"], "params": dict(record["params"]), "gain": gain}
+        for record, gain in zip(diagnosis.effects, result.effect_gains, strict=True)
+    ]
+    diagnosed = extended_effects(diagnosis)  # timed from the first frame (result.effects: from the split)
+    params: dict[str, Any] = {"a": diagnosis.base}
+    params.update({e.name: dict(e.params) for e in diagnosed})
+    summary = {
+        "base": {"diffusivity": diagnosis.a_plain, "prediction_rmse": result.base_rmse},
+        "effects": per_effect,
+        "extended": {
+            "equation": equation_text(diagnosis.base, diagnosed),
+            "params": params,
+            "prediction_rmse": result.extended_rmse,
+        },
+        "gain": result.gain,
+        "noise_floor": result.noise_floor,
+        "scale_px": result.scale_px,
+        "time_window": result.time_window,
+        "assimilated": result.assimilated,
+        "gain_above_floor": result.gain_above_floor,
+        "raw": {
+            "base_rmse": result.base_rmse_raw,
+            "extended_rmse": result.extended_rmse_raw,
+            "gain": result.gain_raw,
+            "noise_floor": result.noise_floor_raw,
+        },
+    }
+    mapped = None
+    if args.source_map:
+        from anra_torch.source_map import source_map_gain
+
+        try:
+            mapped = source_map_gain(frames, video.dt, video.dx, result)
+        except ValueError as err:
+            raise ValueError(f"{video.source}: --source-map: {err}") from err
+        summary["source_map"] = {
+            "equation": "dT/dt = a Lap T - b T + q(x, y)",
+            "a": mapped.model.a,
+            "b": mapped.model.b,
+            "q_max": float(mapped.model.forcing.max()),
+            "q_min": float(mapped.model.forcing.min()),
+            "prediction_rmse": mapped.rmse,
+            "gain": mapped.gain,
+        }
+    if any(input_record(video).values()):
+        summary["input"] = input_record(video)
+    return clean_json(summary), result, mapped
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``anra diagnose`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
+    try:
+        if not 0 < args.fit_fraction < 1:
+            raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
+        video = load_input(args)
+        summary, result, mapped = _summary(video, args)
+    except (ValueError, TypeError, OSError) as err:
+        if args.json:  # batch users keep a row
+            print(json.dumps({"path": str(args.video), "error": one_line(err)}))
+        raise
+    if args.json:
+        print(json.dumps(summary, allow_nan=False))
+    else:
+        base, ext = summary["base"], summary["extended"]
+        print(f"{video.source}")
+        print_input(video)
+        print(
+            f"  plain heat equation: a = {base['diffusivity']:.4g} mm^2/s, forecast RMSE "
+            f"{base['prediction_rmse']:.4g} (noise floor {summary['noise_floor']:.4g} {video.unit}, frames "
+            f"smoothed by a {summary['scale_px']:g} px Gaussian and averaged over {summary['time_window']} "
+            f"frames; forecasts from the state of the last {summary['assimilated']} fit frames)"
+        )
+        if summary["effects"]:
+            found = ", ".join(f"{e['name']} (gain {e['gain']:.2f})" for e in summary["effects"])
+            print(f"  effects: {found}")
+            print(f"  extended: {ext['equation']}")
+            print(f"  extended forecast RMSE {ext['prediction_rmse']:.4g}, gain {summary['gain']:.3f}")
+        else:
+            print("  no effect beyond heat diffusion found (gain 0)")
+        if "source_map" in summary:
+            sm = summary["source_map"]
+            print(
+                f"  source map: a = {sm['a']:.4g} mm^2/s, b = {sm['b']:.4g} 1/s, q {sm['q_min']:.4g} to "
+                f"{sm['q_max']:.4g} {video.unit}/s; forecast RMSE {sm['prediction_rmse']:.4g}, "
+                f"gain {sm['gain']:.3f}"
+            )
+        print(
+            f"  diagnosed frames 0-{result.split}, forecast {result.held_out} held-out frames "
+            f"in {result.elapsed:.1f} s"
+        )
+    if args.report is not None:
+        from anra_torch.report import write_diagnosis_report
+
+        path = write_diagnosis_report(args.report, video, result.diagnosis, result, source_map=mapped)
+        if not args.json:
+            print(f"  report: {path}")
+    return 0

@@ -1,0 +1,159 @@
+"""``anra estimate``: the diffusivity of one video.
+
+``anra estimate --json`` prints one object on one line:
+
+- ``path``; ``diffusivity`` and ``std_error`` (mm^2/s, null when no estimate); ``valid`` (bool) and
+  ``message`` (the reason when not valid, a warning for a significantly negative diffusivity, else "");
+- ``frames``, ``height``, ``width`` (px); ``dt`` (s); ``dx`` (mm); ``mode``;
+- ``smoothing_px`` (the Gaussian sigma chosen from the data); ``noise_sd`` (data units); ``reliability``
+  (signal fraction of the regressor energy, 1 is noiseless); ``n_masked`` (non-finite pixel values);
+- ``window_px``, ``field_median`` (mm^2/s), ``field_coverage`` (pixel fraction) with ``--window``, else null;
+- ``a_true`` (mm^2/s) when the file records the truth, else null; ``elapsed_s``; ``units`` (key -> unit);
+- ``input`` (``resampled``, ``roi``, ``calibration``) when the video was prepared by those flags.
+
+A video without measurable thermal activity still prints its flagged object with ``--json`` (``valid``
+false) and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Any
+
+from anra_torch.cli.arguments import (
+    PROG,
+    add_video_arguments,
+    format_list,
+    input_record,
+    integer,
+    load_input,
+    print_input,
+)
+from anra_torch.layers.estimator import MODES, ANRAEstimator, ANRAResult
+from anra_torch.report import format_pm
+from anra_torch.video import Video
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    """Add ``estimate`` to the ``anra`` subcommands (``commands``: what ``add_subparsers`` returned)."""
+    formats = format_list()
+    parser = commands.add_parser(
+        "estimate",
+        help="estimate the diffusivity (mm^2/s) of a video file",
+        description=f"Estimate the diffusivity a (mm^2/s) of one video ({formats}). The spatial smoothing is "
+        "chosen from the data; exit status 2 when no diffusivity can be estimated.",
+    )
+    add_video_arguments(parser, formats)
+    parser.add_argument(
+        "--mode",
+        choices=MODES,
+        default="lsq",
+        help="lsq: weighted least squares with errors-in-variables correction (default); "
+        "ratio: the paper's attention-weighted average of dT/dt / Laplacian",
+    )
+    parser.add_argument(
+        "--window",
+        type=integer("px", minimum=1, odd=True),
+        metavar="PX",
+        help="also estimate a windowed field a(x, y) in mm^2/s over PX x PX pixel windows (odd)",
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object (diffusivity and std_error in mm^2/s, dt in s, dx in mm, ...)",
+    )
+    parser.set_defaults(run=run)
+
+
+def _summary(video: Video, result: ANRAResult, est: ANRAEstimator, elapsed: float) -> dict[str, Any]:
+    """The ``estimate --json`` object (also the source of the human summary): the result's
+    :meth:`~ANRAResult.to_record` with the video's shape and spacing, the estimator's settings and timing."""
+    t, h, w = video.frames.shape
+    record = result.to_record(unit=video.unit)
+    units = record["units"]
+    summary: dict[str, Any] = {
+        "path": str(video.source),
+        **{key: record[key] for key in ("diffusivity", "std_error", "valid", "message")},
+        "frames": t,
+        "height": h,
+        "width": w,
+        "dt": video.dt,
+        "dx": video.dx,
+        "mode": est.mode,
+        **{key: record[key] for key in ("smoothing_px", "noise_sd", "reliability", "n_masked")},
+        "window_px": est.window,
+        "field_median": None,
+        "field_coverage": None,
+        "a_true": video.truth.a if video.truth is not None else None,
+        "elapsed_s": round(elapsed, 3),
+        "units": {
+            **{key: units[key] for key in ("diffusivity", "std_error")},
+            "dt": "s",
+            "dx": "mm",
+            **{key: units[key] for key in ("smoothing_px", "noise_sd")},
+            "elapsed_s": "s",
+        },
+    }
+    if result.field is not None:
+        finite = result.field[result.field.isfinite()]
+        summary["field_coverage"] = float(finite.numel() / result.field.numel())
+        if finite.numel():
+            summary["field_median"] = float(finite.median())
+    return summary
+
+
+def _print_summary(s: dict[str, Any]) -> None:
+    a = s["diffusivity"]
+    print(f"{s['path']}")
+    print(f"  diffusivity a = {format_pm(a, s['std_error'], 'mm^2/s')} ({s['mode']}, ± 1 standard error)")
+    print(
+        f"  video: {s['frames']} frames of {s['height']} x {s['width']} px, "
+        f"dt = {s['dt']:.6g} s ({1 / s['dt']:.4g} Hz), dx = {s['dx']:.6g} mm"
+    )
+    print(
+        f"  smoothing {s['smoothing_px']:g} px (chosen from the data), noise sd {s['noise_sd']:.4g} "
+        f"{s['units']['noise_sd']}, reliability {s['reliability']:.3f}"
+    )
+    if s["n_masked"]:
+        print(f"  masked {s['n_masked']} non-finite pixel values")
+    if s["message"]:
+        print(f"  {s['message']}")
+    if s["window_px"] is not None:
+        median = f"median {s['field_median']:.4g} mm^2/s" if s["field_median"] is not None else "no estimate"
+        print(
+            f"  field ({s['window_px']} px windows): {median} on {100 * s['field_coverage']:.1f} % of pixels"
+        )
+    if s["a_true"] is not None:
+        truth = float(s["a_true"])
+        error = f" (error {100 * (a - truth) / truth:+.3g} %)" if truth else ""
+        print(f"  file's a_true = {truth:g} mm^2/s{error}")
+    print(f"  took {s['elapsed_s']:.2f} s")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``anra estimate`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
+    est = ANRAEstimator(mode=args.mode, window=args.window, strict=False)
+    video = load_input(args)
+    start = time.perf_counter()
+    try:
+        result = est(video.frames, video.dt, video.dx)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{video.source}: {err}") from err
+    summary = _summary(video, result, est, time.perf_counter() - start)
+    if any(input_record(video).values()):
+        summary["input"] = input_record(video)
+    if args.json:
+        print(json.dumps(summary, allow_nan=False))
+    if not summary["valid"]:
+        # No diffusivity: exit 2 in both modes; --json still printed its flagged record above.
+        print(f"{PROG}: error: {video.source}: {summary['message']}", file=sys.stderr)
+        return 2
+    if not args.json:
+        _print_summary(summary)
+        print_input(video)
+    return 0

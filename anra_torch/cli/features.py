@@ -1,0 +1,76 @@
+"""``anra features``: per-pixel tissue features of one video (thermal dose, peak, rates, ANRA maps)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from anra_torch.cli.arguments import (
+    add_video_arguments,
+    clean_json,
+    format_list,
+    input_record,
+    load_input,
+    print_input,
+)
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    """Add ``features`` to the ``anra`` subcommands (``commands``: what ``add_subparsers`` returned)."""
+    parser = commands.add_parser(
+        "features",
+        help="tissue features of a video: thermal dose (CEM43, Omega), peak, rates, ANRA maps",
+        description="Per-pixel tissue features of one video: peak temperature, time above 43/50/60 C, "
+        "CEM43 (min), Arrhenius Omega (skin constants), heating and cooling rates (K/s), RTC attention, "
+        "local diffusivity (mm^2/s) and its confidence, loss rate (1/s) and source (K) maps. "
+        "Temperatures are reported in Celsius. Non-finite values are masked and counted.",
+    )
+    add_video_arguments(parser, format_list())
+    parser.add_argument(
+        "--units", choices=("C", "K"), default="C", help="temperature unit of the frames (default C)"
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object: cem43_minutes_max, omega_max, peak_temperature_max, ... with units",
+    )
+    parser.add_argument("--out", metavar="MAPS.npz", help="save the maps (one (H, W) array each) to MAPS.npz")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``anra features`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
+    from anra_torch.features import feature_summary, save_feature_maps
+
+    video = load_input(args)
+    try:
+        record, maps = feature_summary(video.frames, video.dt, video.dx, units=args.units)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{video.source}: {err}") from err
+    record = {"path": str(video.source), **record, "out": None}
+    if any(input_record(video).values()):
+        record["input"] = input_record(video)
+    if args.out is not None:
+        record["out"] = save_feature_maps(args.out, maps, dt=video.dt, dx=video.dx)
+    if args.json:
+        print(json.dumps(clean_json(record), allow_nan=False))
+        return 0
+    print(f"{video.source}: {record['frames']} frames of {record['height']} x {record['width']} px")
+    print_input(video)
+    for key in (
+        "peak_temperature_max",
+        "cem43_minutes_max",
+        "omega_max",
+        "damaged_fraction",
+        "diffusivity_global",
+    ):
+        value = record[key]
+        shown = "n/a" if value is None else f"{value:.4g}"
+        print(f"  {key}: {shown} {record['units'][key]}")
+    if record["message"]:
+        print(f"  note: {record['message']}")
+    if record["out"]:
+        print(f"  maps: {record['out']}")
+    return 0

@@ -1,0 +1,21 @@
+"""Markdown reports with figures (matplotlib on Agg: ``anra_torch[plot]``).
+
+- :func:`write_estimate_report` (:mod:`~anra_torch.report.estimate`): one diffusivity estimate, its frames,
+  RTC attention, windowed field and per-frame estimates (``anra demo``);
+- :func:`write_diagnosis_report` (:mod:`~anra_torch.report.diagnosis`): a hidden-effect diagnosis and its
+  forecast test (``anra diagnose --report``);
+- shared helpers (number format, axes in mm, colour maps) in :mod:`~anra_torch.report.figures`.
+"""
+
+from anra_torch.report.diagnosis import DIAGNOSIS_FIGURES, write_diagnosis_report
+from anra_torch.report.estimate import FIGURES, attention_map, write_estimate_report
+from anra_torch.report.figures import format_pm
+
+__all__ = [
+    "DIAGNOSIS_FIGURES",
+    "FIGURES",
+    "attention_map",
+    "format_pm",
+    "write_diagnosis_report",
+    "write_estimate_report",
+]

@@ -1,0 +1,60 @@
+"""Thermal video in: the :class:`Video` type, file formats, and the preparation steps before any analysis.
+
+- :class:`Video` (frames, ``dt`` s, ``dx`` mm, timestamps, ``meta``) and its optional :class:`Truth` (what a
+  simulation made it with), in :mod:`~anra_torch.video.core`;
+- :func:`load_video` (:mod:`~anra_torch.video.load`) with one module per format and the suffix registries in
+  :mod:`~anra_torch.video.formats`; :func:`save_npz`, the one ``.npz`` writer;
+- the steps: :func:`resample_uniform` (non-uniform timestamps, :mod:`~anra_torch.video.resample`),
+  :func:`crop` and pixel masks (:mod:`~anra_torch.video.roi`), calibration tables, units and pixel-size
+  intervals (:mod:`~anra_torch.video.calibration`);
+- :func:`prepare_video`: load -> resample -> roi -> calibration in one call, as every command does it;
+- :func:`segment_phases`: baseline / heating / cooling from the data (:mod:`~anra_torch.video.phases`).
+
+Shape:
+    Frames ``(T, H, W)``, x along W (columns), y along H (rows).
+"""
+
+from anra_torch.video.calibration import (
+    CalibrationTable,
+    PixelSize,
+    apply_calibration,
+    load_calibration,
+    to_unit,
+)
+from anra_torch.video.core import PathLike, RawVideo, Truth, Video
+from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
+from anra_torch.video.formats.numpy_formats import save_npz
+from anra_torch.video.load import TIMESTAMPS, load_video
+from anra_torch.video.phases import Phase, hot_spot_signal, segment_phases
+from anra_torch.video.prepare import STEPS, prepare_video
+from anra_torch.video.resample import resample_uniform
+from anra_torch.video.roi import ROI, apply_mask, crop, dead_pixel_mask, parse_roi, reflection_mask
+
+__all__ = [
+    "FOLDER_REGISTRY",
+    "REGISTRY",
+    "ROI",
+    "STEPS",
+    "TIMESTAMPS",
+    "CalibrationTable",
+    "PathLike",
+    "Phase",
+    "PixelSize",
+    "RawVideo",
+    "Truth",
+    "Video",
+    "apply_calibration",
+    "apply_mask",
+    "crop",
+    "dead_pixel_mask",
+    "hot_spot_signal",
+    "load_calibration",
+    "load_video",
+    "parse_roi",
+    "prepare_video",
+    "reflection_mask",
+    "resample_uniform",
+    "save_npz",
+    "segment_phases",
+    "to_unit",
+]

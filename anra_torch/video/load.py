@@ -1,0 +1,215 @@
+"""Thermal videos from files and folders: one loader per format, chosen by suffix from a registry.
+
+A loader reads what the file holds into a :class:`~anra_torch.video.core.RawVideo` (frames as stored, and
+whatever spacing, timestamps and truth the file records); :func:`load_video` then applies the caller's
+explicit ``dt`` / ``dx`` (they win over the file), checks everything once and returns a
+:class:`~anra_torch.video.core.Video`. A new format is one function and one registry entry in
+:mod:`anra_torch.video.formats`: ``REGISTRY`` maps a file suffix to a loader, ``FOLDER_REGISTRY`` maps the
+suffix of the frame files inside a folder (one file per frame, e.g. FLIR radiometric JPEGs) to a folder
+loader.
+
+Measured timestamps are often not uniform (a FLIR camera triggered by hand). :func:`load_video` keeps the
+true timestamps in :attr:`Video.t`; with ``timestamps="uniform"`` (default) it refuses non-uniform ones,
+``"keep"`` returns them as they are (``dt`` is then their median step and :attr:`Video.uniform` is False),
+``"resample"`` interpolates the frames linearly onto a uniform grid
+(:func:`anra_torch.video.resample.resample_uniform`) and records what it did in ``meta["resampled"]``.
+
+Every error is a one-line ``ValueError`` that names the file, the requirement and what was found.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from anra_torch.checks import uniform_step
+from anra_torch.video.core import UNIFORM_RTOL, Loader, PathLike, Video, positive_spacing
+from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
+from anra_torch.video.resample import resample_uniform
+
+__all__ = ["TIMESTAMPS", "load_video"]
+
+TIMESTAMPS = ("uniform", "keep", "resample")
+"""What :func:`load_video` does with non-uniform timestamps: refuse, keep, or resample them."""
+
+
+# ------------------------------------------------------------------------------------------- checks
+def _loader_for(path: Path) -> Loader:
+    name = path.name.lower()
+    for suffix in sorted(REGISTRY, key=len, reverse=True):
+        if name.endswith(suffix):
+            return REGISTRY[suffix]
+    got = repr("".join(path.suffixes)) if path.suffixes else "(no suffix)"
+    raise ValueError(
+        f"{path}: unknown video format {got}; expected one of: {', '.join(REGISTRY)} "
+        f"(or a folder of {', '.join(FOLDER_REGISTRY)} frames)"
+    )
+
+
+def _folder_loader_for(path: Path) -> Loader:
+    kinds = {
+        suffix
+        for child in path.iterdir()
+        if child.is_file() and not child.name.startswith(".")
+        for suffix in FOLDER_REGISTRY
+        if child.name.lower().endswith(suffix)
+    }
+    if not kinds:
+        raise ValueError(
+            f"{path}: is a directory without frame files; expected one file per frame "
+            f"({', '.join(FOLDER_REGISTRY)}) or a video file"
+        )
+    loaders = {FOLDER_REGISTRY[k] for k in kinds}
+    if len(loaders) > 1:
+        raise ValueError(
+            f"{path}: mixes frame files of different formats ({', '.join(sorted(kinds))}); "
+            "one folder must hold one video"
+        )
+    return loaders.pop()
+
+
+def _timestamps(raw: Any, path: Path, n: int) -> Tensor:
+    """Checked timestamps: ``n`` finite values in s, strictly increasing (no duplicates, sorted)."""
+    stamps = np.asarray(raw)
+    if stamps.dtype.kind not in "iuf" or stamps.ndim != 1 or stamps.size != n:
+        raise ValueError(
+            f"{path}: t must hold {n} timestamps in s (one per frame), got shape {tuple(stamps.shape)} "
+            f"dtype {stamps.dtype}"
+        )
+    t = torch.as_tensor(stamps, dtype=torch.float64)
+    if not bool(torch.isfinite(t).all()):
+        raise ValueError(f"{path}: t must be finite timestamps in s, got non-finite values")
+    steps = torch.diff(t)
+    if bool((steps <= 0).any()):
+        k = int(torch.nonzero(steps <= 0)[0])
+        kind = "duplicate" if steps[k] == 0 else "unsorted"
+        raise ValueError(
+            f"{path}: {kind} timestamps: t must be strictly increasing, got t[{k}]={t[k].item():g} s "
+            f"then t[{k + 1}]={t[k + 1].item():g} s"
+        )
+    return t
+
+
+def _frames(array: Any, path: Path) -> Tensor:
+    array = np.asarray(array)
+    if array.dtype.kind not in "iuf":
+        raise ValueError(
+            f"{path}: frames must hold real numbers (temperatures or counts), got dtype {array.dtype}"
+        )
+    if array.ndim != 3:
+        hint = "; store one video per file" if array.ndim == 4 else ""
+        raise ValueError(f"{path}: frames must have shape (T, H, W), got {tuple(array.shape)}{hint}")
+    if min(array.shape) < 1:
+        raise ValueError(f"{path}: frames must not be empty, got shape {tuple(array.shape)}")
+    if not array.dtype.isnative:
+        array = array.astype(array.dtype.newbyteorder("="))
+    return torch.from_numpy(np.ascontiguousarray(array))
+
+
+def _step_of(t: Tensor, stored: Any, path: Path, timestamps: str) -> tuple[float, bool]:
+    """The frame period (s) of timestamps ``t`` and whether to resample them; a ``dt`` stored next to
+    uniform timestamps must agree with their step."""
+    if t.numel() < 2:
+        raise ValueError(f"{path}: a single frame has no frame period; pass dt in s (--dt)")
+    resample = False
+    try:
+        step = uniform_step(t, rtol=UNIFORM_RTOL)
+    except ValueError as err:
+        if timestamps == "uniform":
+            raise ValueError(f"{path}: {err} (timestamps='resample' or 'keep' in load_video)") from err
+        step, resample = float(torch.diff(t).median()), timestamps == "resample"
+    if stored is not None and not resample and timestamps != "keep":
+        file_step = positive_spacing(stored, path, "dt", "s", "in the file")
+        if abs(file_step - step) > 1e-3 * step:
+            raise ValueError(
+                f"{path}: dt = {file_step:g} s disagrees with the step of t = {step:g} s; fix the file "
+                "or pass dt explicitly (--dt)"
+            )
+        step = file_step
+    return step, resample
+
+
+def load_video(
+    path: PathLike,
+    *,
+    dt: float | None = None,
+    dx: float | None = None,
+    timestamps: str = "uniform",
+) -> Video:
+    """Read a thermal video (a file, or a folder of one file per frame); explicit ``dt`` / ``dx`` win.
+
+    The format is chosen from the file suffix (``anra_torch.video.formats.REGISTRY``) or, for a folder,
+    from the suffix of the frame files in it (``FOLDER_REGISTRY``). Timestamps from the file (``t``, e.g.
+    FLIR EXIF times) are kept in :attr:`Video.t`; an explicit ``dt`` replaces both the file's ``dt`` and
+    its timestamps.
+
+    Args:
+        path: the video file or folder.
+        dt: frame period in s (required when the file has neither ``dt`` nor ``t``).
+        dx: pixel size in mm (optional: :attr:`Video.dx` is None without it).
+        timestamps: what to do when the timestamps are not uniform (:data:`TIMESTAMPS`): ``"uniform"``
+            refuses them, ``"keep"`` keeps them (``dt`` = median step, :attr:`Video.uniform` False),
+            ``"resample"`` interpolates linearly onto a uniform grid at the median step and states it in
+            ``meta["resampled"]``.
+
+    Returns:
+        A :class:`Video` with ``frames`` as stored (integer counts stay integers; resampled frames are
+        float64).
+
+    Shape:
+        The frames must be ``(T, H, W)``.
+
+    Raises:
+        ValueError: missing file, unknown suffix, unreadable, truncated or corrupt file, no ``frames``, wrong
+            shape or dtype, mixed frame sizes in a folder, no frame period, non-positive spacing, unsorted or
+            duplicate timestamps, timestamps that are not uniform (with ``"uniform"``) or disagree with
+            ``dt``.
+
+    Example:
+        >>> import tempfile, numpy as np
+        >>> from anra_torch.video import save_npz
+        >>> path = Path(tempfile.mkdtemp()) / "video.npz"
+        >>> _ = save_npz(path, np.zeros((6, 8, 8)), dt=0.04, dx=0.1)
+        >>> video = load_video(path, dx=0.2)
+        >>> tuple(video.frames.shape), video.dt, video.dx
+        ((6, 8, 8), 0.04, 0.2)
+    """
+    if timestamps not in TIMESTAMPS:
+        raise ValueError(f"timestamps must be one of {', '.join(TIMESTAMPS)}, got {timestamps!r}")
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"{path}: no such file")
+    loader = _folder_loader_for(path) if path.is_dir() else _loader_for(path)
+    raw = loader(path)
+    frames = _frames(raw.frames, path)
+    meta = dict(raw.meta)
+    n = frames.shape[0]
+    t = _timestamps(raw.t, path, n) if raw.t is not None else None
+
+    resample = False
+    if dt is not None:
+        step = positive_spacing(dt, path, "dt", "s", "(argument)")
+        meta["dt_source"], t = "argument", None
+    elif t is not None:
+        step, resample = _step_of(t, raw.dt, path, timestamps)
+        meta["dt_source"] = "t"
+    elif raw.dt is not None:
+        step = positive_spacing(raw.dt, path, "dt", "s", "in the file")
+        meta["dt_source"] = "file"
+    else:
+        raise ValueError(
+            f"{path}: no frame period: the file has neither 'dt' nor 't'; "
+            "pass dt in s (--dt on the command line)"
+        )
+    spacing = None
+    if dx is not None or raw.dx is not None:  # the argument wins over the file
+        origin = "argument" if dx is not None else "file"
+        where = "(argument)" if dx is not None else "in the file"
+        spacing = positive_spacing(dx if dx is not None else raw.dx, path, "dx", "mm", where)
+        meta["dx_source"] = origin
+    video = Video(frames=frames, dt=step, dx=spacing, t=t, source=path, meta=meta, truth=raw.truth)
+    return resample_uniform(video) if resample else video
