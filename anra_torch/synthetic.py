@@ -142,10 +142,14 @@ def paper_video(
     noise = torch.randn((n_videos, *clean.shape), generator=generator, dtype=dtype)
     frames = clean + noise_sd * noise
     if crop is not None:
-        start = (size - crop) // 2
-        window = (..., slice(start, start + crop), slice(start, start + crop))
-        frames, clean = frames[window].contiguous(), clean[window].contiguous()
+        frames, clean = _centre(frames, crop), _centre(clean, crop)
     return SyntheticVideo(frames=frames, clean=clean, dt=dt, dx=dx, a=a, times=times.to(dtype))
+
+
+def _centre(frames: Tensor, crop: int) -> Tensor:
+    """The central ``crop x crop`` pixels of ``(..., S, S)`` frames, contiguous."""
+    start = (frames.shape[-1] - crop) // 2
+    return frames[..., start : start + crop, start : start + crop].contiguous()
 
 
 def blobs_video(
@@ -166,10 +170,8 @@ def blobs_video(
 ) -> SyntheticVideo:
     """Gaussian hot spots at random positions on a warm uniform background, computed exactly.
 
-    Each video draws its own ``n_blobs`` peaks (uniform in ``peak_range``), initial standard
-    deviations (uniform in ``sigma_range_px``, pixels) and centres (uniform, at least two initial
-    standard deviations inside the frame), then its noise, all from
-    ``torch.Generator().manual_seed(seed)``.
+    Each video draws its own peaks, initial standard deviations (px) and centres (at least two of them
+    inside the frame), then its noise, all uniform from ``torch.Generator().manual_seed(seed)``.
 
     Args:
         n_videos: number of videos B, each with its own geometry and noise.
@@ -195,33 +197,19 @@ def blobs_video(
     Raises:
         ValueError: non-positive sizes or rates, bad ranges, blobs too wide to fit in the frame.
     """
-    n_videos = check_int(n_videos, "n_videos", 1)
-    seed = check_int(seed, "seed", 0)
-    n_blobs = check_int(n_blobs, "n_blobs", 1)
-    size = check_int(size, "size", 1)
-    n_frames = check_int(n_frames, "n_frames", 1)
-    dx = positive(dx, "dx", "mm")
+    n_videos, seed = check_int(n_videos, "n_videos", 1), check_int(seed, "seed", 0)
+    n_blobs, size = check_int(n_blobs, "n_blobs", 1), check_int(size, "size", 1)
+    n_frames, dx = check_int(n_frames, "n_frames", 1), positive(dx, "dx", "mm")
     fps = positive(fps, "fps", "Hz")
     a = number(a, "a", "mm^2/s", minimum=0.0)
     background = number(background, "background", "units of temperature")
     noise_sd = number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
-    peak_lo, peak_hi = _check_range(peak_range, "peak_range", "units of temperature", minimum=-math.inf)
-    sigma_lo, sigma_hi = _check_range(sigma_range_px, "sigma_range_px", "px", minimum=0.0)
-    if sigma_lo <= 0:
-        raise ValueError(f"sigma_range_px must be positive, got {tuple(sigma_range_px)}")
-    if 4 * sigma_hi >= size:
-        raise ValueError(
-            f"sigma_range_px must stay below size / 4 = {size / 4:g} px to keep blobs inside the "
-            f"frame, got {sigma_hi:g}"
-        )
+    peaks_range = _check_range(peak_range, "peak_range", "units of temperature", minimum=-math.inf)
+    sigmas_range = _check_sigma_range(sigma_range_px, size)
     check_dtype(dtype)
 
     generator = torch.Generator().manual_seed(seed)
-    draws = torch.rand((n_videos, n_blobs, 4), generator=generator, dtype=torch.float64)
-    peaks = peak_lo + (peak_hi - peak_lo) * draws[..., 0]
-    sigma_px = sigma_lo + (sigma_hi - sigma_lo) * draws[..., 1]
-    margin = 2.0 * sigma_px  # centres at least two initial sd from every edge
-    centre_px = margin[..., None] + (size - 2.0 * margin[..., None]) * draws[..., 2:]
+    peaks, sigma_px, centre_px = _draw_blobs(generator, n_videos, n_blobs, size, peaks_range, sigmas_range)
     times = torch.arange(n_frames, dtype=torch.float64) / fps
     clean = gaussian_blobs(
         times,
@@ -233,15 +221,8 @@ def blobs_video(
         centres=centre_px * dx,
         background=background,
     ).to(dtype)
-    noise = torch.randn(clean.shape, generator=generator, dtype=dtype)
-    return SyntheticVideo(
-        frames=clean + noise_sd * noise,
-        clean=clean,
-        dt=1.0 / fps,
-        dx=dx,
-        a=a,
-        times=times.to(dtype),
-    )
+    frames = clean + noise_sd * torch.randn(clean.shape, generator=generator, dtype=dtype)
+    return SyntheticVideo(frames=frames, clean=clean, dt=1.0 / fps, dx=dx, a=a, times=times.to(dtype))
 
 
 # ------------------------------------------------------------------------------------- validation
@@ -253,3 +234,37 @@ def _check_range(value: object, name: str, unit: str, *, minimum: float) -> tupl
     if not (math.isfinite(low) and math.isfinite(high)) or low > high or low < minimum:
         raise ValueError(f"{name} must be a finite pair with low <= high in {unit}, got {value!r}")
     return low, high
+
+
+def _check_sigma_range(value: object, size: int) -> tuple[float, float]:
+    """``sigma_range_px`` checked: positive, and small enough for the blobs to fit in the frame."""
+    low, high = _check_range(value, "sigma_range_px", "px", minimum=0.0)
+    if low <= 0:
+        raise ValueError(f"sigma_range_px must be positive, got {tuple(value)}")  # type: ignore[arg-type]
+    if 4 * high >= size:
+        raise ValueError(
+            f"sigma_range_px must stay below size / 4 = {size / 4:g} px to keep blobs inside the "
+            f"frame, got {high:g}"
+        )
+    return low, high
+
+
+def _draw_blobs(
+    generator: torch.Generator,
+    n_videos: int,
+    n_blobs: int,
+    size: int,
+    peak_range: tuple[float, float],
+    sigma_range: tuple[float, float],
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Peaks, sigmas (px) and centres (px) of each video's blobs, centres two sigmas inside the frame.
+
+    Shape:
+        ``(B, N)``, ``(B, N)``, ``(B, N, 2)``.
+    """
+    draws = torch.rand((n_videos, n_blobs, 4), generator=generator, dtype=torch.float64)
+    peaks = peak_range[0] + (peak_range[1] - peak_range[0]) * draws[..., 0]
+    sigma_px = sigma_range[0] + (sigma_range[1] - sigma_range[0]) * draws[..., 1]
+    margin = 2.0 * sigma_px  # centres at least two initial sd from every edge
+    centre_px = margin[..., None] + (size - 2.0 * margin[..., None]) * draws[..., 2:]
+    return peaks, sigma_px, centre_px

@@ -2,6 +2,12 @@
 
 The ground truth that the diagnosis is tested against (:func:`hidden_effect_video`), with the true
 effects recorded for every output (:class:`HiddenEffectVideo`, ``anra simulate --effect``).
+
+A scene draws from ``numpy.random.default_rng(seed)``, in this order: one or two Gaussian hot spots on
+the uniform background (rise 5-20, sigma 3-8 px, centres at least ``2.5 sigma + 10`` px inside the frame),
+then each effect's parameters from its :attr:`~anra_torch.effects.base.EffectSpec.sample` in the order
+given (ranges in each effect's module). The noise is white, sd ``noise_sd`` or else ``noise_frac`` times
+the peak initial rise, from ``torch.Generator().manual_seed(seed)``.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from anra_torch.checks import check_int, number
+from anra_torch.checks import check_dtype, check_int, number
 from anra_torch.effects.base import Geometry, Grid
 from anra_torch.effects.model import Effect, check_effects, effects_to_json, simulate_effects
 from anra_torch.effects.registry import EFFECTS, unknown_effect
@@ -141,13 +147,9 @@ def hidden_effect_video(
 ) -> HiddenEffectVideo:
     """A random scene with the named hidden effects, simulated by :func:`simulate_effects`, plus noise.
 
-    From ``numpy.random.default_rng(seed)``, in this order: one or two Gaussian hot spots on the uniform
-    ``background`` (rise 5-20, sigma 3-8 px, centres at least ``2.5 sigma + 10`` px inside the frame), then
-    each effect's parameters from its :attr:`EffectSpec.sample` in the order given (ranges in the
-    module's docs and the registry). ``params`` overrides drawn values after the draw, so the other
-    parameters do not depend on which were overridden. The noise is white, sd ``noise_sd`` or else
-    ``noise_frac`` times the peak initial rise, from ``torch.Generator().manual_seed(seed)``. The scene
-    is simulated in float64 with zero-flux edges and cast to ``dtype``.
+    The scene, the effects' parameters and the noise are drawn as the module docs say; ``params``
+    overrides drawn values after the draw, so the other parameters do not depend on which were
+    overridden. Simulated in float64 with zero-flux edges, then cast to ``dtype``.
 
     Args:
         effect_names: keys of :data:`EFFECTS` (distinct); ``()`` gives pure heat transfer.
@@ -178,40 +180,86 @@ def hidden_effect_video(
         >>> tuple(video.frames.shape), [e.name for e in video.effects]
         ((16, 32, 32), ['advection'])
     """
+    names = _check_names(effect_names, params)
+    seed, size = check_int(seed, "seed", 0), check_int(size, "size", 16)
+    dx, fps = number(dx, "dx", "mm", positive=True), number(fps, "fps", "Hz", positive=True)
+    a, background = number(a, "a", "mm^2/s", minimum=0.0), number(background, "background", "data units")
+    n_frames = _frame_count(duration, fps)
+    noise_frac = number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)
+    noise_sd = None if noise_sd is None else number(noise_sd, "noise_sd", "data units", minimum=0.0)
+    check_dtype(dtype)
+    rng = np.random.default_rng(seed)
+    initial, geometry = _scene(rng, size, dx, (n_frames - 1) / fps, a, background)
+    drawn = [{**EFFECTS[n].sample(rng, geometry), **(params or {}).get(n, {})} for n in names]
+    checked = check_effects([Effect(n, p) for n, p in zip(names, drawn, strict=True)])
+    dt = 1.0 / fps
+    clean = simulate_effects(initial, a=a, dx=dx, dt=dt, n_frames=n_frames, effects=checked).to(dtype)
+    sd = noise_sd if noise_sd is not None else noise_frac * geometry.rise
+    generator = torch.Generator().manual_seed(seed)
+    frames = clean + sd * torch.randn(clean.shape, generator=generator, dtype=dtype)
+    reference, a_map = _reference(checked, Grid((size, size), dx, geometry.duration), a)
+    return HiddenEffectVideo(
+        frames=frames,
+        clean=clean,
+        dt=dt,
+        dx=dx,
+        a=reference,
+        times=torch.arange(n_frames, dtype=dtype) * dt,
+        effects=checked,
+        noise_sd=sd,
+        seed=seed,
+        a_map=None if a_map is None else a_map.to(dtype),
+    )
+
+
+def _check_names(effect_names: object, params: Mapping[str, Mapping[str, float]] | None) -> tuple[str, ...]:
+    """Effect names as a tuple, each known, and ``params`` only for named effects."""
     names = (effect_names,) if isinstance(effect_names, str) else effect_names
     if not isinstance(names, Sequence) or not all(isinstance(n, str) for n in names):
         raise TypeError(f"effect_names must be a sequence of effect names, got {effect_names!r}")
     for name in names:
         if name not in EFFECTS:
             raise unknown_effect(name)
-    seed = check_int(seed, "seed", 0)
-    size = check_int(size, "size", 16)
-    dx = number(dx, "dx", "mm", positive=True)
-    fps = number(fps, "fps", "Hz", positive=True)
-    duration = number(duration, "duration", "s", positive=True)
-    a = number(a, "a", "mm^2/s", minimum=0.0)
-    noise_frac = number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)
-    if noise_sd is not None:
-        noise_sd = number(noise_sd, "noise_sd", "data units", minimum=0.0)
-    background = number(background, "background", "data units")
-    if dtype not in (torch.float32, torch.float64):
-        raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
-    overrides = {} if params is None else dict(params)
-    for name in overrides:
+    for name in params or {}:
         if name not in names:
             raise ValueError(
                 f"params given for effect {name!r}, which is not among the effects "
                 f"({', '.join(names) or 'none'}); add it to effect_names"
             )
+    return tuple(names)
+
+
+def _reference(effects: Sequence[Effect], grid: Grid, a: float) -> tuple[float, Tensor | None]:
+    """The diffusivity a fit should be compared with, and the diffusivity map when an effect has one."""
+    reference, a_map = a, None
+    for effect in effects:
+        if effect.spec.reference_a is not None:
+            reference = effect.spec.reference_a(effect.params)
+        if effect.spec.diffusivity_map is not None:
+            a_map = effect.spec.diffusivity_map(effect.params, grid)
+    return reference, a_map
+
+
+def _frame_count(duration: object, fps: float) -> int:
+    """``round(duration * fps) + 1`` frames, at least 2."""
+    duration = number(duration, "duration", "s", positive=True)
     n_frames = round(duration * fps) + 1
     if n_frames < 2:
         raise ValueError(f"duration * fps must give at least 2 frames, got duration={duration} s at {fps} Hz")
-    length = (n_frames - 1) / fps
+    return n_frames
 
-    rng = np.random.default_rng(seed)
-    n_spots = int(rng.integers(1, 3))
+
+def _scene(
+    rng: np.random.Generator, size: int, dx: float, duration: float, a: float, background: float
+) -> tuple[Tensor, Geometry]:
+    """One or two Gaussian hot spots on the background (the first draws from ``rng``), and the geometry
+    the effects draw their parameters for.
+
+    Shape:
+        The initial frame ``(size, size)``.
+    """
     spots = []
-    for _ in range(n_spots):
+    for _ in range(int(rng.integers(1, 3))):
         rise, sigma = rng.uniform(5.0, 20.0), rng.uniform(3.0, 8.0)
         margin = min(2.5 * sigma + 10.0, size / 2.0)
         spots.append((rise, sigma, rng.uniform(margin, size - margin), rng.uniform(margin, size - margin)))
@@ -225,44 +273,13 @@ def hidden_effect_video(
         centres=[[s[2] * dx, s[3] * dx] for s in spots],
         background=background,
     )[0]
-    peak_rise = float(initial.max()) - background
     geometry = Geometry(
         shape=(size, size),
         dx=dx,
-        duration=length,
+        duration=duration,
         a=a,
-        rise=peak_rise,
+        rise=float(initial.max()) - background,
         background=background,
         hotspots=tuple((s[2] * dx, s[3] * dx, s[1] * dx) for s in spots),
     )
-    effects = []
-    for name in names:
-        drawn = EFFECTS[name].sample(rng, geometry)
-        drawn.update(overrides.get(name, {}))
-        effects.append(Effect(name, drawn))
-    checked = check_effects(effects)
-
-    dt = 1.0 / fps
-    clean = simulate_effects(initial, a=a, dx=dx, dt=dt, n_frames=n_frames, effects=checked).to(dtype)
-    sd = noise_sd if noise_sd is not None else noise_frac * peak_rise
-    generator = torch.Generator().manual_seed(seed)
-    frames = clean + sd * torch.randn(clean.shape, generator=generator, dtype=dtype)
-    reference, a_map = a, None
-    grid = Grid((size, size), dx, length)
-    for effect in checked:
-        if effect.spec.reference_a is not None:
-            reference = effect.spec.reference_a(effect.params)
-        if effect.spec.diffusivity_map is not None:
-            a_map = effect.spec.diffusivity_map(effect.params, grid).to(dtype)
-    return HiddenEffectVideo(
-        frames=frames,
-        clean=clean,
-        dt=dt,
-        dx=dx,
-        a=reference,
-        times=torch.arange(n_frames, dtype=dtype) * dt,
-        effects=checked,
-        noise_sd=sd,
-        seed=seed,
-        a_map=a_map,
-    )
+    return initial, geometry

@@ -424,9 +424,6 @@ class ANRAEstimator(nn.Module):
         b, t, h, w = video.shape
         finite = torch.isfinite(video)
         finite = finite & ~_stuck_pixels(video, finite)
-        n_masked = (~finite).sum((1, 2, 3))
-        fill_low = torch.tensor(-torch.inf, dtype=video.dtype)
-        fill_high = torch.tensor(torch.inf, dtype=video.dtype)
         # Remove each video's mean (derivatives ignore it): keeps float32 precise on e.g. 300 K scenes,
         # and fills masked pixels with a neutral value.
         counts = finite.sum((1, 2, 3)).clamp_min(1)
@@ -435,97 +432,102 @@ class ANRAEstimator(nn.Module):
         if self.noise_sd is not None:
             noise_sd = torch.full((b,), float(self.noise_sd), dtype=video.dtype)
         else:
-            noise_sd = estimate_noise_sd(video.detach(), mask=finite)
-            noise_sd = noise_sd.reshape(b).to(video.dtype)
+            noise_sd = estimate_noise_sd(video.detach(), mask=finite).reshape(b).to(video.dtype)
         usable = [i for i, f in enumerate(self.filters) if min(h, w) - 2 * f.margin >= _MIN_VALID_PX]
         if not usable:
             need = min(2 * f.margin for f in self.filters) + _MIN_VALID_PX
             raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
         time_terms = self.filters[0].time_stage(video, dt_)
         candidates = [self._candidate(i, time_terms, finite, dt_, dx_, noise_sd) for i in usable]
-        # A candidate without measurable signal (e.g. all of its pixels masked) must not win on a zero error.
-        measurable = torch.stack([c.measurable(self.mode) for c in candidates], dim=1)
-        errors = torch.stack([c.std_error for c in candidates], dim=1)  # (B, C)
-        errors = torch.where(measurable, torch.nan_to_num(errors, nan=torch.inf), torch.inf)
-        choice = errors.argmin(dim=1)
-
-        def pick(name: str) -> Tensor:
-            stacked = torch.stack([getattr(c, name) for c in candidates], dim=1)
-            index = choice.view(b, *([1] * (stacked.ndim - 1))).expand(b, 1, *stacked.shape[2:])
-            return stacked.gather(1, index).squeeze(1)
-
-        num, den, energy, ratio = pick("num"), pick("den"), pick("energy"), pick("ratio")
-        std_error = pick("std_error")
-        measured = measurable.gather(1, choice[:, None])[:, 0]
-        sigmas = torch.tensor([self.filters[i].sigma for i in usable], dtype=video.dtype)
-        total_den, total_energy = den.sum(1), energy.sum(1)
-        reliability = _reliability(total_den, total_energy)
+        chosen, measured, choice = self._choose(candidates)
+        num, den, energy, ratio = chosen.num, chosen.den, chosen.energy, chosen.ratio
+        total_den = den.sum(1)
+        reliability = _reliability(total_den, energy.sum(1))
         if self.mode == "lsq":
             per_frame = num / torch.where(den == 0, torch.ones_like(den), den)
             per_frame = torch.where(den == 0, torch.zeros_like(per_frame), per_frame)
             estimate = num.sum(1) / torch.where(total_den == 0, torch.ones_like(total_den), total_den)
         else:
             per_frame, estimate = ratio, ratio.mean(1)
-        changing = torch.where(finite, video, fill_low).amax((1, 2, 3)) > torch.where(
-            finite, video, fill_high
-        ).amin((1, 2, 3))
+        low = torch.where(finite, video, torch.full_like(video, torch.inf)).amin((1, 2, 3))
+        changing = torch.where(finite, video, torch.full_like(video, -torch.inf)).amax((1, 2, 3)) > low
         valid = changing & measured & torch.isfinite(estimate)
-        messages = tuple(
-            (
-                "warning: the diffusivity is significantly negative "
-                f"({float(z):.1f} standard errors below 0): heat is added faster than it spreads "
-                "(a source?), the plain heat equation does not describe these frames; see anra diagnose"
-                if float(z) < -_MIN_SIGNIFICANCE
-                else ""
-            )
-            if ok
-            else "frames are constant: no thermal activity, no diffusivity estimated"
-            if not moving
-            else (
-                "frames show no thermal activity above the noise (signal fraction "
-                f"{float(rel):.3f}, estimate {abs(float(z)):.1f} standard errors from 0; need >= "
-                f"{_MIN_RELIABILITY} and >= {_MIN_SIGNIFICANCE:g}); no diffusivity estimated"
-            )
-            for ok, moving, rel, z in zip(
-                valid.tolist(),
-                changing.tolist(),
-                reliability.tolist(),
-                (estimate / std_error).tolist(),
-                strict=True,
-            )
-        )
+        z = estimate / chosen.std_error
+        rows = zip(valid.tolist(), changing.tolist(), reliability.tolist(), z.tolist(), strict=True)
+        messages = tuple(_message(*row) for row in rows)
+        field, confidence = self._field(chosen) if self.window is not None else (None, None)
         nan = torch.full_like(estimate, torch.nan)
-        field = confidence = None
-        if self.window is not None:
-            f_num, f_den, f_energy = pick("field_num"), pick("field_den"), pick("field_energy")
-            confidence = torch.where(
-                f_energy > 0,
-                (f_den / f_energy.clamp_min(1e-300)).clamp(0, 1),
-                torch.zeros_like(f_den),
-            )
-            ok = (confidence > _MIN_RELIABILITY) & (f_den > 0)
-            source = f_num / torch.where(ok, f_den, torch.ones_like(f_den))
-            field = torch.where(ok, source, torch.full_like(source, torch.nan))
-            confidence = torch.where(ok, confidence, torch.zeros_like(confidence))
         k = torch.arange(per_frame.shape[1], dtype=video.dtype)
-        result = ANRAResult(
+        sigmas = torch.tensor([self.filters[i].sigma for i in usable], dtype=video.dtype)
+        return ANRAResult(
             diffusivity=torch.where(valid, estimate, nan),
-            std_error=torch.where(valid, std_error, nan),
+            std_error=torch.where(valid, chosen.std_error, nan),
             per_frame=per_frame,
             frame_times=(k + self.time.centre).unsqueeze(0) * dt_.unsqueeze(1),
             noise_sd=noise_sd,
             smoothing=sigmas[choice],
             reliability=reliability,
             valid=valid,
-            n_masked=n_masked,
+            n_masked=(~finite).sum((1, 2, 3)),
             field=field,
             confidence=confidence,
             messages=messages,
         )
-        return result
+
+    def _choose(self, candidates: list[_Candidate]) -> tuple[_Candidate, Tensor, Tensor]:
+        """Per video, the candidate with the smallest standard error among the measurable ones: its sums,
+        whether it is measurable ``(B,)`` and its index ``(B,)``."""
+        # A candidate without measurable signal (e.g. all of its pixels masked) must not win on a zero error.
+        measurable = torch.stack([c.measurable(self.mode) for c in candidates], dim=1)
+        errors = torch.stack([c.std_error for c in candidates], dim=1)  # (B, C)
+        errors = torch.where(measurable, torch.nan_to_num(errors, nan=torch.inf), torch.inf)
+        choice = errors.argmin(dim=1)
+        b = choice.shape[0]
+
+        def pick(name: str) -> Tensor | None:
+            if getattr(candidates[0], name) is None:
+                return None
+            stacked = torch.stack([getattr(c, name) for c in candidates], dim=1)
+            index = choice.view(b, *([1] * (stacked.ndim - 1))).expand(b, 1, *stacked.shape[2:])
+            return stacked.gather(1, index).squeeze(1)
+
+        chosen = _Candidate(**{f.name: pick(f.name) for f in fields(_Candidate)})
+        return chosen, measurable.gather(1, choice[:, None])[:, 0], choice
+
+    @staticmethod
+    def _field(chosen: _Candidate) -> tuple[Tensor, Tensor]:
+        """The windowed diffusivity (NaN where unmeasurable) and its confidence, both ``(B, H, W)``."""
+        f_num, f_den, f_energy = chosen.field_num, chosen.field_den, chosen.field_energy
+        assert f_num is not None and f_den is not None and f_energy is not None
+        confidence = torch.where(
+            f_energy > 0, (f_den / f_energy.clamp_min(1e-300)).clamp(0, 1), torch.zeros_like(f_den)
+        )
+        ok = (confidence > _MIN_RELIABILITY) & (f_den > 0)
+        source = f_num / torch.where(ok, f_den, torch.ones_like(f_den))
+        field = torch.where(ok, source, torch.full_like(source, torch.nan))
+        return field, torch.where(ok, confidence, torch.zeros_like(confidence))
 
     def extra_repr(self) -> str:
         return (
             f"mode={self.mode!r}, smoothing={self.sigmas}, eiv_correction={self.eiv_correction}, "
             f"noise_sd={self.noise_sd}, window={self.window}, strict={self.strict}"
         )
+
+
+def _message(ok: bool, moving: bool, reliability: float, z: float) -> str:
+    """The result's line for one video: why it is not valid, a warning, or ""."""
+    if not moving:
+        return "frames are constant: no thermal activity, no diffusivity estimated"
+    if not ok:
+        return (
+            f"frames show no thermal activity above the noise (signal fraction {reliability:.3f}, estimate "
+            f"{abs(z):.1f} standard errors from 0; need >= {_MIN_RELIABILITY} and >= {_MIN_SIGNIFICANCE:g}); "
+            "no diffusivity estimated"
+        )
+    if z < -_MIN_SIGNIFICANCE:
+        return (
+            f"warning: the diffusivity is significantly negative ({z:.1f} standard errors below 0): heat is "
+            "added faster than it spreads (a source?), the plain heat equation does not describe these "
+            "frames; see anra diagnose"
+        )
+    return ""

@@ -202,6 +202,28 @@ def diagnose_terms(
     for name in names:
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
+    sigmas = _usable_smoothing(video, smoothing)
+    if float(video.amax() - video.amin()) == 0.0:
+        raise ValueError("frames are constant: no thermal activity to diagnose")
+    sd = float(estimate_noise_sd(video)) if noise_sd is None else positive(noise_sd, "noise_sd", "data units")
+    system, plain = _least_noisy(video, dt, dx, sigmas, sd)
+    selection = Selection(system, alpha, names, _background(video[0]))
+    selection.forward()
+    selection.backward()
+    # Localised shapes are refitted to the final model (without themselves).
+    for name in list(selection.shapes):
+        if name in selection.selected:
+            others = [e for e in selection.selected if e != name]
+            selection.prepare(name, system.fit(selection.columns(others)), refine=True)
+    return _result(system, selection, plain, sd)
+
+
+def _usable_smoothing(video: Tensor, smoothing: float | Sequence[float] | None) -> tuple[float, ...]:
+    """The smoothing candidates (px) that leave enough pixels and frames for the filters.
+
+    Raises:
+        ValueError: too few frames for the time derivative, or frames too small for every candidate.
+    """
     length = TimeDerivative("smooth").length
     if video.shape[0] < length:
         raise ValueError(
@@ -212,45 +234,47 @@ def diagnose_terms(
     else:
         sigmas = SMOOTHING if smoothing is None else tuple(float(s) for s in smoothing)
     side = min(video.shape[1:])
-    usable = [s for s in sigmas if side - 2 * (GaussianSmoothing(s).radius + 1) >= _MIN_VALID_PX]
+    usable = tuple(s for s in sigmas if side - 2 * (GaussianSmoothing(s).radius + 1) >= _MIN_VALID_PX)
     if not usable:
         need = min(2 * (GaussianSmoothing(s).radius + 1) for s in sigmas) + _MIN_VALID_PX
         raise ValueError(
             f"frames must be at least {need} x {need} px for this smoothing, "
             f"got {video.shape[1]} x {video.shape[2]}"
         )
-    if float(video.amax() - video.amin()) == 0.0:
-        raise ValueError("frames are constant: no thermal activity to diagnose")
-    sd = float(estimate_noise_sd(video)) if noise_sd is None else positive(noise_sd, "noise_sd", "data units")
+    return usable
 
-    # Smoothing: the candidate with the smallest standard error of a in the plain model.
+
+def _least_noisy(
+    video: Tensor, dt: float, dx: float, sigmas: Sequence[float], sd: float
+) -> tuple[BalanceSystem, Fit]:
+    """The balance at the smoothing whose plain-model ``a`` has the smallest standard error, and that fit."""
     best: tuple[float, BalanceSystem, Fit] | None = None
-    for sigma in usable:
+    for sigma in sigmas:
         system = BalanceSystem(video, dt, dx, sigma, sd)
         plain = system.fit(["L"])
         se = float(plain.cov[0, 0].clamp_min(0).sqrt())
         if best is None or se < best[0]:
             best = (se, system, plain)
-    _, system, plain = best
+    assert best is not None
+    return best[1], best[2]
 
-    selection = Selection(system, alpha, names, _background(video[0]))
-    selection.forward()
-    final = selection.backward()
-    # Localised shapes are refitted to the final model (without themselves).
-    for name in list(selection.shapes):
-        if name in selection.selected:
-            others = [e for e in selection.selected if e != name]
-            selection.prepare(name, system.fit(selection.columns(others)), refine=True)
+
+def _result(system: BalanceSystem, selection: Selection, plain: Fit, sd: float) -> Diagnosis:
+    """The :class:`Diagnosis` of the selected model (refitted), effects ranked by score.
+
+    Raises:
+        ValueError: no effect and a plain ``a`` within 3 standard errors of 0 (no thermal activity).
+    """
     final = system.fit(selection.columns(selection.selected))
-
     coefficients = final.coefficients()
-    context = selection.context()
-    found = []
-    for name in selection.selected:
-        score = wald_score(final, EFFECTS[name].regressors)
-        found.append(
-            {"name": name, "params": EFFECTS[name].from_coefficients(coefficients, context), "score": score}
-        )
+    found = [
+        {
+            "name": name,
+            "params": EFFECTS[name].from_coefficients(coefficients, selection.context()),
+            "score": wald_score(final, EFFECTS[name].regressors),
+        }
+        for name in selection.selected
+    ]
     found.sort(key=lambda e: -e["score"])
     a_plain = float(plain.beta[0])
     a_se = float(plain.cov[0, 0].clamp_min(0).sqrt())
