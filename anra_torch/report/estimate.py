@@ -23,8 +23,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from anra_torch.balance.filters import MatchedFilters
 from anra_torch.layers.attention import RTCAttention
-from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
 from anra_torch.layers.estimator import ANRAEstimator, ANRAResult
 from anra_torch.report.figures import colormap, format_pm, import_matplotlib, mm_extent, save_figure
 from anra_torch.video import Video
@@ -46,33 +46,39 @@ def _rtc_module(estimator: ANRAEstimator | None) -> tuple[nn.Module, bool]:
 def attention_map(video: Video, result: ANRAResult, estimator: ANRAEstimator | None = None) -> Tensor:
     """RTC attention weights at the middle estimate frame, placed on the input frame grid.
 
-    dT/dt from the estimator's time filter (without ``estimator``: the default filter with the length
-    implied by ``result``), smoothed with the sigma the result chose, weighted by the estimator's
+    dT/dt as the estimator balanced it (its matched filters at the smoothing the result chose; without
+    ``estimator`` the default filters with the time length ``result`` implies), weighted by the estimator's
     :class:`RTCAttention` when it has one, else by the paper's (``RTCAttention()``). Pixels the filters
     cannot reach (the border, or next to masked pixels) are NaN; the others sum to 1.
 
     Shape:
         ``video.frames`` ``(T, H, W)``; output ``(H, W)``.
     """
-    # TODO(balance): this rebuilds the estimator's pipeline (time derivative of the frames, smoothing, RTC
-    # attention) to draw what it weighted; the estimator will expose a method for it, and this will call it.
     frames = video.frames.to(torch.float64).unsqueeze(0)  # (1, T, H, W)
-    length = frames.shape[1] - result.per_frame.shape[-1] + 1
-    time_filter = estimator.time if estimator is not None else TimeDerivative(length=length)
+    filters = _filters_of(estimator, result, frames.shape[1])
     finite = torch.isfinite(frames)
     if not bool(finite.all()):
         fill = frames[finite].mean() if bool(finite.any()) else torch.tensor(0.0, dtype=frames.dtype)
         frames = torch.where(finite, frames, fill)
     k = result.per_frame.shape[-1] // 2
-    window = slice(k, k + time_filter.length)
-    smoother = GaussianSmoothing(float(result.smoothing))
-    rate = smoother(time_filter(frames[:, window], video.dt))  # (1, 1, H - 2r, W - 2r)
-    r = smoother.radius
+    window = slice(k, k + filters.time.length)
+    # dT/dt through the estimator's own time filter and Gaussian (the weights' input), (1, 1, h, w)
+    rate = filters.smoother(filters.time_stage(frames[:, window], video.dt)[0])
+    m = filters.smoother.radius
     bad = (~finite[:, window]).to(torch.float64).unsqueeze(1)
-    bad = F.max_pool3d(bad, (time_filter.length, 2 * r + 1, 2 * r + 1), stride=1).squeeze(1) > 0
+    bad = F.max_pool3d(bad, (filters.time.length, 2 * m + 1, 2 * m + 1), stride=1).squeeze(1) > 0
     weights = _rtc_module(estimator)[0](rate, ~bad)[0, 0]
     weights = torch.where(bad[0, 0], torch.full_like(weights, torch.nan), weights)
-    return F.pad(weights, (r, r, r, r), value=torch.nan)
+    return F.pad(weights, (m, m, m, m), value=torch.nan)
+
+
+def _filters_of(estimator: ANRAEstimator | None, result: ANRAResult, n_frames: int) -> MatchedFilters:
+    """The matched filters the estimate was made with (without ``estimator``: the default family with the
+    time length ``result`` implies and the smoothing it chose)."""
+    sigma = float(result.smoothing)
+    if estimator is not None:
+        return next(f for f in estimator.filters if f.sigma == sigma)
+    return MatchedFilters(sigma, time_length=n_frames - result.per_frame.shape[-1] + 1)
 
 
 # ------------------------------------------------------------------------------------------- figures
