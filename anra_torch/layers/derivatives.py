@@ -165,7 +165,7 @@ def time_derivative(frames: Tensor, dt: float | Tensor, *, family: str = "smooth
     Shape:
         Input ``(B, T, H, W)``; output ``(B, T - L + 1, H, W)``, frame k at input frame ``k + (L-1) - delay``.
     """
-    return TimeDerivative(family, length).to(frames.device)(frames, dt)
+    return _cached(TimeDerivative, frames, family, length)(frames, dt)
 
 
 # ---------------------------------------------------------------------------------------------- space
@@ -459,8 +459,16 @@ class GaussianSmoothing(nn.Module):
 
 
 @lru_cache(maxsize=64)
-def _cached(cls: type, *args: object, **kwargs: object) -> nn.Module:
-    return cls(*args, **kwargs)
+def _built(cls: type, device: torch.device, dtype: torch.dtype, *args: object, **kwargs: object) -> nn.Module:
+    """A layer with its kernels on ``device`` in ``dtype``, built once per configuration."""
+    return cls(*args, **kwargs).to(device=device, dtype=dtype)
+
+
+def _cached(cls: type, like: Tensor, *args: object, **kwargs: object) -> nn.Module:
+    """The layer for inputs like ``like`` (a cached module is never moved: each device and dtype has its
+    own)."""
+    dtype = like.dtype if like.is_floating_point() else torch.get_default_dtype()
+    return _built(cls, like.device, dtype, *args, **kwargs)
 
 
 def laplacian(
@@ -476,7 +484,7 @@ def laplacian(
     Shape:
         Input ``(..., H, W)``; output ``(..., H', W')``.
     """
-    return _cached(Laplacian, size, family=family, border=border).to(u.device)(u, dx)
+    return _cached(Laplacian, u, size, family=family, border=border)(u, dx)
 
 
 def gradient(u: Tensor, dx: float | Tensor, *, size: int = 5, border: str = "crop") -> Tensor:
@@ -485,7 +493,7 @@ def gradient(u: Tensor, dx: float | Tensor, *, size: int = 5, border: str = "cro
     Shape:
         Input ``(..., H, W)``; output ``(..., 2, H', W')``.
     """
-    return _cached(Gradient, size, border=border).to(u.device)(u, dx)
+    return _cached(Gradient, u, size, border=border)(u, dx)
 
 
 def second_derivatives(u: Tensor, dx: float | Tensor, *, size: int = 5, border: str = "crop") -> Tensor:
@@ -494,7 +502,7 @@ def second_derivatives(u: Tensor, dx: float | Tensor, *, size: int = 5, border: 
     Shape:
         Input ``(..., H, W)``; output ``(..., 3, H', W')``.
     """
-    return _cached(SecondDerivatives, size, border=border).to(u.device)(u, dx)
+    return _cached(SecondDerivatives, u, size, border=border)(u, dx)
 
 
 def gaussian_smooth(u: Tensor, sigma: float, *, border: str = "crop") -> Tensor:
@@ -503,4 +511,4 @@ def gaussian_smooth(u: Tensor, sigma: float, *, border: str = "crop") -> Tensor:
     Shape:
         Input ``(..., H, W)``; output ``(..., H - 2r, W - 2r)`` for ``"crop"``.
     """
-    return _cached(GaussianSmoothing, float(sigma), border=border).to(u.device)(u)
+    return _cached(GaussianSmoothing, u, float(sigma), border=border)(u)
