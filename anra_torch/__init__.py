@@ -2,103 +2,53 @@
 
 The ANRA method (El-Kebir, Lee, Bentsman, arXiv 2203.13148) as PyTorch layers: noise-robust Holoborodko
 derivatives on fixed kernels, RTC attention, and a direct estimator of the thermal diffusivity of
-``dT/dt = a (d11 + d22) T`` that never solves the PDE. Units: mm, s, mm^2/s.
+``dT/dt = a (d11 + d22) T`` that never solves the PDE; then what the plain heat equation gets wrong: hidden
+effects named from the same balance, and the forecast gain of the extended model. Units: mm, s, mm^2/s.
+
+The names here are the everyday ones; everything else lives in its subpackage, bottom up:
+
+- :mod:`anra_torch.layers`: derivative, smoothing and attention layers on fixed kernels;
+- :mod:`anra_torch.balance`: the PDE-balance core (matched filters, term bank, noise model, moments
+  with the errors-in-variables correction, the balance of one video);
+- :mod:`anra_torch.estimator`, :mod:`anra_torch.streaming`: the ANRA estimator, offline and frame by frame;
+- :mod:`anra_torch.effects`: one module per effect, one registry; :mod:`anra_torch.simulation`: the one
+  integrator, the heat equation and exact solutions;
+- :mod:`anra_torch.selection`: which effects act; :mod:`anra_torch.prediction` (forecasts and gain),
+  :mod:`anra_torch.source_map`, :mod:`anra_torch.refine`;
+- :mod:`anra_torch.video`: loading and preparing recordings; :mod:`anra_torch.features`,
+  :mod:`anra_torch.dose`, :mod:`anra_torch.tissue_model`: tissue features and damage;
+- :mod:`anra_torch.batch`, :mod:`anra_torch.report`, :mod:`anra_torch.cli`.
 """
 
-from anra_torch.balance.noise import estimate_noise_sd
 from anra_torch.batch import run_batch
-from anra_torch.dose import SKIN, ArrheniusConstants, arrhenius_omega, cem43, time_above
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
-from anra_torch.features import TissueFeatureMaps, TissueFeatures
-from anra_torch.layers import (
-    AUTO_SMOOTHING,
-    ANRAEstimator,
-    ANRAResult,
-    GaussianSmoothing,
-    Gradient,
-    Laplacian,
-    RTCAttention,
-    SecondDerivatives,
-    TimeDerivative,
-    gaussian_smooth,
-    gradient,
-    laplacian,
-    rtc_attention,
-    second_derivatives,
-    time_derivative,
-)
+from anra_torch.estimator import ANRAEstimator, ANRAResult
+from anra_torch.features import TissueFeatures
 from anra_torch.prediction import GainResult, assess_gain
-from anra_torch.refine import Refinement, refine_model
 from anra_torch.selection import Diagnosis, diagnose_terms
-from anra_torch.simulation import (
-    MovingSource,
-    gaussian_blob,
-    gaussian_blobs,
-    heat_spectral,
-    simulate_heat,
-    simulate_tissue,
-)
-from anra_torch.source_map import SourceMapModel, fit_source_map
-from anra_torch.streaming import StreamingEstimator, estimate_long
-from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
-from anra_torch.tissue_model import LearnedTissueModel
-from anra_torch.video import Phase, Video, load_video, resample_uniform, segment_phases
+from anra_torch.simulation import simulate_heat
+from anra_torch.streaming import StreamingEstimator
+from anra_torch.synthetic import paper_video
+from anra_torch.video import Video, load_video
 
 __version__ = "0.1.0"
 
 __all__ = [
     "ANRAEstimator",
     "ANRAResult",
-    "AUTO_SMOOTHING",
     "Diagnosis",
     "EFFECTS",
     "Effect",
     "GainResult",
-    "GaussianSmoothing",
-    "Gradient",
-    "Laplacian",
-    "RTCAttention",
-    "SecondDerivatives",
-    "SyntheticVideo",
-    "TimeDerivative",
+    "StreamingEstimator",
+    "TissueFeatures",
+    "Video",
     "assess_gain",
-    "refine_model",
-    "Refinement",
-    "SourceMapModel",
-    "fit_source_map",
-    "blobs_video",
     "diagnose_terms",
-    "estimate_noise_sd",
-    "gaussian_blob",
-    "gaussian_blobs",
-    "gaussian_smooth",
-    "gradient",
-    "heat_spectral",
     "hidden_effect_video",
-    "laplacian",
+    "load_video",
     "paper_video",
-    "rtc_attention",
-    "second_derivatives",
+    "run_batch",
     "simulate_effects",
     "simulate_heat",
-    "time_derivative",
-    "Phase",
-    "Video",
-    "load_video",
-    "resample_uniform",
-    "segment_phases",
-    # tissue features, thermal dose and the learned tissue model
-    "SKIN",
-    "ArrheniusConstants",
-    "LearnedTissueModel",
-    "MovingSource",
-    "TissueFeatureMaps",
-    "TissueFeatures",
-    "arrhenius_omega",
-    "cem43",
-    "simulate_tissue",
-    "time_above",
-    "run_batch",
-    "StreamingEstimator",
-    "estimate_long",
 ]

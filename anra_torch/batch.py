@@ -3,7 +3,7 @@
 :func:`run_batch` reads every input (files, folders, glob patterns; any format in
 :data:`anra_torch.video.REGISTRY`) as :func:`anra_torch.video.prepare_video` does for every command (resample,
 region of interest, calibration), sends same-shaped videos through one
-:class:`~anra_torch.layers.estimator.ANRAEstimator` call as a batch, optionally diagnoses each video
+:class:`~anra_torch.estimator.ANRAEstimator` call as a batch, optionally diagnoses each video
 (:func:`anra_torch.prediction.assess_gain`) and writes one row per input:
 
 - ``path``; ``status`` (``"ok"`` or ``"error"``); ``error`` (one line, empty when ok);
@@ -37,7 +37,7 @@ from typing import Any
 import torch
 
 from anra_torch.checks import one_line
-from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.estimator import ANRAEstimator
 from anra_torch.video import (
     FOLDER_REGISTRY,
     REGISTRY,
@@ -82,7 +82,7 @@ BATCH_COLUMNS: dict[str, type] = {
 """Output columns and their types (missing values are empty cells in CSV, nulls in Parquet)."""
 
 _RECORD_COLUMNS = ("diffusivity", "std_error", "smoothing_px", "noise_sd", "reliability", "n_masked")
-"""The columns taken as they are from :meth:`~anra_torch.layers.estimator.ANRAResult.to_record`."""
+"""The columns taken as they are from :meth:`~anra_torch.estimator.ANRAResult.to_record`."""
 _DIAGNOSIS_COLUMNS = ("top_effect", "effects", "gain", "noise_floor", "base_rmse", "extended_rmse")
 _FORMATS = (".csv", ".parquet")
 

@@ -64,9 +64,9 @@ from anra_torch.dose import (
     time_above,
     to_celsius,
 )
+from anra_torch.estimator import ANRAEstimator
 from anra_torch.layers.attention import rtc_attention
 from anra_torch.layers.derivatives import GaussianSmoothing
-from anra_torch.layers.estimator import ANRAEstimator
 
 __all__ = ["MAPS", "TissueFeatureMaps", "TissueFeatures", "feature_summary", "save_feature_maps"]
 

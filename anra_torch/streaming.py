@@ -1,6 +1,6 @@
 """Frame-by-frame ANRA: a ring buffer of filtered frames, causal time filters, an estimate after every frame.
 
-The offline estimator (:class:`~anra_torch.layers.estimator.ANRAEstimator`, ``mode="lsq"``, uniform weights)
+The offline estimator (:class:`~anra_torch.estimator.ANRAEstimator`, ``mode="lsq"``, uniform weights)
 computes, for every window of ``L`` frames ``k .. k + L - 1``,
 
 * ``U_k = P G (sum_i taps_i T_{k+i}) / dt`` and ``Lap_k = Lap G (sum_i pair_i T_{k+i})``;

@@ -185,7 +185,7 @@ def measure(spec: dict) -> dict:
     frames, dt, dx = make_videos(spec["size"], spec["batch"])
     record = dict(spec)
     if kind.startswith("anra"):
-        from anra_torch.layers.estimator import ANRAEstimator
+        from anra_torch.estimator import ANRAEstimator
 
         est = ANRAEstimator(smoothing=4.0) if kind == "anra[sigma=4]" else ANRAEstimator()
         x = torch.from_numpy(frames)
@@ -195,7 +195,7 @@ def measure(spec: dict) -> dict:
         seconds, values, peak = _timed(
             lambda: np.array([numpy_same_estimate(f, dt, dx) for f in frames]), repeats
         )
-        from anra_torch.layers.estimator import ANRAEstimator
+        from anra_torch.estimator import ANRAEstimator
 
         anra = ANRAEstimator(smoothing=4.0)(torch.from_numpy(frames), dt, dx).diffusivity.double().numpy()
         record["max_rel_diff_vs_anra"] = float(np.max(np.abs(values - anra) / np.abs(anra)))
@@ -216,7 +216,7 @@ def measure(spec: dict) -> dict:
         result = fit()  # the peer times itself (fit only) and traces its own peak memory
         seconds, peak, values = result.seconds, result.peak_mb, np.array([result.diffusivity])
         record["note"] = result.note
-        from anra_torch.layers.estimator import ANRAEstimator
+        from anra_torch.estimator import ANRAEstimator
 
         record["anra_diffusivity"] = float(ANRAEstimator()(torch.from_numpy(frames[0]), dt, dx).diffusivity)
     else:

@@ -28,8 +28,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from peers import numpy_direct_estimate, pde_find_estimate, spectral_fit, weak_sindy_estimate  # noqa: E402
 
-from anra_torch import ANRAEstimator, RTCAttention  # noqa: E402
+from anra_torch import ANRAEstimator  # noqa: E402
 from anra_torch.baselines import BASELINES  # noqa: E402
+from anra_torch.layers import RTCAttention  # noqa: E402
 from anra_torch.synthetic import blobs_video, paper_video  # noqa: E402
 
 A_TRUE = 0.2

@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.estimator import ANRAEstimator
 from anra_torch.prediction import assess_gain, split_index
 from anra_torch.selection import diagnose_terms
 from anra_torch.source_map import source_map_gain

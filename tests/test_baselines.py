@@ -16,7 +16,7 @@ import torch
 from scipy import ndimage
 
 from anra_torch.baselines import BASELINES, backward_log_estimate, log_kernel
-from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.estimator import ANRAEstimator
 from anra_torch.simulation import gaussian_blob
 from anra_torch.synthetic import paper_video
 

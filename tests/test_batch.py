@@ -16,7 +16,7 @@ from anra_torch import batch as batch_module
 from anra_torch.batch import BATCH_COLUMNS, expand_inputs, read_table, run_batch, write_table
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
-from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.estimator import ANRAEstimator
 from anra_torch.synthetic import paper_video
 from anra_torch.video import prepare_video, save_npz
 
@@ -240,7 +240,7 @@ def test_dask_two_worker_cluster_gives_the_local_rows(videos: Path, tmp_path: Pa
 
 
 def test_estimator_slices_of_a_big_batch_equal_the_whole(monkeypatch) -> None:
-    from anra_torch.layers import estimator as estimator_module
+    from anra_torch import estimator as estimator_module
 
     video = paper_video(n_videos=5, seed=7, crop=48)
     frames = video.frames.clone()

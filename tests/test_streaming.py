@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from anra_torch.balance.noise import estimate_noise_sd
-from anra_torch.layers.estimator import ANRAEstimator
+from anra_torch.estimator import ANRAEstimator
 from anra_torch.streaming import StreamingEstimator, estimate_long
 from anra_torch.synthetic import paper_video
 

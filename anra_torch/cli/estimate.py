@@ -32,7 +32,7 @@ from anra_torch.cli.arguments import (
     load_input,
     print_input,
 )
-from anra_torch.layers.estimator import MODES, ANRAEstimator, ANRAResult
+from anra_torch.estimator import MODES, ANRAEstimator, ANRAResult
 from anra_torch.report import format_pm
 from anra_torch.video import Video
 

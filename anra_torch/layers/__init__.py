@@ -1,4 +1,7 @@
-"""nn.Modules on fixed convolution kernels: derivatives, RTC attention and the ANRA estimator."""
+"""nn.Modules on fixed convolution kernels: Holoborodko derivatives, Gaussian smoothing, RTC attention.
+
+The ANRA estimator built on them is :mod:`anra_torch.estimator` (through the balance core).
+"""
 
 from anra_torch.layers.attention import RTCAttention, confidence_mask, rtc_attention
 from anra_torch.layers.derivatives import (
@@ -13,12 +16,8 @@ from anra_torch.layers.derivatives import (
     second_derivatives,
     time_derivative,
 )
-from anra_torch.layers.estimator import AUTO_SMOOTHING, ANRAEstimator, ANRAResult
 
 __all__ = [
-    "ANRAEstimator",
-    "ANRAResult",
-    "AUTO_SMOOTHING",
     "GaussianSmoothing",
     "Gradient",
     "Laplacian",
