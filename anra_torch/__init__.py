@@ -10,6 +10,14 @@ from anra_torch.batch import run_batch
 from anra_torch.dose import SKIN, ArrheniusConstants, arrhenius_omega, cem43, time_above
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
 from anra_torch.features import TissueFeatureMaps, TissueFeatures
+from anra_torch.forecast import (
+    GainResult,
+    Refinement,
+    SourceMapModel,
+    assess_gain,
+    fit_source_map,
+    refine_model,
+)
 from anra_torch.layers import (
     AUTO_SMOOTHING,
     ANRAEstimator,
@@ -27,8 +35,6 @@ from anra_torch.layers import (
     second_derivatives,
     time_derivative,
 )
-from anra_torch.prediction import GainResult, assess_gain
-from anra_torch.refine import Refinement, refine_model
 from anra_torch.selection import Diagnosis, diagnose_terms
 from anra_torch.simulation import (
     MovingSource,
@@ -38,7 +44,6 @@ from anra_torch.simulation import (
     simulate_heat,
     simulate_tissue,
 )
-from anra_torch.source_map import SourceMapModel, fit_source_map
 from anra_torch.streaming import StreamingEstimator, estimate_long
 from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
 from anra_torch.tissue_model import LearnedTissueModel

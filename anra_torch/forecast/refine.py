@@ -9,7 +9,7 @@ of the discrete trajectory; L-BFGS (strong Wolfe line search) takes the steps, s
 estimate.
 
 Both sides are compared at the diagnosis' spatial scale: the simulation starts from the first frame
-smoothed by the same Gaussian as the frames it is compared with (see :mod:`anra_torch.prediction`), on
+smoothed by the same Gaussian as the frames it is compared with (see :mod:`anra_torch.forecast.core`), on
 the interior (``diagnosis.margin`` px from each edge are left out). Positive quantities (diffusivities,
 widths, radii) are optimised in log space; every other parameter moves in steps of a natural scale
 (positions in pixels, temperatures in the frames' spread, rates in their own size).
@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.effects import Effect, Grid, effect_rhs, step_rates
-from anra_torch.prediction import at_scale, check_diagnosis_frames, evaluation_scale, extended_effects
+from anra_torch.forecast.core import at_scale, check_diagnosis_frames, evaluation_scale, extended_effects
 from anra_torch.selection import Diagnosis
 from anra_torch.simulation import integrate, stable_substeps
 
