@@ -13,8 +13,8 @@ The names here are the everyday ones; everything else lives in its subpackage, b
 - :mod:`anra_torch.estimator`, :mod:`anra_torch.streaming`: the ANRA estimator, offline and frame by frame;
 - :mod:`anra_torch.effects`: one module per effect, one registry; :mod:`anra_torch.simulation`: the one
   integrator, the heat equation and exact solutions;
-- :mod:`anra_torch.selection`: which effects act; :mod:`anra_torch.prediction` (forecasts and gain),
-  :mod:`anra_torch.source_map`, :mod:`anra_torch.refine`;
+- :mod:`anra_torch.selection`: which effects act; :mod:`anra_torch.forecast` (forecasts, gain,
+  the source map, Problem-1 refinement);
 - :mod:`anra_torch.video`: loading and preparing recordings; :mod:`anra_torch.features`,
   :mod:`anra_torch.dose`, :mod:`anra_torch.tissue_model`: tissue features and damage;
 - :mod:`anra_torch.batch`, :mod:`anra_torch.report`, :mod:`anra_torch.cli`.
@@ -24,7 +24,7 @@ from anra_torch.batch import run_batch
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
 from anra_torch.estimator import ANRAEstimator, ANRAResult
 from anra_torch.features import TissueFeatures
-from anra_torch.prediction import GainResult, assess_gain
+from anra_torch.forecast import GainResult, assess_gain
 from anra_torch.selection import Diagnosis, diagnose_terms
 from anra_torch.simulation import simulate_heat
 from anra_torch.streaming import StreamingEstimator

@@ -4,7 +4,7 @@
 :data:`anra_torch.video.REGISTRY`) as :func:`anra_torch.video.prepare_video` does for every command (resample,
 region of interest, calibration), sends same-shaped videos through one
 :class:`~anra_torch.estimator.ANRAEstimator` call as a batch, optionally diagnoses each video
-(:func:`anra_torch.prediction.assess_gain`) and writes one row per input:
+(:func:`anra_torch.forecast.assess_gain`) and writes one row per input:
 
 - ``path``; ``status`` (``"ok"`` or ``"error"``); ``error`` (one line, empty when ok);
 - ``diffusivity``, ``std_error`` (mm^2/s); ``smoothing_px`` (px); ``noise_sd`` (data units);
@@ -337,7 +337,7 @@ def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str
 
 
 def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> None:
-    from anra_torch.prediction import assess_gain
+    from anra_torch.forecast import assess_gain
 
     start = time.perf_counter()
     try:

@@ -16,7 +16,7 @@ was found (relative for magnitudes; heterogeneity: centroid distance over the ra
 ``a_inside / a_outside`` relative errors; source: distance in px between the midpoints of the true and
 fitted paths, rate relative error; anisotropy: eigenvalue ratio relative error and principal-axis angle
 error in degrees; advection: ``|v_est - v_true| / |v_true|``), the wall time; and the prediction gain of
-``anra_torch.prediction.assess_gain`` when that module imports (otherwise "not measured"): the gain at the
+``anra_torch.forecast.assess_gain`` when that module imports (otherwise "not measured"): the gain at the
 diagnosis' spatial scale (the headline), the part of the plain model's error above the noise floor
 that the extension removes, and the gain against the raw frames (capped by the noise).
 
@@ -274,7 +274,7 @@ def run_case(job: tuple) -> dict:
         rec["gain"] = None
         if options["gain"]:
             try:
-                from anra_torch.prediction import assess_gain
+                from anra_torch.forecast import assess_gain
 
                 t0 = time.perf_counter()
                 g = assess_gain(frames, video.dt, video.dx)
@@ -528,12 +528,12 @@ def main() -> None:
     gain_available = False
     if not args.no_gain:
         try:
-            from anra_torch.prediction import assess_gain  # noqa: F401
+            from anra_torch.forecast import assess_gain  # noqa: F401
 
             gain_available = True
         except Exception as err:  # noqa: BLE001
             print(
-                f"gain: not measured (anra_torch.prediction.assess_gain does not import: {err})",
+                f"gain: not measured (anra_torch.forecast.assess_gain does not import: {err})",
                 file=sys.stderr,
             )
     sindy_n = args.cases if args.sindy_cases is None else args.sindy_cases
@@ -579,11 +579,7 @@ def main() -> None:
         f"PySINDy weak form on the first {min(sindy_n, args.cases)} cases of each group, "
         f"threshold {args.sindy_threshold} (normalised columns); mapping rule in the script's docs.",
         "gain: "
-        + (
-            "anra_torch.prediction.assess_gain"
-            if gain_available
-            else "not measured (assess_gain unavailable)"
-        ),
+        + ("anra_torch.forecast.assess_gain" if gain_available else "not measured (assess_gain unavailable)"),
         f"errors (exceptions): {sum(r['outcome'] == 'error' for r in records)}",
     ]
     text = (

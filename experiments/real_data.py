@@ -15,10 +15,10 @@ Per recording, the phases (baseline / heating / cooling) come from the data
 (:func:`anra_torch.video.segment_phases`). Per phase:
 
 - Laser silicone (frames 96 x 128 px): the ANRA estimate of ``a`` (plain heat equation), then
-  :func:`anra_torch.prediction.assess_gain`: the diagnosis on the first 60 % of the phase names the
+  :func:`anra_torch.forecast.assess_gain`: the diagnosis on the first 60 % of the phase names the
   effects, and the plain model forecasts the held-out rest from the measured frame at the split (RMSE on
   the interior, degC, at the diagnosis' scale). The extended model is a loss plus the heat input as a
-  measured map (:mod:`anra_torch.source_map`, ``dT/dt = a Lap T - b T + q(x, y)``, fitted on the same
+  measured map (:mod:`anra_torch.forecast.source_map`, ``dT/dt = a Lap T - b T + q(x, y)``, fitted on the same
   frames at the same scale): the beam from a fibre tip is not a Gaussian spot, and the parametric
   extension (a Gaussian spot on a straight path, extrapolated) is reported beside it as
   ``parametric_gain``.
@@ -56,9 +56,8 @@ import numpy as np
 import torch
 
 from anra_torch.estimator import ANRAEstimator
-from anra_torch.prediction import assess_gain, split_index
+from anra_torch.forecast import assess_gain, source_map_gain, split_index
 from anra_torch.selection import diagnose_terms
-from anra_torch.source_map import source_map_gain
 from anra_torch.video import Video, load_video
 from anra_torch.video.calibration import PixelSize, apply_calibration, load_calibration
 from anra_torch.video.phases import Phase, hot_spot_signal, segment_phases

@@ -14,11 +14,11 @@ import pytest
 import torch
 
 import anra_torch.effects.model as effects_module
-import anra_torch.refine as refine_module
+import anra_torch.forecast.refine as refine_module
 import anra_torch.simulation.heat as simulation_heat
 import anra_torch.simulation.tissue as simulation_tissue
 from anra_torch.effects import Effect, simulate_effects
-from anra_torch.refine import refine_model
+from anra_torch.forecast import refine_model
 from anra_torch.selection import Diagnosis
 from anra_torch.simulation import (
     FIXED_STEP_METHODS,

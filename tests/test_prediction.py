@@ -1,4 +1,4 @@
-"""Tests for :mod:`anra_torch.prediction`: forecasts of held-out frames with and without the effects.
+"""Tests for :mod:`anra_torch.forecast` (core, gain): forecasts of held-out frames with and without effects.
 
 Measured on ``hidden_effect_video(name, seed, size=64, duration=3.0)`` (dx 0.5 mm, noise 1 % of the rise,
 91 frames, diagnosis on 55, forecast of 36). At 0.5 mm/px the heat moves about a pixel during the 1.2 s
@@ -14,13 +14,8 @@ import pytest
 import torch
 
 from anra_torch.effects import hidden_effect_video, simulate_effects
-from anra_torch.prediction import (
-    assess_gain,
-    assimilated_state,
-    extended_effects,
-    forecast_errors,
-    split_index,
-)
+from anra_torch.forecast import assess_gain
+from anra_torch.forecast.core import assimilated_state, extended_effects, forecast_errors, split_index
 from anra_torch.selection import diagnose_terms
 
 

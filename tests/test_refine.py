@@ -1,4 +1,5 @@
-"""Tests for :mod:`anra_torch.refine`: Problem-1 refinement through torchdiffeq, from the direct estimate.
+"""Tests for :mod:`anra_torch.forecast.refine`: Problem-1 refinement through torchdiffeq, from the direct
+estimate.
 
 The reference is the truth of the simulated video: a model whose parameters are pushed 30 % off the
 direct estimate must come back to the truth, and the Problem-1 error must fall.
@@ -12,7 +13,7 @@ import pytest
 import torch
 
 from anra_torch.effects import hidden_effect_video
-from anra_torch.refine import refine_model
+from anra_torch.forecast import refine_model
 from anra_torch.selection import diagnose_terms
 
 

@@ -9,8 +9,8 @@ import torch
 from torch import Tensor
 
 from anra_torch.effects import Effect, simulate_effects
-from anra_torch.prediction import assess_gain, at_scale
-from anra_torch.source_map import fit_source_map, source_map_gain
+from anra_torch.forecast import assess_gain, fit_source_map, source_map_gain
+from anra_torch.forecast.core import at_scale
 
 F64 = torch.float64
 

@@ -81,7 +81,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any, Any]:
     """The ``diagnose --json`` object, the :class:`GainResult` it was made from, and the
     :class:`SourceMapGain` with ``--source-map`` (else None)."""
-    from anra_torch.prediction import assess_gain, extended_effects
+    from anra_torch.forecast import assess_gain, extended_effects
 
     frames = video.frames
     try:
@@ -121,7 +121,7 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
     }
     mapped = None
     if args.source_map:
-        from anra_torch.source_map import source_map_gain
+        from anra_torch.forecast import source_map_gain
 
         try:
             mapped = source_map_gain(frames, video.dt, video.dx, result)

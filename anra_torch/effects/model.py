@@ -186,7 +186,7 @@ def effect_rhs(
     """``f(t, T) = (D[T] + sum of effect terms) * time_scale`` from ``(spec, params)`` pairs, unchecked.
 
     The one assembly of a model's right-hand side: :class:`ExtendedHeatRHS` calls it after validating its
-    effects; :func:`anra_torch.refine.refine_model` calls it with tensor parameters so that autograd
+    effects; :func:`anra_torch.forecast.refine_model` calls it with tensor parameters so that autograd
     reaches them. ``D`` is ``a`` times the 5-point Laplacian unless a part replaces the diffusion term;
     ``t`` is in units of ``time_scale`` seconds.
     """
@@ -324,7 +324,8 @@ def simulate_effects(
         boundary_value: ghost temperature for ``"dirichlet"``.
         substeps: RK4 steps per frame; default automatic (see above).
         forcing: a stationary heat-input map in data units per s, added to the right-hand side at every
-            pixel (e.g. a measured source map, :mod:`anra_torch.source_map`); it does not change stability.
+            pixel (e.g. a measured source map, :mod:`anra_torch.forecast.source_map`); it does not change
+            stability.
 
     Returns:
         The video in the dtype of ``initial``.

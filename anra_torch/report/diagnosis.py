@@ -164,8 +164,8 @@ def write_diagnosis_report(
         out_dir: directory to write into (created if needed).
         video: the whole video (``dt`` in s, ``dx`` in mm label the axes).
         diagnosis: :class:`anra_torch.selection.Diagnosis` of its fit part.
-        gain: :class:`anra_torch.prediction.GainResult` of the same split.
-        source_map: optional :class:`anra_torch.source_map.SourceMapGain` of the same split; adds
+        gain: :class:`anra_torch.forecast.GainResult` of the same split.
+        source_map: optional :class:`anra_torch.forecast.SourceMapGain` of the same split; adds
             ``source_map.png`` (the map and its forecast's deviation) and its numbers.
 
     Returns:

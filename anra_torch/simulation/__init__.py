@@ -9,7 +9,7 @@
 - :mod:`~anra_torch.simulation.tissue`: :class:`TissueRHS` (the Pennes-like tissue model with a
   :class:`MovingSource`) and :func:`simulate_tissue`.
 
-:func:`anra_torch.effects.simulate_effects` and :func:`anra_torch.refine.refine_model` integrate their
+:func:`anra_torch.effects.simulate_effects` and :func:`anra_torch.forecast.refine_model` integrate their
 right-hand sides with the same :func:`integrate`. Units: mm, s, mm^2/s.
 """
 

@@ -1,9 +1,9 @@
 """The one time integrator of the package's method-of-lines simulators, and the stability limit of its steps.
 
 Every simulator (:func:`~anra_torch.simulation.simulate_heat`, :func:`~anra_torch.effects.simulate_effects`,
-:func:`~anra_torch.simulation.simulate_tissue`, :func:`~anra_torch.refine.refine_model`) turns its PDE into an
-ODE system ``dU/dt = f(t, U)`` on the pixel grid and hands it to :func:`integrate`, which is the only caller
-of ``torchdiffeq``. Fixed-step methods take an integer number of substeps per frame, chosen by
+:func:`~anra_torch.simulation.simulate_tissue`, :func:`~anra_torch.forecast.refine_model`) turns its PDE into
+an ODE system ``dU/dt = f(t, U)`` on the pixel grid and hands it to :func:`integrate`, which is the only
+caller of ``torchdiffeq``. Fixed-step methods take an integer number of substeps per frame, chosen by
 :func:`stable_substeps` from where the eigenvalues of ``f`` lie:
 
 - diffusion on the 5-point Laplacian: real, in ``[-8 a / dx^2, 0]`` (1/s);

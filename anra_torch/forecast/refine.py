@@ -9,7 +9,7 @@ of the discrete trajectory; L-BFGS (strong Wolfe line search) takes the steps, s
 estimate.
 
 Both sides are compared at the diagnosis' spatial scale: the simulation starts from the first frame
-smoothed by the same Gaussian as the frames it is compared with (see :mod:`anra_torch.prediction`), on
+smoothed by the same Gaussian as the frames it is compared with (see :mod:`anra_torch.forecast.core`), on
 the interior (``diagnosis.margin`` px from each edge are left out). Positive quantities (diffusivities,
 widths, radii) are optimised in log space; every other parameter moves in steps of a natural scale
 (positions in pixels, temperatures in the frames' spread, rates in their own size).
@@ -30,8 +30,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from anra_torch.checks import check_int
 from anra_torch.effects import Effect, Grid, effect_rhs, step_rates
-from anra_torch.prediction import at_scale, check_diagnosis_frames, evaluation_scale, extended_effects
+from anra_torch.forecast.core import at_scale, check_diagnosis_frames, evaluation_scale, extended_effects
 from anra_torch.selection import Diagnosis
 from anra_torch.simulation import integrate, stable_substeps
 
@@ -56,6 +57,9 @@ class Refinement:
         evaluations: simulations run (each with its backward pass).
         seconds: wall time of the refinement.
         scale_px: the evaluation scale (Gaussian sigma in px).
+
+    Shape:
+        No tensors.
     """
 
     a_before: float
@@ -193,8 +197,7 @@ def refine_model(
         raise ValueError(f"frames must have shape (T >= 2, H, W), got {tuple(video.shape)}")
     n, h, w = video.shape
     check_diagnosis_frames(diagnosis, h, w)
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
+    check_int(iterations, "iterations", 1)
     scale = evaluation_scale(diagnosis, scale_px)
     target = at_scale(video, scale)
     duration = (n - 1) * dt
@@ -207,6 +210,36 @@ def refine_model(
     delta = torch.zeros(len(model.names), dtype=_F64, requires_grad=True)
     with torch.no_grad():
         sse_before = float(sse(delta))
+    sse_after, best, n_iter, evaluations = _lbfgs(sse, delta, sse_before, iterations)
+    try:
+        a_after, effects_after = model.effects_at(best)
+    except (TypeError, ValueError):  # refined values the simulator rejects: keep the direct estimate
+        a_after, effects_after, sse_after = a0, effects, sse_before
+    return Refinement(
+        a_before=a0,
+        a_after=a_after,
+        effects_before=effects,
+        effects_after=effects_after,
+        sse_before=sse_before,
+        sse_after=sse_after,
+        iterations=n_iter,
+        evaluations=evaluations,
+        seconds=time.perf_counter() - tick,
+        scale_px=float(scale),
+    )
+
+
+def _lbfgs(
+    sse: Callable[[Tensor], Tensor], delta: Tensor, sse_before: float, iterations: int
+) -> tuple[float, Tensor, int, int]:
+    """Minimise ``sse`` over ``delta`` (started at its value, error ``sse_before``) with L-BFGS.
+
+    Returns:
+        The least finite error seen and its ``delta``, the iterations taken and the evaluations run.
+
+    Shape:
+        ``delta`` ``(P,)``.
+    """
     best = (sse_before, delta.detach().clone())
     optimiser = torch.optim.LBFGS([delta], lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe")
     evaluations = 0
@@ -226,20 +259,4 @@ def refine_model(
         return loss
 
     optimiser.step(closure)
-    state = optimiser.state[optimiser._params[0]]
-    try:
-        a_after, effects_after = model.effects_at(best[1])
-    except (TypeError, ValueError):  # refined values the simulator rejects: keep the direct estimate
-        a_after, effects_after, best = a0, effects, (sse_before, best[1])
-    return Refinement(
-        a_before=a0,
-        a_after=a_after,
-        effects_before=effects,
-        effects_after=effects_after,
-        sse_before=sse_before,
-        sse_after=best[0],
-        iterations=int(state.get("n_iter", 0)),
-        evaluations=evaluations,
-        seconds=time.perf_counter() - tick,
-        scale_px=float(scale),
-    )
+    return best[0], best[1], int(optimiser.state[delta].get("n_iter", 0)), evaluations

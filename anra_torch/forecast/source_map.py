@@ -39,14 +39,8 @@ from anra_torch.balance.filters import MatchedFilters
 from anra_torch.balance.moments import Moments, accumulate
 from anra_torch.checks import as_spacing
 from anra_torch.effects import Effect, simulate_effects
-from anra_torch.prediction import (
-    GainResult,
-    assimilated_state,
-    at_scale,
-    check_scale,
-    forecast_errors,
-    time_average,
-)
+from anra_torch.forecast.core import assimilated_state, at_scale, check_scale, forecast_errors, time_average
+from anra_torch.forecast.gain import GainResult
 
 __all__ = ["SourceMapGain", "SourceMapModel", "fit_source_map", "source_map_gain"]
 
@@ -218,7 +212,7 @@ def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) ->
     """Fit the source map on ``result``'s fit part and forecast its held-out frames like the plain model.
 
     Same split, evaluation scale, assimilated frames, interior and measured frames as ``result``
-    (:func:`anra_torch.prediction.assess_gain` on the same ``frames``), so ``gain`` compares like with like.
+    (:func:`anra_torch.forecast.assess_gain` on the same ``frames``), so ``gain`` compares like with like.
 
     Raises:
         ValueError: ``frames`` not the video ``result`` was made from (frame count), or a fit part shorter
