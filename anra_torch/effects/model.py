@@ -353,14 +353,7 @@ def simulate_effects(
     checked = check_effects(effects)
     grid = Grid((height, width), dx, (n_frames - 1) * dt, boundary, boundary_value)
     substeps = None if substeps is None else check_int(substeps, "substeps", 1)
-    if forcing is not None:
-        forcing = torch.as_tensor(forcing)
-        need = f"forcing must be a finite map of the frame's shape ({height}, {width}) in data units per s"
-        if forcing.shape != (height, width):
-            raise ValueError(f"{need}, got shape {tuple(forcing.shape)}")
-        if not bool(torch.isfinite(forcing).all()):
-            raise ValueError(f"{need}, got non-finite values")
-        forcing = forcing.to(u0.dtype)
+    forcing = None if forcing is None else _check_forcing(forcing, u0)
     low, high = float(u0.min()), float(u0.max())
     if BOUNDARIES[boundary].uses_value:
         low, high = min(low, grid.boundary_value), max(high, grid.boundary_value)
@@ -374,6 +367,18 @@ def simulate_effects(
         rhs = lambda t, u: heat(t, u) + step_input  # noqa: E731
     out = integrate(rhs, u0, n_frames=n_frames, substeps=substeps).movedim(0, 1)  # (B, T, H, W)
     return out if batched else out[0]
+
+
+def _check_forcing(forcing: object, like: Tensor) -> Tensor:
+    """A finite stationary input map of the frame's shape, in ``like``'s dtype."""
+    forcing = torch.as_tensor(forcing)
+    height, width = like.shape[-2:]
+    need = f"forcing must be a finite map of the frame's shape ({height}, {width}) in data units per s"
+    if forcing.shape != (height, width):
+        raise ValueError(f"{need}, got shape {tuple(forcing.shape)}")
+    if not bool(torch.isfinite(forcing).all()):
+        raise ValueError(f"{need}, got non-finite values")
+    return forcing.to(like.dtype)
 
 
 def equation_text(a: float, effects: Sequence[Effect]) -> str:
