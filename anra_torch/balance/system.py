@@ -80,14 +80,24 @@ class BalanceSystem:
         dx: pixel size in mm.
         sigma: Gaussian sigma in px.
         noise_sd: white sensor-noise sd (data units).
+        time_family: Holoborodko time family of the derivative (window of 5 frames).
 
     Shape:
         Every term ``(T - 4, H - 2 margin, W - 2 margin)``.
     """
 
-    def __init__(self, frames: Tensor, dt: float, dx: float, sigma: float, noise_sd: float) -> None:
+    def __init__(
+        self,
+        frames: Tensor,
+        dt: float,
+        dx: float,
+        sigma: float,
+        noise_sd: float,
+        *,
+        time_family: str = "smooth",
+    ) -> None:
         self.filters = MatchedFilters(
-            sigma, time_family="smooth", time_length=5, laplacian_size=3, laplacian_family="holoborodko"
+            sigma, time_family=time_family, time_length=5, laplacian_size=3, laplacian_family="holoborodko"
         )  # the 5-point stencil (its partner: a 1-px crop) and the operators of a finite-difference model
         self.dt, self.dx, self.sigma, self.noise_sd = dt, dx, sigma, noise_sd
         self.noise = WhiteNoise(noise_sd)

@@ -162,6 +162,7 @@ def diagnose_terms(
     smoothing: float | Sequence[float] | None = None,
     noise_sd: float | None = None,
     effects: Sequence[str] | None = None,
+    time_family: str = "smooth",
 ) -> Diagnosis:
     """Identify the hidden effects of a thermal video by balancing candidate PDE terms on its frames.
 
@@ -175,6 +176,7 @@ def diagnose_terms(
         noise_sd: known white-noise sd (data units); default estimated from the video.
         effects: names in :data:`anra_torch.effects.EFFECTS` to look for; default those searched by
             default (every effect but ``periodic_source``).
+        time_family: Holoborodko time family of ``dT/dt`` (:data:`anra_torch.layers.stencils.TIME_FAMILIES`).
 
     Returns:
         :class:`Diagnosis`.
@@ -206,7 +208,7 @@ def diagnose_terms(
     if float(video.amax() - video.amin()) == 0.0:
         raise ValueError("frames are constant: no thermal activity to diagnose")
     sd = float(estimate_noise_sd(video)) if noise_sd is None else positive(noise_sd, "noise_sd", "data units")
-    system, plain = _least_noisy(video, dt, dx, sigmas, sd)
+    system, plain = _least_noisy(video, dt, dx, sigmas, sd, time_family)
     selection = Selection(system, alpha, names, _background(video[0]))
     selection.forward()
     selection.backward()
@@ -245,12 +247,12 @@ def _usable_smoothing(video: Tensor, smoothing: float | Sequence[float] | None) 
 
 
 def _least_noisy(
-    video: Tensor, dt: float, dx: float, sigmas: Sequence[float], sd: float
+    video: Tensor, dt: float, dx: float, sigmas: Sequence[float], sd: float, time_family: str
 ) -> tuple[BalanceSystem, Fit]:
     """The balance at the smoothing whose plain-model ``a`` has the smallest standard error, and that fit."""
     best: tuple[float, BalanceSystem, Fit] | None = None
     for sigma in sigmas:
-        system = BalanceSystem(video, dt, dx, sigma, sd)
+        system = BalanceSystem(video, dt, dx, sigma, sd, time_family=time_family)
         plain = system.fit(["L"])
         se = float(plain.cov[0, 0].clamp_min(0).sqrt())
         if best is None or se < best[0]:
