@@ -27,9 +27,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from anra_torch.balance.artefacts import stuck_pixels
+from anra_torch.balance.batch_noise import BatchNoise, batch_noise
 from anra_torch.balance.filters import MatchedFilters
 from anra_torch.balance.moments import TermNoise, accumulate
-from anra_torch.balance.noise import estimate_noise_sd
 from anra_torch.checks import as_spacing, as_video
 from anra_torch.layers.attention import RTCAttention, UniformAttention
 
@@ -47,25 +48,6 @@ _MIN_VALID_PX = 8  # a candidate smoothing must leave at least this many pixels 
 _NAMES = ("U", "L")  # the plain balance dT/dt = a Lap T
 
 
-_MAX_STUCK_FRACTION = 0.01  # more constant pixels than this is a static region, not dead elements
-
-
-def _stuck_pixels(video: Tensor, finite: Tensor) -> Tensor:
-    """Dead elements: finite pixels constant in time while the rest of the frame changes, ``(B, T, H, W)``.
-
-    A real scene seen through sensor noise never holds a pixel exactly constant; a few such pixels are
-    dead or saturated elements whose Laplacian spikes would otherwise dominate the fit. Many constant
-    pixels (a noiseless static background) are left alone.
-    """
-    big = torch.finfo(video.dtype).max
-    high = torch.where(finite, video, torch.full_like(video, -big)).amax(1)
-    low = torch.where(finite, video, torch.full_like(video, big)).amin(1)
-    constant = (high == low) & finite.all(1)  # (B, H, W)
-    fraction = constant.flatten(1).float().mean(1)
-    dead = constant & (fraction <= _MAX_STUCK_FRACTION).view(-1, 1, 1)
-    return dead.unsqueeze(1).expand_as(video)
-
-
 _SLICE_ELEMENTS = 2**21  # pixel values per slice of a batch (8 MiB in float32): keeps the work in cache
 
 
@@ -74,7 +56,7 @@ def _concat(parts: list[ANRAResult]) -> ANRAResult:
     changes = {}
     for f in fields(ANRAResult):
         values = [getattr(p, f.name) for p in parts]
-        if f.name == "messages":
+        if isinstance(values[0], tuple):  # messages, noise, artefacts: one entry per video
             changes[f.name] = tuple(m for v in values for m in v)
         elif values[0] is not None:
             changes[f.name] = torch.cat(values)
@@ -107,6 +89,11 @@ class ANRAResult:
         confidence: reliability of each window in [0, 1], ``(B, H, W)``, or None.
         messages: one line per video: the reason when not valid; for a valid video empty, or a warning
             when the diffusivity is significantly negative (a source dominates; the value is kept).
+        noise: per video, the measured noise model as a record (``"sd"``, ``"time_correlation"``,
+            ``"space_length_px"``, ``"white"``; :meth:`NoiseModel.describe
+            <anra_torch.balance.noise.NoiseModel.describe>`).
+        artefacts: per video, the camera artefacts found and what was done
+            (:meth:`Artefacts.to_record <anra_torch.balance.artefacts.Artefacts.to_record>`).
     """
 
     diffusivity: Tensor
@@ -121,6 +108,8 @@ class ANRAResult:
     field: Tensor | None
     confidence: Tensor | None
     messages: tuple[str, ...]
+    noise: tuple[dict, ...] = ()
+    artefacts: tuple[dict, ...] = ()
 
     def unbatched(self) -> ANRAResult:
         """The same result with the batch dimension of size 1 removed."""
@@ -327,19 +316,20 @@ class ANRAEstimator(nn.Module):
         finite: Tensor,
         dt: Tensor,
         dx: Tensor,
-        noise_sd: Tensor,
+        noise: BatchNoise,
     ) -> _Candidate:
         filters = self.filters[index]
         # Time filtering happened once on the raw frames (it commutes with the spatial filters).
         terms = filters.terms(None, dt, dx, _NAMES, time_stage=time_terms)
+        terms = {k: noise.fixed_effects(v) for k, v in terms.items()}
         rate, lap = terms["U"], terms["L"]
         valid = self._valid_mask(finite, filters.margin) if not bool(finite.all()) else None
         weights, slope = self.attention.with_slope(rate, valid)
-        noise = None
+        term_noise = None
         if self.eiv_correction and self.mode == "lsq":
-            covariance = filters.noise_covariance(_NAMES, noise_sd.double() ** 2, dt, dx).to(rate.dtype)
-            noise = TermNoise(covariance, slope=slope)  # Stein: noisy weights inflate sum(w U L)
-        per_frame = accumulate(terms, _NAMES, dims=(-2, -1), weights=weights, noise=noise)
+            covariance = noise.covariance(filters, _NAMES, dt, dx, rate.shape[1:]).to(rate.dtype)
+            term_noise = TermNoise(covariance, slope=slope)  # Stein: noisy weights inflate sum(w U L)
+        per_frame = accumulate(terms, _NAMES, dims=(-2, -1), weights=weights, noise=term_noise)
         num, den, energy = (
             per_frame.corrected[..., 0, 1],
             per_frame.corrected[..., 1, 1],
@@ -354,18 +344,20 @@ class ANRAEstimator(nn.Module):
             total = den.sum(1)
             estimate = num.sum(1) / torch.where(total == 0, torch.ones_like(total), total)
             # Sandwich for one regressor: sd |A^T (w L)| / |sum w (L^2 - var)|.
-            lever = (weights * lap).detach()
+            lever = noise.fixed_effects((weights * lap).detach())  # the projection is its own transpose
             a = estimate.detach().view(-1, 1, 1, 1)
             back = filters.adjoint({"U": lever, "L": -a * lever}, dt.detach(), dx.detach())
-            spread = back.pow(2).sum((1, 2, 3)).sqrt()
-            std_error = noise_sd * spread / total.abs().clamp_min(torch.finfo(rate.dtype).tiny)
+            std_error = noise.spread(back) / total.abs().clamp_min(torch.finfo(rate.dtype).tiny)
+            # The correction's own error: the measured noise variance is known to a relative error.
+            correction = (energy - den).sum(1) * noise.variance_error.to(rate.dtype)
+            std_error = torch.hypot(std_error, estimate.detach() * correction / total.abs().clamp_min(1e-300))
         else:
             spread = ratio.std(dim=1) if ratio.shape[1] > 1 else ratio.abs()[:, 0]
             std_error = spread / ratio.shape[1] ** 0.5
         maps = (None, None, None)
         if self.window is not None:
             field = accumulate(
-                terms, _NAMES, reduce=lambda x: self._box(x.sum(1)), weights=weights, noise=noise
+                terms, _NAMES, reduce=lambda x: self._box(x.sum(1)), weights=weights, noise=term_noise
             )
             maps = tuple(
                 self._to_frame(m, filters.margin)
@@ -423,22 +415,21 @@ class ANRAEstimator(nn.Module):
         videos without activity (they come back flagged)."""
         b, t, h, w = video.shape
         finite = torch.isfinite(video)
-        finite = finite & ~_stuck_pixels(video, finite)
+        finite = finite & ~stuck_pixels(video, finite)
         # Remove each video's mean (derivatives ignore it): keeps float32 precise on e.g. 300 K scenes,
         # and fills masked pixels with a neutral value.
         counts = finite.sum((1, 2, 3)).clamp_min(1)
         mean = torch.where(finite, video, torch.zeros_like(video)).sum((1, 2, 3)) / counts
         video = torch.where(finite, video - mean.view(b, 1, 1, 1), torch.zeros_like(video))
-        if self.noise_sd is not None:
-            noise_sd = torch.full((b,), float(self.noise_sd), dtype=video.dtype)
-        else:
-            noise_sd = estimate_noise_sd(video.detach(), mask=finite).reshape(b).to(video.dtype)
+        noise = batch_noise(video, finite, noise_sd=self.noise_sd)
+        video = torch.where(finite, noise.cleaned, video)
+        noise_sd = noise.sd
         usable = [i for i, f in enumerate(self.filters) if min(h, w) - 2 * f.margin >= _MIN_VALID_PX]
         if not usable:
             need = min(2 * f.margin for f in self.filters) + _MIN_VALID_PX
             raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
         time_terms = self.filters[0].time_stage(video, dt_)
-        candidates = [self._candidate(i, time_terms, finite, dt_, dx_, noise_sd) for i in usable]
+        candidates = [self._candidate(i, time_terms, finite, dt_, dx_, noise) for i in usable]
         chosen, measured, choice = self._choose(candidates)
         num, den, energy, ratio = chosen.num, chosen.den, chosen.energy, chosen.ratio
         total_den = den.sum(1)
@@ -472,6 +463,10 @@ class ANRAEstimator(nn.Module):
             field=field,
             confidence=confidence,
             messages=messages,
+            noise=tuple(
+                m.describe() | {"sd": float(sd)} for m, sd in zip(noise.models, noise_sd, strict=True)
+            ),
+            artefacts=tuple(a.to_record() for a in noise.artefacts),
         )
 
     def _choose(self, candidates: list[_Candidate]) -> tuple[_Candidate, Tensor, Tensor]:

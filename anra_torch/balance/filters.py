@@ -37,8 +37,10 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
+from anra_torch.balance.noise import NoiseModel
 from anra_torch.layers.derivatives import (
     GaussianSmoothing,
     Gradient,
@@ -245,17 +247,35 @@ class MatchedFilters(nn.Module):
         return self._inner[key]
 
     def noise_covariance(
-        self, names: Sequence[str], variance: float | Tensor, dt: float | Tensor, dx: float | Tensor
+        self,
+        names: Sequence[str],
+        variance: float | Tensor,
+        dt: float | Tensor,
+        dx: float | Tensor,
+        *,
+        noise: NoiseModel | None = None,
+        within: Sequence[str] = (),
+        extent: tuple[int, int] | None = None,
     ) -> Tensor:
-        """Noise covariance per output point of the named terms for white noise of ``variance``.
+        """Noise covariance per output point of the named terms.
 
         ``variance <k_a, k_b>`` with each impulse response in physical units (``1/dt`` per time
-        derivative, ``1/dx`` per space derivative of the term carrying the noise).
+        derivative, ``1/dx`` per space derivative of the term carrying the noise) for white noise;
+        ``variance <k_a, R k_b>`` with the correlation ``R`` of a correlated ``noise`` model; and, when the
+        terms are taken ``within`` pixels (each pixel's mean over ``extent[0]`` frames removed) and/or
+        frames (each frame's mean over ``extent[1]`` pixels removed), the noise those means carry away is
+        removed too (from the cross-correlations of the impulse responses at every time lag, and their sums
+        over space).
 
         Shape:
             ``variance``, ``dt``, ``dx`` numbers or ``(B,)``; output ``(P, P)`` or ``(B, P, P)``.
         """
-        inner = self.noise_inner(names)
+        correlated = noise is not None and not noise.white
+        inner = (
+            self.noise_inner(names)
+            if not (correlated or within)
+            else self._inner_within(names, noise if correlated else None, within, extent)
+        )
         carriers = [TERMS[TERMS[n].noise_kernel or n] for n in names]
         t = torch.tensor([c.time_order for c in carriers], dtype=_F64)
         x = torch.tensor([c.space_order for c in carriers], dtype=_F64)
@@ -268,6 +288,38 @@ class MatchedFilters(nn.Module):
             return torch.as_tensor(v, dtype=_F64).reshape(-1, 1, 1)
 
         return per_video(variance) * inner / (per_video(dt) ** t_pairs * per_video(dx) ** x_pairs)
+
+    def _inner_within(
+        self,
+        names: Sequence[str],
+        noise: NoiseModel | None,
+        within: Sequence[str],
+        extent: tuple[int, int] | None,
+    ) -> Tensor:
+        """``<k_a, R k_b>`` per point after the within transforms, unit spacing, ``(P, P)``."""
+        if within and extent is None:
+            raise ValueError("extent=(frames, pixels) is needed to correct the noise for fixed effects")
+        m = len(noise.time_corr) if noise is not None else 0
+        r = noise.space_kernel().numel() // 2 if noise is not None else 0
+        kernels = F.pad(self.impulse_responses(names), (r, r, r, r, m, m))  # (P, L', S', S')
+        correlated = noise.correlate(kernels) if noise is not None else kernels
+        flat_a, flat_b = kernels.flatten(1), correlated.flatten(1)
+        inner = flat_a @ flat_b.T
+        frames, pixels = extent if extent is not None else (1, 1)
+        if "pixel" in within:  # E[mean over the pixel's frames] products: all time lags
+            length = kernels.shape[1]
+            for lag in range(1 - length, length):
+                a = kernels[:, max(0, -lag) : length - max(0, lag)].flatten(1)
+                b = correlated[:, max(0, lag) : length - max(0, -lag)].flatten(1)
+                inner = inner - (1.0 - abs(lag) / frames) / frames * (a @ b.T)
+        if "frame" in within:  # E[mean over the frame's pixels] products: all space lags at equal time
+            a, b = kernels.sum((-2, -1)), correlated.sum((-2, -1))
+            inner = inner - (a @ b.T) / pixels
+        if "pixel" in within and "frame" in within:
+            inner = inner + (kernels.flatten(1).sum(1)[:, None] * correlated.flatten(1).sum(1)[None]) / (
+                frames * pixels
+            )
+        return inner
 
     def adjoint(self, levers: dict[str, Tensor], dt: float | Tensor, dx: float | Tensor) -> Tensor:
         """``A^T``: the sum over the named terms of their transposed filters applied to each lever.

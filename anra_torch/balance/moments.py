@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-__all__ = ["Moments", "TermNoise", "accumulate", "extend", "pushback", "sandwich"]
+__all__ = ["Moments", "TermNoise", "accumulate", "extend", "pushback", "sandwich", "within"]
 
 Reduce = Callable[[Tensor], Tensor]
 """Sums a product map over the points of one statistic, e.g. over each frame's pixels."""
@@ -259,20 +259,45 @@ def extend(
     )
 
 
+def within(term: Tensor, *, pixel: bool | Tensor = False, frame: bool | Tensor = False) -> Tensor:
+    """``term`` without each pixel's mean over time (``pixel``) and/or each frame's mean over space
+    (``frame``): per-pixel and per-frame fixed effects (a static pattern, a global offset path).
+
+    A projection: its own transpose, so a lever for a statistic of the transformed terms is transformed
+    the same way before it is pushed back.
+
+    Args:
+        term: a term ``(..., K, h, w)``.
+        pixel: remove per-pixel means; a bool, or ``(B,)`` bools for a batch ``(B, K, h, w)``.
+        frame: remove per-frame means; likewise.
+
+    Shape:
+        ``(..., K, h, w)`` -> the same.
+    """
+    for flag, dims in ((pixel, (-3,)), (frame, (-2, -1))):
+        if isinstance(flag, Tensor):
+            if bool(flag.any()):
+                gate = flag.to(term.dtype).view(-1, *([1] * (term.ndim - 1)))
+                term = term - gate * term.mean(dims, keepdim=True)
+        elif flag:
+            term = term - term.mean(dims, keepdim=True)
+    return term
+
+
 def pushback(outputs: Tensor, frames: Tensor, levers: Sequence[Tensor]) -> Tensor:
     """``A^T x`` for each lever ``x``, where ``A`` is the (linearised) map from ``frames`` to ``outputs``.
 
     Through the autograd graph that built ``outputs`` from ``frames``: the transposed filters, exactly.
 
     Shape:
-        ``outputs`` like each lever; ``frames`` any; output ``(len(levers), frames.numel())``.
+        ``outputs`` like each lever; ``frames`` any; output ``(len(levers), *frames.shape)``.
     """
     backs = []
     for lever in levers:
         (back,) = torch.autograd.grad(
             outputs, frames, grad_outputs=lever.expand_as(outputs), retain_graph=True
         )
-        backs.append(back.flatten())
+        backs.append(back)
     return torch.stack(backs)
 
 
@@ -281,9 +306,9 @@ def sandwich(inverse: Tensor, backs: Tensor, noise: object) -> Tensor:
 
     Args:
         inverse: ``G^-1``, ``(k, k)``.
-        backs: the regressors pushed back onto the frames, ``A^T x_j`` (rows), ``(k, N)``.
+        backs: the regressors pushed back onto the frames, ``A^T x_j``, ``(k, *frames)``.
         noise: a noise model with ``quadratic(backs) -> (k, k)``
-            (:class:`~anra_torch.balance.noise.WhiteNoise`).
+            (:class:`~anra_torch.balance.noise.NoiseModel`).
 
     Shape:
         Output ``(k, k)``.

@@ -17,8 +17,8 @@ import torch
 from torch import Tensor
 
 from anra_torch.balance.filters import TERMS, MatchedFilters
-from anra_torch.balance.moments import TermNoise, accumulate, extend, pushback, sandwich
-from anra_torch.balance.noise import WhiteNoise
+from anra_torch.balance.moments import TermNoise, accumulate, extend, pushback, sandwich, within
+from anra_torch.balance.noise import NoiseModel
 
 __all__ = ["REGRESSORS", "BalanceSystem", "Fit", "NoiseSpec"]
 
@@ -95,12 +95,15 @@ class BalanceSystem:
         noise_sd: float,
         *,
         time_family: str = "smooth",
+        noise: NoiseModel | None = None,
+        within: Sequence[str] = (),
     ) -> None:
         self.filters = MatchedFilters(
             sigma, time_family=time_family, time_length=5, laplacian_size=3, laplacian_family="holoborodko"
         )  # the 5-point stencil (its partner: a 1-px crop) and the operators of a finite-difference model
         self.dt, self.dx, self.sigma, self.noise_sd = dt, dx, sigma, noise_sd
-        self.noise = WhiteNoise(noise_sd)
+        self.noise = NoiseModel(noise_sd) if noise is None else noise
+        self.within = tuple(within)
         self.mean = float(frames.mean())
         self.frames = frames.detach().clone().requires_grad_(True)
         self.shape = tuple(frames.shape)
@@ -108,14 +111,18 @@ class BalanceSystem:
         stage = self.filters.time_stage(centred, dt)
         self.average = stage[1]  # S_t (T - Tbar) before smoothing, for H
         names = ("U", *REGRESSORS)
-        self.terms: dict[str, Tensor] = self.filters.terms(centred, dt, dx, names, time_stage=stage)
+        raw = self.filters.terms(centred, dt, dx, names, time_stage=stage)
+        self.weights: dict[str, Tensor] = {n: raw[TERMS[n].noise_weight].detach() for n in names
+                                           if TERMS[n].noise_weight}  # fmt: skip
+        self.terms: dict[str, Tensor] = {k: self.fixed_effects(v) for k, v in raw.items()}
         self.detached = {k: v.detach() for k, v in self.terms.items()}
         kernels = sorted({TERMS[n].noise_kernel for n in names} - {None})
-        unit = self.filters.noise_covariance(kernels, 1.0, dt, dx)
+        k, h, w = raw["U"].shape
+        unit = self.filters.noise_covariance(
+            kernels, 1.0, dt, dx, noise=self.noise, within=self.within, extent=(k, h * w)
+        )
         self._unit = {(a, b): unit[i, j] for i, a in enumerate(kernels) for j, b in enumerate(kernels)}
         self.kernels: dict[str, str | None] = {n: TERMS[n].noise_kernel for n in names}
-        self.weights: dict[str, Tensor] = {n: self.detached[TERMS[n].noise_weight] for n in names
-                                           if TERMS[n].noise_weight}  # fmt: skip
         self.n = self.terms["U"].numel()
         self._base = accumulate(self.detached, names, noise=self.term_noise(names))
         self.moments = self._base
@@ -128,6 +135,15 @@ class BalanceSystem:
     def margin(self) -> int:
         """Pixels lost on each side."""
         return self.filters.margin
+
+    def fixed_effects(self, term: Tensor) -> Tensor:
+        """``term`` with the fixed effects of :attr:`within` removed (unchanged without them; see
+        :func:`anra_torch.balance.moments.within`).
+
+        Shape:
+            ``(K, h, w)`` -> the same.
+        """
+        return within(term, pixel="pixel" in self.within, frame="frame" in self.within)
 
     def finish(self, field: Tensor) -> Tensor:
         """Smooth and crop a full-frame, time-averaged term like ``U``: ``(K, H, W) -> (K, h, w)``."""
@@ -150,6 +166,7 @@ class BalanceSystem:
 
     def add(self, name: str, term: Tensor, noise: NoiseSpec | None) -> None:
         """Register (or replace) an extra term (source, heterogeneity) on the output grid."""
+        term = self.fixed_effects(term)
         self.terms[name] = term
         self.detached[name] = term.detach()
         self.kernels[name] = None if noise is None else noise.kernel
@@ -210,7 +227,7 @@ class BalanceSystem:
         p = len(columns)
         trial = extend(
             self.moments.subset(names),
-            {**self.detached, _TRIAL: extra},
+            {**self.detached, _TRIAL: self.fixed_effects(extra)},
             [_TRIAL],
             noise=self.term_noise(names, noise if noise is not None else NoiseSpec(None)),
         )

@@ -56,7 +56,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from anra_torch.balance.noise import estimate_noise_sd
+from anra_torch.balance.artefacts import Artefacts, find_artefacts
+from anra_torch.balance.noise import NoiseModel, measure_noise
 from anra_torch.balance.system import BalanceSystem, Fit
 from anra_torch.checks import as_video, positive
 from anra_torch.effects import EFFECTS
@@ -75,6 +76,7 @@ SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
 _MIN_VALID_PX = 16  # a smoothing candidate must leave at least this many pixels per side
 _MIN_SIGNIFICANCE = 3.0  # |a| / std_error below this (and no effect): no thermal activity
 _F64 = torch.float64
+_MAX_NON_FINITE = 0.05  # a few non-finite samples are artefacts to repair; more is a broken recording
 
 
 # ------------------------------------------------------------------------------------------ result
@@ -103,6 +105,9 @@ class Diagnosis:
         residual_map: time-mean residual ``U - X beta`` of the selected model (units of T per s),
             ``(H - 2 margin, W - 2 margin)``.
         margin: pixels between the frame edge and ``residual_map`` (the filters' reach).
+        noise: the noise model measured from the video (level, correlation in time and space) that the
+            standard errors, the errors-in-variables corrections and the tests come from.
+        artefacts: the camera artefacts found and what was done (:mod:`anra_torch.balance.artefacts`).
     """
 
     base: float
@@ -119,6 +124,8 @@ class Diagnosis:
     fit_ratio: float
     residual_map: Tensor
     margin: int
+    noise: NoiseModel | None = None
+    artefacts: Artefacts | None = None
 
     @property
     def names(self) -> list[str]:
@@ -135,8 +142,11 @@ def _as_frames(frames: object) -> Tensor:
         )
     video = video[0].detach().to(_F64)
     bad = int((~torch.isfinite(video)).sum())
-    if bad:
-        raise ValueError(f"frames must be finite, got {bad} non-finite values; crop or fill them first")
+    if bad > _MAX_NON_FINITE * video.numel():
+        raise ValueError(
+            f"frames must be mostly finite, got {bad} non-finite values of {video.numel()} (more than "
+            f"{100 * _MAX_NON_FINITE:g} %); crop or fill them first"
+        )
     return video
 
 
@@ -205,10 +215,15 @@ def diagnose_terms(
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
     sigmas = _usable_smoothing(video, smoothing)
+    video, artefacts = find_artefacts(video)
     if float(video.amax() - video.amin()) == 0.0:
         raise ValueError("frames are constant: no thermal activity to diagnose")
-    sd = float(estimate_noise_sd(video)) if noise_sd is None else positive(noise_sd, "noise_sd", "data units")
-    system, plain = _least_noisy(video, dt, dx, sigmas, sd, time_family)
+    if noise_sd is None:
+        noise = measure_noise(video, static_pattern=artefacts.fixed_pattern)
+    else:
+        noise = NoiseModel(positive(noise_sd, "noise_sd", "data units"))
+    options = {"time_family": time_family, "noise": noise, "within": artefacts.within}
+    system, plain = _least_noisy(video, dt, dx, sigmas, float(noise.sd), options)
     selection = Selection(system, alpha, names, _background(video[0]))
     selection.forward()
     selection.backward()
@@ -217,7 +232,7 @@ def diagnose_terms(
         if name in selection.selected:
             others = [e for e in selection.selected if e != name]
             selection.prepare(name, system.fit(selection.columns(others)), refine=True)
-    return _result(system, selection, plain, sd)
+    return _result(system, selection, plain, artefacts)
 
 
 def _usable_smoothing(video: Tensor, smoothing: float | Sequence[float] | None) -> tuple[float, ...]:
@@ -247,12 +262,12 @@ def _usable_smoothing(video: Tensor, smoothing: float | Sequence[float] | None) 
 
 
 def _least_noisy(
-    video: Tensor, dt: float, dx: float, sigmas: Sequence[float], sd: float, time_family: str
+    video: Tensor, dt: float, dx: float, sigmas: Sequence[float], sd: float, options: dict
 ) -> tuple[BalanceSystem, Fit]:
     """The balance at the smoothing whose plain-model ``a`` has the smallest standard error, and that fit."""
     best: tuple[float, BalanceSystem, Fit] | None = None
     for sigma in sigmas:
-        system = BalanceSystem(video, dt, dx, sigma, sd, time_family=time_family)
+        system = BalanceSystem(video, dt, dx, sigma, sd, **options)
         plain = system.fit(["L"])
         se = float(plain.cov[0, 0].clamp_min(0).sqrt())
         if best is None or se < best[0]:
@@ -261,7 +276,7 @@ def _least_noisy(
     return best[1], best[2]
 
 
-def _result(system: BalanceSystem, selection: Selection, plain: Fit, sd: float) -> Diagnosis:
+def _result(system: BalanceSystem, selection: Selection, plain: Fit, artefacts: Artefacts) -> Diagnosis:
     """The :class:`Diagnosis` of the selected model (refitted), effects ranked by score.
 
     Raises:
@@ -294,10 +309,12 @@ def _result(system: BalanceSystem, selection: Selection, plain: Fit, sd: float) 
         thresholds=dict(selection.thresholds),
         coefficients=coefficients,
         std_errors=final.std_errors(),
-        noise_sd=sd,
+        noise_sd=float(system.noise.sd),
         smoothing=system.sigma,
         mean=system.mean,
         fit_ratio=final.rss / system.expected_rss(final),
         residual_map=system.residual(final).mean(0),
         margin=system.margin,
+        noise=system.noise,
+        artefacts=artefacts,
     )

@@ -1,0 +1,132 @@
+"""The noise context of a batch of videos: artefacts repaired, noise measured, fixed effects chosen, per
+video; and what the estimator's errors-in-variables correction and standard error need of it.
+
+Each video of a batch gets :func:`~anra_torch.balance.artefacts.find_artefacts` and
+:func:`~anra_torch.balance.noise.measure_noise`. A clean video with white noise keeps exactly the white
+estimate :func:`~anra_torch.balance.noise.estimate_noise_sd` over its unmasked pixels, so its result does
+not change; a video with correlated noise or fixed effects gets its own noise covariance per point and its
+own standard error.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+from anra_torch.balance.artefacts import Artefacts, find_artefacts
+from anra_torch.balance.moments import within
+from anra_torch.balance.noise import NoiseModel, estimate_noise_sd, measure_noise
+
+if TYPE_CHECKING:
+    from anra_torch.balance.filters import MatchedFilters
+
+__all__ = ["BatchNoise", "batch_noise"]
+
+_F64 = torch.float64
+
+
+@dataclass(frozen=True)
+class BatchNoise:
+    """Per video of a batch: the repaired frames, the noise model, the fixed effects, the artefacts.
+
+    Attributes:
+        cleaned: the videos with spikes and hot elements repaired, ``(B, T, H, W)``.
+        sd: noise standard deviation per sample (data units), ``(B,)``.
+        models: the measured noise model of each video.
+        pixel: per-pixel fixed effects (a static pattern), ``(B,)`` bool.
+        frame: per-frame fixed effects (global offsets), ``(B,)`` bool.
+        artefacts: what was found in each video.
+    """
+
+    cleaned: Tensor
+    sd: Tensor
+    models: tuple[NoiseModel, ...]
+    pixel: Tensor
+    frame: Tensor
+    artefacts: tuple[Artefacts, ...]
+
+    def special(self, index: int) -> bool:
+        """Whether video ``index`` needs more than the white-noise formulas."""
+        return not self.models[index].white or bool(self.pixel[index]) or bool(self.frame[index])
+
+    @property
+    def variance_error(self) -> Tensor:
+        """Relative error of each video's measured noise variance, ``(B,)`` float64
+        (:attr:`NoiseModel.variance_error <anra_torch.balance.noise.NoiseModel.variance_error>`)."""
+        return torch.tensor([m.variance_error for m in self.models], dtype=_F64)
+
+    def fixed_effects(self, term: Tensor) -> Tensor:
+        """``term`` ``(B, K, h, w)`` with each video's fixed effects removed."""
+        return within(term, pixel=self.pixel, frame=self.frame)
+
+    def covariance(
+        self, filters: MatchedFilters, names: Sequence[str], dt: Tensor, dx: Tensor, extent: Sequence[int]
+    ) -> Tensor:
+        """Noise covariance per point of the named terms of each video, ``(B, P, P)`` float64."""
+        out = filters.noise_covariance(names, self.sd.double() ** 2, dt, dx)
+        frames, pixels = int(extent[0]), int(extent[1]) * int(extent[2])
+        for b in range(len(self.models)):  # the few videos with correlated noise or fixed effects
+            if self.special(b):
+                out[b] = filters.noise_covariance(
+                    names,
+                    float(self.sd[b]) ** 2,
+                    float(dt[b]),
+                    float(dx[b]),
+                    noise=self.models[b],
+                    within=("pixel",) * bool(self.pixel[b]) + ("frame",) * bool(self.frame[b]),
+                    extent=(frames, pixels),
+                )
+        return out
+
+    def spread(self, backs: Tensor) -> Tensor:
+        """Standard deviation of ``<back, noise>`` for each video's pushed-back lever, ``(B,)``.
+
+        Shape:
+            ``backs`` ``(B, T, H, W)``.
+        """
+        out = self.sd * backs.pow(2).sum((1, 2, 3)).sqrt()
+        for b, model in enumerate(self.models):
+            if not model.white:
+                out[b] = model.quadratic(backs[b : b + 1].to(_F64))[0, 0].clamp_min(0).sqrt().to(out.dtype)
+        return out
+
+
+def batch_noise(video: Tensor, finite: Tensor, *, noise_sd: float | None = None) -> BatchNoise:
+    """Repair, measure and choose for each video of a batch (see the module docs).
+
+    Args:
+        video: centred frames ``(B, T, H, W)``; masked samples (``~finite``) are left to the caller.
+        finite: the caller's mask of usable samples.
+        noise_sd: a known white-noise sd (data units); default measured.
+
+    Shape:
+        ``video``, ``finite`` ``(B, T, H, W)``.
+    """
+    b = video.shape[0]
+    cleaned, artefacts, models = [], [], []
+    for index in range(b):  # artefacts and noise are properties of each recording
+        one = torch.where(finite[index], video[index], torch.nan)
+        repaired, found = find_artefacts(one.detach())
+        cleaned.append(repaired.to(video.dtype))
+        artefacts.append(found)
+        if noise_sd is not None:
+            models.append(NoiseModel(float(noise_sd)))
+        else:
+            models.append(measure_noise(repaired, static_pattern=found.fixed_pattern))
+    if noise_sd is not None:
+        sd = torch.full((b,), float(noise_sd), dtype=video.dtype)
+    else:
+        white = estimate_noise_sd(video.detach(), mask=finite).reshape(b).to(video.dtype)
+        sd = torch.stack(
+            [white[i] if models[i].white and not artefacts[i].fixed_pattern else torch.tensor(
+                float(models[i].sd), dtype=video.dtype) for i in range(b)]
+        )  # fmt: skip
+    pixel = torch.tensor(["pixel" in a.within for a in artefacts])
+    frame = torch.tensor([a.global_offsets for a in artefacts])
+    # The repairs enter as a constant correction, so gradients flow through every sample as before.
+    cleaned = video + (torch.stack(cleaned) - video.detach())
+    return BatchNoise(cleaned, sd, tuple(models), pixel, frame, tuple(artefacts))
