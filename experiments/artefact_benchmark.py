@@ -113,7 +113,7 @@ def run_case(job: tuple) -> list[dict]:
     base = {"group": group, "index": index, **case}
     try:
         t0 = time.perf_counter()
-        video = make_video("independent", names, **{k: case[k] for k in case if k != "size"}, size=SIZE)
+        video = make_video("independent", names, **case)
         base["simulate_seconds"] = time.perf_counter() - t0
     except Exception as err:  # noqa: BLE001
         error = f"{type(err).__name__}: {err}\n{traceback.format_exc()}"
