@@ -44,6 +44,17 @@ is among the mapped set.
 
     python experiments/diagnosis_benchmark.py                  # 20 cases per effect and pure
     python experiments/diagnosis_benchmark.py --cases 2        # quick timing estimate
+    python experiments/diagnosis_benchmark.py --simulator independent   # the same scenes, independently
+    python experiments/diagnosis_benchmark.py --artefacts      # camera artefacts (artefact_benchmark.py)
+
+``--simulator independent`` simulates the same cases (same seeds, scenes and effect parameters) with
+:func:`anra_torch.simulation.independent.independent_effect_video` (exact Fourier modes or fine finite
+volumes on an extended domain, pixel averages) instead of the library's 5-point RK4 simulator, whose
+operators the diagnosis shares; the default ``library`` gives today's results. ``--artefacts`` runs the
+camera-artefact mode of ``artefact_benchmark.py`` (its docs): independent videos at the issue's setting,
+diagnosed without and with each kind of :mod:`anra_torch.camera` artefact, with its own table and
+acceptance block. ``--effects`` restricts either mode to some groups. Shared pieces (the SINDy peer, the
+parameter errors, the records) live in ``benchmark_cases.py``.
 
 Writes ``results.json`` and ``table.md`` to ``--out`` (default results/diagnosis_benchmark) and prints
 the table and an acceptance block.
@@ -56,17 +67,24 @@ import json
 import math
 import multiprocessing as mp
 import os
-import re
 import sys
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-
-EFFECT_NAMES = ("linear_loss", "source", "advection", "anisotropy", "heterogeneity", "nonlinear_diffusion")
-PURE = "pure"
-GROUPS = (*EFFECT_NAMES, PURE)
+from benchmark_cases import (  # noqa: F401 - sindy_case is re-exported for other scripts
+    EFFECT_NAMES,
+    GROUPS,
+    PURE,
+    SIMULATORS,
+    make_video,
+    measure_gain,
+    param_errors,
+    sindy_case,
+    sindy_outcome,
+)
 
 # Acceptance targets (from the brief).
 TOP_TARGET = 0.95
@@ -109,132 +127,27 @@ def _draw_case(group_index: int, index: int, dx_range: tuple[float, float] = DX_
     }
 
 
-def _rel(est: float, true: float) -> float:
-    return abs(est - true) / abs(true) if true != 0 else math.nan
-
-
-def _param_errors(name: str, true: dict, est: dict, dx: float) -> dict[str, float]:
-    if name == "linear_loss":
-        return {"b": _rel(est["b"], true["b"])}
-    if name == "advection":
-        v_true = math.hypot(true["vx"], true["vy"])
-        return {"v": math.hypot(est["vx"] - true["vx"], est["vy"] - true["vy"]) / v_true}
-    if name == "anisotropy":
-
-        def eig(p: dict) -> tuple[float, float, float]:
-            mean = 0.5 * (p["a_x"] + p["a_y"])
-            half = math.hypot(0.5 * (p["a_x"] - p["a_y"]), p["a_xy"])
-            angle = 0.5 * math.degrees(math.atan2(2.0 * p["a_xy"], p["a_x"] - p["a_y"]))
-            return mean + half, mean - half, angle
-
-        lt, st, at = eig(true)
-        le, se, ae = eig(est)
-        d_angle = abs((ae - at + 90.0) % 180.0 - 90.0)
-        return {
-            "ratio": _rel(le / se if se > 0 else math.inf, lt / st),
-            "large": _rel(le, lt),
-            "small": _rel(se, st),
-            "angle_deg": d_angle,
-        }
-    if name == "nonlinear_diffusion":
-        return {"a0": _rel(est["a0"], true["a0"]), "beta": _rel(est["beta"], true["beta"])}
-    if name == "source":
-        mid_t = (0.5 * (true["x0"] + true["x1"]), 0.5 * (true["y0"] + true["y1"]))
-        mid_e = (0.5 * (est["x0"] + est["x1"]), 0.5 * (est["y0"] + est["y1"]))
-        return {
-            "rate": _rel(est["rate"], true["rate"]),
-            "centre_px": math.hypot(mid_e[0] - mid_t[0], mid_e[1] - mid_t[1]) / dx,
-            "width": _rel(est["width"], true["width"]),
-        }
-    if name == "heterogeneity":
-        ratio_t = true["a_inside"] / true["a_outside"]
-        ratio_e = est["a_inside"] / est["a_outside"] if est["a_outside"] != 0 else math.inf
-        return {
-            "centre_over_radius": math.hypot(est["x"] - true["x"], est["y"] - true["y"]) / true["radius"],
-            "radius": _rel(est["radius"], true["radius"]),
-            "ratio_in_out": _rel(ratio_e, ratio_t),
-        }
-    raise ValueError(name)
-
-
-# ---------------------------------------------------------------------------------------- SINDy peer
-SINDY_K = 200
-SINDY_HALF = (22.0, 22.0, 7.0)
-SINDY_MAX_FRACTION = 0.4
-
-
-def _sindy_map(names: list[str], coef: np.ndarray) -> tuple[list[str], list[str]]:
-    """Kept terms -> our effect names (rule in the module docs)."""
-    kept = {n: float(c) for n, c in zip(names, coef, strict=True) if c != 0.0}
-    found: set[str] = set()
-    for term in kept:
-        product = re.fullmatch(r"(x0|x0\^2|1 ?)(x0_\d+)", term.replace(" ", ""))
-        if product and product.group(1).startswith("x0"):
-            found.add("nonlinear_diffusion")
-        elif term in ("x0_1", "x0_2"):
-            found.add("advection")
-        elif term in ("1", "x0", "x0^2"):
-            found.add("linear_loss")
-        elif term == "x0_12":
-            found.add("anisotropy")
-    c11, c22 = kept.get("x0_11", 0.0), kept.get("x0_22", 0.0)
-    if abs(c11 - c22) > 0.1 * 0.5 * (abs(c11) + abs(c22)):
-        found.add("anisotropy")
-    return sorted(found), [f"{c:+.4g} {n}" for n, c in kept.items()]
-
-
-def sindy_case(frames: np.ndarray, dt: float, threshold: float, seed: int) -> dict:
-    import pysindy as ps
-    from threadpoolctl import threadpool_limits
-
-    t0 = time.perf_counter()
-    n_t, n_y, n_x = frames.shape
-    first = frames[0]
-    border = np.concatenate(
-        [first[:2].ravel(), first[-2:].ravel(), first[:, :2].ravel(), first[:, -2:].ravel()]
-    )
-    background = float(np.median(border))
-    rise = float(first.max() - background)
-    u = np.moveaxis((frames - background) / rise, 0, -1)[..., None]
-    extent = np.array([n_y - 1, n_x - 1, n_t - 1], dtype=np.float64)
-    half = np.minimum(np.array(SINDY_HALF), SINDY_MAX_FRACTION * extent) * np.array([1.0, 1.0, dt])  # t in s
-    axes = (np.arange(n_y, dtype=float), np.arange(n_x, dtype=float), np.arange(n_t) * dt)
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
-    saved = np.random.get_state()  # noqa: NPY002 - PySINDy samples subdomains from the global generator
-    np.random.seed(seed % (2**32))  # noqa: NPY002
-    try:
-        library = ps.WeakPDELibrary(
-            function_library=ps.PolynomialLibrary(degree=2, include_bias=False),
-            derivative_order=2,
-            include_bias=True,
-            spatiotemporal_grid=grid,
-            include_interaction=True,
-            K=SINDY_K,
-            H_xt=half,
-        )
-        model = ps.SINDy(
-            feature_library=library,
-            optimizer=ps.STLSQ(threshold=threshold, alpha=0.05, normalize_columns=True),
-        )
-        with threadpool_limits(limits=1, user_api="blas"):
-            model.fit(u, t=grid[0, 0, :, 2])
-        names = list(model.get_feature_names())
-        coef = np.asarray(model.coefficients(), dtype=np.float64).reshape(-1)
-        found, kept = _sindy_map(names, coef)
-        error = None
-    except Exception as err:  # noqa: BLE001 - a failed peer fit is a result, not a crash
-        found, kept, error = [], [], f"{type(err).__name__}: {err}"
-    finally:
-        np.random.set_state(saved)  # noqa: NPY002
-    return {"found": found, "kept": kept, "error": error, "seconds": time.perf_counter() - t0}
-
-
 # ---------------------------------------------------------------------------------------- one case
+def _named(rec: dict, group: str, diag: object, video: object) -> None:
+    """The diagnosis' outcome against the truth, and the true effect's parameter errors when found."""
+    found = diag.names
+    rec["found"] = found
+    rec["scores"] = [float(e["score"]) for e in diag.effects]
+    rec["top"] = found[0] if found else None
+    if group == PURE:
+        rec["outcome"] = "false_positive" if found else "none"
+        rec["extra"] = list(found)
+        return
+    rec["outcome"] = "none" if not found else ("correct" if found[0] == group else "wrong")
+    rec["extra"] = [n for n in found if n != group]
+    match = [e for e in diag.effects if e["name"] == group]
+    if match:
+        rec["errors"] = param_errors(group, video.effects[0].params, match[0]["params"], video.dx)
+        rec["estimate"] = {k: float(v) for k, v in match[0]["params"].items()}
+
+
 def run_case(job: tuple) -> dict:
     group, index, gi, options = job
-    import torch
-
-    from anra_torch.effects import hidden_effect_video
     from anra_torch.selection import diagnose_terms
 
     case = _draw_case(gi, index, options["dx_range"])
@@ -242,7 +155,8 @@ def run_case(job: tuple) -> dict:
     rec: dict = {"group": group, "index": index, **case}
     try:
         t0 = time.perf_counter()
-        video = hidden_effect_video(
+        video = make_video(
+            options.get("simulator", "library"),
             names,
             seed=case["seed"],
             size=case["size"],
@@ -257,57 +171,18 @@ def run_case(job: tuple) -> dict:
         t0 = time.perf_counter()
         diag = diagnose_terms(frames, video.dt, video.dx)
         rec["seconds"] = time.perf_counter() - t0
-        found = diag.names
-        rec["found"] = found
-        rec["scores"] = [float(e["score"]) for e in diag.effects]
-        rec["top"] = found[0] if found else None
-        if group == PURE:
-            rec["outcome"] = "false_positive" if found else "none"
-            rec["extra"] = list(found)
-        else:
-            rec["outcome"] = "none" if not found else ("correct" if found[0] == group else "wrong")
-            rec["extra"] = [n for n in found if n != group]
-            match = [e for e in diag.effects if e["name"] == group]
-            if match:
-                rec["errors"] = _param_errors(group, video.effects[0].params, match[0]["params"], video.dx)
-                rec["estimate"] = {k: float(v) for k, v in match[0]["params"].items()}
+        _named(rec, group, diag, video)
         rec["gain"] = None
         if options["gain"]:
-            try:
-                from anra_torch.forecast import assess_gain
-
-                t0 = time.perf_counter()
-                g = assess_gain(frames, video.dt, video.dx)
-                rec["gain_seconds"] = time.perf_counter() - t0
-                rec["gain"] = float(g.gain)
-                rec["gain_raw"] = float(g.gain_raw)
-                rec["gain_above_floor"] = float(g.gain_above_floor)
-                rec["base_over_floor"] = float(g.base_rmse / g.noise_floor) if g.noise_floor > 0 else None
-                rec["gain_effects"] = [e.name for e in g.effects]
-                rec["gain_result"] = {
-                    k: (float(v) if isinstance(v, (int, float)) else str(v))
-                    for k, v in getattr(g, "__dict__", {}).items()
-                    if isinstance(v, (int, float, str))
-                }
-            except Exception as err:  # noqa: BLE001
-                rec["gain_error"] = f"{type(err).__name__}: {err}"
+            rec.update(measure_gain(frames, video.dt, video.dx))
         if options["sindy"]:
             rec["sindy"] = sindy_case(
                 frames.double().numpy(), video.dt, options["sindy_threshold"], case["seed"]
             )
-            s = rec["sindy"]["found"]
-            if group == PURE:
-                rec["sindy"]["outcome"] = "false_positive" if s else "none"
-            else:
-                rec["sindy"]["outcome"] = (
-                    "none"
-                    if not s
-                    else ("correct" if s == [group] else ("contains" if group in s else "wrong"))
-                )
+            rec["sindy"]["outcome"] = sindy_outcome(rec["sindy"]["found"], group)
     except Exception as err:  # noqa: BLE001
         rec["outcome"] = "error"
         rec["error"] = f"{type(err).__name__}: {err}\n{traceback.format_exc()}"
-    del torch
     return rec
 
 
@@ -499,12 +374,19 @@ def acceptance(summary: dict, gain_measured: bool) -> tuple[str, bool]:
     return "\n".join(["## Acceptance", "", *lines, "", verdict]), ok_all
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--cases", type=int, default=20, help="random cases per effect and pure (default 20)")
-    parser.add_argument("--out", type=Path, default=Path("results/diagnosis_benchmark"))
+    parser.add_argument(
+        "--cases",
+        type=int,
+        default=None,
+        help="random cases per effect and pure (default 20; 10 with --artefacts)",
+    )
+    parser.add_argument(
+        "--out", type=Path, default=None, help="default results/diagnosis_benchmark[_artefacts]"
+    )
     parser.add_argument("--workers", type=int, default=2, help="processes, one thread each (default 2)")
     parser.add_argument(
         "--sindy-cases",
@@ -522,86 +404,136 @@ def main() -> None:
         help=f"pixel size range in mm, drawn log-uniformly (default {DX_RANGE[0]} {DX_RANGE[1]})",
     )
     parser.add_argument("--no-gain", action="store_true", help="skip assess_gain even if available")
-    args = parser.parse_args()
+    parser.add_argument(
+        "--simulator",
+        choices=SIMULATORS,
+        default="library",
+        help="library: hidden_effect_video (default); independent: independent_effect_video, same scenes",
+    )
+    parser.add_argument(
+        "--artefacts",
+        action="store_true",
+        help="camera-artefact mode (artefact_benchmark.py): independent videos at the issue's setting, "
+        "each artefact kind and none",
+    )
+    parser.add_argument(
+        "--effects",
+        nargs="+",
+        choices=GROUPS,
+        default=list(GROUPS),
+        help="groups to run (default all six effects and pure)",
+    )
+    parser.add_argument(
+        "--artefact-gain", action="store_true", help="--artefacts: also measure assess_gain (slow)"
+    )
+    return parser
+
+
+def gain_available(no_gain: bool) -> bool:
+    """Whether ``anra_torch.forecast.assess_gain`` imports (and is wanted)."""
+    if no_gain:
+        return False
+    try:
+        from anra_torch.forecast import assess_gain  # noqa: F401
+
+        return True
+    except Exception as err:  # noqa: BLE001
+        print(
+            f"gain: not measured (anra_torch.forecast.assess_gain does not import: {err})", file=sys.stderr
+        )
+        return False
+
+
+def run_jobs(
+    function: Callable[[tuple], dict | list[dict]], jobs: list[tuple], workers: int, out: Path
+) -> tuple[list[dict], float]:
+    """Run ``function`` on every job (``workers`` spawned processes of one thread each), keeping each
+    record in ``out/records.partial.jsonl`` as it comes; returns the records and the wall time (s)."""
     from tqdm import tqdm
 
-    gain_available = False
-    if not args.no_gain:
-        try:
-            from anra_torch.forecast import assess_gain  # noqa: F401
+    start = time.perf_counter()
+    records: list[dict] = []
+    out.mkdir(parents=True, exist_ok=True)
+    with (out / "records.partial.jsonl").open("w") as partial:
 
-            gain_available = True
-        except Exception as err:  # noqa: BLE001
-            print(
-                f"gain: not measured (anra_torch.forecast.assess_gain does not import: {err})",
-                file=sys.stderr,
-            )
+        def keep(result: dict | list[dict]) -> None:
+            for rec in result if isinstance(result, list) else [result]:
+                records.append(rec)
+                partial.write(json.dumps(rec, default=str) + "\n")
+            partial.flush()
+
+        if workers > 1:
+            ctx = mp.get_context("spawn")
+            with ctx.Pool(workers, initializer=_setup_worker) as pool:
+                for result in tqdm(pool.imap_unordered(function, jobs), total=len(jobs), desc="cases"):
+                    keep(result)
+        else:
+            _setup_worker()
+            for job in tqdm(jobs, desc="cases"):
+                keep(function(job))
+    return records, time.perf_counter() - start
+
+
+def write_results(out: Path, text: str, results: dict) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table.md").write_text(text)
+    (out / "results.json").write_text(json.dumps(results, indent=1, default=str))
+    print(text)
+
+
+def main() -> None:
+    args = build_parser().parse_args()
+    if args.artefacts:
+        from artefact_benchmark import run_artefact_benchmark
+
+        run_artefact_benchmark(args)
+        return
+    args.cases = 20 if args.cases is None else args.cases
+    args.out = Path("results/diagnosis_benchmark") if args.out is None else args.out
+    gain = gain_available(args.no_gain)
     sindy_n = args.cases if args.sindy_cases is None else args.sindy_cases
     jobs = []
     for gi, group in enumerate(GROUPS):
+        if group not in args.effects:
+            continue
         for i in range(args.cases):
             options = {
-                "gain": gain_available,
+                "gain": gain,
                 "sindy": i < sindy_n,
                 "sindy_threshold": args.sindy_threshold,
                 "dx_range": tuple(args.dx_range),
+                "simulator": args.simulator,
             }
             jobs.append((group, i, gi, options))
-    start = time.perf_counter()
-    records = []
-    args.out.mkdir(parents=True, exist_ok=True)
-    partial = (args.out / "records.partial.jsonl").open("w")
-
-    def keep(rec: dict) -> None:
-        records.append(rec)
-        partial.write(json.dumps(rec, default=str) + "\n")
-        partial.flush()
-
-    if args.workers > 1:
-        ctx = mp.get_context("spawn")
-        with ctx.Pool(args.workers, initializer=_setup_worker) as pool:
-            for rec in tqdm(pool.imap_unordered(run_case, jobs), total=len(jobs), desc="cases"):
-                keep(rec)
-    else:
-        _setup_worker()
-        for job in tqdm(jobs, desc="cases"):
-            keep(run_case(job))
-    partial.close()
-    wall = time.perf_counter() - start
+    records, wall = run_jobs(run_case, jobs, args.workers, args.out)
     records.sort(key=lambda r: (GROUPS.index(r["group"]), r["index"]))
     sindy_ran = sindy_n > 0
-    summary = summarise(records, gain_available, sindy_ran)
-    md = table(summary, gain_available, sindy_ran)
-    acc, ok = acceptance(summary, gain_available)
+    summary = summarise(records, gain, sindy_ran)
+    md = table(summary, gain, sindy_ran)
+    acc, ok = acceptance(summary, gain)
     notes = [
         f"{args.cases} cases per group, {len(records)} in all; wall time {wall:.0f} s on {args.workers} "
         f"process(es) with one thread each; times are per case (one core).",
         f"PySINDy weak form on the first {min(sindy_n, args.cases)} cases of each group, "
         f"threshold {args.sindy_threshold} (normalised columns); mapping rule in the script's docs.",
         "gain: "
-        + ("anra_torch.forecast.assess_gain" if gain_available else "not measured (assess_gain unavailable)"),
+        + ("anra_torch.forecast.assess_gain" if gain else "not measured (assess_gain unavailable)"),
         f"errors (exceptions): {sum(r['outcome'] == 'error' for r in records)}",
     ]
+    if args.simulator != "library":
+        notes.insert(0, f"videos from the {args.simulator} simulator (same scenes as the library's)")
     text = (
         "# Diagnosis benchmark\n\n" + md + "\n\n" + "\n".join(f"- {n}" for n in notes) + "\n\n" + acc + "\n"
     )
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "table.md").write_text(text)
-    (args.out / "results.json").write_text(
-        json.dumps(
-            {
-                "args": {k: str(v) for k, v in vars(args).items()},
-                "wall_seconds": wall,
-                "gain_measured": gain_available,
-                "summary": summary,
-                "acceptance_pass": ok,
-                "records": records,
-            },
-            indent=1,
-            default=str,
-        )
-    )
-    print(text)
+    results = {
+        "args": {k: str(v) for k, v in vars(args).items()},
+        "wall_seconds": wall,
+        "gain_measured": gain,
+        "summary": summary,
+        "acceptance_pass": ok,
+        "records": records,
+    }
+    write_results(args.out, text, results)
 
 
 if __name__ == "__main__":

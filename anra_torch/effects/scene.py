@@ -29,7 +29,9 @@ from anra_torch.effects.registry import EFFECTS, unknown_effect
 from anra_torch.simulation import gaussian_blobs
 from anra_torch.video import save_npz
 
-__all__ = ["HiddenEffectVideo", "hidden_effect_video"]
+__all__ = ["HiddenEffectVideo", "Scene", "draw_scene", "hidden_effect_video"]
+
+_F64 = torch.float64
 
 
 @dataclass(frozen=True)
@@ -180,36 +182,172 @@ def hidden_effect_video(
         >>> tuple(video.frames.shape), [e.name for e in video.effects]
         ((16, 32, 32), ['advection'])
     """
+    noise_frac, noise_sd = _check_noise(noise_frac, noise_sd, dtype)
+    scene = draw_scene(
+        effect_names,
+        seed=seed,
+        size=size,
+        dx=dx,
+        fps=fps,
+        duration=duration,
+        a=a,
+        params=params,
+        background=background,
+    )
+    clean = simulate_effects(
+        scene.initial, a=scene.a, dx=scene.dx, dt=scene.dt, n_frames=scene.n_frames, effects=scene.effects
+    )
+    return scene.video(clean, noise_frac=noise_frac, noise_sd=noise_sd, dtype=dtype)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A drawn scene before simulation: its first frame, hot spots, geometry and effects.
+
+    The one draw behind :func:`hidden_effect_video` and the independent simulator
+    (:func:`anra_torch.simulation.independent.independent_effect_video`): same seed, same scene and
+    effect parameters.
+
+    Attributes:
+        initial: the first frame sampled at the pixel centres (float64).
+        spots: ``(rise, x, y, sigma)`` of each Gaussian hot spot (data units above ``background``, mm).
+        geometry: what the effects drew their parameters for.
+        effects: the checked effects with their drawn (or given) parameters.
+        dt: frame period in s.
+        n_frames: number of frames.
+        a: base diffusivity in mm^2/s.
+        seed: the seed everything was drawn from (the noise too).
+
+    Shape:
+        ``initial`` ``(H, W)``.
+    """
+
+    initial: Tensor
+    spots: tuple[tuple[float, float, float, float], ...]
+    geometry: Geometry
+    effects: tuple[Effect, ...]
+    dt: float
+    n_frames: int
+    a: float
+    seed: int
+
+    @property
+    def dx(self) -> float:
+        """Pixel size in mm."""
+        return self.geometry.dx
+
+    @property
+    def background(self) -> float:
+        """Temperature of the background."""
+        return self.geometry.background
+
+    def temperature(self, x: Tensor, y: Tensor) -> Tensor:
+        """The initial temperature at points ``(x, y)`` in mm (the hot spots on the background).
+
+        Shape:
+            ``x``, ``y`` broadcastable float64 tensors; output their broadcast shape.
+        """
+        out = torch.full(torch.broadcast_shapes(x.shape, y.shape), self.background, dtype=_F64)
+        for rise, cx, cy, sigma in self.spots:
+            out = out + rise * torch.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2.0 * sigma**2))
+        return out
+
+    def video(
+        self,
+        clean: Tensor,
+        *,
+        noise_frac: float = 0.01,
+        noise_sd: float | None = None,
+        dtype: torch.dtype = torch.float64,
+    ) -> HiddenEffectVideo:
+        """The :class:`HiddenEffectVideo` of a simulation of this scene: ``clean`` cast to ``dtype`` plus
+        the scene's white noise (``torch.Generator().manual_seed(seed)``).
+
+        Args:
+            clean: the simulated video of this scene.
+            noise_frac: noise sd as a fraction of the peak initial rise (>= 0).
+            noise_sd: absolute noise sd (data units); overrides ``noise_frac``.
+            dtype: float32 or float64.
+
+        Shape:
+            ``clean`` ``(T, H, W)`` with ``T = n_frames`` and ``(H, W)`` the initial frame's.
+
+        Raises:
+            ValueError: ``clean`` of another shape, bad noise levels.
+        """
+        noise_frac, noise_sd = _check_noise(noise_frac, noise_sd, dtype)
+        need = (self.n_frames, *self.initial.shape)
+        if not isinstance(clean, Tensor) or tuple(clean.shape) != need:
+            got = tuple(clean.shape) if isinstance(clean, Tensor) else type(clean).__name__
+            raise ValueError(f"clean must be a tensor of shape {need} (the scene's frames), got {got}")
+        sd = noise_sd if noise_sd is not None else noise_frac * self.geometry.rise
+        clean = clean.to(dtype)
+        generator = torch.Generator().manual_seed(self.seed)
+        frames = clean + sd * torch.randn(clean.shape, generator=generator, dtype=dtype)
+        size = tuple(self.initial.shape)
+        reference, a_map = _reference(self.effects, Grid(size, self.dx, self.geometry.duration), self.a)
+        return HiddenEffectVideo(
+            frames=frames,
+            clean=clean,
+            dt=self.dt,
+            dx=self.dx,
+            a=reference,
+            times=torch.arange(self.n_frames, dtype=dtype) * self.dt,
+            effects=self.effects,
+            noise_sd=sd,
+            seed=self.seed,
+            a_map=None if a_map is None else a_map.to(dtype),
+        )
+
+
+def draw_scene(
+    effect_names: Sequence[str] | str = (),
+    *,
+    seed: int,
+    size: int = 96,
+    dx: float = 0.5,
+    fps: float = 30.0,
+    duration: float = 3.0,
+    a: float = 0.15,
+    params: Mapping[str, Mapping[str, float]] | None = None,
+    background: float = 30.0,
+) -> Scene:
+    """Draw the scene and effect parameters of :func:`hidden_effect_video` for ``seed``, unsimulated.
+
+    Arguments as :func:`hidden_effect_video`.
+
+    Returns:
+        A :class:`Scene`.
+
+    Shape:
+        ``initial`` ``(size, size)``.
+
+    Raises:
+        ValueError: as :func:`hidden_effect_video`.
+
+    Example:
+        >>> scene = draw_scene(["linear_loss"], seed=1, size=32)
+        >>> scene.n_frames, [e.name for e in scene.effects], len(scene.spots) >= 1
+        (91, ['linear_loss'], True)
+    """
     names = _check_names(effect_names, params)
     seed, size = check_int(seed, "seed", 0), check_int(size, "size", 16)
     dx, fps = number(dx, "dx", "mm", positive=True), number(fps, "fps", "Hz", positive=True)
     a, background = number(a, "a", "mm^2/s", minimum=0.0), number(background, "background", "data units")
     n_frames = _frame_count(duration, fps)
-    noise_frac = number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)
-    noise_sd = None if noise_sd is None else number(noise_sd, "noise_sd", "data units", minimum=0.0)
-    check_dtype(dtype)
     rng = np.random.default_rng(seed)
-    initial, geometry = _scene(rng, size, dx, (n_frames - 1) / fps, a, background)
+    initial, geometry, spots = _scene(rng, size, dx, (n_frames - 1) / fps, a, background)
     drawn = [{**EFFECTS[n].sample(rng, geometry), **(params or {}).get(n, {})} for n in names]
     checked = check_effects([Effect(n, p) for n, p in zip(names, drawn, strict=True)])
-    dt = 1.0 / fps
-    clean = simulate_effects(initial, a=a, dx=dx, dt=dt, n_frames=n_frames, effects=checked).to(dtype)
-    sd = noise_sd if noise_sd is not None else noise_frac * geometry.rise
-    generator = torch.Generator().manual_seed(seed)
-    frames = clean + sd * torch.randn(clean.shape, generator=generator, dtype=dtype)
-    reference, a_map = _reference(checked, Grid((size, size), dx, geometry.duration), a)
-    return HiddenEffectVideo(
-        frames=frames,
-        clean=clean,
-        dt=dt,
-        dx=dx,
-        a=reference,
-        times=torch.arange(n_frames, dtype=dtype) * dt,
-        effects=checked,
-        noise_sd=sd,
-        seed=seed,
-        a_map=None if a_map is None else a_map.to(dtype),
-    )
+    return Scene(initial, spots, geometry, checked, 1.0 / fps, n_frames, a, seed)
+
+
+def _check_noise(noise_frac: object, noise_sd: object, dtype: object) -> tuple[float, float | None]:
+    """Checked ``noise_frac`` and ``noise_sd`` (None: from ``noise_frac``); ``dtype`` float32 or float64."""
+    frac = number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)
+    sd = None if noise_sd is None else number(noise_sd, "noise_sd", "data units", minimum=0.0)
+    check_dtype(dtype)
+    return frac, sd
 
 
 def _check_names(effect_names: object, params: Mapping[str, Mapping[str, float]] | None) -> tuple[str, ...]:
@@ -251,9 +389,9 @@ def _frame_count(duration: object, fps: float) -> int:
 
 def _scene(
     rng: np.random.Generator, size: int, dx: float, duration: float, a: float, background: float
-) -> tuple[Tensor, Geometry]:
-    """One or two Gaussian hot spots on the background (the first draws from ``rng``), and the geometry
-    the effects draw their parameters for.
+) -> tuple[Tensor, Geometry, tuple[tuple[float, float, float, float], ...]]:
+    """One or two Gaussian hot spots on the background (the first draws from ``rng``), the geometry
+    the effects draw their parameters for, and the spots ``(rise, x, y, sigma)`` (mm).
 
     Shape:
         The initial frame ``(size, size)``.
@@ -282,4 +420,4 @@ def _scene(
         background=background,
         hotspots=tuple((s[2] * dx, s[3] * dx, s[1] * dx) for s in spots),
     )
-    return initial, geometry
+    return initial, geometry, tuple((s[0], s[2] * dx, s[3] * dx, s[1] * dx) for s in spots)

@@ -1,0 +1,597 @@
+"""An independent simulator of the hidden-effect scenes: none of the library's operators or integrator.
+
+The library simulates its scenes (:func:`anra_torch.effects.hidden_effect_video`) with 5-point operators,
+fixed-step RK4, zero-flux frame edges and every field sampled at the pixel centres: the same operators the
+diagnosis fits, so a test on those videos cannot see an error they share. This module solves the
+continuous PDE of the SAME scene (:func:`anra_torch.effects.scene.draw_scene`: same hot spots and effect
+parameters for a seed) another way, and images it as a camera does, as pixel averages:
+
+- the frame sits in a larger periodic domain padded with the scene's continuation (``pad`` px on each
+  side, default half the frame), so heat leaves the frame as it does on an extended body; the frame is
+  cropped back;
+- linear constant-coefficient models (diffusion, ``anisotropy``, ``advection``, ``linear_loss``):
+  ``"spectral"``, each Fourier mode of the padded domain evolves exactly, ``exp((-k.A.k - b - i k.v) t)``
+  about ``T_ref`` (the initial field, sampled on the padded pixel grid, is band-limited: the hot spots are
+  >= 3 px wide); the pixel average is the ``sinc`` factor of each mode;
+- anything with a ``source``, ``periodic_source``, ``heterogeneity`` or ``nonlinear_diffusion``:
+  ``"finite_volume"``, cell averages on a grid ``refine`` times finer than the camera's (the initial field
+  by 3 x 3 Gauss-Legendre quadrature over each cell, a Gaussian source by its exact ``erf`` integral, the
+  disc's diffusivity at each face), conservative fluxes, and the L-stable TR-BDF2 scheme in time: each
+  stage solves its constant-coefficient part exactly by FFT and the variable part (the disc, ``a(T)``) by
+  Newton-GMRES preconditioned with it; then block averages over each camera pixel.
+
+The continuous model of each effect is one entry of :data:`CONTINUOUS_TERMS`. Units: mm, s, mm^2/s.
+Computed in float64 NumPy (single-threaded FFTs: transforms this small gain nothing from a thread pool).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from anra_torch.checks import check_choice, check_dtype, check_int, check_shape, number
+from anra_torch.effects.model import Effect, check_effects
+from anra_torch.effects.scene import HiddenEffectVideo, Scene, draw_scene
+
+__all__ = [
+    "CONTINUOUS_TERMS",
+    "METHODS",
+    "Continuum",
+    "independent_effect_video",
+    "simulate_independent",
+    "simulate_scene",
+]
+
+_F64 = torch.float64
+METHODS = ("auto", "spectral", "finite_volume")
+"""``simulate_independent(method=...)``: ``"auto"`` takes the spectral solution when the model allows it."""
+
+_GAMMA = 2.0 - math.sqrt(2.0)  # TR-BDF2: both stages then solve (I - (gamma / 2) h F)
+_STAGE = 0.5 * _GAMMA
+_GAUSS = (-math.sqrt(0.6), 0.0, math.sqrt(0.6))  # Gauss-Legendre nodes on [-1, 1] and their weights
+_WEIGHTS = (5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0)
+_NEWTON_STEPS = 8
+_TOLERANCE = 1e-10  # of the temperature span: stage equations are solved to this
+_GMRES_RESTART, _GMRES_CYCLES = 30, 10
+
+
+# ------------------------------------------------------------------------------- continuous model
+Forcing = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
+"""``(t in s, x edges (Nx + 1,), y edges (Ny + 1,) in mm) -> heat input averaged over each cell (Ny, Nx)``."""
+
+
+@dataclass
+class Continuum:
+    """The continuous PDE ``dT/dt = div(A grad T) - v . grad T - b (T - T_ref) + q(t, x, y)``.
+
+    ``A`` is the constant tensor ``[[a_x, a_xy], [a_xy, a_y]]`` unless ``diffusivity`` (a field ``a(x, y)``)
+    or ``conductivity`` (``a(T) = a0 (1 + beta (T - T_ref))``) replaces it by ``a I``.
+
+    Attributes:
+        tensor: ``(a_x, a_y, a_xy)`` in mm^2/s.
+        velocity: ``(vx, vy)`` in mm/s.
+        loss: ``b`` in 1/s.
+        ambient: ``T_ref`` of the loss.
+        forcings: heat inputs (:data:`Forcing`, data units per s).
+        diffusivity: ``a(x, y)`` in mm^2/s at points in mm (NumPy arrays), or None.
+        conductivity: ``(a0, beta, T_ref)`` of a temperature-dependent diffusivity, or None.
+
+    Shape:
+        ``diffusivity`` maps broadcastable ``x``, ``y`` to their broadcast shape.
+    """
+
+    tensor: tuple[float, float, float]
+    velocity: tuple[float, float] = (0.0, 0.0)
+    loss: float = 0.0
+    ambient: float = 0.0
+    forcings: list[Forcing] = field(default_factory=list)
+    diffusivity: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    conductivity: tuple[float, float, float] | None = None
+
+    @property
+    def spectral(self) -> bool:
+        """Whether every coefficient is constant and nothing is added (each Fourier mode evolves alone)."""
+        return not self.forcings and self.diffusivity is None and self.conductivity is None
+
+
+@dataclass(frozen=True)
+class _Context:
+    dx: float  # camera pixel (mm): the disc's edge is one of them wide
+    duration: float  # time of the last frame (s): a source's path ends there
+
+
+_erf = np.vectorize(math.erf, otypes=[np.float64])
+
+
+def _gauss_cells(edges: np.ndarray, centre: float, width: float) -> np.ndarray:
+    """``exp(-(x - centre)^2 / (2 width^2))`` averaged over each cell between ``edges`` (exact, erf)."""
+    s = math.sqrt(2.0) * width
+    integral = _erf((edges[1:] - centre) / s) - _erf((edges[:-1] - centre) / s)
+    return integral * (0.5 * math.sqrt(math.pi) * s) / np.diff(edges)
+
+
+def _source(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
+    speed = 1.0 / ctx.duration if ctx.duration > 0 else 0.0
+
+    def q(t: float, xe: np.ndarray, ye: np.ndarray) -> np.ndarray:
+        s = t * speed  # fraction of the straight path travelled
+        cx, cy = p["x0"] + (p["x1"] - p["x0"]) * s, p["y0"] + (p["y1"] - p["y0"]) * s
+        return p["rate"] * np.outer(_gauss_cells(ye, cy, p["width"]), _gauss_cells(xe, cx, p["width"]))
+
+    m.forcings.append(q)
+
+
+def _periodic_source(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
+    def q(t: float, xe: np.ndarray, ye: np.ndarray) -> np.ndarray:
+        level = 0.5 * p["rate"] * (1.0 + math.sin(2.0 * math.pi * p["frequency"] * t + p["phase"]))
+        return level * np.outer(_gauss_cells(ye, p["y"], p["width"]), _gauss_cells(xe, p["x"], p["width"]))
+
+    m.forcings.append(q)
+
+
+def _heterogeneity(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
+    def a(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        disc = 0.5 * (1.0 + np.tanh((p["radius"] - np.hypot(x - p["x"], y - p["y"])) / ctx.dx))
+        return p["a_outside"] + (p["a_inside"] - p["a_outside"]) * disc
+
+    m.diffusivity = a
+
+
+Term = Callable[[dict[str, float], Continuum, _Context], None]
+
+
+def _set(**values: Callable[[dict[str, float]], object]) -> Term:
+    def term(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
+        for key, value in values.items():
+            setattr(m, key, value(p))
+
+    return term
+
+
+CONTINUOUS_TERMS: dict[str, Term] = {
+    "linear_loss": _set(loss=lambda p: p["b"], ambient=lambda p: p["T_ref"]),
+    "advection": _set(velocity=lambda p: (p["vx"], p["vy"])),
+    "anisotropy": _set(tensor=lambda p: (p["a_x"], p["a_y"], p["a_xy"])),
+    "nonlinear_diffusion": _set(conductivity=lambda p: (p["a0"], p["beta"], p["T_ref"])),
+    "heterogeneity": _heterogeneity,
+    "source": _source,
+    "periodic_source": _periodic_source,
+}
+"""Each effect's continuous model: ``(params, continuum, context)`` fills in its part of :class:`Continuum`
+(the parameters of :data:`anra_torch.effects.EFFECTS`, none of its operators)."""
+
+
+def _continuum(effects: Sequence[Effect], a: float, dx: float, duration: float) -> Continuum:
+    model = Continuum(tensor=(a, a, 0.0))
+    for effect in effects:
+        if effect.name not in CONTINUOUS_TERMS:
+            raise ValueError(
+                f"the independent simulator has no continuous model of effect {effect.name!r}; "
+                f"expected one of: {', '.join(CONTINUOUS_TERMS)}"
+            )
+        CONTINUOUS_TERMS[effect.name](effect.params, model, _Context(dx, duration))
+    return model
+
+
+# -------------------------------------------------------------------------------------- domain
+@dataclass(frozen=True)
+class _Domain:
+    """The periodic padded domain on a grid ``refine`` times finer than the camera's."""
+
+    shape: tuple[int, int]  # frame (H, W) in px
+    dx: float  # camera pixel in mm
+    pad: int  # camera px on each side
+    refine: int
+
+    @property
+    def cells(self) -> tuple[int, int]:
+        return tuple((n + 2 * self.pad) * self.refine for n in self.shape)  # type: ignore[return-value]
+
+    @property
+    def h(self) -> float:
+        return self.dx / self.refine
+
+    def edges(self, axis: int) -> np.ndarray:
+        """Cell edges in mm along rows (``axis=0``, y) or columns (``axis=1``, x); the frame starts at 0."""
+        return (np.arange(self.cells[axis] + 1) - self.pad * self.refine) * self.h
+
+    def centres(self, axis: int) -> np.ndarray:
+        e = self.edges(axis)
+        return 0.5 * (e[1:] + e[:-1])
+
+    def average(self, initial: Callable[[Tensor, Tensor], Tensor]) -> np.ndarray:
+        """Cell averages of ``initial`` by 3 x 3-point Gauss-Legendre quadrature, ``(Ny, Nx)``."""
+        nodes, weights = np.array(_GAUSS) * (0.5 * self.h), np.array(_WEIGHTS)
+        y = (self.centres(0)[:, None] + nodes[None, :]).reshape(-1)
+        x = (self.centres(1)[:, None] + nodes[None, :]).reshape(-1)
+        values = _evaluate(initial, x, y).reshape(self.cells[0], 3, self.cells[1], 3)
+        return np.einsum("iajb,a,b->ij", values, weights, weights)
+
+    def pixels(self, u: np.ndarray) -> np.ndarray:
+        """The camera's frame: ``u`` averaged over each pixel of the frame, ``(H, W)``."""
+        r, p = self.refine, self.pad * self.refine
+        height, width = self.shape
+        frame = u[p : p + height * r, p : p + width * r]
+        return frame.reshape(height, r, width, r).mean((1, 3))
+
+
+def _evaluate(initial: Callable[[Tensor, Tensor], Tensor], x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``initial`` on the grid ``y`` (rows) x ``x`` (columns), ``(Ny, Nx)`` float64."""
+    values = initial(torch.from_numpy(x)[None, :], torch.from_numpy(y)[:, None])
+    out = torch.as_tensor(values, dtype=_F64).expand(y.size, x.size).numpy()
+    if not np.isfinite(out).all():
+        raise ValueError("initial must give finite temperatures over the padded domain")
+    return out
+
+
+# ------------------------------------------------------------------------------------ spectral
+def _spectral(model: Continuum, initial: np.ndarray, dx: float, pad: int, times: np.ndarray) -> np.ndarray:
+    """Exact Fourier-mode evolution of ``initial`` (pixel-centre samples of the padded domain) and the
+    frame's pixel averages at ``times``, ``(T, H, W)``."""
+    ny, nx = initial.shape
+    base = model.ambient if model.loss > 0 else float(initial.mean())  # the loss relaxes to T_ref
+    ky = 2.0 * math.pi * np.fft.fftfreq(ny, dx)[:, None]
+    kx = 2.0 * math.pi * np.fft.rfftfreq(nx, dx)[None, :]
+    a_x, a_y, a_xy = model.tensor
+    vx, vy = model.velocity
+    rate = -(a_x * kx**2 + a_y * ky**2 + 2.0 * a_xy * kx * ky) - model.loss - 1j * (vx * kx + vy * ky)
+    pixel = np.sinc(kx * dx / (2.0 * math.pi)) * np.sinc(ky * dx / (2.0 * math.pi))  # the box average
+    modes = np.fft.rfft2(initial - base) * pixel
+    height, width = ny - 2 * pad, nx - 2 * pad
+    frames = np.empty((times.size, height, width))
+    for k, t in enumerate(times):
+        frames[k] = np.fft.irfft2(modes * np.exp(rate * t), s=(ny, nx))[pad : pad + height, pad : pad + width]
+    return frames + base
+
+
+# ------------------------------------------------------------------------------- finite volumes
+def _shift(u: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """``u[i + rows, j + cols]`` on the periodic grid."""
+    return np.roll(u, (-rows, -cols), axis=(0, 1))
+
+
+def _divergence(fx: np.ndarray, fy: np.ndarray, h: float) -> np.ndarray:
+    """Net inflow per area from the fluxes through the east (``fx``) and south (``fy``) face of each cell."""
+    return (fx - _shift(fx, 0, -1) + fy - _shift(fy, -1, 0)) / h
+
+
+def _constant_operator(
+    u: np.ndarray, model: Continuum, tensor: tuple[float, float, float], h: float
+) -> np.ndarray:
+    """``div(A grad u - v u) - b u`` with constant ``A``, ``v``, ``b`` in flux form (central faces)."""
+    a_x, a_y, a_xy = tensor
+    vx, vy = model.velocity
+    east, south = _shift(u, 0, 1), _shift(u, 1, 0)
+    fx = a_x * (east - u) / h - vx * 0.5 * (u + east)
+    fy = a_y * (south - u) / h - vy * 0.5 * (u + south)
+    if a_xy != 0.0:  # the tangential derivative on a face: the mean of its two cells' central ones
+        d_y = (south - _shift(u, -1, 0)) / (2.0 * h)
+        d_x = (east - _shift(u, 0, -1)) / (2.0 * h)
+        fx = fx + a_xy * 0.5 * (d_y + _shift(d_y, 0, 1))
+        fy = fy + a_xy * 0.5 * (d_x + _shift(d_x, 1, 0))
+    return _divergence(fx, fy, h) - model.loss * u
+
+
+class _Operators:
+    """``F(t, u) = C u + K(u) + g(t)`` on the domain's cells: ``C`` constant-coefficient (diagonal in
+    Fourier space), ``K(u) = div((a - a_ref) grad u)`` the varying diffusion, ``g`` the heat inputs."""
+
+    def __init__(self, model: Continuum, domain: _Domain, span: tuple[float, float]) -> None:
+        self.model, self.h = model, domain.h
+        self.edges = (domain.edges(1), domain.edges(0))
+        self.tolerance = _TOLERANCE * max(span[1] - span[0], 1e-300)
+        self.face_x = self.face_y = None
+        a_ref, tensor = 0.0, model.tensor
+        if model.diffusivity is not None:  # a(x, y) at the east and south faces of each cell
+            xc, yc = domain.centres(1)[None, :], domain.centres(0)[:, None]
+            face_x = model.diffusivity(domain.edges(1)[None, 1:], yc)
+            face_y = model.diffusivity(xc, domain.edges(0)[1:, None])
+            a_ref = 0.5 * (min(face_x.min(), face_y.min()) + max(face_x.max(), face_y.max()))
+            self.face_x, self.face_y = face_x - a_ref, face_y - a_ref
+        elif model.conductivity is not None:  # the middle of a(T) over the temperatures seen
+            a0, beta, t_ref = model.conductivity
+            a_ref = a0 * (1.0 + beta * (0.5 * (span[0] + span[1]) - t_ref))
+        if self.variable:
+            tensor = (a_ref, a_ref, 0.0)
+        self.a_ref = a_ref
+        delta = np.zeros(domain.cells)
+        delta[0, 0] = 1.0  # C is a circular convolution: its symbol is the transform of its impulse response
+        self.symbol = np.fft.rfft2(_constant_operator(delta, model, tensor, self.h))
+
+    @property
+    def variable(self) -> bool:
+        return self.model.diffusivity is not None or self.model.conductivity is not None
+
+    def constant(self, u: np.ndarray) -> np.ndarray:
+        return np.fft.irfft2(np.fft.rfft2(u) * self.symbol, s=u.shape)
+
+    def inverse(self, r: np.ndarray, c: float) -> np.ndarray:
+        """``(I - c C)^-1 r``, exact by FFT (the symbol's real part is <= 0)."""
+        return np.fft.irfft2(np.fft.rfft2(r) / (1.0 - c * self.symbol), s=r.shape)
+
+    def forcing(self, t: float) -> np.ndarray | float:
+        g: np.ndarray | float = self.model.loss * self.model.ambient
+        for q in self.model.forcings:
+            g = g + q(t, *self.edges)
+        return g
+
+    def _faces(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``a - a_ref`` at the east and south faces (the arithmetic mean of ``a(T)`` for a conductivity)."""
+        if self.model.conductivity is None:
+            return self.face_x, self.face_y  # type: ignore[return-value]
+        a0, beta, t_ref = self.model.conductivity
+        level = a0 * (1.0 - beta * t_ref) - self.a_ref
+        return level + 0.5 * a0 * beta * (u + _shift(u, 0, 1)), level + 0.5 * a0 * beta * (
+            u + _shift(u, 1, 0)
+        )
+
+    def _flux(self, faces: tuple[np.ndarray, np.ndarray], v: np.ndarray) -> np.ndarray:
+        """``div(faces grad v)``."""
+        return (
+            _divergence(faces[0] * (_shift(v, 0, 1) - v), faces[1] * (_shift(v, 1, 0) - v), self.h) / self.h
+        )
+
+    def rhs(self, t: float, u: np.ndarray) -> np.ndarray:
+        varying = self._flux(self._faces(u), u) if self.variable else 0.0
+        return self.constant(u) + varying + self.forcing(t)
+
+    def jvp(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The derivative of ``K`` at ``u`` along ``v``."""
+        out = self._flux(self._faces(u), v)
+        if self.model.conductivity is not None:  # the faces' a(T) changes too, by a0 beta (v_i + v_j) / 2
+            a0, beta, _ = self.model.conductivity
+            gx, gy = _shift(u, 0, 1) - u, _shift(u, 1, 0) - u
+            fx, fy = (
+                0.5 * a0 * beta * (v + _shift(v, 0, 1)) * gx,
+                0.5 * a0 * beta * (v + _shift(v, 1, 0)) * gy,
+            )
+            out = out + _divergence(fx, fy, self.h) / self.h
+        return out
+
+    def solve(self, r: np.ndarray, c: float, t: float, guess: np.ndarray) -> np.ndarray:
+        """``u`` with ``u - c F(t, u) = r``: by FFT when ``K`` is zero, else Newton-GMRES on
+        ``z = (I - c C) u`` (preconditioned on the right by the exact inverse of the constant part)."""
+        rhs = r + c * self.forcing(t)
+        if not self.variable:
+            return self.inverse(rhs, c)
+        z = guess - c * self.constant(guess)
+        for _ in range(_NEWTON_STEPS):
+            u = self.inverse(z, c)
+            residual = z - c * self._flux(self._faces(u), u) - rhs
+            if float(np.abs(residual).max()) <= self.tolerance:
+                return u
+            step = _gmres(lambda v, u=u: v - c * self.jvp(u, self.inverse(v, c)), -residual, self.tolerance)
+            z = z + step
+        raise RuntimeError(
+            f"independent simulator: Newton did not converge in {_NEWTON_STEPS} steps at t={t:.4g} s "
+            f"(residual {float(np.abs(residual).max()):.3g}); use more substeps"
+        )
+
+
+def _dot(u: np.ndarray, v: np.ndarray) -> float:
+    """``sum u v`` without BLAS (whose thread pool can stall a busy machine for no gain at this size)."""
+    return float(np.multiply(u, v).sum())
+
+
+def _gmres(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, tolerance: float) -> np.ndarray:
+    """``x`` with ``|matvec(x) - b| <= tolerance / 10`` (2-norm): restarted GMRES, modified Gram-Schmidt."""
+    x, residual, goal = np.zeros_like(b), b, 0.1 * tolerance
+    for _ in range(_GMRES_CYCLES):
+        beta = math.sqrt(_dot(residual, residual))
+        if beta <= goal:
+            return x
+        basis, hessenberg = [residual / beta], np.zeros((_GMRES_RESTART + 1, _GMRES_RESTART))
+        target = np.zeros(_GMRES_RESTART + 1)
+        target[0] = beta
+        for j in range(_GMRES_RESTART):
+            w = matvec(basis[j])
+            for i, v in enumerate(basis):
+                hessenberg[i, j] = _dot(v, w)
+                w = w - hessenberg[i, j] * v
+            hessenberg[j + 1, j] = math.sqrt(_dot(w, w))
+            small, rhs = hessenberg[: j + 2, : j + 1], target[: j + 2]
+            y = np.linalg.lstsq(small, rhs, rcond=None)[0]
+            if np.linalg.norm(small @ y - rhs) <= goal or hessenberg[j + 1, j] == 0.0:
+                break
+            basis.append(w / hessenberg[j + 1, j])
+        x = x + sum(c * v for c, v in zip(y, basis, strict=False))
+        residual = b - matvec(x)
+    if math.sqrt(_dot(residual, residual)) > goal:
+        raise RuntimeError("independent simulator: GMRES did not converge; use more substeps")
+    return x
+
+
+def _tr_bdf2(ops: _Operators, u: np.ndarray, t: float, h: float) -> np.ndarray:
+    """One TR-BDF2 step of ``h`` s from ``u`` at ``t``: the trapezoid to ``t + gamma h``, then BDF2."""
+    c = _STAGE * h
+    middle = ops.solve(u + c * ops.rhs(t, u), c, t + _GAMMA * h, u)
+    r = (middle / _GAMMA - (1.0 - _GAMMA) ** 2 / _GAMMA * u) / (2.0 - _GAMMA)
+    return ops.solve(r, c, t + h, middle)
+
+
+def _finite_volume(
+    model: Continuum, initial: Callable[[Tensor, Tensor], Tensor], domain: _Domain, dt: float, n_frames: int,
+    substeps: int,
+) -> np.ndarray:  # fmt: skip
+    """Frames ``(T, H, W)``: pixel averages of the finite-volume solution (``substeps`` TR-BDF2 a frame)."""
+    u = domain.average(initial)
+    ops = _Operators(model, domain, (float(u.min()), float(u.max())))
+    frames = [domain.pixels(u)]
+    h = dt / substeps
+    for k in range(n_frames - 1):
+        for s in range(substeps):
+            u = _tr_bdf2(ops, u, (k + s / substeps) * dt, h)
+        frames.append(domain.pixels(u))
+    return np.stack(frames)
+
+
+# ------------------------------------------------------------------------------------------ API
+def simulate_independent(
+    initial: Callable[[Tensor, Tensor], Tensor],
+    *,
+    shape: tuple[int, int],
+    a: float,
+    dx: float,
+    dt: float,
+    n_frames: int,
+    effects: Sequence[Effect] = (),
+    pad: int | None = None,
+    refine: int = 2,
+    substeps: int | None = None,
+    method: str = "auto",
+) -> Tensor:
+    """Simulate ``dT/dt = a Lap T + effects`` from a continuous initial field, as a camera sees it.
+
+    The frame (origin at its top-left corner, pixel ``(i, j)`` covering ``[j dx, (j + 1) dx]`` in x and
+    ``[i dx, (i + 1) dx]`` in y) lies in a periodic domain ``pad`` px wider on each side; ``initial`` is
+    evaluated over the whole domain and should reach its edges smoothly (e.g. hot spots on a uniform
+    background, or a field periodic over the frame with ``pad=0``). Frame ``k`` holds the solution at
+    ``k dt`` averaged over each pixel. See the module docs for the two methods.
+
+    Args:
+        initial: ``T0(x, y)`` at points in mm (float64 tensors that broadcast).
+        shape: frame size ``(H, W)`` in px.
+        a: base diffusivity in mm^2/s (>= 0; unused when an effect replaces the diffusion term).
+        dx: pixel size in mm.
+        dt: frame period in s.
+        n_frames: number of frames (>= 1).
+        effects: distinct :class:`~anra_torch.effects.Effect` s, at most one replacing diffusion.
+        pad: camera px of padding on each side (>= 0); default half the larger frame side.
+        refine: finite-volume cells per camera pixel along each axis (>= 1).
+        substeps: TR-BDF2 steps per frame (finite volumes); default 2 (see the module docs).
+        method: one of :data:`METHODS`.
+
+    Returns:
+        The video, float64.
+
+    Shape:
+        Output ``(n_frames, H, W)``.
+
+    Raises:
+        ValueError: bad sizes or spacings, effects without a continuous model, ``method="spectral"`` for
+            a model with a source or a varying diffusivity.
+        RuntimeError: a stage equation that did not converge (more ``substeps`` help).
+
+    Example:
+        >>> import math
+        >>> k = 2 * math.pi / 16  # one period over a 16 px frame of 1 mm pixels, periodic with pad=0
+        >>> video = simulate_independent(
+        ...     lambda x, y: 30 + torch.cos(k * x) + 0 * y, shape=(8, 16), a=0.2, dx=1.0, dt=1.0,
+        ...     n_frames=3, pad=0)
+        >>> ratio = float(video[2, 0].max() - 30) / float(video[0, 0].max() - 30)
+        >>> round(ratio, 6) == round(math.exp(-0.2 * k * k * 2.0), 6)
+        True
+    """
+    height, width = check_shape(shape)
+    a = number(a, "a", "mm^2/s", minimum=0.0)
+    dx, dt = number(dx, "dx", "mm", positive=True), number(dt, "dt", "s", positive=True)
+    n_frames = check_int(n_frames, "n_frames", 1)
+    pad = (max(height, width) + 1) // 2 if pad is None else check_int(pad, "pad", 0)
+    refine = check_int(refine, "refine", 1)
+    substeps = 2 if substeps is None else check_int(substeps, "substeps", 1)
+    check_choice(method, "method", METHODS)
+    if not callable(initial):
+        raise TypeError(f"initial must be a function T0(x, y) of points in mm, got {type(initial).__name__}")
+    model = _continuum(check_effects(effects), a, dx, (n_frames - 1) * dt)
+    if method == "spectral" and not model.spectral:
+        raise ValueError(
+            "method='spectral' needs constant coefficients and no heat input, got effects "
+            f"{', '.join(e.name for e in effects)}; use method='finite_volume' or 'auto'"
+        )
+    if method == "finite_volume" or not model.spectral:
+        domain = _Domain((height, width), dx, pad, refine)
+        return torch.from_numpy(_finite_volume(model, initial, domain, dt, n_frames, substeps))
+    samples = _Domain((height, width), dx, pad, 1)
+    start = _evaluate(initial, samples.centres(1), samples.centres(0))
+    return torch.from_numpy(_spectral(model, start, dx, pad, np.arange(n_frames) * dt))
+
+
+def simulate_scene(
+    scene: Scene, *, pad: int | None = None, refine: int = 2, substeps: int | None = None
+) -> Tensor:
+    """The clean video of a drawn :class:`~anra_torch.effects.scene.Scene`, simulated independently.
+
+    :func:`simulate_independent` from the scene's continuous first field (its hot spots on the background),
+    with its effects, pixel size and frames; ``pad``, ``refine``, ``substeps`` as there.
+
+    Shape:
+        Output ``(n_frames, H, W)`` float64, the scene's frame size.
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(
+            f"scene must be a Scene (anra_torch.effects.scene.draw_scene), got {type(scene).__name__}"
+        )
+    height, width = scene.initial.shape
+    return simulate_independent(
+        scene.temperature,
+        shape=(height, width),
+        a=scene.a,
+        dx=scene.dx,
+        dt=scene.dt,
+        n_frames=scene.n_frames,
+        effects=scene.effects,
+        pad=pad,
+        refine=refine,
+        substeps=substeps,
+    )
+
+
+def independent_effect_video(
+    effect_names: Sequence[str] | str = (),
+    *,
+    seed: int,
+    size: int = 96,
+    dx: float = 0.5,
+    fps: float = 30.0,
+    duration: float = 3.0,
+    a: float = 0.15,
+    noise_frac: float = 0.01,
+    noise_sd: float | None = None,
+    params: Mapping[str, Mapping[str, float]] | None = None,
+    background: float = 30.0,
+    dtype: torch.dtype = torch.float64,
+    pad: int | None = None,
+    refine: int = 2,
+    substeps: int | None = None,
+) -> HiddenEffectVideo:
+    """The scene of :func:`anra_torch.effects.hidden_effect_video` for ``seed``, simulated independently.
+
+    Same hot spots, effect parameters and noise draw as the library's video (both come from
+    :func:`anra_torch.effects.scene.draw_scene`), solved by :func:`simulate_scene` and imaged as pixel
+    averages. The truth (``effects``, ``a``, ``a_map``) is the library's record of the same scene.
+
+    Args:
+        effect_names, seed, size, dx, fps, duration, a, noise_frac, noise_sd, params, background, dtype:
+            as :func:`anra_torch.effects.hidden_effect_video` (``noise_frac``: white-noise sd as a fraction
+            of the peak initial rise; ``duration`` in s gives ``round(duration * fps) + 1`` frames).
+        pad: padding in px on each side of the frame (default half the frame).
+        refine: finite-volume cells per pixel along each axis.
+        substeps: TR-BDF2 steps per frame (default 2).
+
+    Returns:
+        A :class:`~anra_torch.effects.HiddenEffectVideo`.
+
+    Shape:
+        ``frames`` ``(T, size, size)``.
+
+    Raises:
+        ValueError: as :func:`anra_torch.effects.hidden_effect_video` and :func:`simulate_independent`.
+
+    Example:
+        >>> video = independent_effect_video(["advection"], seed=1, size=32, duration=0.5)
+        >>> tuple(video.frames.shape), [e.name for e in video.effects]
+        ((16, 32, 32), ['advection'])
+    """
+    number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)  # before the simulation
+    if noise_sd is not None:
+        number(noise_sd, "noise_sd", "data units", minimum=0.0)
+    check_dtype(dtype)
+    drawn = {"seed": seed, "size": size, "dx": dx, "fps": fps, "duration": duration, "a": a}
+    scene = draw_scene(effect_names, **drawn, params=params, background=background)
+    clean = simulate_scene(scene, pad=pad, refine=refine, substeps=substeps)
+    return scene.video(clean, noise_frac=noise_frac, noise_sd=noise_sd, dtype=dtype)
