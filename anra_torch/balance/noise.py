@@ -75,13 +75,17 @@ class NoiseModel:
     response ``k``, so two terms' noise parts have the covariance ``<k_a, C k_b>`` per point, with ``C`` the
     noise's covariance kernel (:meth:`kernel`; for white noise ``sd^2`` times the identity), and a linear
     statistic ``<x, A(frames)>`` has the variance ``<A^T x, C A^T x>`` (:meth:`quadratic` of the
-    pushed-back lever ``A^T x``). ``C`` is separable: ``sd^2 rho_t(tau) rho_s(dy) rho_s(dx)`` with the
-    measured temporal correlations ``rho_t`` and a Gaussian spatial correlation of length ``space_length``.
+    pushed-back lever ``A^T x``). ``C`` is ``sd^2 rho_t(tau) rho_s(dy) rho_s(dx)`` (the measured temporal
+    correlations ``rho_t``, a Gaussian spatial correlation of length ``space_length``), plus a white
+    component ``white_sd^2`` beside it, plus a static part (see :meth:`correlate`).
 
     Args:
-        sd: noise standard deviation per sample (units of the data), a number or ``(B,)`` (white only).
+        sd: standard deviation per sample of the (correlated) noise (units of the data), a number or
+            ``(B,)`` (white only).
         time_corr: ``rho_t(1), rho_t(2), ...`` (``rho_t(0) = 1``); empty for no correlation in time.
         space_length: Gaussian correlation length in px (0: none).
+        white_sd: sd of an uncorrelated component beside the correlated one (data units).
+        static_sd, column_sd, row_sd: sds of a fixed pattern per pixel, per column and per row.
 
     Shape:
         :meth:`quadratic` ``(P, T, H, W) -> (P, P)`` (or ``(P, N)`` rows for white noise).
@@ -93,6 +97,7 @@ class NoiseModel:
         *,
         time_corr: tuple[float, ...] = (),
         space_length: float = 0.0,
+        white_sd: float = 0.0,
         static_sd: float = 0.0,
         column_sd: float = 0.0,
         row_sd: float = 0.0,
@@ -100,6 +105,7 @@ class NoiseModel:
         self.sd = sd
         self.time_corr = tuple(float(r) for r in time_corr)
         self.space_length = float(space_length)
+        self.white_sd = float(white_sd)
         self.static_sd, self.column_sd, self.row_sd = float(static_sd), float(column_sd), float(row_sd)
 
     @property
@@ -110,7 +116,7 @@ class NoiseModel:
     @property
     def white(self) -> bool:
         """Whether the noise is uncorrelated (in time and space, with no static part)."""
-        return not self.time_corr and self.space_length == 0.0 and not self.static
+        return not self.time_corr and self.space_length == 0.0 and not self.static and not self.white_sd
 
     @property
     def variance_error(self) -> float:
@@ -156,8 +162,10 @@ class NoiseModel:
             flat = F.pad(moved.reshape(-1, 1, moved.shape[-1]), (pad, pad))
             filtered = F.conv1d(flat, taps.to(x.dtype).view(1, 1, -1)).reshape(moved.shape)
             out = filtered.movedim(-1, dim)
+        variance = max(float(self.variance), 1e-300)
+        if self.white_sd and not self.white:
+            out = out + (self.white_sd**2 / variance) * x
         if self.static:
-            variance = max(float(self.variance), 1e-300)
             for part, dims in ((self.static_sd, (-3,)), (self.column_sd, (-3, -2)), (self.row_sd, (-3, -1))):
                 if part:
                     out = out + (part**2 / variance) * x.sum(dims, keepdim=True).expand_as(x)
@@ -172,13 +180,15 @@ class NoiseModel:
 
     def describe(self) -> dict:
         """The JSON ``"noise"`` object: ``sd`` (data units), ``time_correlation`` (``rho_t(1..)``),
-        ``space_length_px``, the static part ``static_sd``, ``column_sd``, ``row_sd`` (data units) and
+        ``space_length_px``, a white component ``white_sd`` beside the correlated one, the static part
+        ``static_sd``, ``column_sd``, ``row_sd`` (data units) and
         ``white``."""
         sd = self.sd if not isinstance(self.sd, Tensor) else float(self.sd.reshape(-1)[0])
         return {
             "sd": float(sd),
             "time_correlation": list(self.time_corr),
             "space_length_px": self.space_length,
+            "white_sd": self.white_sd,
             "static_sd": self.static_sd,
             "column_sd": self.column_sd,
             "row_sd": self.row_sd,
@@ -201,18 +211,6 @@ def _gain(stride: int, length: float) -> float:
     return 70 - 112 * rho[1] + 56 * rho[2] - 16 * rho[3] + 2 * rho[4]
 
 
-def _space_length(ratio: float) -> float:
-    """The Gaussian correlation length (px) whose stride-2 / stride-1 fourth-difference variance ratio is
-    ``ratio`` (1 for white noise; it grows with the length)."""
-    lengths = [0.0] + [0.05 * k for k in range(1, 101)]
-    ratios = [_gain(2, ell) / _gain(1, ell) for ell in lengths]
-    for k in range(1, len(lengths)):
-        if ratios[k] >= ratio:
-            lo, hi = ratios[k - 1], ratios[k]
-            return lengths[k - 1] + (lengths[k] - lengths[k - 1]) * (ratio - lo) / max(hi - lo, 1e-12)
-    return lengths[-1]
-
-
 def _fourth(x: Tensor, dim: int, stride: int) -> Tensor:
     n = x.shape[dim] - 4 * stride
     return sum(t * x.narrow(dim, i * stride, n) for i, t in enumerate(_TAPS))
@@ -231,19 +229,17 @@ def _quiet_var(x: Tensor, quiet: Tensor, dim: int, stride: int) -> float:
     return _robust_var(x[:, centre])
 
 
-def _time_correlation(frames: Tensor) -> tuple[float, ...]:
-    """``rho_t(1 .. m)`` of the noise: temporal autocorrelation of a spatial high-pass (fourth
-    differences along x and y remove the smooth thermal field; each pixel's time mean removes a static
-    pattern), over the pixels where it varies least (where the thermal field does not leak in)."""
-    t = frames.shape[0]
+def _time_correlation(deviation: Tensor, quiet: Tensor, *, stride: int = 1) -> tuple[float, ...]:
+    """``rho_t(1 .. m)`` of a spatial high-pass of the noise: temporal autocorrelation of stride-``stride``
+    fourth differences along x and y (they remove the smooth thermal field) of the frames' ``deviation``
+    from their pixel's time mean, over the ``quiet`` pixels (where the thermal field does not leak in)."""
+    t = deviation.shape[0]
     lags = min(_MAX_TIME_LAG, t // 4)
     parts = []
     for dim in (-2, -1):
-        h = _fourth(frames, dim, 1)
-        h = (h - h.mean(0)).flatten(1)  # (T, pixels)
-        power = h.pow(2).mean(0)
-        quiet = power <= power.quantile(0.6)
-        parts.append(h[:, quiet])
+        h = _fourth(deviation, dim, stride)
+        centre = quiet.narrow(dim, 2 * stride, h.shape[dim])
+        parts.append(h[:, centre])
     h = torch.cat(parts, 1)
     zero = float(h.pow(2).sum())
     if zero == 0 or lags < 1:
@@ -260,14 +256,15 @@ def _time_correlation(frames: Tensor) -> tuple[float, ...]:
 def measure_noise(frames: Tensor, *, static_pattern: bool = False) -> NoiseModel:
     """The noise model of one (artefact-free) video, measured from the video itself.
 
-    The spatial correlation length comes from the ratio of the variances of fourth differences at strides
-    2 and 1 of the frames' deviations from their pixel's time mean (no static pattern, no static thermal
-    field there), the temporal correlation from :func:`_time_correlation`, the level from the stride-1
-    variance and the spatial gain, over the quieter half of the pixels. When neither correlation reaches
-    :data:`_CORRELATED` at one lag, the noise is white and its level is :func:`estimate_noise_sd` (the
-    estimate used for white noise everywhere), unless the video has a static pattern (``static_pattern``),
-    which the spatial differences of :func:`estimate_noise_sd` would count as noise: then the level comes
-    from the deviations alone, and the pattern's parts from :func:`_static_parts`.
+    From the frames' deviations from their pixel's time mean (no static pattern, no static thermal field
+    there), over the quieter half of the pixels: the variances of fourth differences at strides 1, 2 and 3
+    separate a white component from a Gaussian-correlated one and give its length
+    (:func:`_components`); the temporal autocorrelation of the high-pass gives the correlated part's
+    ``rho_t``. When no component is correlated (in space, or at one lag in time by :data:`_CORRELATED`),
+    the noise is white and its level is :func:`estimate_noise_sd` (the estimate used for white noise
+    everywhere), unless the video has a static pattern (``static_pattern``), which the spatial differences
+    of :func:`estimate_noise_sd` would count as noise: then the level comes from the deviations alone, and
+    the pattern's parts from :func:`_static_parts`.
 
     Shape:
         ``frames`` ``(T, H, W)``.
@@ -286,19 +283,49 @@ def measure_noise(frames: Tensor, *, static_pattern: bool = False) -> NoiseModel
     rounding = 100 * torch.finfo(frames.dtype).eps * float(video.abs().amax())  # a noiseless video
     if min(v1) <= 70 * rounding**2:
         return white
-    length = _space_length(sum(v2) / sum(v1))
-    rho_t = _time_correlation(video)
-    rho_s1 = math.exp(-1 / (2 * length**2)) if length > 0 else 0.0
+    v3 = [_quiet_var(_fourth(deviation, d, 3), quiet, d, 3) for d in (-2, -1)] if min(h, w) >= 24 else v2
+    white_part, correlated_part, length = _components(sum(v1) / 2, sum(v2) / 2, sum(v3) / 2)
+    rho_t = _time_correlation(deviation, quiet, stride=3 if length > 0 else 1)
+    if length > 0:  # the lag products hold the correlated part alone: its own correlation
+        share = (70 * white_part + _gain(3, length) * correlated_part) / (_gain(3, length) * correlated_part)
+        rho_t = tuple(min(1.0, r * share) for r in rho_t)
     if length > _MAX_LENGTH or (len(rho_t) >= _MAX_TIME_LAG and rho_t[-1] > 0.5):
         return white  # thermal signal, not noise, dominates the differences (a nearly noiseless video)
-    if (not rho_t or rho_t[0] < _CORRELATED) and rho_s1 < _CORRELATED and not static_pattern:
-        return white
-    space = length if rho_s1 >= _CORRELATED else 0.0
     time = rho_t if rho_t and rho_t[0] >= _CORRELATED else ()
-    keep = 1 - (1 + 2 * sum(time)) / t  # the time mean removed that much of each sample's variance
-    variance = 0.5 * sum(v1) / (_gain(1, space) * keep)
-    static = _static_parts(video, quiet, _gain(1, space) * variance * (1 - keep)) if static_pattern else {}
-    return NoiseModel(math.sqrt(variance), time_corr=time, space_length=space, **static)
+    if not time and length == 0 and not static_pattern:
+        return white
+    keep_white = 1 - 1 / t  # the time mean removed that much of each sample's variance
+    keep = 1 - (1 + 2 * sum(time)) / t
+    if length == 0:  # one component, white in space: its variance from the stride-1 differences
+        variance, white_var = 0.5 * sum(v1) / (70 * keep), 0.0
+    else:
+        variance, white_var = correlated_part / keep, white_part / keep_white
+    averaged = _gain(1, length) * variance * (1 - keep) + 70 * white_var * (1 - keep_white)
+    static = _static_parts(video, quiet, averaged) if static_pattern else {}
+    return NoiseModel(
+        math.sqrt(variance), time_corr=time, space_length=length, white_sd=math.sqrt(white_var), **static
+    )
+
+
+def _components(v1: float, v2: float, v3: float) -> tuple[float, float, float]:
+    """Variances of a white and a Gaussian-correlated component and the latter's length (px) from the
+    variances of fourth differences at strides 1, 2 and 3 (``70 white + gain_s(length) correlated``).
+
+    Least squares over a grid of lengths; a correlated component under a tenth of the total, or a length
+    under half a pixel (its correlation at one pixel under 0.14), is counted as white (length 0).
+    """
+    observed = torch.tensor([v1, v2, v3], dtype=torch.float64)
+    best = (float("inf"), v1 / 70, 0.0, 0.0)
+    for length in [0.05 * k for k in range(10, 61)]:
+        design = torch.tensor([[70.0, _gain(s, length)] for s in (1, 2, 3)], dtype=torch.float64)
+        solution = torch.linalg.lstsq(design, observed[:, None]).solution[:, 0].clamp_min(0)
+        residual = float(((design @ solution - observed) / observed).pow(2).sum())
+        if residual < best[0]:
+            best = (residual, float(solution[0]), float(solution[1]), length)
+    _, white, correlated, length = best
+    if correlated < 0.1 * (white + correlated):
+        return v1 / 70, 0.0, 0.0
+    return white, correlated, length
 
 
 def _static_parts(video: Tensor, quiet: Tensor, averaged: float) -> dict[str, float]:

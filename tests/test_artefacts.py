@@ -1,0 +1,138 @@
+"""Camera artefacts: each kind planted by :mod:`anra_torch.camera` on a pure-diffusion video is found,
+masked or modelled as its record says, and the diagnosis names no effect; the measured noise model's
+standard error matches the spread over noise seeds."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from anra_torch import ANRAEstimator
+from anra_torch.balance.artefacts import find_artefacts
+from anra_torch.balance.noise import measure_noise
+from anra_torch.camera import correlated_noise, default_levels, plant
+from anra_torch.effects import hidden_effect_video
+from anra_torch.selection import diagnose_terms
+
+F64 = torch.float64
+
+
+def _video(seed: int = 0, size: int = 96, frames: int = 61):
+    fps = 30.0
+    return hidden_effect_video([], seed=seed, size=size, dx=0.05, fps=fps, duration=(frames - 1) / fps)
+
+
+@pytest.fixture(scope="module")
+def pure():
+    return _video()
+
+
+def _planted(video, kind: str, seed: int = 1):
+    return plant(video.frames, kind, seed=seed, noise_sd=video.noise_sd, dt=video.dt)
+
+
+def test_a_clean_video_has_no_artefacts(pure) -> None:
+    repaired, found = find_artefacts(pure.frames)
+    assert not found.any and found.within == ()
+    assert torch.equal(repaired, pure.frames)
+    assert measure_noise(repaired).white
+
+
+def test_spikes_and_dead_and_hot_elements_are_found_and_repaired(pure) -> None:
+    frames, record = _planted(pure, "bad_elements")
+    repaired, found = find_artefacts(frames)
+    planted = {(p["row"], p["col"]) for p in record["dead"] + record["hot"]}
+    assert set(found.bad_pixels) == planted
+    assert found.spikes == len(record["spikes"])
+    assert not found.fixed_pattern and not found.steps
+    # Repaired samples are back within a few noise sds of the clean video everywhere but at the elements.
+    good = torch.ones(frames.shape[1:], dtype=torch.bool)
+    for i, j in planted:
+        good[i, j] = False
+    assert float((repaired - pure.frames)[:, good].abs().max()) < 8 * pure.noise_sd
+
+
+def test_a_fixed_pattern_is_measured_as_the_noise_static_part(pure) -> None:
+    frames, record = _planted(pure, "fixed_pattern")
+    repaired, found = find_artefacts(frames)
+    assert found.fixed_pattern and not found.bad_pixels and not found.spikes and not found.steps
+    model = measure_noise(repaired, static_pattern=True)
+    level = default_levels("fixed_pattern", noise_sd=pure.noise_sd, dt=pure.dt)
+    # measured: per pixel 1.00, per column 0.83 of the realised sds (96 columns); temporal level 0.99
+    assert model.static_sd == pytest.approx(record["pixel_sd_realised"], rel=0.15)
+    assert model.column_sd == pytest.approx(record["stripe_sd_realised"], rel=0.3)
+    assert record["pixel_sd"] == level["sd"]
+    assert float(model.sd) == pytest.approx(pure.noise_sd, rel=0.1)
+    assert record["kind"] == "fixed_pattern"
+
+
+def test_correlated_noise_is_measured(pure) -> None:
+    frames, _ = correlated_noise(pure.clean, seed=2, sd=2 * pure.noise_sd, length_px=1.5, length_frames=3.0)
+    repaired, found = find_artefacts(frames)
+    assert not found.any
+    model = measure_noise(repaired)
+    assert not model.white
+    # measured: sd 0.95 of the planted, length 1.49 px, rho_t(1) 0.93 (exp(-1/18) = 0.95 planted)
+    assert float(model.sd) == pytest.approx(2 * pure.noise_sd, rel=0.1)
+    assert model.space_length == pytest.approx(1.5, rel=0.15)
+    assert model.time_corr[0] > 0.5
+
+
+def test_offset_steps_are_found_and_give_per_frame_fixed_effects(pure) -> None:
+    frames, record = _planted(pure, "offset_steps")
+    repaired, found = find_artefacts(frames)
+    assert set(found.steps) == {s["frame"] for s in record["steps"]}
+    for step in record["steps"]:
+        size = found.step_sizes[found.steps.index(step["frame"])]
+        # measured: within 0.01 K of the planted step (the drift adds 0.001 K per frame)
+        assert size == pytest.approx(step["size"] + record["drift_rate"] * pure.dt, abs=0.02)
+    assert found.within == ("frame",) and not found.fixed_pattern
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "bad_elements",
+        "fixed_pattern",
+        pytest.param(
+            "correlated_noise",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="issue 14, open: correlated noise (2x white, 1.5 px, 3 frames) on white noise is "
+                "measured within 7 % (sd, length, rho_t), but the diagnosis still names linear_loss "
+                "(b = 0.74 1/s) on this pure video",
+            ),
+        ),
+        "offset_steps",
+    ],
+)
+def test_no_effect_is_named_on_a_pure_video_with_an_artefact(pure, kind: str) -> None:
+    frames, _ = _planted(pure, kind)
+    diagnosis = diagnose_terms(frames, pure.dt, pure.dx)
+    assert diagnosis.names == []
+    assert diagnosis.artefacts is not None and diagnosis.noise is not None
+    plain = ANRAEstimator()(pure.frames, pure.dt, pure.dx)
+    planted = ANRAEstimator()(frames, pure.dt, pure.dx)
+    error = abs(float(planted.diffusivity / plain.diffusivity) - 1)
+    assert error < 3 * float(planted.std_error / plain.diffusivity) + 0.01
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue 14, open: the reported standard error is 0.70 of the spread over 24 seeds (the "
+    "linearised sandwich misses the second-order noise of the corrected Laplacian energy)",
+)
+def test_standard_error_under_correlated_noise_matches_the_spread_over_seeds() -> None:
+    video = _video(seed=3, size=64, frames=41)
+    noisy = torch.stack(
+        [
+            correlated_noise(video.clean, seed=s, sd=2 * video.noise_sd, length_px=1.5, length_frames=3.0)[0]
+            for s in range(24)
+        ]
+    )
+    result = ANRAEstimator()(noisy, video.dt, video.dx)
+    # measured: mean 0.1497 (true 0.15), spread 0.0036 mm^2/s over the seeds, reported 0.0025
+    assert float(result.diffusivity.mean()) == pytest.approx(0.15, rel=0.02)
+    assert float(result.std_error.mean()) == pytest.approx(float(result.diffusivity.std()), rel=0.2)
