@@ -130,7 +130,8 @@ class ANRAResult:
         Returns:
             ``{"diffusivity", "std_error"`` (mm^2/s, None when not finite), ``"valid"``, ``"message"``,
             ``"smoothing_px"`` (px), ``"noise_sd"`` (``unit``), ``"reliability"``, ``"n_masked"``,
-            ``"units"}`` (key -> unit).
+            ``"units"}`` (key -> unit), ``"noise"`` (the measured noise model, ``unit``) and
+            ``"artefacts"`` (what was found and masked).
 
         Shape:
             Tensors ``(B,)`` or unbatched scalars; the record holds Python numbers.
@@ -159,6 +160,8 @@ class ANRAResult:
             "reliability": float(pick(self.reliability)),
             "n_masked": int(pick(self.n_masked)),
             "units": {"diffusivity": "mm^2/s", "std_error": "mm^2/s", "smoothing_px": "px", "noise_sd": unit},
+            "noise": self.noise[index] if index < len(self.noise) else None,
+            "artefacts": self.artefacts[index] if index < len(self.artefacts) else None,
         }
 
 

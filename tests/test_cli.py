@@ -27,6 +27,8 @@ from anra_torch.video import load_video
 
 JSON_KEYS = {
     "path",
+    "noise",
+    "artefacts",
     "diffusivity",
     "std_error",
     "valid",
@@ -147,6 +149,18 @@ def test_estimate_json_recovers_the_paper_diffusivity(
     assert s["a_true"] == 0.2 and s["path"] == str(paper96)
     assert s["units"]["diffusivity"] == "mm^2/s" and s["units"]["dt"] == "s" and s["units"]["dx"] == "mm"
     assert (s["window_px"], s["field_median"], s["field_coverage"]) == (None, None, None)
+    # the measured noise model and the artefacts: white noise of 0.01, nothing found
+    assert s["noise"]["white"] is True and s["noise"]["sd"] == pytest.approx(s["noise_sd"])
+    assert s["artefacts"] == {
+        "bad_pixels": [],
+        "spikes": 0,
+        "non_finite": 0,
+        "fixed_pattern": False,
+        "pattern_sd": 0.0,
+        "steps": [],
+        "step_sizes": [],
+        "fixed_effects": [],
+    }
 
 
 def test_to_record_is_what_estimate_json_prints(paper96: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -42,7 +42,10 @@ def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[st
         "assimilated",
         "gain_above_floor",
         "raw",
+        "noise",
+        "artefacts",
     }
+    assert record["noise"]["white"] is True and record["artefacts"]["fixed_effects"] == []
     assert set(record["raw"]) == {"base_rmse", "extended_rmse", "gain", "noise_floor"}
     assert record["raw"]["noise_floor"] > record["noise_floor"] > 0  # smoothing removes most noise
     assert set(record["base"]) == {"diffusivity", "prediction_rmse"}

@@ -2,7 +2,8 @@
 
 ``anra diagnose --json`` prints one object: ``base`` (plain diffusivity, forecast RMSE), ``effects`` (name,
 params, gain each), ``extended`` (equation, params, forecast RMSE), ``gain``, ``noise_floor``, ``scale_px``,
-``time_window``, ``assimilated``, ``gain_above_floor``, ``raw``; ``source_map`` with ``--source-map``;
+``time_window``, ``assimilated``, ``gain_above_floor``, ``raw``, ``noise`` (the measured noise model) and
+``artefacts`` (the camera artefacts found and masked); ``source_map`` with ``--source-map``;
 ``input`` when the video was prepared by --resample, --roi or --calibration. On failure:
 ``{"path", "error"}``.
 """
@@ -119,6 +120,10 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
             "noise_floor": result.noise_floor_raw,
         },
     }
+    if diagnosis.noise is not None:
+        summary["noise"] = diagnosis.noise.describe()
+    if diagnosis.artefacts is not None:
+        summary["artefacts"] = diagnosis.artefacts.to_record()
     mapped = None
     if args.source_map:
         from anra_torch.forecast import source_map_gain
