@@ -289,8 +289,12 @@ def measure_noise(frames: Tensor, *, static_pattern: bool = False) -> NoiseModel
     if length > 0:  # the lag products hold the correlated part alone: its own correlation
         share = (70 * white_part + _gain(3, length) * correlated_part) / (_gain(3, length) * correlated_part)
         rho_t = tuple(min(1.0, r * share) for r in rho_t)
-    if length > _MAX_LENGTH or (len(rho_t) >= _MAX_TIME_LAG and rho_t[-1] > 0.5):
-        return white  # thermal signal, not noise, dominates the differences (a nearly noiseless video)
+    lags = min(_MAX_TIME_LAG, t // 4)
+    undecayed = bool(rho_t) and (rho_t[0] >= 0.99 or (len(rho_t) >= lags and rho_t[-1] > 0.5))
+    if length > _MAX_LENGTH or undecayed:
+        # Thermal signal, not noise, dominates the differences (a nearly noiseless or a short video): a
+        # correlation that does not decay within the lags measured cannot be told from the field.
+        return white
     time = rho_t if rho_t and rho_t[0] >= _CORRELATED else ()
     if not time and length == 0 and not static_pattern:
         return white
