@@ -41,6 +41,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from anra_torch.balance.noise import fourth_difference, robust_sd
+
 __all__ = ["OUTLIER_Z", "RESOLUTION", "Artefacts", "find_artefacts", "stuck_pixels"]
 
 OUTLIER_Z = 12.0
@@ -51,10 +53,8 @@ RESOLUTION = 1e-3
 """Smallest artefact looked for, as a fraction of the video's range: below it an artefact cannot matter to
 the balance, and a noiseless video (whose only "noise" is rounding) finds nothing in its own curvature."""
 
-_MAD_TO_SD = 1.0 / 0.6744897501960817
 _MAX_STUCK_FRACTION = 0.01  # more constant pixels than this is a static region, not dead elements
 _PATTERN_RATIO = 4.0  # static spatial roughness over what the temporal noise leaves: a fixed pattern
-_FOURTH = (1.0, -4.0, 6.0, -4.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -106,14 +106,6 @@ class Artefacts:
         }
 
 
-def _mad_sd(x: Tensor) -> float:
-    """Robust standard deviation of the finite values of ``x`` (0 when there are none)."""
-    values = x[torch.isfinite(x)]
-    if values.numel() == 0:
-        return 0.0
-    return float((values - values.median()).abs().median()) * _MAD_TO_SD
-
-
 def _neighbour_median(image: Tensor, good: Tensor) -> Tensor:
     """Median of the good pixels among each pixel's 8 neighbours (NaN where none is good).
 
@@ -125,11 +117,6 @@ def _neighbour_median(image: Tensor, good: Tensor) -> Tensor:
     patches = F.unfold(F.pad(values, (1, 1, 1, 1), value=torch.nan), 3)  # (N, 9, H W)
     patches = torch.cat([patches[:, :4], patches[:, 5:]], 1)  # without the centre
     return patches.nanmedian(1).values.reshape(*lead, h, w)
-
-
-def _fourth_difference(image: Tensor, dim: int) -> Tensor:
-    n = image.shape[dim] - 4
-    return sum(t * image.narrow(dim, i, n) for i, t in enumerate(_FOURTH))
 
 
 def _bad_pixels(frames: Tensor, finite: Tensor, floor: float = 0.0) -> Tensor:
@@ -157,7 +144,7 @@ def _bad_pixels(frames: Tensor, finite: Tensor, floor: float = 0.0) -> Tensor:
     patches = F.unfold(padded, 5)[0]  # (25, H W)
     patches = torch.cat([patches[:12], patches[13:]]).reshape(24, *mean.shape)
     spread = patches.amax(0) - patches.amin(0)
-    scale = _mad_sd(excess[good])
+    scale = robust_sd(excess[good], sample=None)
     big = (excess.abs() > max(OUTLIER_Z * scale, floor)) & (excess.abs() > 0.5 * spread)
     hot = big if scale > 0 else ~good
     return never | constant | (hot & good)
@@ -191,13 +178,6 @@ def _repair_pixels(frames: Tensor, bad: Tensor) -> Tensor:
     return torch.where(good, out, out.nanmean() if bool(torch.isfinite(out).any()) else 0.0)
 
 
-def _robust_sd(x: Tensor, *, sample: int = 200_000) -> float:
-    """:func:`_mad_sd` of at most ``sample`` evenly spaced values of ``x`` (a whole video is not needed)."""
-    flat = x.reshape(-1)
-    step = max(1, flat.numel() // sample)
-    return _mad_sd(flat[::step])
-
-
 def _floor(frames: Tensor, *, sample: int = 200_000) -> float:
     """:data:`RESOLUTION` times the range between the 0.1 and 99.9 percentiles of the finite values."""
     flat = frames.reshape(-1)
@@ -224,7 +204,7 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
         return none
     second = frames[1:-1] - 0.5 * (frames[:-2] + frames[2:])
     nonzero = second[second != 0]
-    scale = _robust_sd(nonzero) if nonzero.numel() else 0.0
+    scale = robust_sd(nonzero) if nonzero.numel() else 0.0
     if scale == 0:
         return none
     threshold = max(OUTLIER_Z * scale, floor)
@@ -274,9 +254,9 @@ def _fixed_pattern(frames: Tensor, floor: float = 0.0) -> tuple[bool, float]:
     def roughness(x: Tensor) -> float:
         axes = []
         for d in (-2, -1):
-            fourth = _fourth_difference(x, d)
+            fourth = fourth_difference(x, d)
             centre = quiet.narrow(d, 2, fourth.shape[d])
-            axes.append(_robust_sd(fourth[..., centre]))
+            axes.append(robust_sd(fourth[..., centre]))
         return float(torch.tensor(axes).median()) / 70**0.5
 
     static, moving = roughness(mean), roughness(frames[:: max(1, t // 16)] - mean)
@@ -296,8 +276,8 @@ def _steps(frames: Tensor, floor: float = 0.0) -> tuple[tuple[int, ...], tuple[f
     padded = F.pad(change[None, None], (3, 3), mode="replicate")[0, 0]
     trend = padded.unfold(0, 7, 1).median(-1).values
     jump = change - trend
-    scale = _mad_sd(jump)
-    noise = _robust_sd(_fourth_difference(sub, 0)) / 70**0.5 / sub[0].numel() ** 0.5
+    scale = robust_sd(jump, sample=None)
+    noise = robust_sd(fourth_difference(sub, 0)) / 70**0.5 / sub[0].numel() ** 0.5
     threshold = max(OUTLIER_Z * max(scale, noise), floor)
     index = (jump.abs() > threshold).nonzero().flatten().tolist()
     return tuple(k + 1 for k in index), tuple(float(jump[k]) for k in index)

@@ -211,15 +211,27 @@ def _gain(stride: int, length: float) -> float:
     return 70 - 112 * rho[1] + 56 * rho[2] - 16 * rho[3] + 2 * rho[4]
 
 
-def _fourth(x: Tensor, dim: int, stride: int) -> Tensor:
+def fourth_difference(x: Tensor, dim: int, stride: int = 1) -> Tensor:
+    """Fourth difference ``[1, -4, 6, -4, 1]`` of ``x`` along ``dim`` at ``stride`` (valid part: shorter by
+    ``4 stride``); it annihilates cubics, so a smooth thermal field barely leaks into it."""
     n = x.shape[dim] - 4 * stride
     return sum(t * x.narrow(dim, i * stride, n) for i, t in enumerate(_TAPS))
 
 
-def _robust_var(x: Tensor, sample: int = 200_000) -> float:
+def robust_sd(x: Tensor, *, sample: int | None = 200_000) -> float:
+    """Normal-consistent median absolute deviation of the finite values of ``x`` (0 when there are none),
+    over at most ``sample`` evenly spaced values (None: all of them)."""
     flat = x.reshape(-1)
-    flat = flat[:: max(1, flat.numel() // sample)]
-    return (float((flat - flat.median()).abs().median()) * _MAD_TO_SD) ** 2
+    if sample is not None:
+        flat = flat[:: max(1, flat.numel() // sample)]
+    flat = flat[torch.isfinite(flat)]
+    if flat.numel() == 0:
+        return 0.0
+    return float((flat - flat.median()).abs().median()) * _MAD_TO_SD
+
+
+def _robust_var(x: Tensor) -> float:
+    return robust_sd(x) ** 2
 
 
 def _quiet_var(x: Tensor, quiet: Tensor, dim: int, stride: int) -> float:
@@ -237,7 +249,7 @@ def _time_correlation(deviation: Tensor, quiet: Tensor, *, stride: int = 1) -> t
     lags = min(_MAX_TIME_LAG, t // 4)
     parts = []
     for dim in (-2, -1):
-        h = _fourth(deviation, dim, stride)
+        h = fourth_difference(deviation, dim, stride)
         centre = quiet.narrow(dim, 2 * stride, h.shape[dim])
         parts.append(h[:, centre])
     h = torch.cat(parts, 1)
@@ -278,12 +290,16 @@ def measure_noise(frames: Tensor, *, static_pattern: bool = False) -> NoiseModel
     # Over the quieter half of the pixels (the least thermal signal in their deviations).
     power = deviation.pow(2).mean(0)
     quiet = power <= power.median()
-    v1 = [_quiet_var(_fourth(deviation, d, 1), quiet, d, 1) for d in (-2, -1)]
-    v2 = [_quiet_var(_fourth(deviation, d, 2), quiet, d, 2) for d in (-2, -1)]
+    v1 = [_quiet_var(fourth_difference(deviation, d, 1), quiet, d, 1) for d in (-2, -1)]
+    v2 = [_quiet_var(fourth_difference(deviation, d, 2), quiet, d, 2) for d in (-2, -1)]
     rounding = 100 * torch.finfo(frames.dtype).eps * float(video.abs().amax())  # a noiseless video
     if min(v1) <= 70 * rounding**2:
         return white
-    v3 = [_quiet_var(_fourth(deviation, d, 3), quiet, d, 3) for d in (-2, -1)] if min(h, w) >= 24 else v2
+    v3 = (
+        [_quiet_var(fourth_difference(deviation, d, 3), quiet, d, 3) for d in (-2, -1)]
+        if min(h, w) >= 24
+        else v2
+    )
     white_part, correlated_part, length = _components(sum(v1) / 2, sum(v2) / 2, sum(v3) / 2)
     rho_t = _time_correlation(deviation, quiet, stride=3 if length > 0 else 1)
     if length > 0:  # the lag products hold the correlated part alone: its own correlation
@@ -342,12 +358,19 @@ def _static_parts(video: Tensor, quiet: Tensor, averaged: float) -> dict[str, fl
     """
     mean = video.mean(0)
     along = {
-        d: max(0.0, _quiet_var(_fourth(mean[None], d, 1), quiet, d, 1) - averaged) / 70 for d in (-2, -1)
+        d: max(0.0, _quiet_var(fourth_difference(mean[None], d, 1), quiet, d, 1) - averaged) / 70
+        for d in (-2, -1)
     }
     rows_quiet = quiet.float().mean(1) >= 0.5  # rows (columns) that are mostly quiet
     cols_quiet = quiet.float().mean(0) >= 0.5
-    column = _robust_var(_fourth(mean[rows_quiet].mean(0), -1, 1)) / 70 if int(rows_quiet.sum()) else 0.0
-    row = _robust_var(_fourth(mean[:, cols_quiet].mean(1), -1, 1)) / 70 if int(cols_quiet.sum()) else 0.0
+    column = (
+        _robust_var(fourth_difference(mean[rows_quiet].mean(0), -1, 1)) / 70 if int(rows_quiet.sum()) else 0.0
+    )
+    row = (
+        _robust_var(fourth_difference(mean[:, cols_quiet].mean(1), -1, 1)) / 70
+        if int(cols_quiet.sum())
+        else 0.0
+    )
     # A part counts when it holds at least a tenth of the pattern's variance along its axis.
     column = column if column > 0.1 * along[-1] else 0.0
     row = row if row > 0.1 * along[-2] else 0.0
