@@ -44,7 +44,17 @@ def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[st
         "raw",
         "noise",
         "artefacts",
+        "phase",
+        "phases",
     }
+    # One phase (a loss: the heat content falls): the top level describes it, the phases list repeats it.
+    assert record["phase"] == "cooling" and [p["kind"] for p in record["phases"]] == ["cooling"]
+    (phase,) = record["phases"]
+    assert {"kind", "start_frame", "stop_frame", "t_start", "t_stop", "base", "effects", "gain"} <= set(phase)
+    assert (
+        phase["noise_floor"] == record["noise_floor"]
+        and phase["base"]["diffusivity"] == record["base"]["diffusivity"]
+    )
     assert record["noise"]["white"] is True and record["artefacts"]["fixed_effects"] == []
     assert set(record["raw"]) == {"base_rmse", "extended_rmse", "gain", "noise_floor"}
     assert record["raw"]["noise_floor"] > record["noise_floor"] > 0  # smoothing removes most noise

@@ -32,8 +32,8 @@ def add_spacing_arguments(parser: argparse.ArgumentParser, source: str) -> None:
     parser.add_argument(
         "--resample",
         action="store_true",
-        help="interpolate non-uniform timestamps (e.g. FLIR EXIF times) linearly onto their median step; "
-        "the output states it",
+        help="kept for compatibility: non-uniform timestamps (e.g. FLIR EXIF times) are always interpolated "
+        "linearly onto their median step, and the output states it",
     )
 
 
@@ -72,7 +72,7 @@ def load_input(args: argparse.Namespace) -> Video:
             args.video,
             dt=args.dt,
             dx=args.dx,
-            timestamps="resample" if args.resample else "uniform",
+            timestamps="resample",  # only non-uniform timestamps are resampled; the output says so
             roi=args.roi,
             calibration=args.calibration,
         )

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from typing import Any
 
 from anra_torch.checks import one_line
@@ -79,18 +80,59 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=run)
 
 
-def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any, Any]:
-    """The ``diagnose --json`` object, the :class:`GainResult` it was made from, and the
-    :class:`SourceMapGain` with ``--source-map`` (else None)."""
-    from anra_torch.forecast import assess_gain, extended_effects
+def _phases(video: Video, args: argparse.Namespace) -> tuple[list[Any], Any]:
+    """Every phase's diagnosis (:func:`diagnose_recording`) and the longest analysed one."""
+    from anra_torch.forecast import diagnose_recording
 
-    frames = video.frames
     try:
-        result = assess_gain(
-            frames, video.dt, video.dx, fit_fraction=args.fit_fraction, assimilate=args.assimilate
+        phases = diagnose_recording(
+            video.frames,
+            video.dt,
+            video.dx,
+            video.t,
+            fit_fraction=args.fit_fraction,
+            assimilate=args.assimilate,
         )
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
+    analysed = [p for p in phases if p.reason is None]
+    if not analysed:
+        reasons = "; ".join(
+            f"{p.phase.name} (frames {p.phase.start}-{p.phase.stop - 1}): {p.reason}" for p in phases
+        )
+        raise ValueError(f"{video.source}: no phase could be analysed: {reasons}")
+    return phases, max(analysed, key=lambda p: p.phase.frames)
+
+
+def _small_box_summary(main: Any) -> dict[str, Any]:
+    """The top-level keys for a phase analysed by the small-box models (no balance filters fit)."""
+    record = main.to_record()
+    return {
+        "base": record["base"],
+        "effects": record["effects"],
+        "extended": {
+            "model": main.model,
+            "params": record["effects"][0]["params"],
+            "prediction_rmse": main.extended_rmse,
+        },
+        "gain": main.gain,
+        "noise_floor": main.noise_floor,
+    }
+
+
+def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any, Any, Video]:
+    """The ``diagnose --json`` object, the :class:`GainResult` of its longest analysed phase (None for a
+    small box), the :class:`SourceMapGain` with ``--source-map`` (else None) and that phase's frames."""
+    from anra_torch.forecast import extended_effects
+
+    phases, main = _phases(video, args)
+    span = slice(main.phase.start, main.phase.stop)
+    video = replace(video, frames=video.frames[span], t=None if video.t is None else video.t[span])
+    records = {"phase": main.phase.name, "phases": [p.to_record() for p in phases]}
+    result = main.result
+    if result is None:
+        return clean_json({**_small_box_summary(main), **records}), None, None, video
+    frames = video.frames
     diagnosis = result.diagnosis
     per_effect = [
         {"name": record["name"], "params": dict(record["params"]), "gain": gain}
@@ -143,7 +185,7 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
         }
     if any(input_record(video).values()):
         summary["input"] = input_record(video)
-    return clean_json(summary), result, mapped
+    return clean_json({**summary, **records}), result, mapped, video
 
 
 def run(args: argparse.Namespace) -> int:
@@ -152,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
         if not 0 < args.fit_fraction < 1:
             raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
         video = load_input(args)
-        summary, result, mapped = _summary(video, args)
+        summary, result, mapped, video = _summary(video, args)
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
             print(json.dumps({"path": str(args.video), "error": one_line(err)}))
@@ -160,37 +202,69 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, allow_nan=False))
     else:
-        base, ext = summary["base"], summary["extended"]
         print(f"{video.source}")
         print_input(video)
-        print(
-            f"  plain heat equation: a = {base['diffusivity']:.4g} mm^2/s, forecast RMSE "
-            f"{base['prediction_rmse']:.4g} (noise floor {summary['noise_floor']:.4g} {video.unit}, frames "
-            f"smoothed by a {summary['scale_px']:g} px Gaussian and averaged over {summary['time_window']} "
-            f"frames; forecasts from the state of the last {summary['assimilated']} fit frames)"
-        )
-        if summary["effects"]:
-            found = ", ".join(f"{e['name']} (gain {e['gain']:.2f})" for e in summary["effects"])
-            print(f"  effects: {found}")
-            print(f"  extended: {ext['equation']}")
-            print(f"  extended forecast RMSE {ext['prediction_rmse']:.4g}, gain {summary['gain']:.3f}")
-        else:
-            print("  no effect beyond heat diffusion found (gain 0)")
-        if "source_map" in summary:
-            sm = summary["source_map"]
-            print(
-                f"  source map: a = {sm['a']:.4g} mm^2/s, b = {sm['b']:.4g} 1/s, q {sm['q_min']:.4g} to "
-                f"{sm['q_max']:.4g} {video.unit}/s; forecast RMSE {sm['prediction_rmse']:.4g}, "
-                f"gain {sm['gain']:.3f}"
-            )
-        print(
-            f"  diagnosed frames 0-{result.split}, forecast {result.held_out} held-out frames "
-            f"in {result.elapsed:.1f} s"
-        )
-    if args.report is not None:
+        _print_phases(summary)
+        if result is not None:
+            _print_balance(video, summary, result)
+    if args.report is not None and result is None:
+        print("  no report: the longest phase was analysed by the small-box models (no balance filters fit)")
+    elif args.report is not None:
         from anra_torch.report import write_diagnosis_report
 
         path = write_diagnosis_report(args.report, video, result.diagnosis, result, source_map=mapped)
         if not args.json:
             print(f"  report: {path}")
     return 0
+
+
+def _print_phases(summary: dict[str, Any]) -> None:
+    """One line per phase: its kind and frames, the diffusivity, the chosen extension and its gain."""
+    for p in summary["phases"]:
+        frames = f"frames {p['start_frame']}-{p['stop_frame'] - 1}"
+        where = f"  {p['kind']} ({frames}, t {p['t_start']:.4g}-{p['t_stop']:.4g} s)"
+        if not p["analysed"]:
+            print(f"{where}: not analysed: {p['reason']}")
+            continue
+        base = p["base"]
+        if base["diffusivity"] is None and "diffusivity_lower_bound" in base:
+            bound = base["diffusivity_lower_bound"]
+            a = f"a unresolved (conduction faster than a frame: a > {bound:.3g} mm^2/s)"
+        else:
+            flag = f" [{', '.join(base['flags'])}]" if base.get("flags") else ""
+            a = f"a = {base['diffusivity']:.4g} mm^2/s{flag}"
+        names = ", ".join(e["name"] for e in p["effects"]) or "none"
+        print(
+            f"{where}: {a}; causes: {names}; extended model {p['model']}, gain {p['gain']:.3f} "
+            f"(noise floor {p['noise_floor']:.3g})"
+        )
+
+
+def _print_balance(video: Video, summary: dict[str, Any], result: Any) -> None:
+    """The human summary of a phase analysed through the balance (plain and extended forecasts)."""
+    base, ext = summary["base"], summary["extended"]
+    print(f"  details of the longest phase ({summary['phase']}):")
+    print(
+        f"  plain heat equation: a = {base['diffusivity']:.4g} mm^2/s, forecast RMSE "
+        f"{base['prediction_rmse']:.4g} (noise floor {summary['noise_floor']:.4g} {video.unit}, frames "
+        f"smoothed by a {summary['scale_px']:g} px Gaussian and averaged over {summary['time_window']} "
+        f"frames; forecasts from the state of the last {summary['assimilated']} fit frames)"
+    )
+    if summary["effects"]:
+        found = ", ".join(f"{e['name']} (gain {e['gain']:.2f})" for e in summary["effects"])
+        print(f"  effects: {found}")
+        print(f"  extended: {ext['equation']}")
+        print(f"  extended forecast RMSE {ext['prediction_rmse']:.4g}, gain {summary['gain']:.3f}")
+    else:
+        print("  no effect beyond heat diffusion found (gain 0)")
+    if "source_map" in summary:
+        sm = summary["source_map"]
+        print(
+            f"  source map: a = {sm['a']:.4g} mm^2/s, b = {sm['b']:.4g} 1/s, q {sm['q_min']:.4g} to "
+            f"{sm['q_max']:.4g} {video.unit}/s; forecast RMSE {sm['prediction_rmse']:.4g}, "
+            f"gain {sm['gain']:.3f}"
+        )
+    print(
+        f"  diagnosed frames 0-{result.split}, forecast {result.held_out} held-out frames "
+        f"in {result.elapsed:.1f} s"
+    )

@@ -21,11 +21,13 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from typing import Any
 
 from anra_torch.cli.arguments import (
     PROG,
     add_video_arguments,
+    clean_json,
     format_list,
     input_record,
     integer,
@@ -34,7 +36,7 @@ from anra_torch.cli.arguments import (
 )
 from anra_torch.estimator import MODES, ANRAEstimator, ANRAResult
 from anra_torch.report import format_pm
-from anra_torch.video import Video
+from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, recording_phases
 
 __all__ = ["add_parser", "run"]
 
@@ -136,16 +138,115 @@ def _print_summary(s: dict[str, Any]) -> None:
     print(f"  took {s['elapsed_s']:.2f} s")
 
 
+PLAUSIBLE = (1e-3, 2e3)
+"""Diffusivities of known materials, mm^2/s (insulating foams to diamond and silver)."""
+
+SOURCE_FREE = ("cooling", "baseline", "steady")
+"""Phase kinds without a heat source, in the order their diffusivity is preferred for the top level."""
+
+
+def _small_box_record(video: Video) -> dict[str, Any]:
+    """A region too small for the filters: the small-box plain fit, unresolved when the interior follows
+    its edges within a frame (the lower bound on ``a`` that implies)."""
+    import math
+
+    from anra_torch.forecast.recording import UNRESOLVED
+    from anra_torch.forecast.small_box import edge_explained, fit_small_box
+
+    frames, (h, w) = video.frames, video.frames.shape[1:]
+    if min(h, w) < 3 or frames.shape[0] < 3:
+        return {"diffusivity": None, "std_error": None, "valid": False, "message": "too small: need 3 x 3 px"}
+    a = fit_small_box(frames, video.dt, video.dx, "plain").a
+    if edge_explained(frames) >= UNRESOLVED:
+        bound = 1.0 / (
+            video.dt * math.pi**2 * (1 / ((w - 1) * video.dx) ** 2 + 1 / ((h - 1) * video.dx) ** 2)
+        )
+        message = (
+            f"unresolved: conduction crosses the {h} x {w} px region within a frame (a > {bound:.3g} mm^2/s)"
+        )
+        return {
+            "diffusivity": None,
+            "std_error": None,
+            "valid": False,
+            "message": message,
+            "lower_bound": bound,
+        }
+    if not PLAUSIBLE[0] <= a <= PLAUSIBLE[1]:
+        message = (
+            f"not resolved: the small-box fit gives a = {a:.3g} mm^2/s, outside every known material "
+            f"({PLAUSIBLE[0]:g} to {PLAUSIBLE[1]:g} mm^2/s): too little diffusion in these frames (a source?)"
+        )
+        return {"diffusivity": a, "std_error": None, "valid": False, "message": message}
+    message = "small-box fit (5-point Laplacian, measured edges); no standard error"
+    return {"diffusivity": a, "std_error": None, "valid": True, "message": message}
+
+
+def _estimate(video: Video, est: ANRAEstimator) -> tuple[dict[str, Any], ANRAResult | None]:
+    """The estimate of one run of frames: ANRA where its filters fit, else the small-box record."""
+    try:
+        result = est(video.frames, video.dt, video.dx)
+    except ValueError as err:
+        if "px for these filters" not in str(err):
+            raise ValueError(f"{video.source}: {err}") from err
+        return _small_box_record(video), None
+    return {}, result
+
+
+def _phases(video: Video, est: ANRAEstimator) -> tuple[list[dict[str, Any]], Phase]:
+    """Every phase's estimate, and the phase the top level describes: the longest valid source-free one
+    (cooling, then baseline or steady), else the longest."""
+    phases = recording_phases(video.frames, video.t)
+    records, chosen = [], None
+    for phase in phases:
+        head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
+        head.update(t_start=phase.t_start, t_stop=phase.t_stop)
+        if phase.frames < MIN_PHASE_FRAMES:
+            records.append({**head, "diffusivity": None, "valid": False, "message": "too short"})
+            continue
+        part = _part(video, phase)
+        record, result = _estimate(part, est)
+        if result is not None:
+            record = {
+                k: result.to_record(unit=video.unit)[k]
+                for k in ("diffusivity", "std_error", "valid", "message")
+            }
+        records.append({**head, **record})
+        rank = (
+            phase.name in SOURCE_FREE and bool(record["valid"]),
+            -SOURCE_FREE.index(phase.name) if phase.name in SOURCE_FREE else -9,
+            phase.frames,
+        )
+        if chosen is None or rank > chosen[0]:
+            chosen = (rank, phase)
+    return records, (chosen[1] if chosen else phases[0])
+
+
+def _part(video: Video, phase: Phase) -> Video:
+    span = slice(phase.start, phase.stop)
+    return replace(video, frames=video.frames[span], t=None if video.t is None else video.t[span])
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``anra estimate`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     est = ANRAEstimator(mode=args.mode, window=args.window, strict=False)
     video = load_input(args)
     start = time.perf_counter()
-    try:
-        result = est(video.frames, video.dt, video.dx)
-    except (ValueError, TypeError) as err:
-        raise ValueError(f"{video.source}: {err}") from err
-    summary = _summary(video, result, est, time.perf_counter() - start)
+    phases = recording_phases(video.frames, video.t)
+    records, phase = _phases(video, est) if len(phases) > 1 else ([], phases[0])
+    part = _part(video, phase) if len(phases) > 1 else video
+    small, result = _estimate(part, est)
+    if result is None:
+        summary = {"path": str(video.source), **small, "frames": part.frames.shape[0]}
+        summary.update(height=part.frames.shape[1], width=part.frames.shape[2], dt=video.dt, dx=video.dx)
+    else:
+        summary = _summary(part, result, est, time.perf_counter() - start)
+    if not records:
+        head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
+        head.update(t_start=phase.t_start, t_stop=phase.t_stop)
+        records = [{**head, **{k: summary.get(k) for k in ("diffusivity", "std_error", "valid", "message")}}]
+    summary["phase"] = phase.name
+    summary["phases"] = records
+    summary = clean_json(summary)
     if any(input_record(video).values()):
         summary["input"] = input_record(video)
     if args.json:
@@ -155,6 +256,22 @@ def run(args: argparse.Namespace) -> int:
         print(f"{PROG}: error: {video.source}: {summary['message']}", file=sys.stderr)
         return 2
     if not args.json:
-        _print_summary(summary)
+        if result is not None:
+            _print_summary(summary)
+        else:
+            print(summary["path"])
+            print(f"  diffusivity a = {summary['diffusivity']:.4g} mm^2/s ({summary['message']})")
+        _print_phases(summary)
         print_input(video)
     return 0
+
+
+def _print_phases(summary: dict[str, Any]) -> None:
+    """The phases and their diffusivities, when the recording has more than one."""
+    if len(summary["phases"]) < 2:
+        return
+    print(f"  the diffusivity above is the {summary['phase']} phase's; every phase:")
+    for p in summary["phases"]:
+        a = "none" if p["diffusivity"] is None else f"{p['diffusivity']:.4g} mm^2/s"
+        note = f" ({p['message']})" if p.get("message") else ""
+        print(f"    {p['kind']} (frames {p['start_frame']}-{p['stop_frame'] - 1}): a = {a}{note}")

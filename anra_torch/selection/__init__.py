@@ -6,6 +6,6 @@ standard errors (:mod:`~anra_torch.selection.statistics`) and selects them stepw
 (:mod:`~anra_torch.selection.stepwise`).
 """
 
-from anra_torch.selection.diagnose import ALPHA, SMOOTHING, Diagnosis, diagnose_terms
+from anra_torch.selection.diagnose import ALPHA, SMOOTHING, Diagnosis, diagnose_terms, minimum_frame_size
 
-__all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms"]
+__all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms", "minimum_frame_size"]

@@ -65,7 +65,7 @@ from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
 from anra_torch.selection.statistics import wald_score
 from anra_torch.selection.stepwise import Selection
 
-__all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms"]
+__all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms", "minimum_frame_size"]
 
 ALPHA = 1e-3
 """Family-wise false-positive rate of the model selection on pure heat-transfer video."""
@@ -233,6 +233,15 @@ def diagnose_terms(
             others = [e for e in selection.selected if e != name]
             selection.prepare(name, system.fit(selection.columns(others)), refine=True)
     return _result(system, selection, plain, artefacts)
+
+
+def minimum_frame_size(smoothing: float | Sequence[float] | None = None) -> int:
+    """The smallest frame side (px) :func:`diagnose_terms` accepts with ``smoothing`` (default its
+    candidates): the smallest candidate's filter reach on both sides plus the least valid interior."""
+    sigmas = (
+        SMOOTHING if smoothing is None else (smoothing,) if isinstance(smoothing, int | float) else smoothing
+    )
+    return min(2 * (GaussianSmoothing(float(s)).radius + 1) for s in sigmas) + _MIN_VALID_PX
 
 
 def _usable_smoothing(video: Tensor, smoothing: float | Sequence[float] | None) -> tuple[float, ...]:

@@ -25,22 +25,23 @@ from anra_torch.video.core import PathLike, RawVideo, Truth, Video
 from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
 from anra_torch.video.formats.numpy_formats import save_npz
 from anra_torch.video.load import TIMESTAMPS, load_video
-from anra_torch.video.phases import Phase, hot_spot_signal, segment_phases
+from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, hot_spot_signal, recording_phases, segment_phases
 from anra_torch.video.prepare import STEPS, prepare_video
 from anra_torch.video.resample import resample_uniform
 from anra_torch.video.roi import ROI, apply_mask, crop, dead_pixel_mask, parse_roi, reflection_mask
 
 __all__ = [
-    "FOLDER_REGISTRY",
-    "REGISTRY",
-    "ROI",
-    "STEPS",
-    "TIMESTAMPS",
     "CalibrationTable",
+    "FOLDER_REGISTRY",
+    "MIN_PHASE_FRAMES",
     "PathLike",
     "Phase",
     "PixelSize",
+    "REGISTRY",
+    "ROI",
     "RawVideo",
+    "STEPS",
+    "TIMESTAMPS",
     "Truth",
     "Video",
     "apply_calibration",
@@ -52,6 +53,7 @@ __all__ = [
     "load_video",
     "parse_roi",
     "prepare_video",
+    "recording_phases",
     "reflection_mask",
     "resample_uniform",
     "save_npz",

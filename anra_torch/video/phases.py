@@ -17,7 +17,13 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-__all__ = ["Phase", "hot_spot_signal", "segment_phases"]
+__all__ = ["MIN_PHASE_FRAMES", "Phase", "hot_spot_signal", "recording_phases", "segment_phases"]
+
+MIN_PHASE_FRAMES = 8
+"""Frames a phase needs to be analysed on its own (a fit part of at least 5 and held-out frames)."""
+
+_MATERIAL = 0.2  # a change of heat content counts when it is at least this share of its range ...
+_NOISE_MULTIPLE = 10.0  # ... and this many times the noise of the frame-mean signal
 
 
 @dataclass(frozen=True)
@@ -99,6 +105,65 @@ def segment_phases(
     off = _switch_off(signal, peak, onset * total)
     bounds = [("baseline", 0, start + 1), ("heating", start, off + 1), ("cooling", off, n)]
     return [Phase(name, a, b, float(times[a]), float(times[b - 1])) for name, a, b in bounds if b - a >= 2]
+
+
+def recording_phases(frames: Tensor, t: Tensor | None = None) -> list[Phase]:
+    """The phases of a recording that change what acts in it: baseline, heating, cooling, or one phase.
+
+    :func:`segment_phases` places the source's switch-on and switch-off from the hot-spot signal; a
+    boundary is kept only where the data say a source really switched: heating and cooling are separate
+    phases only when the frame-mean temperature (the heat content) rises over the heating by at least a
+    fifth of its range and ten times its noise, and over the cooling the hot spot falls by at least a fifth
+    of its rise while the heat content no longer rises materially (a hot spot passing by, as in a flow,
+    moves heat without adding any); a baseline only when it is flat (its heat content changes under a tenth
+    as fast as during the heating's fastest rise). Otherwise the recording
+    is one phase, named by its heat content: ``"heating"`` (rises materially), ``"cooling"`` (falls) or
+    ``"steady"`` (neither: diffusion alone, or a balance of input and loss). Phases shorter than
+    :data:`MIN_PHASE_FRAMES` are returned too; the analysis says they are too short.
+
+    Shape:
+        ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
+    """
+    n = frames.shape[0]
+    times = torch.arange(n, dtype=torch.float64) if t is None else torch.as_tensor(t, dtype=torch.float64)
+    content = torch.nanmean(frames.double().reshape(n, -1), dim=1)
+    steps = content[1:] - content[:-1]
+    noise = float((steps - steps.median()).abs().median()) * 1.4826 / 2**0.5 if n > 2 else 0.0
+    span = float(content.max() - content.min())
+
+    def material(change: float) -> bool:
+        return abs(change) >= _MATERIAL * span and abs(change) >= _NOISE_MULTIPLE * noise and span > 0
+
+    def change(phase: Phase) -> float:
+        return float(content[phase.stop - 1] - content[phase.start])
+
+    try:
+        found = {p.name: p for p in segment_phases(frames, times)}
+    except ValueError:  # nothing rises: one phase
+        found = {}
+    heating, cooling, baseline = found.get("heating"), found.get("cooling"), found.get("baseline")
+    split = heating is not None and cooling is not None and change(heating) > 0 and material(change(heating))
+    if split:  # the source is off: the hot spot falls materially while the heat content no longer rises
+        assert heating is not None and cooling is not None
+        spot, _ = hot_spot_signal(frames)
+        rise = float(spot[heating.stop - 1] - spot[heating.start])
+        fall = float(spot[cooling.start] - spot[cooling.stop - 1])
+        split = fall >= _MATERIAL * rise and not (change(cooling) > 0 and material(change(cooling)))
+    if not split:
+        whole = change(Phase("whole", 0, n, 0.0, 0.0))
+        kind = ("heating" if whole > 0 else "cooling") if material(whole) else "steady"
+        return [Phase(kind, 0, n, float(times[0]), float(times[-1]))]
+    assert heating is not None and cooling is not None
+    phases = [heating, cooling]
+    # The heating's fastest rise (a 5-frame running mean of the content's steps, against noise).
+    rates = steps[heating.start : heating.stop - 1]
+    fastest = float(rates.unfold(0, min(5, rates.numel()), 1).mean(1).max()) if rates.numel() else 0.0
+    flat = baseline is not None and abs(change(baseline)) / max(baseline.frames - 1, 1) < 0.1 * fastest
+    if flat:
+        phases.insert(0, baseline)
+    else:  # a rise from the first frame on: the heating phase starts there
+        phases[0] = Phase("heating", 0, heating.stop, float(times[0]), heating.t_stop)
+    return phases
 
 
 def _switch_off(signal: Tensor, peak: int, band: float) -> int:

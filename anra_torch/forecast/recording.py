@@ -1,0 +1,290 @@
+"""A recording as it comes: its phases, each diagnosed on its own, the extended model chosen by the data.
+
+:func:`diagnose_recording` splits a recording into phases (:func:`anra_torch.video.recording_phases`:
+baseline, heating, cooling, or one phase) and analyses every phase with enough frames on its own:
+
+- **Frames that fit the balance's filters** (:func:`anra_torch.selection.minimum_frame_size`): the
+  diagnosis and held-out forecast of :func:`~anra_torch.forecast.assess_gain`. When a source is named
+  (or the phase heats), the parametric source (a Gaussian on a path) and the measured stationary source map
+  (:func:`~anra_torch.forecast.source_map_gain`) compete on a split INSIDE the fit frames; the held-out
+  frames are scored only after the choice. Frames seconds apart (fewer held-out frames than one time
+  window) get no time average and start from the measured split frame.
+- **Smaller regions** (down to 3 x 3 px): the small-box models of :mod:`~anra_torch.forecast.small_box`;
+  ``loss`` and ``quasi_steady`` compete on the same inner split. When the steady state for the measured
+  edges explains most of the interior's change, conduction crosses the region within a frame: the
+  diffusivity is reported as unresolved, with the lower bound that implies.
+
+Every phase's :meth:`PhaseDiagnosis.to_record` is the ``"phases"`` element of ``anra diagnose --json``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from anra_torch.forecast.core import TIME_WINDOW, split_index
+from anra_torch.forecast.gain import GainResult, assess_gain
+from anra_torch.forecast.small_box import edge_explained, fit_small_box, forecast_small_box
+from anra_torch.forecast.source_map import source_map_gain
+from anra_torch.selection import minimum_frame_size
+from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, recording_phases
+
+__all__ = ["PhaseDiagnosis", "diagnose_recording"]
+
+BOX_WINDOW = 100
+"""Frames just before a split that a small-box model is fitted on (the most local of 100, 200 and 400)."""
+
+BOX_HORIZON = 200
+"""Held-out frames forecast at most by a small-box model."""
+
+UNRESOLVED = 0.5
+"""Share of the interior's change explained by the steady state for its edges above which conduction is
+taken as faster than a frame (the diffusivity unresolved)."""
+
+_SOURCES = ("source", "periodic_source")
+_F64 = torch.float64
+
+
+@dataclass
+class PhaseDiagnosis:
+    """One phase of a recording and what its analysis found.
+
+    Attributes:
+        phase: the :class:`~anra_torch.video.Phase` (kind, frames, times).
+        family: ``"balance"`` (the filters fit), ``"small_box"`` or ``"none"`` (not analysed).
+        diffusivity: the plain model's ``a`` in mm^2/s (None when unresolved or not analysed).
+        flags: what qualifies the diffusivity (``"unresolved"``, ``"negative"``).
+        diffusivity_bound: the lower bound on ``a`` (mm^2/s) an unresolved diffusivity implies.
+        base_rmse: the plain model's held-out RMSE (data units).
+        model: the extension chosen on the inner split (``parametric``, ``source_map``, ``loss``,
+            ``quasi_steady``).
+        extended_rmse: the chosen extension's held-out RMSE.
+        gain: ``1 - extended_rmse / base_rmse``.
+        noise_floor: a perfect model's RMSE at the same scale.
+        effects: the named causes, ``{"name", "params", "gain"}``.
+        candidates: per candidate extension, its RMSE on the inner split (``validation_rmse``) and its
+            held-out gain (``gain``, reported after the choice, never used for it).
+        reason: why the phase was not analysed, else None.
+        result: the balance family's :class:`~anra_torch.forecast.GainResult`.
+    """
+
+    phase: Phase
+    family: str
+    diffusivity: float | None = None
+    flags: list[str] = field(default_factory=list)
+    diffusivity_bound: float | None = None
+    base_rmse: float | None = None
+    model: str | None = None
+    extended_rmse: float | None = None
+    gain: float | None = None
+    noise_floor: float | None = None
+    effects: list[dict[str, Any]] = field(default_factory=list)
+    candidates: dict[str, dict[str, float | None]] = field(default_factory=dict)
+    reason: str | None = None
+    result: GainResult | None = None
+
+    def to_record(self) -> dict[str, Any]:
+        """The phase as a JSON-ready dict (the ``"phases"`` element of ``anra diagnose --json``)."""
+        p = self.phase
+        record: dict[str, Any] = {
+            "kind": p.name,
+            "start_frame": p.start,
+            "stop_frame": p.stop,
+            "t_start": p.t_start,
+            "t_stop": p.t_stop,
+            "analysed": self.reason is None,
+            "family": self.family,
+            "base": {"diffusivity": self.diffusivity, "prediction_rmse": self.base_rmse},
+            "effects": self.effects,
+            "model": self.model,
+            "extended_rmse": self.extended_rmse,
+            "gain": self.gain,
+            "noise_floor": self.noise_floor,
+            "candidates": self.candidates,
+        }
+        if self.flags:
+            record["base"]["flags"] = list(self.flags)
+        if self.diffusivity_bound is not None:
+            record["base"]["diffusivity_lower_bound"] = self.diffusivity_bound
+        if self.reason is not None:
+            record["reason"] = self.reason
+        return record
+
+
+def diagnose_recording(
+    frames: Tensor,
+    dt: float,
+    dx: float,
+    t: Tensor | None = None,
+    *,
+    fit_fraction: float = 0.6,
+    assimilate: int | None = None,
+    phases: list[Phase] | None = None,
+) -> list[PhaseDiagnosis]:
+    """Diagnose every phase of a recording on its own (see the module text).
+
+    Args:
+        frames: temperatures, uniformly sampled at ``dt``.
+        dt: frame period in s.
+        dx: pixel size in mm.
+        t: timestamps in s (default ``dt`` times the frame index); used to time the phases.
+        fit_fraction: each phase's fraction diagnosed; the rest is held out.
+        assimilate: frames assimilated into the balance forecasts' starting state (default: adapted).
+        phases: the phases (default :func:`~anra_torch.video.recording_phases`).
+
+    Returns:
+        One :class:`PhaseDiagnosis` per phase, in time order.
+
+    Shape:
+        ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
+    """
+    video = torch.as_tensor(frames).to(_F64)
+    times = torch.arange(video.shape[0], dtype=_F64) * dt if t is None else torch.as_tensor(t).to(_F64)
+    out = []
+    for phase in recording_phases(video, times) if phases is None else phases:
+        if phase.frames < MIN_PHASE_FRAMES:
+            reason = f"too short: {phase.frames} frames, need {MIN_PHASE_FRAMES}"
+            out.append(PhaseDiagnosis(phase, "none", reason=reason))
+            continue
+        part = video[phase.start : phase.stop]
+        try:
+            if min(part.shape[1:]) >= minimum_frame_size():
+                out.append(_balance_phase(phase, part, dt, dx, fit_fraction, assimilate))
+            else:
+                out.append(_small_box_phase(phase, part, dt, dx, fit_fraction))
+        except ValueError as err:
+            out.append(PhaseDiagnosis(phase, "none", reason=str(err)))
+    return out
+
+
+def _gain(rmse: float, base: float) -> float:
+    return 1.0 - rmse / base if base > 0 else 0.0
+
+
+def _balance_phase(
+    phase: Phase, part: Tensor, dt: float, dx: float, fit_fraction: float, assimilate: int | None
+) -> PhaseDiagnosis:
+    """The balance family: assess_gain; the source map against the parametric source when a source acts."""
+    held_out = part.shape[0] - 1 - split_index(part.shape[0], fit_fraction)
+    sparse = held_out < TIME_WINDOW  # frames seconds apart: a few frames already span the dynamics
+    options = {"time_window": 1, "assimilate": assimilate or 1} if sparse else {"assimilate": assimilate}
+    result = assess_gain(part, dt, dx, fit_fraction=fit_fraction, **options)
+    names = [e["name"] for e in result.diagnosis.effects]
+    effects = [
+        {"name": e["name"], "params": {k: float(v) for k, v in e["params"].items()}, "gain": g}
+        for e, g in zip(result.diagnosis.effects, result.effect_gains, strict=True)
+    ]
+    diagnosis = PhaseDiagnosis(
+        phase,
+        "balance",
+        diffusivity=result.diagnosis.a_plain,
+        base_rmse=result.base_rmse,
+        noise_floor=result.noise_floor,
+        effects=effects,
+        result=result,
+    )
+    if result.diagnosis.a_plain < 0:
+        diagnosis.flags.append("negative")
+    held = {"parametric": (result.extended_rmse, result.gain)}
+    validation: dict[str, float] = {}
+    if any(n in _SOURCES for n in names) or phase.name == "heating":
+        try:
+            mapped = source_map_gain(part, dt, dx, result)
+            held["source_map"] = (mapped.rmse, mapped.gain)
+            validation = _inner_balance(part[: result.split + 1], dt, dx, fit_fraction, options)
+        except ValueError:
+            validation = {}
+    chosen = min(validation, key=validation.__getitem__) if validation else "parametric"
+    diagnosis.model = chosen
+    diagnosis.extended_rmse, diagnosis.gain = held[chosen]
+    diagnosis.candidates = {
+        name: {"validation_rmse": validation.get(name), "gain": held[name][1]} for name in held
+    }
+    return diagnosis
+
+
+def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, options: dict) -> dict[str, float]:
+    """Validation RMSE of the parametric extension and the source map on a split inside the fit frames."""
+    # At least 5 frames to diagnose (the time filter), the rest (at least 2) validates.
+    inner_fraction = max(fit_fraction, 4 / (fit.shape[0] - 1))
+    inner = assess_gain(fit, dt, dx, fit_fraction=inner_fraction, **options)
+    return {"parametric": inner.extended_rmse, "source_map": source_map_gain(fit, dt, dx, inner).rmse}
+
+
+def _box_scores(frames: Tensor, dt: float, dx: float, split: int, horizon: int) -> dict[str, float]:
+    """RMSE on the interior of the frames after ``split`` for each small-box model fitted just before it."""
+    fit = frames[max(0, split - BOX_WINDOW) : split + 1]
+    measured = frames[split + 1 : split + 1 + horizon, 1:-1, 1:-1]
+    scores = {}
+    for kind in ("plain", "loss", "quasi_steady"):
+        model = fit_small_box(fit, dt, dx, kind)
+        predicted = forecast_small_box(model, frames, dt, dx, split, horizon)[:, 1:-1, 1:-1]
+        scores[kind] = float((predicted - measured).pow(2).mean().sqrt())
+    return scores
+
+
+INNER_ORIGINS = (0.5, 0.6, 0.7, 0.8)
+"""Forecast origins inside the fit frames (fractions) at which the small-box models are validated."""
+
+
+def _box_validation(fit: Tensor, dt: float, dx: float) -> dict[str, float]:
+    """Each small-box model's validation error: its RMSE over the plain model's, averaged over forecasts
+    from several origins inside the fit frames (:data:`INNER_ORIGINS`), each fitted on the frames before."""
+    n = fit.shape[0]
+    ratios: dict[str, list[float]] = {"loss": [], "quasi_steady": []}
+    for fraction in INNER_ORIGINS:
+        origin = split_index(n, fraction)
+        scores = _box_scores(fit, dt, dx, origin, min(n - 1 - origin, BOX_HORIZON))
+        for kind, values in ratios.items():
+            values.append(scores[kind] / scores["plain"] if scores["plain"] > 0 else 1.0)
+    return {kind: sum(values) / len(values) for kind, values in ratios.items()}
+
+
+def _small_box_phase(phase: Phase, part: Tensor, dt: float, dx: float, fit_fraction: float) -> PhaseDiagnosis:
+    """The small-box family: ``loss`` against ``quasi_steady`` on the inner split, scored on the held-out."""
+    if min(part.shape[1:]) < 3:
+        raise ValueError(f"frames must be at least 3 x 3 px, got {part.shape[1]} x {part.shape[2]}")
+    n = part.shape[0]
+    split = split_index(n, fit_fraction)
+    validation = _box_validation(part[: split + 1], dt, dx)
+    held = _box_scores(part, dt, dx, split, min(n - 1 - split, BOX_HORIZON))
+    chosen = min(("loss", "quasi_steady"), key=validation.__getitem__)
+    fit = part[max(0, split - BOX_WINDOW) : split + 1]
+    plain = fit_small_box(fit, dt, dx, "plain")
+    model = fit_small_box(fit, dt, dx, chosen)
+    inner_part = part[:, 1:-1, 1:-1]
+    noise = float((inner_part[1 : split + 1] - inner_part[:split]).std()) / math.sqrt(2)
+    gain = _gain(held[chosen], held["plain"])
+    diagnosis = PhaseDiagnosis(
+        phase,
+        "small_box",
+        diffusivity=plain.a,
+        base_rmse=held["plain"],
+        model=chosen,
+        extended_rmse=held[chosen],
+        gain=gain,
+        noise_floor=noise,
+        candidates={
+            k: {"validation_rmse": validation[k], "gain": _gain(held[k], held["plain"])}
+            for k in ("loss", "quasi_steady")
+        },
+    )
+    if edge_explained(fit) >= UNRESOLVED:
+        lx, ly = (part.shape[2] - 1) * dx, (part.shape[1] - 1) * dx
+        diagnosis.diffusivity = None
+        diagnosis.flags.append("unresolved")
+        diagnosis.diffusivity_bound = 1.0 / (dt * math.pi**2 * (1 / lx**2 + 1 / ly**2))
+    elif plain.a < 0:
+        diagnosis.flags.append("negative")
+    if chosen == "quasi_steady":
+        cause = "source"
+    else:  # the sign of the loss model's non-diffusive rate at the split: net heating or net loss
+        cause = (
+            "source" if model.c - model.b * (float(part[split].mean()) - model.t_ref) > 0 else "linear_loss"
+        )
+    diagnosis.effects = [{"name": cause, "params": model.params(), "gain": gain}]
+    return diagnosis

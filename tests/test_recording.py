@@ -1,0 +1,144 @@
+"""Recordings as they come: phases found from the data, small regions, irregular times (real recordings).
+
+Each capability is tested on a synthetic recording built for it, with an independent reference where there
+is one: a field that is discrete-harmonic by construction for the small-box Laplace solve; an explicit
+finite-difference heat equation with a source switched off at a known frame for the phases.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from anra_torch.cli import main
+from anra_torch.forecast import diagnose_recording
+from anra_torch.forecast.small_box import edge_explained, fit_small_box, forecast_small_box, harmonic_interior
+from anra_torch.video import recording_phases, save_npz
+
+DT, DX, A = 0.1, 0.25, 0.3  # s, mm, mm^2/s
+
+
+def _heated_then_cooled(off: int = 60, n: int = 110, size: int = 40, noise: float = 0.01, seed: int = 0):
+    """Explicit FTCS heat equation (zero-flux edges) with a Gaussian source on for frames < ``off``."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[:size, :size] * DX
+    c = (size - 1) * DX / 2
+    q = 4.0 * np.exp(-((x - c) ** 2 + (y - c) ** 2) / (2 * 1.0**2))  # K/s
+    u = np.full((size, size), 20.0)
+    sub = 10
+    h = DT / sub
+    frames = []
+    for k in range(n):
+        frames.append(u.copy())
+        for _ in range(sub):
+            p = np.pad(u, 1, mode="edge")
+            lap = (p[1:-1, 2:] + p[1:-1, :-2] + p[2:, 1:-1] + p[:-2, 1:-1] - 4 * u) / DX**2
+            u = u + h * (A * lap + (q if k < off else 0.0))
+    return np.asarray(frames) + rng.normal(0, noise, (n, size, size))
+
+
+def test_phases_find_the_switch_off_of_a_source() -> None:
+    frames = torch.as_tensor(_heated_then_cooled(off=60))
+    kinds = [(p.name, p.start, p.stop) for p in recording_phases(frames)]
+    assert [k[0] for k in kinds] == ["heating", "cooling"]
+    assert abs(kinds[1][1] - 60) <= 2  # the switch-off frame, measured 59-60
+
+
+def test_single_phase_recordings_stay_whole() -> None:
+    frames = torch.as_tensor(_heated_then_cooled(off=200, n=60))  # the source never switches off
+    (phase,) = recording_phases(frames)
+    assert (phase.name, phase.start, phase.stop) == ("heating", 0, 60)
+    flat = torch.randn(30, 16, 16) * 0.01 + 20
+    assert [p.name for p in recording_phases(flat)] == ["steady"]
+
+
+@pytest.mark.slow
+def test_diagnose_recording_analyses_each_phase_on_its_own() -> None:
+    frames = torch.as_tensor(_heated_then_cooled(off=60, n=120))
+    phases = diagnose_recording(frames, DT, DX)
+    assert [p.phase.name for p in phases] == ["heating", "cooling"]
+    heating, cooling = phases
+    assert heating.family == cooling.family == "balance"
+    assert "source" in [e["name"] for e in heating.effects]
+    assert "source" not in [e["name"] for e in cooling.effects]
+    # Cooling is the heat equation alone: its diffusivity is the simulator's (5-point FTCS, 2 % of a).
+    assert cooling.diffusivity == pytest.approx(A, rel=0.05)
+    record = heating.to_record()
+    assert record["kind"] == "heating" and record["gain"] > 0.2 and "candidates" in record
+
+
+def test_harmonic_interior_is_exact_on_a_discrete_harmonic_field() -> None:
+    y, x = np.mgrid[:9, :13].astype(float)
+    field = x**2 - y**2 + 3 * x * y + 2 * x - y  # harmonic for the 5-point stencil exactly
+    frames = torch.as_tensor(np.stack([field, 2 * field]))
+    torch.testing.assert_close(harmonic_interior(frames), frames[:, 1:-1, 1:-1], rtol=0, atol=1e-10)
+    assert edge_explained(frames) == pytest.approx(1.0)
+
+
+def _quasi_steady_box(n: int = 300, size: int = 8, seed: int = 1) -> np.ndarray:
+    """An 8 x 8 px box whose interior is, at every frame, the steady state for its drifting edges plus a
+    stationary source's particular solution (conduction far faster than a frame), plus noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * DT
+    y, x = np.mgrid[:size, :size].astype(float)
+    frames = np.empty((n, size, size))
+    for k in range(n):  # edges: a drifting, tilting plane (harmonic), so the steady interior is the plane
+        frames[k] = 30 + 2 * np.sin(0.05 * t[k]) + 0.1 * t[k] * (x - y) / size
+    inner = np.zeros((size, size))
+    inner[1:-1, 1:-1] = np.exp(-((x[1:-1, 1:-1] - 3.5) ** 2 + (y[1:-1, 1:-1] - 3.5) ** 2) / 2.0)
+    return frames + 1.5 * inner + rng.normal(0, 0.01, frames.shape)
+
+
+def test_an_8x8_box_gets_the_quasi_steady_model_and_an_unresolved_diffusivity() -> None:
+    frames = torch.as_tensor(_quasi_steady_box())
+    (phase,) = diagnose_recording(frames, DT, DX)
+    assert phase.family == "small_box" and phase.model == "quasi_steady"
+    assert phase.gain > 0.5 and [e["name"] for e in phase.effects] == ["source"]
+    assert phase.diffusivity is None and phase.flags == ["unresolved"]
+    # tau_1 = 1 / (a pi^2 (2 / L^2)) < dt with L = 7 px: a > L^2 / (2 pi^2 dt)
+    assert phase.diffusivity_bound == pytest.approx((7 * DX) ** 2 / (2 * np.pi**2 * DT))
+
+
+def test_small_box_loss_model_recovers_its_rates() -> None:
+    # dT/dt = -b (T - T_ref) + c on a uniform box (Lap T = 0): exponential relaxation, exact in the fit.
+    b, c, t_ref = 0.2, 0.5, 25.0
+    t = np.arange(200) * DT
+    level = t_ref + c / b + (40 - t_ref - c / b) * np.exp(-b * t)
+    frames = torch.as_tensor(np.broadcast_to(level[:, None, None], (200, 6, 6)).copy())
+    model = fit_small_box(frames, DT, DX, "loss")
+    assert model.b == pytest.approx(b, rel=1e-3) and model.c - model.b * (25 - model.t_ref) == pytest.approx(
+        c, rel=1e-2
+    )
+    forecast = forecast_small_box(model, frames, DT, DX, 100, 50)
+    # First-order explicit Euler at b dt = 0.02 drifts by about b dt / 2 of the relaxation: measured 0.0063 K.
+    torch.testing.assert_close(forecast, frames[101:151], rtol=0, atol=0.01)
+
+
+def test_cli_diagnoses_an_8x8_box_and_estimate_flags_it_unresolved(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = save_npz(tmp_path / "box.npz", _quasi_steady_box(), dt=DT, dx=DX)
+    assert main(["diagnose", str(path), "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert len(record["phases"]) == 1 and record["phases"][0]["family"] == "small_box"
+    assert record["base"]["diffusivity"] is None and record["base"]["flags"] == ["unresolved"]
+    assert main(["estimate", str(path), "--json"]) == 2
+    out = json.loads(capsys.readouterr().out)
+    assert out["valid"] is False and out["diffusivity"] is None and "unresolved" in out["message"]
+
+
+@pytest.mark.slow
+def test_irregular_times_with_a_12x_step_range_need_no_flag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = _heated_then_cooled(off=1000, n=60)[::1]
+    steps = np.tile([5.0, 60.0, 10.0, 30.0], 15)[:59]  # 5-60 s apart
+    t = np.concatenate([[0.0], np.cumsum(steps)])
+    path = save_npz(tmp_path / "sparse.npz", frames, dt=float(np.median(steps)), dx=DX, t=t)
+    assert main(["diagnose", str(path), "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["input"]["resampled"]["from_frames"] == 60 and record["phases"]
