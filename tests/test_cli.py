@@ -340,7 +340,6 @@ BAD_CASES = [
     "wrong ndim",
     "too few frames",
     "truncated",
-    "non-uniform t",
     "negative dt",
     "text dx",
     "even window",

@@ -70,6 +70,11 @@ class PhaseDiagnosis:
             held-out gain (``gain``, reported after the choice, never used for it).
         reason: why the phase was not analysed, else None.
         result: the balance family's :class:`~anra_torch.forecast.GainResult`.
+        forecasts: the held-out frames as ``"measured"``, ``"plain"`` and ``"extended"`` (the chosen
+            model) forecasts, at the scale their RMSE was taken on (for figures); None when not analysed.
+
+    Shape:
+        each of ``forecasts`` ``(K, H, W)``.
     """
 
     phase: Phase
@@ -86,6 +91,7 @@ class PhaseDiagnosis:
     candidates: dict[str, dict[str, float | None]] = field(default_factory=dict)
     reason: str | None = None
     result: GainResult | None = None
+    forecasts: dict[str, Tensor] | None = None
 
     def to_record(self) -> dict[str, Any]:
         """The phase as a JSON-ready dict (the ``"phases"`` element of ``anra diagnose --json``)."""
@@ -190,17 +196,24 @@ def _balance_phase(
     if result.diagnosis.a_plain < 0:
         diagnosis.flags.append("negative")
     held = {"parametric": (result.extended_rmse, result.gain)}
+    predicted = {"parametric": result.predicted_extended}
     validation: dict[str, float] = {}
     if any(n in _SOURCES for n in names) or phase.name == "heating":
         try:
             mapped = source_map_gain(part, dt, dx, result)
             held["source_map"] = (mapped.rmse, mapped.gain)
+            predicted["source_map"] = mapped.predicted
             validation = _inner_balance(part[: result.split + 1], dt, dx, fit_fraction, options)
         except ValueError:
             validation = {}
     chosen = min(validation, key=validation.__getitem__) if validation else "parametric"
     diagnosis.model = chosen
     diagnosis.extended_rmse, diagnosis.gain = held[chosen]
+    diagnosis.forecasts = {
+        "measured": result.measured,
+        "plain": result.predicted_base,
+        "extended": predicted[chosen],
+    }
     diagnosis.candidates = {
         name: {"validation_rmse": validation.get(name), "gain": held[name][1]} for name in held
     }
@@ -215,16 +228,21 @@ def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, optio
     return {"parametric": inner.extended_rmse, "source_map": source_map_gain(fit, dt, dx, inner).rmse}
 
 
+def _box_forecasts(frames: Tensor, dt: float, dx: float, split: int, horizon: int) -> dict[str, Tensor]:
+    """Each small-box model, fitted on the :data:`BOX_WINDOW` frames up to ``split``, forecasting the
+    ``horizon`` frames after it (and ``"measured"``, those frames)."""
+    fit = frames[max(0, split - BOX_WINDOW) : split + 1]
+    out = {"measured": frames[split + 1 : split + 1 + horizon]}
+    for kind in ("plain", "loss", "quasi_steady"):
+        out[kind] = forecast_small_box(fit_small_box(fit, dt, dx, kind), frames, dt, dx, split, horizon)
+    return out
+
+
 def _box_scores(frames: Tensor, dt: float, dx: float, split: int, horizon: int) -> dict[str, float]:
     """RMSE on the interior of the frames after ``split`` for each small-box model fitted just before it."""
-    fit = frames[max(0, split - BOX_WINDOW) : split + 1]
-    measured = frames[split + 1 : split + 1 + horizon, 1:-1, 1:-1]
-    scores = {}
-    for kind in ("plain", "loss", "quasi_steady"):
-        model = fit_small_box(fit, dt, dx, kind)
-        predicted = forecast_small_box(model, frames, dt, dx, split, horizon)[:, 1:-1, 1:-1]
-        scores[kind] = float((predicted - measured).pow(2).mean().sqrt())
-    return scores
+    forecasts = _box_forecasts(frames, dt, dx, split, horizon)
+    measured = forecasts.pop("measured")[:, 1:-1, 1:-1]
+    return {k: float((p[:, 1:-1, 1:-1] - measured).pow(2).mean().sqrt()) for k, p in forecasts.items()}
 
 
 INNER_ORIGINS = (0.5, 0.6, 0.7, 0.8)
@@ -251,7 +269,13 @@ def _small_box_phase(phase: Phase, part: Tensor, dt: float, dx: float, fit_fract
     n = part.shape[0]
     split = split_index(n, fit_fraction)
     validation = _box_validation(part[: split + 1], dt, dx)
-    held = _box_scores(part, dt, dx, split, min(n - 1 - split, BOX_HORIZON))
+    forecasts = _box_forecasts(part, dt, dx, split, min(n - 1 - split, BOX_HORIZON))
+    measured = forecasts["measured"][:, 1:-1, 1:-1]
+    held = {
+        k: float((p[:, 1:-1, 1:-1] - measured).pow(2).mean().sqrt())
+        for k, p in forecasts.items()
+        if k != "measured"
+    }
     chosen = min(("loss", "quasi_steady"), key=validation.__getitem__)
     fit = part[max(0, split - BOX_WINDOW) : split + 1]
     plain = fit_small_box(fit, dt, dx, "plain")
@@ -271,6 +295,11 @@ def _small_box_phase(phase: Phase, part: Tensor, dt: float, dx: float, fit_fract
         candidates={
             k: {"validation_rmse": validation[k], "gain": _gain(held[k], held["plain"])}
             for k in ("loss", "quasi_steady")
+        },
+        forecasts={
+            "measured": forecasts["measured"],
+            "plain": forecasts["plain"],
+            "extended": forecasts[chosen],
         },
     )
     if edge_explained(fit) >= UNRESOLVED:

@@ -118,15 +118,22 @@ def recording_phases(frames: Tensor, t: Tensor | None = None) -> list[Phase]:
     moves heat without adding any); a baseline only when it is flat (its heat content changes under a tenth
     as fast as during the heating's fastest rise). Otherwise the recording
     is one phase, named by its heat content: ``"heating"`` (rises materially), ``"cooling"`` (falls) or
-    ``"steady"`` (neither: diffusion alone, or a balance of input and loss). Phases shorter than
-    :data:`MIN_PHASE_FRAMES` are returned too; the analysis says they are too short.
+    ``"steady"`` (neither: diffusion alone, or a balance of input and loss). Unlike :func:`segment_phases`,
+    heating and cooling share no frame: the interval in which the source switched off belongs to neither.
+    Phases shorter than :data:`MIN_PHASE_FRAMES` are returned too; the analysis says they are too short.
+    Non-finite samples count as their frame's mean here.
 
     Shape:
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
     """
     n = frames.shape[0]
     times = torch.arange(n, dtype=torch.float64) if t is None else torch.as_tensor(t, dtype=torch.float64)
-    content = torch.nanmean(frames.double().reshape(n, -1), dim=1)
+    frames = frames.double()
+    finite = torch.isfinite(frames)
+    if not bool(finite.all()):  # masked samples: their frame's mean, so no signal is NaN
+        fill = torch.where(finite, frames, 0.0).sum((1, 2)) / finite.sum((1, 2)).clamp_min(1)
+        frames = torch.where(finite, frames, fill[:, None, None])
+    content = frames.reshape(n, -1).mean(1)
     steps = content[1:] - content[:-1]
     noise = float((steps - steps.median()).abs().median()) * 1.4826 / 2**0.5 if n > 2 else 0.0
     span = float(content.max() - content.min())
@@ -154,6 +161,9 @@ def recording_phases(frames: Tensor, t: Tensor | None = None) -> list[Phase]:
         kind = ("heating" if whole > 0 else "cooling") if material(whole) else "steady"
         return [Phase(kind, 0, n, float(times[0]), float(times[-1]))]
     assert heating is not None and cooling is not None
+    # The interval in which the source switched off belongs to neither phase: cooling starts at the first
+    # frame after the heating's last (no cooling interval holds seconds of heating).
+    cooling = Phase("cooling", heating.stop, cooling.stop, float(times[heating.stop]), cooling.t_stop)
     phases = [heating, cooling]
     # The heating's fastest rise (a 5-frame running mean of the content's steps, against noise).
     rates = steps[heating.start : heating.stop - 1]
