@@ -13,8 +13,8 @@ import pytest
 import torch
 
 from anra_torch import batch as batch_module
-from anra_torch.batch import run as run_module
 from anra_torch.batch import BATCH_COLUMNS, expand_inputs, read_table, run_batch, write_table
+from anra_torch.batch import run as run_module
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
 from anra_torch.estimator import ANRAEstimator

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.batch import BATCH_COLUMNS, read_table, run_batch
+from anra_torch.batch import BATCH_COLUMNS, read_table, run_batch, write_table
 from anra_torch.cli import main
 from anra_torch.estimator import ANRAResult
 from anra_torch.features import MAX_LOSS_ERROR, MIN_CONFIDENCE, TissueFeatures, feature_summary
@@ -220,8 +220,6 @@ def test_batch_recomputes_an_input_that_changed(one_video: Path, tmp_path: Path)
     # A table from before the key (no parameters column) is recomputed, not trusted.
     rows = read_table(out)
     rows[0]["parameters"] = None
-    from anra_torch.batch import write_table
-
     write_table(out, rows)
     assert run_batch([one_video], out, progress=False).ok == 1
 
