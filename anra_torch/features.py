@@ -331,6 +331,11 @@ class TissueFeatures(nn.Module):
             frames = frames.reshape(-1, 1, 1)  # type: ignore[union-attr]
         video, batched = as_video(frames)
         b, t, h, w = video.shape
+        if self.rule == "linear" and t < 2:
+            raise ValueError(
+                f"rule='linear' integrates between frames and needs at least 2, got {t}; rule='hold' "
+                "(--rule hold) holds a single frame for dt"
+            )
         celsius = to_celsius(video, self.units)
         dt_ = as_spacing(dt, name="dt", unit="s", batch=b, like=celsius)
         dx_ = None if dx is None else as_spacing(dx, name="dx", unit="mm", batch=b, like=celsius)

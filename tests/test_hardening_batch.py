@@ -123,6 +123,12 @@ def test_features_integrate_the_recorded_span_and_name_the_constants(
     held = json.loads(out)
     assert held["omega_max"] == pytest.approx(omega_constant(60.0, 11.0), rel=1e-12)  # 11.76
     assert (held["dose"]["rule"], held["dose"]["span_s"]) == ("hold", 11.0)
+    # One frame has no span: the message says what to do.
+    one = save_npz(tmp_path / "one.npz", np.full((1, 64, 64), 60.0), dt=1.0, dx=0.5)
+    code, out, err = run(capsys, "features", one, "--json")
+    assert code == 2 and err.count("\n") == 1 and "needs at least 2, got 1" in err and "--rule hold" in err
+    code, out, err = run(capsys, "features", one, "--json", "--rule", "hold")
+    assert code == 0 and json.loads(out)["omega_max"] == pytest.approx(omega_constant(60.0, 1.0), rel=1e-12)
 
 
 # -------------------------------------------------------------- map extremes over confident windows
