@@ -39,6 +39,7 @@ import torch
 from torch import Tensor
 
 __all__ = [
+    "CEM43_R",
     "GAS_CONSTANT",
     "RULES",
     "SKIN",
@@ -215,7 +216,9 @@ def _phi(z: Tensor) -> Tensor:
 
 
 # ------------------------------------------------------------------------------------------ CEM43
-_LOG_R_HIGH, _LOG_R_LOW = math.log(2.0), math.log(4.0)  # R^(43 - T) = exp(c (T - 43))
+CEM43_R: tuple[float, float] = (0.5, 0.25)
+"""Sapareto-Dewey ``R`` at or above 43 C and below it."""
+_LOG_R_HIGH, _LOG_R_LOW = -math.log(CEM43_R[0]), -math.log(CEM43_R[1])  # R^(43 - T) = exp(c (T - 43))
 
 
 def _cem_rate(x: Tensor) -> Tensor:

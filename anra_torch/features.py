@@ -23,18 +23,37 @@ map                    unit         how
                                     diffusion and loss (a moving source leaves its track here)
 =====================  ===========  =====================================================================
 
+The first six (:data:`DOSE_MAPS`: doses, peak, times above) need no spatial filter: they are computed
+for any frame size, down to one pixel (a ``(T, 1, 1)`` video or a ``(T,)`` trace, e.g. a thermocouple)
+and any number of frames the dose rule allows. The other seven (the rate and ANRA maps) need the
+estimator's filters to fit in the frame (by default 20 x 20 px and 5 frames) and a pixel size; where they
+do not fit they are absent, with the reason in :attr:`TissueFeatureMaps.absent` and the messages.
+
 ``U`` and ``L`` are ANRA's balanced terms: the Holoborodko time derivative ``D_t`` and the Laplacian of
 its temporal partner average ``S_t`` of the Gaussian-smoothed frames (the same filters on both sides, as
 in :mod:`anra_torch.selection`, here window by window); ``T_0`` is the pixel's first averaged value (the
 tissue is assumed to start at the temperature the loss pulls towards). ``a`` and ``b`` are fitted
 jointly, with the errors-in-variables correction of ``L``, on the frames after each pixel's peak (no
 source acts there in a heating-then-cooling history) within a ``window``; the source is what the balance
-leaves over the whole video.
+leaves over the whole video. The standard error of each window's ``b``
+(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the measured white noise propagated through the same
+filters and the window's normal equations (first order, :data:`LOSS_REPLICATES` seeded noise videos:
+about 25 % relative precision).
+
+Extremes: ``diffusivity_max`` is taken over confident windows only (``confidence >=``
+:data:`MIN_CONFIDENCE`), ``loss_rate_max`` and ``source_max`` over those whose ``b`` is also measured:
+standard error times the recorded span ``(T - 1) dt`` at most :data:`MAX_LOSS_ERROR` (the loss the
+window implies over the record known to within 10 %). A window where the estimator has no signal, or a
+pixel that never cools, otherwise gives any value: e.g. 2.33 mm^2/s and 227 1/s on the paper's pure
+heat video (a = 0.2, no loss). NaN when no window qualifies.
 
 Denoised history: the doses, the peak and the times above are taken from frames smoothed in space with
-a Gaussian of ``smoothing`` px (reflected border): raw noise would inflate the peak and the doses, which
-grow exponentially with temperature. Temperatures are converted to Celsius (``units``; checked by
-:func:`anra_torch.dose.to_celsius`).
+a Gaussian of ``smoothing`` px (reflected border; frames smaller than its radius are used raw, and the
+messages say so): raw noise would inflate the peak and the doses, which grow exponentially with
+temperature. Temperatures are converted to Celsius (``units``; checked by
+:func:`anra_torch.dose.to_celsius`). The doses integrate the frames by ``rule`` (default ``"linear"``: the
+piecewise-linear history over the recorded span ``(T - 1) dt``; ``"hold"``: each frame held for ``dt``,
+``T dt``; see :mod:`anra_torch.dose`).
 
 Non-finite samples are masked: they add nothing to the doses (see :mod:`anra_torch.dose`), are filled
 with the pixel's mean over its finite frames for the filters, and are counted in ``masked``.
@@ -44,17 +63,18 @@ Everything is computed in float64 without gradient tracking.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 
 from anra_torch.balance.filters import MatchedFilters
-from anra_torch.balance.moments import Moments, TermNoise, accumulate
+from anra_torch.balance.loss import LOSS_REPLICATES, fit_loss_windows
 from anra_torch.balance.noise import estimate_noise_sd
-from anra_torch.checks import as_spacing, as_video
+from anra_torch.checks import as_spacing, as_video, one_line
 from anra_torch.dose import (
+    CEM43_R,
+    GAS_CONSTANT,
     RULES,
     SKIN,
     UNITS,
@@ -68,10 +88,26 @@ from anra_torch.estimator import ANRAEstimator
 from anra_torch.layers.attention import rtc_attention
 from anra_torch.layers.derivatives import GaussianSmoothing
 
-__all__ = ["MAPS", "TissueFeatureMaps", "TissueFeatures", "feature_summary", "save_feature_maps"]
+__all__ = [
+    "DOSE_MAPS",
+    "LOSS_REPLICATES",
+    "MAPS",
+    "MAX_LOSS_ERROR",
+    "MIN_CONFIDENCE",
+    "TissueFeatureMaps",
+    "TissueFeatures",
+    "feature_summary",
+    "save_feature_maps",
+]
 
 _F64 = torch.float64
-_MIN_DECORRELATION = 0.05  # 1 - corr(L, T - T_0)^2 below this: a and b cannot be told apart
+
+MIN_CONFIDENCE = 0.9
+"""Windows with at least this estimator confidence (the signal fraction of their Laplacian energy) are
+confident: the ANRA map extremes come from them."""
+MAX_LOSS_ERROR = 0.1
+"""A window's loss rate counts for the extremes when its standard error times the recorded span is at most
+this (the loss over the record, ``b (T - 1) dt``, known to within 0.1)."""
 
 MAPS: tuple[str, ...] = (
     "peak_temperature",
@@ -89,6 +125,9 @@ MAPS: tuple[str, ...] = (
     "source",
 )
 """Maps of the default :class:`TissueFeatures` (one ``time_above_<C>`` per threshold)."""
+
+DOSE_MAPS: tuple[str, ...] = MAPS[:6]
+"""The maps that need no spatial filter (any frame size); the others need the estimator's filters to fit."""
 
 _UNITS = {
     "peak_temperature": "C",
@@ -109,14 +148,19 @@ class TissueFeatureMaps:
     """Output of :class:`TissueFeatures` (batched: leading ``B``; a single video drops it).
 
     Attributes:
-        maps: name -> map ``(B, H, W)``, finite everywhere.
-        summary: name -> per-video value ``(B,)``: ``<map>_max`` for every map, ``damaged_fraction``
-            (pixels with ``omega >= 1``), ``diffusivity_global`` (mm^2/s, NaN only when ``valid`` is
-            False), ``n_masked`` (non-finite samples).
+        maps: name -> map ``(B, H, W)``, finite everywhere; the rate and ANRA maps only where they fit.
+        summary: name -> per-video value ``(B,)``: ``<map>_max`` for every map (the ANRA maps' over
+            confident windows, NaN when there are none; see the module docstring), ``damaged_fraction``
+            (pixels with ``omega >= 1``), ``n_masked`` (non-finite samples) and, with the ANRA maps,
+            ``diffusivity_global`` (mm^2/s, NaN only when ``valid`` is False), ``confident_fraction`` and
+            ``loss_confident_fraction`` (pixels whose windows count for the extremes).
         units: name -> unit of every map and summary value.
         masked: non-finite samples per pixel, ``(B, H, W)``.
         valid: whether the estimator measured a diffusivity, ``(B,)``.
         messages: one line per video ("" when all went well).
+        loss_rate_std_error: standard error of ``loss_rate`` (1/s, inf where the window never cools),
+            ``(B, H, W)``; None without the ANRA maps.
+        absent: map name -> why it was not computed (frames too small or too few, no pixel size).
     """
 
     maps: dict[str, Tensor]
@@ -125,36 +169,53 @@ class TissueFeatureMaps:
     masked: Tensor
     valid: Tensor
     messages: tuple[str, ...]
+    loss_rate_std_error: Tensor | None = None
+    absent: dict[str, str] = field(default_factory=dict)
 
     def stack(self, names: Sequence[str] | None = None) -> Tensor:
         """The maps as channels, ``(B, F, H, W)`` (or ``(F, H, W)``), in the order of ``names``."""
         names = list(self.maps) if names is None else list(names)
         unknown = [n for n in names if n not in self.maps]
         if unknown:
-            raise ValueError(f"unknown feature map {unknown[0]!r}; expected one of: {', '.join(self.maps)}")
+            why = f" ({self.absent[unknown[0]]})" if unknown[0] in self.absent else ""
+            raise ValueError(
+                f"unknown feature map {unknown[0]!r}{why}; expected one of: {', '.join(self.maps)}"
+            )
         return torch.stack([self.maps[n] for n in names], dim=-3)
 
     def unbatched(self) -> TissueFeatureMaps:
         """The same result with the batch dimension of size 1 removed."""
+        error = self.loss_rate_std_error
         return replace(
             self,
             maps={k: v[0] for k, v in self.maps.items()},
             summary={k: v[0] for k, v in self.summary.items()},
             masked=self.masked[0],
             valid=self.valid[0],
+            loss_rate_std_error=None if error is None else error[0],
         )
 
 
-def _solve(
-    s_ll: Tensor, s_lt: Tensor, s_tt: Tensor, s_ul: Tensor, s_ut: Tensor
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Least squares ``U = a L - b rise`` from its sums: ``(a, b, well_conditioned)``."""
-    det = s_lt * s_lt - s_ll * s_tt  # of [s_ll, -s_lt; s_lt, -s_tt]
-    ok = (s_ll > 0) & (s_tt > 0) & (det.abs() > _MIN_DECORRELATION * s_ll * s_tt)
-    safe = torch.where(ok, det, 1.0)
-    a = torch.where(ok, (-s_ul * s_tt + s_lt * s_ut) / safe, 0.0)
-    b = torch.where(ok, (s_ll * s_ut - s_lt * s_ul) / safe, 0.0)
-    return a, b, ok
+def _fill(celsius: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Non-finite samples filled with the pixel's mean of its finite frames (37 C for a pixel never seen):
+    ``(filled (B, T, H, W), finite (B, T, H, W), per-pixel fill (B, H, W))``."""
+    finite = torch.isfinite(celsius)
+    count = finite.sum(1, keepdim=True)
+    fill = torch.where(finite, celsius, 0.0).sum(1, keepdim=True) / count.clamp_min(1)
+    fill = torch.where(count > 0, fill, 37.0)  # a pixel never seen: body temperature, counted as masked
+    return torch.where(finite, celsius, fill), finite, fill[:, 0]
+
+
+def _max_over(m: Tensor, where: Tensor | None) -> Tensor:
+    """Per-video maximum of ``m`` ``(B, H, W)`` over the pixels ``where`` (all when None); NaN if none."""
+    if where is None:
+        return m.flatten(1).amax(1)
+    top = torch.where(where, m, -torch.inf).flatten(1).amax(1)
+    return torch.where(where.flatten(1).any(1), top, torch.nan)
+
+
+def _join(*parts: str) -> str:
+    return "; ".join(dict.fromkeys(p for p in parts if p))
 
 
 class TissueFeatures(nn.Module):
@@ -164,7 +225,8 @@ class TissueFeatures(nn.Module):
         units: temperature unit of the frames, ``"C"`` or ``"K"``.
         thresholds: Celsius thresholds of the ``time_above_<C>`` maps.
         constants: Arrhenius constants (default :data:`anra_torch.dose.SKIN`).
-        rule: how the dose integrates the frame history (:data:`anra_torch.dose.RULES`).
+        rule: how the dose integrates the frame history (:data:`anra_torch.dose.RULES`): ``"linear"``
+            (default; the recorded span ``(T - 1) dt``) or ``"hold"`` (each frame held for ``dt``).
         smoothing: Gaussian sigma (px) of the denoised history the doses, peak and times above are taken
             from (0: the raw frames).
         term_smoothing: Gaussian sigma (px) before the time derivative and the Laplacian (rates,
@@ -174,8 +236,8 @@ class TissueFeatures(nn.Module):
         sharpness: RTC attention sharpness on ``|dT/dt| / max`` (unit invariant).
 
     Shape:
-        ``frames`` ``(B, T, H, W)`` or ``(T, H, W)`` with ``T >= time_length``; ``dt`` (s) and ``dx`` (mm)
-        floats or ``(B,)``; maps ``(B, H, W)``.
+        ``frames`` ``(B, T, H, W)``, ``(T, H, W)`` or a one-pixel trace ``(T,)`` (as ``(T, 1, 1)``); ``dt``
+        (s) and ``dx`` (mm) floats or ``(B,)``; maps ``(B, H, W)``.
 
     Example:
         >>> from anra_torch.simulation import gaussian_blob
@@ -184,6 +246,9 @@ class TissueFeatures(nn.Module):
         >>> out = TissueFeatures()(video, dt=0.5, dx=0.1)
         >>> round(float(out.summary["peak_temperature_max"]), 1), out.maps["omega"].shape
         (65.6, torch.Size([32, 32]))
+        >>> trace = TissueFeatures()(torch.full((601,), 43.0), dt=1.0)  # 10 min at 43 C, no dx
+        >>> round(float(trace.summary["cem43_minutes_max"]), 6), "diffusivity" in trace.absent
+        (10.0, True)
     """
 
     def __init__(
@@ -192,7 +257,7 @@ class TissueFeatures(nn.Module):
         units: str = "C",
         thresholds: Sequence[float] = (43.0, 50.0, 60.0),
         constants: ArrheniusConstants = SKIN,
-        rule: str = "hold",
+        rule: str = "linear",
         smoothing: float = 1.0,
         term_smoothing: float = 2.0,
         window: int = 9,
@@ -236,133 +301,139 @@ class TissueFeatures(nn.Module):
         above = tuple(f"time_above_{t:g}" for t in self.thresholds)
         return ("peak_temperature", *above, *MAPS[4:])
 
+    def history_smoothing(self, height: int, width: int) -> float:
+        """The Gaussian sigma (px) the doses of ``height x width`` px frames are taken at: ``smoothing``,
+        or 0 when the frames are no larger than its radius (a reflected border needs more)."""
+        fits = min(height, width) > self.history_smoother.radius
+        return self.history_smoother.sigma if fits else 0.0
+
     @torch.no_grad()
-    def forward(self, frames: Tensor, dt: float | Tensor, dx: float | Tensor) -> TissueFeatureMaps:
-        """Compute every map and the per-video summary.
+    def forward(
+        self, frames: Tensor, dt: float | Tensor, dx: float | Tensor | None = None
+    ) -> TissueFeatureMaps:
+        """Compute every map that fits and the per-video summary.
 
         Args:
-            frames: temperatures in ``units``, ``(T, H, W)`` or ``(B, T, H, W)``.
+            frames: temperatures in ``units``, ``(T, H, W)``, ``(B, T, H, W)`` or a trace ``(T,)``.
             dt: frame period in s.
-            dx: pixel size in mm.
+            dx: pixel size in mm; None computes only the dose maps (:data:`DOSE_MAPS`).
 
         Returns:
-            :class:`TissueFeatureMaps` (unbatched for a single video).
+            :class:`TissueFeatureMaps` (unbatched for a single video or trace).
 
         Raises:
-            ValueError: bad shapes or spacings, too few frames, or temperatures that do not fit
-                ``units`` (below absolute zero, or a range only plausible in the other unit).
+            ValueError: bad shapes or spacings, fewer frames than ``rule`` needs (2 for ``"linear"``), or
+                temperatures that do not fit ``units`` (below absolute zero, or a range only plausible in
+                the other unit). Frames too small or too few for the rate and ANRA maps do not raise:
+                those maps are absent, with the reason.
         """
-        video, batched = as_video(frames, min_frames=self.time.length)
-        b, _, h, w = video.shape
+        if getattr(frames, "ndim", None) == 1:
+            frames = frames.reshape(-1, 1, 1)  # type: ignore[union-attr]
+        video, batched = as_video(frames)
+        b, t, h, w = video.shape
+        if self.rule == "linear" and t < 2:
+            raise ValueError(
+                f"rule='linear' integrates between frames and needs at least 2, got {t}; rule='hold' "
+                "(--rule hold) holds a single frame for dt"
+            )
         celsius = to_celsius(video, self.units)
         dt_ = as_spacing(dt, name="dt", unit="s", batch=b, like=celsius)
-        dx_ = as_spacing(dx, name="dx", unit="mm", batch=b, like=celsius)
-        finite = torch.isfinite(celsius)
+        dx_ = None if dx is None else as_spacing(dx, name="dx", unit="mm", batch=b, like=celsius)
+        filled, finite, fill = _fill(celsius)
         masked = (~finite).sum(1)
-        count = finite.sum(1, keepdim=True)
-        fill = torch.where(finite, celsius, 0.0).sum(1, keepdim=True) / count.clamp_min(1)
-        fill = torch.where(count > 0, fill, 37.0)  # a pixel never seen: body temperature, counted as masked
-        filled = torch.where(finite, celsius, fill)
-
-        maps: dict[str, Tensor] = {}
-        history = self.history_smoother(filled)
-        history_masked = torch.where(finite, history, torch.nan)
-        maps["peak_temperature"] = history.masked_fill(~finite, -torch.inf).amax(1)
-        maps["peak_temperature"] = torch.where(count[:, 0] > 0, maps["peak_temperature"], fill[:, 0])
-        for t in self.thresholds:
-            maps[f"time_above_{t:g}"] = time_above(history_masked, dt_, t, rule=self.rule)
-        maps["cem43_minutes"] = cem43(history_masked, dt_, rule=self.rule)
-        maps["omega"] = arrhenius_omega(history_masked, dt_, constants=self.constants, rule=self.rule)
-
-        terms = self.filters.terms(filled, dt_, dx_, ("U", "L", "T"))  # each (B, K, H, W)
-        rate = terms["U"]
-        maps["heating_rate"] = rate.amax(1).clamp_min(0)
-        maps["cooling_rate"] = (-rate).amax(1).clamp_min(0)
-        attention = rtc_attention(rate, sharpness=self.sharpness, unit_invariant=True)
-        maps["rtc_attention"] = attention.mean(1) * (h * w)
-
-        result = self.estimator(video, dt_, dx_)
-        global_a = torch.where(result.valid, result.diffusivity, torch.zeros_like(result.diffusivity))
-        field = torch.where(result.confidence > 0, result.field, global_a.view(b, 1, 1))
-        maps["diffusivity"] = torch.nan_to_num(field, nan=0.0)
-        maps["confidence"] = result.confidence
-        noise_sd = estimate_noise_sd(filled).reshape(b).to(_F64)
-        loss, source = self._effects(terms, maps["diffusivity"], noise_sd, dt_, dx_)
-        maps["loss_rate"], maps["source"] = loss, source
-
+        maps = self._dose_maps(filled, finite, fill, dt_)
+        sigma = self.history_smoothing(h, w)
+        raw_note = (
+            f"frames of {h} x {w} px are too small for the {self.history_smoother.sigma:g} px Gaussian: "
+            "doses, peak and times above from the raw frames"
+            if sigma != self.history_smoother.sigma
+            else ""
+        )
+        spatial = self._spatial(video, filled, dt_, dx_)
+        reason = spatial if isinstance(spatial, str) else ""
+        if not reason:
+            maps |= spatial["maps"]
         units = {name: _UNITS.get(name, "s") for name in maps}
-        summary = {f"{name}_max": m.flatten(1).amax(1) for name, m in maps.items()}
-        summary["damaged_fraction"] = (maps["omega"] >= 1).flatten(1).to(_F64).mean(1)
-        summary["diffusivity_global"] = result.diffusivity
-        summary["n_masked"] = masked.flatten(1).sum(1)
+        summary = self._summary(maps, masked, None if reason else spatial, dt_ * (t - 1))
         units |= {f"{name}_max": unit for name, unit in units.items()}
-        units |= {"damaged_fraction": "1", "diffusivity_global": "mm^2/s", "n_masked": "samples"}
+        units |= {"damaged_fraction": "1", "n_masked": "samples", "diffusivity_global": "mm^2/s"}
+        units |= {"confident_fraction": "1", "loss_confident_fraction": "1"}
+        units = {k: v for k, v in units.items() if k in maps or k in summary}
+        result = None if reason else spatial["result"]
         # Only the estimator's reasons for no diffusivity are passed on: its warning on a valid, significantly
         # negative a is the rule on heated scenes, where the source has its own map.
         messages = tuple(
-            "; ".join(
-                part
-                for part in (
-                    "" if ok else msg,
-                    f"{int(n)} non-finite samples masked" if int(n) else "",
-                )
-                if part
+            _join(
+                "" if result is None or bool(result.valid[i]) else result.messages[i],
+                f"rate and ANRA maps not computed: {reason}" if reason else "",
+                raw_note,
+                f"{int(n)} non-finite samples masked" if int(n) else "",
             )
-            for msg, ok, n in zip(
-                result.messages, result.valid.tolist(), summary["n_masked"].tolist(), strict=True
-            )
+            for i, n in enumerate(summary["n_masked"].tolist())
         )
-        out = TissueFeatureMaps(maps, summary, units, masked, result.valid, messages)
+        valid = torch.zeros(b, dtype=torch.bool) if result is None else result.valid
+        absent = {name: reason for name in self.map_names if name not in maps}
+        error = None if reason else spatial["loss_rate_std_error"]
+        out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent)
         return out if batched else out.unbatched()
 
-    def _effects(
-        self, terms: dict[str, Tensor], fallback: Tensor, noise_sd: Tensor, dt: Tensor, dx: Tensor
-    ) -> tuple[Tensor, Tensor]:
-        """Loss-rate (1/s) and source (K) maps from the balance ``U = a L - b (T - T_0) + q``.
+    def _dose_maps(self, filled: Tensor, finite: Tensor, fill: Tensor, dt: Tensor) -> dict[str, Tensor]:
+        """Peak, times above, CEM43 and Omega of the denoised history: no spatial filter needed."""
+        h, w = filled.shape[-2:]
+        history = self.history_smoother(filled) if self.history_smoothing(h, w) else filled
+        history_masked = torch.where(finite, history, torch.nan)
+        seen = finite.any(1)
+        maps = {"peak_temperature": history.masked_fill(~finite, -torch.inf).amax(1)}
+        maps["peak_temperature"] = torch.where(seen, maps["peak_temperature"], fill)
+        for t in self.thresholds:
+            maps[f"time_above_{t:g}"] = time_above(history_masked, dt, t, rule=self.rule)
+        maps["cem43_minutes"] = cem43(history_masked, dt, rule=self.rule)
+        maps["omega"] = arrhenius_omega(history_masked, dt, constants=self.constants, rule=self.rule)
+        return maps
 
-        ``a`` and ``b`` are fitted jointly by least squares on the cooling frames (after each pixel's
-        peak) of a ``window`` around each pixel, with the noise energy of ``L`` removed
-        (errors-in-variables); where that 2 x 2 system is ill-conditioned ``a`` is ``fallback`` and ``b`` 0.
-        """
-        rate, lap, average = terms["U"], terms["L"], terms["T"]
-        rise = average - average[:, :1]
-        k = torch.arange(average.shape[1], device=average.device).view(1, -1, 1, 1)
-        cooling = (k > average.argmax(1, keepdim=True)).to(_F64)
-        # The noise of U and L (rise's is left uncorrected: it enters b only through its own energy).
-        covariance = torch.zeros(len(noise_sd), 3, 3, dtype=_F64)
-        covariance[:, :2, :2] = self.filters.noise_covariance(("U", "L"), noise_sd**2, dt, dx)
-        per_pixel = accumulate(
-            {"U": rate, "L": lap, "R": rise},
-            ("U", "L", "R"),
-            dims=(1,),
-            weights=cooling,
-            noise=TermNoise(covariance),
-        ).map(lambda x: x.movedim((-2, -1), (1, 2)))  # (B, 3, 3, H, W)
-        n = self.window
+    def _spatial(self, video: Tensor, filled: Tensor, dt: Tensor, dx: Tensor | None) -> dict | str:
+        """The rate and ANRA maps, the estimator's result and the loss rate's standard error; or why the
+        frames do not allow them (the filters' own one-line requirement)."""
+        if dx is None:
+            return "no pixel size (pass dx, --dx in mm)"
+        b, _, h, w = video.shape
+        try:
+            result = self.estimator(video, dt, dx)  # the strictest size and length requirement
+            terms = self.filters.terms(filled, dt, dx, ("U", "L", "T"))  # each (B, K, H, W)
+        except ValueError as err:
+            return one_line(err)
+        rate = terms["U"]
+        maps = {
+            "heating_rate": rate.amax(1).clamp_min(0) + 0.0,
+            "cooling_rate": (-rate).amax(1).clamp_min(0) + 0.0,
+        }
+        attention = rtc_attention(rate, sharpness=self.sharpness, unit_invariant=True)
+        maps["rtc_attention"] = attention.mean(1) * (h * w)
+        global_a = torch.where(result.valid, result.diffusivity, torch.zeros_like(result.diffusivity))
+        field_a = torch.where(result.confidence > 0, result.field, global_a.view(b, 1, 1))
+        maps["diffusivity"] = torch.nan_to_num(field_a, nan=0.0)
+        maps["confidence"] = result.confidence
+        noise_sd = estimate_noise_sd(filled).reshape(b).to(_F64)
+        fit = fit_loss_windows(self.filters, terms, maps["diffusivity"], noise_sd, dt, dx, window=self.window)
+        maps["loss_rate"], maps["source"] = fit.loss_rate, fit.source
+        return {"maps": maps, "result": result, "loss_rate_std_error": fit.std_error}
 
-        def box(x: Tensor) -> Tensor:
-            flat = x.reshape(-1, 1, *x.shape[-2:])
-            pooled = F.avg_pool2d(flat, n, stride=1, padding=n // 2, count_include_pad=False)
-            return pooled.reshape(x.shape)
-
-        def sums(moments: Moments) -> tuple[Tensor, ...]:
-            c = moments.corrected  # (B, 3, 3, ...): U, L, R
-            return c[:, 1, 1], c[:, 1, 2], c[:, 2, 2], c[:, 0, 1], c[:, 0, 2]
-
-        # Whole video first (the fallback), then each window.
-        whole = per_pixel.map(lambda x: x.sum((-2, -1), keepdim=True))
-        a_video, b_video, ok_video = _solve(*sums(whole))
-        a_video = torch.where(ok_video, a_video, fallback.flatten(1).median(1).values.view(-1, 1, 1))
-        b_video = torch.where(ok_video, b_video, 0.0)
-        s_ll, s_lt, s_tt, s_ul, s_ut = sums(per_pixel.map(box))
-        a, b, ok = _solve(s_ll, s_lt, s_tt, s_ul, s_ut)
-        # Ill-conditioned window (a single spot cooling: L follows T - T_0): the video's a, local b.
-        b_local = torch.where(s_tt > 0, -(s_ut - a_video * s_lt) / torch.where(s_tt > 0, s_tt, 1.0), b_video)
-        a = torch.where(ok, a, a_video.expand_as(a))
-        b = torch.where(ok, b, b_local)
-        residual = rate - a.unsqueeze(1) * lap + b.unsqueeze(1) * rise
-        source = residual.sum(1) * dt.view(-1, 1, 1)
-        return b, source
+    def _summary(self, maps: dict[str, Tensor], masked: Tensor, spatial: dict | None, span: Tensor) -> dict:
+        """Per-video values ``(B,)``: map maxima (the ANRA maps' over confident windows) and the rest."""
+        gates: dict[str, Tensor] = {}
+        if spatial is not None:
+            confident = maps["confidence"] >= MIN_CONFIDENCE
+            error = spatial["loss_rate_std_error"]
+            measured = confident & (error * span.view(-1, 1, 1) <= MAX_LOSS_ERROR)
+            gates = {"diffusivity": confident, "loss_rate": measured, "source": measured}
+        summary = {f"{name}_max": _max_over(m, gates.get(name)) for name, m in maps.items()}
+        summary["damaged_fraction"] = (maps["omega"] >= 1).flatten(1).to(_F64).mean(1)
+        summary["n_masked"] = masked.flatten(1).sum(1)
+        if spatial is not None:
+            summary["diffusivity_global"] = spatial["result"].diffusivity
+            summary["confident_fraction"] = gates["diffusivity"].flatten(1).to(_F64).mean(1)
+            summary["loss_confident_fraction"] = gates["loss_rate"].flatten(1).to(_F64).mean(1)
+        return summary
 
     def extra_repr(self) -> str:
         return (
@@ -372,42 +443,95 @@ class TissueFeatures(nn.Module):
 
 
 # ------------------------------------------------------------------------------------ command line
+_RULE_TEXT = {
+    "linear": "the frames joined by straight lines over the recorded span (T - 1) dt, integrated exactly",
+    "hold": "each frame held for dt (the Sapareto-Dewey sum), T dt",
+}
+
+
+def _dose_record(extractor: TissueFeatures, frames: int, dt: float, sigma: float) -> dict:
+    """How the doses were computed: rule, span, smoothing, thresholds and every constant used."""
+    c = extractor.constants
+    return {
+        "rule": extractor.rule,
+        "integration": _RULE_TEXT[extractor.rule],
+        "span_s": (frames - 1) * dt if extractor.rule == "linear" else frames * dt,
+        "smoothing_px": sigma,
+        "thresholds_C": list(extractor.thresholds),
+        "cem43": {
+            "formula": "integral R^(43 - T) dt / 60 min",
+            "R_at_or_above_43C": CEM43_R[0],
+            "R_below_43C": CEM43_R[1],
+        },
+        "arrhenius": {
+            "formula": "integral A exp(-Ea / (R_gas T_K)) dt",
+            "A_per_s": c.frequency,
+            "Ea_J_per_mol": c.activation_energy,
+            "R_gas_J_per_mol_K": GAS_CONSTANT,
+        },
+    }
+
+
 def feature_summary(
-    frames: Tensor, dt: float, dx: float, *, units: str = "C"
+    frames: Tensor,
+    dt: float,
+    dx: float | None = None,
+    *,
+    units: str = "C",
+    rule: str = "linear",
+    constants: ArrheniusConstants = SKIN,
 ) -> tuple[dict, TissueFeatureMaps]:
     """The ``anra features --json`` object of one video and the maps it was made from.
 
     The object holds every per-video value of :attr:`TissueFeatureMaps.summary` (at least
     ``cem43_minutes_max``, ``omega_max``, ``peak_temperature_max``), plus ``frames``, ``height``,
-    ``width``, ``dt`` (s), ``dx`` (mm), ``temperature_unit`` (the declared one; every temperature
-    reported is Celsius), ``masked_fraction``, ``valid``, ``message`` and ``units`` (key -> unit).
-    Non-finite numbers become None.
+    ``width``, ``dt`` (s), ``dx`` (mm or None), ``temperature_unit`` (the declared one; every
+    temperature reported is Celsius), ``masked_fraction``, ``valid``, ``message``, ``dose`` (the rule,
+    recorded span, smoothing, thresholds and the CEM43 and Arrhenius constants used), ``extremes`` (over
+    which windows the ANRA maps' maxima were taken; None without them), ``absent`` (map -> why it was not
+    computed) and ``units`` (key -> unit). Non-finite numbers become None.
+
+    Args:
+        frames: temperatures in ``units``.
+        dt: frame period in s.
+        dx: pixel size in mm; None gives only the dose maps.
+        units: ``"C"`` or ``"K"``.
+        rule: dose integration, ``"linear"`` or ``"hold"`` (:data:`anra_torch.dose.RULES`).
+        constants: Arrhenius constants.
 
     Shape:
-        ``frames`` ``(T, H, W)``.
+        ``frames`` ``(T, H, W)`` or ``(T,)``.
     """
-    maps = TissueFeatures(units=units)(frames, dt, dx)
-    n = frames.shape[0] * frames.shape[1] * frames.shape[2]
-    record: dict = {
-        "frames": int(frames.shape[0]),
-        "height": int(frames.shape[1]),
-        "width": int(frames.shape[2]),
-    }
-    record |= {"dt": float(dt), "dx": float(dx), "temperature_unit": units}
+    extractor = TissueFeatures(units=units, rule=rule, constants=constants)
+    maps = extractor(frames, dt, dx)
+    t, h, w = (*frames.shape, 1, 1)[:3]
+    record: dict = {"frames": int(t), "height": int(h), "width": int(w)}
+    record |= {"dt": float(dt), "dx": None if dx is None else float(dx), "temperature_unit": units}
     for key, value in maps.summary.items():
-        number = float(value)
-        record[key] = number if torch.isfinite(value) else None
+        record[key] = float(value) if torch.isfinite(value) else None
     record["n_masked"] = int(maps.summary["n_masked"])
-    record["masked_fraction"] = record["n_masked"] / n
+    record["masked_fraction"] = record["n_masked"] / (t * h * w)
     record["valid"] = bool(maps.valid)
     record["message"] = maps.messages[0]
+    record["dose"] = _dose_record(extractor, int(t), float(dt), extractor.history_smoothing(h, w))
+    record["extremes"] = (
+        None
+        if "confidence" in maps.absent
+        else {
+            "diffusivity_max": f"windows with confidence >= {MIN_CONFIDENCE:g}",
+            "loss_rate_max, source_max": f"windows with confidence >= {MIN_CONFIDENCE:g} whose loss rate's "
+            f"standard error times the recorded span is <= {MAX_LOSS_ERROR:g}",
+        }
+    )
+    record["absent"] = dict(maps.absent)
     record["units"] = {"dt": "s", "dx": "mm", **{k: maps.units[k] for k in maps.summary}}
     return record, maps
 
 
-def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: float) -> str:
-    """Write the maps of one video to ``.npz``: one ``(H, W)`` array per map, ``masked``, ``dt``, ``dx``
-    and ``units_<name>`` strings. Returns the path written (``.npz`` appended when missing).
+def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: float | None) -> str:
+    """Write the maps of one video to ``.npz``: one ``(H, W)`` array per map computed, ``masked``, ``dt``,
+    ``dx`` (when known) and ``units_<name>`` strings. Returns the path written (``.npz`` appended when
+    missing).
 
     Raises:
         OSError: the file cannot be written.
@@ -418,5 +542,6 @@ def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: floa
     arrays = {name: m.detach().cpu().numpy() for name, m in maps.maps.items()}
     arrays["masked"] = maps.masked.cpu().numpy()
     units = {f"units_{name}": np.array(maps.units[name]) for name in maps.maps}
-    np.savez_compressed(target, dt=np.array(dt), dx=np.array(dx), **arrays, **units)
+    spacing = {"dt": np.array(dt)} | ({} if dx is None else {"dx": np.array(dx)})
+    np.savez_compressed(target, **spacing, **arrays, **units)
     return target

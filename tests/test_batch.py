@@ -14,6 +14,7 @@ import torch
 
 from anra_torch import batch as batch_module
 from anra_torch.batch import BATCH_COLUMNS, expand_inputs, read_table, run_batch, write_table
+from anra_torch.batch import run as run_module
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
 from anra_torch.estimator import ANRAEstimator
@@ -88,7 +89,7 @@ def test_float32_default_agrees_with_float64(videos: Path, tmp_path: Path) -> No
     assert row["diffusivity"] == pytest.approx(_offline(videos / "p0.npz"), rel=1e-4)
 
 
-def test_resume_skips_done_inputs_and_retries_errors(videos: Path, tmp_path: Path) -> None:
+def test_resume_skips_done_inputs_and_retries_errors(videos: Path, tmp_path: Path, monkeypatch) -> None:
     folder = tmp_path / "in"
     folder.mkdir()
     for name in ("p0.npz", "p1.npz", "broken.npz"):
@@ -96,10 +97,13 @@ def test_resume_skips_done_inputs_and_retries_errors(videos: Path, tmp_path: Pat
     out = tmp_path / "r.csv"
     first = run_batch([folder], out, progress=False)
     assert (first.ok, first.failed) == (2, 1)
-    (folder / "p0.npz").write_bytes(b"garbage")  # a done input is not read again
+    loaded: list[str] = []
+    load = run_module._load
+    monkeypatch.setattr(run_module, "_load", lambda path, options: loaded.append(path) or load(path, options))
     (folder / "broken.npz").write_bytes((videos / "p2.npz").read_bytes())  # a fixed one is retried
     second = run_batch([folder], out, progress=False)
     assert (second.skipped, second.ok, second.failed) == (2, 1, 0)
+    assert [Path(p).name for p in loaded] == ["broken.npz"]  # done inputs are not read again
     assert [r["status"] for r in read_table(out)] == ["ok", "ok", "ok"]
 
 

@@ -62,10 +62,14 @@ def test_json_values_match_the_dose_of_the_denoised_history(
     assert record["units"]["omega_max"] == "1" and record["temperature_unit"] == "C"
     assert (record["frames"], record["height"], record["width"]) == (41, 40, 40)
     assert record["n_masked"] == 0 and record["valid"] is True and record["out"] is None
-    # Independent of the feature module: smooth with the same 1 px Gaussian, then the dose functions.
+    # Independent of the feature module: smooth with the same 1 px Gaussian, then the dose functions
+    # over the recorded span (the default rule, "linear").
     history = GaussianSmoothing(1.0, border="reflect")(burn)
-    assert record["cem43_minutes_max"] == pytest.approx(float(cem43(history, DT).max()), rel=1e-9)
-    assert record["omega_max"] == pytest.approx(float(arrhenius_omega(history, DT).max()), rel=1e-9)
+    expected_cem = float(cem43(history, DT, rule="linear").max())
+    assert record["cem43_minutes_max"] == pytest.approx(expected_cem, rel=1e-9)
+    expected_omega = float(arrhenius_omega(history, DT, rule="linear").max())
+    assert record["omega_max"] == pytest.approx(expected_omega, rel=1e-9)
+    assert record["dose"]["rule"] == "linear" and record["dose"]["span_s"] == pytest.approx(40 * DT)
     assert record["peak_temperature_max"] == pytest.approx(float(history.max()), rel=1e-12)
     assert record["omega_max"] > 1 and 0 < record["damaged_fraction"] < 0.2
 
@@ -115,8 +119,11 @@ def test_out_saves_every_map(
 def test_bad_input_is_one_line(
     files: dict[str, Path], capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    code, out, err = run(capsys, "features", files["no_dx"])
-    assert code == 2 and "pass --dx in mm" in err and err.count("\n") == 1
+    # No pixel size: the dose maps only, the others absent with the reason (a trace needs no dx).
+    code, out, err = run(capsys, "features", files["no_dx"], "--json")
+    record = json.loads(out)
+    assert (code, err) == (0, "") and record["dx"] is None and record["cem43_minutes_max"] > 0
+    assert "diffusivity_max" not in record and "pass dx, --dx in mm" in record["absent"]["diffusivity"]
     code, out, err = run(capsys, "features", tmp_path / "missing.npz")
     assert code == 2 and "no such file" in err
     code, out, err = run(capsys, "features", files["celsius"], "--units", "F")

@@ -130,3 +130,33 @@ def test_units_that_do_not_fit_are_refused(heated: torch.Tensor) -> None:
         TissueFeatures(units="F")
     with pytest.raises(ValueError, match="window must be an odd number"):
         TissueFeatures(window=4)
+
+
+def test_extremes_keep_a_planted_loss_and_source(heated: torch.Tensor) -> None:
+    # Confident windows hold the planted b = 0.3 1/s (0.33-0.37 measured on the spot) and the source.
+    out = TissueFeatures()(heated, DT, DX)
+    assert 0.25 < float(out.summary["loss_rate_max"]) < 0.45
+    assert float(out.summary["source_max"]) == pytest.approx(float(out.maps["source"].max()), rel=1e-12)
+    assert float(out.summary["confident_fraction"]) > 0.3
+    error = out.loss_rate_std_error
+    assert error is not None and error.shape == (40, 40)
+    assert float(error[18:22, 18:22].max()) < 0.01  # 1/s: b of the spot is measured tightly
+
+
+@pytest.mark.slow
+def test_loss_rate_std_error_matches_the_spread_over_noise_draws() -> None:
+    # Independent reference: the spread of b over 24 noise draws of one clean heated-then-cooling video.
+    u0 = torch.full((32, 32), 37.0, dtype=torch.float64)
+    source = MovingSource(start=(3.2, 3.2), end=(3.2, 3.2), width=0.8, power=POWER, t_off=ON)
+    clean = simulate_tissue(u0, 0.1, 0.3, dx=DX, dt=DT, n_frames=41, source=source)
+    generator = torch.Generator().manual_seed(3)
+    noise = 0.05 * torch.randn((24, *clean.shape), generator=generator, dtype=torch.float64)
+    out = TissueFeatures()(clean + noise, DT, DX)
+    spread = out.maps["loss_rate"].std(0)
+    error = out.loss_rate_std_error
+    measured = torch.isfinite(error).all(0) & (out.maps["confidence"] > 0.5).all(0)
+    assert int(measured.sum()) > 100
+    ratio = (error.median(0).values / spread)[measured]
+    # 24 draws: the spread itself is known to ~15 % per window, the Monte Carlo error to ~25 %; their
+    # median over the windows to a few %.
+    assert 0.8 < float(ratio.median()) < 1.25  # measured 0.96

@@ -64,9 +64,9 @@ def add_region_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def load_input(args: argparse.Namespace) -> Video:
+def load_input(args: argparse.Namespace, *, need_dx: bool = True) -> Video:
     """The video of VIDEO prepared by :func:`prepare_video` with --dt, --dx, --resample, --roi and
-    --calibration; ``meta`` says what was done."""
+    --calibration; ``meta`` says what was done. ``need_dx=False`` accepts a video without pixel size."""
     try:
         return prepare_video(
             args.video,
@@ -75,6 +75,7 @@ def load_input(args: argparse.Namespace) -> Video:
             timestamps="resample",  # only non-uniform timestamps are resampled; the output says so
             roi=args.roi,
             calibration=args.calibration,
+            need_dx=need_dx,
         )
     except ValueError as err:  # the library's hint names its argument; here the flag is the fix
         raise ValueError(

@@ -19,8 +19,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         description=f"Estimate the diffusivity of every video among INPUTS (files, folders, glob patterns; "
         f"{format_list()}) into one row each of OUT (.csv or .parquet). Same-shaped videos are estimated "
         "together; a bad file gets an error row and never stops the others; re-running skips inputs "
-        "already ok; OUT is replaced atomically after every batch. Exit status 2 when an input failed "
-        "(see its 'error' column).",
+        "already ok with the same parameters and unchanged files (a changed file is recomputed; a row made "
+        "with other parameters stops the run unless --rerun); OUT is replaced atomically after every "
+        "batch. Warnings go to the 'message' column. Exit status 2 when an input failed (see its 'error' "
+        "column).",
     )
     parser.add_argument("inputs", nargs="+", metavar="INPUT", help="video files, folders or glob patterns")
     parser.add_argument("--out", required=True, metavar="OUT", help="results table, .csv or .parquet")
@@ -48,6 +50,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="N",
         help="workers of the embedded LocalCluster (default 2)",
     )
+    parser.add_argument(
+        "--rerun",
+        action="store_true",
+        help="recompute and replace rows of OUT made with other parameters (--dt, --dx, --roi, ...) instead "
+        "of stopping",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object: out, total, skipped, ok, failed, seconds"
@@ -69,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         "resample": args.resample,
         "roi": args.roi,
         "calibration": args.calibration,
+        "rerun": args.rerun,
     }
     if args.dask or args.scheduler:
         from anra_torch.distributed import run_batch_dask

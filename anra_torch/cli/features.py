@@ -13,6 +13,7 @@ from anra_torch.cli.arguments import (
     load_input,
     print_input,
 )
+from anra_torch.dose import RULES
 
 __all__ = ["add_parser", "run"]
 
@@ -25,11 +26,21 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         description="Per-pixel tissue features of one video: peak temperature, time above 43/50/60 C, "
         "CEM43 (min), Arrhenius Omega (skin constants), heating and cooling rates (K/s), RTC attention, "
         "local diffusivity (mm^2/s) and its confidence, loss rate (1/s) and source (K) maps. "
-        "Temperatures are reported in Celsius. Non-finite values are masked and counted.",
+        "Temperatures are reported in Celsius. Non-finite values are masked and counted. The dose, peak "
+        "and times above work on any frame size, down to one pixel, and need no --dx; the rate and ANRA "
+        "maps need --dx (or the file's) and frames the filters fit (20 x 20 px, 5 frames), else they are "
+        "absent with the reason ('absent' in the JSON).",
     )
     add_video_arguments(parser, format_list())
     parser.add_argument(
         "--units", choices=("C", "K"), default="C", help="temperature unit of the frames (default C)"
+    )
+    parser.add_argument(
+        "--rule",
+        choices=RULES,
+        default="linear",
+        help="dose integration: linear (default; the frames joined by straight lines over the recorded span "
+        "(T - 1) dt) or hold (each frame held for dt, T dt: the Sapareto-Dewey sum)",
     )
     parser.add_argument(
         "--json",
@@ -44,9 +55,9 @@ def run(args: argparse.Namespace) -> int:
     """Run ``anra features`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     from anra_torch.features import feature_summary, save_feature_maps
 
-    video = load_input(args)
+    video = load_input(args, need_dx=False)
     try:
-        record, maps = feature_summary(video.frames, video.dt, video.dx, units=args.units)
+        record, maps = feature_summary(video.frames, video.dt, video.dx, units=args.units, rule=args.rule)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
     record = {"path": str(video.source), **record, "out": None}
@@ -66,9 +77,9 @@ def run(args: argparse.Namespace) -> int:
         "damaged_fraction",
         "diffusivity_global",
     ):
-        value = record[key]
-        shown = "n/a" if value is None else f"{value:.4g}"
-        print(f"  {key}: {shown} {record['units'][key]}")
+        value = record.get(key)
+        shown = "n/a" if value is None else f"{value:.4g} {record['units'][key]}"
+        print(f"  {key}: {shown}")
     if record["message"]:
         print(f"  note: {record['message']}")
     if record["out"]:

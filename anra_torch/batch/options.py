@@ -1,0 +1,68 @@
+"""What every video of a batch run shares, and which of it changes a result (the resume key)."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from anra_torch.video import ROI, CalibrationTable
+
+__all__ = ["BatchOptions"]
+
+
+@dataclass(frozen=True)
+class BatchOptions:
+    """What every video of a batch run shares (picklable, sent to Dask workers as is).
+
+    Attributes:
+        dt: frame period in s overriding the files, or None.
+        dx: pixel size in mm overriding the files, or None.
+        diagnose: also diagnose each video and forecast held-out frames.
+        dtype: ``"float32"`` (fast) or ``"float64"``.
+        fit_fraction: fraction of the frames diagnosed with ``diagnose``.
+        resample: resample non-uniform timestamps (FLIR JPEG folders) onto their median step
+            (:func:`anra_torch.video.resample_uniform`); otherwise such a video is an error row.
+        roi: region ``(x0, y0, width, height)`` in px analysed in every video, or None.
+        calibration: apparent -> true temperature table applied to every video, or None (the table
+            itself, not its path: Dask workers need not read it).
+
+    Shape:
+        No tensors.
+    """
+
+    dt: float | None = None
+    dx: float | None = None
+    diagnose: bool = False
+    dtype: str = "float32"
+    fit_fraction: float = 0.6
+    resample: bool = False
+    roi: ROI | None = None
+    calibration: CalibrationTable | None = None
+
+    def parameters(self) -> dict[str, Any]:
+        """Every option that changes a result, JSON-ready: the ``parameters`` cell of the resume key.
+
+        ``diagnose`` is not one (a row without diagnosis is simply not done for a run that asks for it); the
+        calibration table counts by its values (a SHA-256 prefix), not by its file name.
+        """
+        digest = None
+        if self.calibration is not None:
+            values = np.concatenate(
+                [
+                    np.asarray(self.calibration.true, np.float64),
+                    np.asarray(self.calibration.apparent, np.float64),
+                ]
+            )
+            digest = f"sha256:{hashlib.sha256(values.tobytes()).hexdigest()[:16]}"
+        return {
+            "dt": self.dt,
+            "dx": self.dx,
+            "dtype": self.dtype,
+            "resample": self.resample,
+            "roi": list(self.roi) if self.roi is not None else None,
+            "calibration": digest,
+            "fit_fraction": self.fit_fraction,
+        }

@@ -1,0 +1,280 @@
+"""The batch run: load every input, estimate same-shaped videos together, diagnose, write rows as they go."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from anra_torch.batch.inputs import PathLike, expand_inputs
+from anra_torch.batch.options import BatchOptions
+from anra_torch.batch.resume import plan
+from anra_torch.batch.table import check_format, parquet, read_table, row_key, write_table
+from anra_torch.checks import one_line
+from anra_torch.estimator import ANRAEstimator
+from anra_torch.video import ROI, CalibrationTable, Video, load_calibration, parse_roi, prepare_video
+
+__all__ = ["BatchSummary", "process_paths", "run_batch"]
+
+_RECORD_COLUMNS = ("diffusivity", "std_error", "smoothing_px", "noise_sd", "reliability", "n_masked")
+"""The columns taken as they are from :meth:`~anra_torch.estimator.ANRAResult.to_record`."""
+_DIAGNOSIS_COLUMNS = ("top_effect", "effects", "gain", "noise_floor", "base_rmse", "extended_rmse")
+
+
+def _error_row(path: str, message: str) -> dict[str, Any]:
+    return {"path": path, "status": "error", "error": message}
+
+
+def _join(parts: Iterable[object]) -> str:
+    """Non-empty parts, ``;``-joined once each, in order."""
+    return "; ".join(dict.fromkeys(str(p) for p in parts if p))
+
+
+def _message(record: dict[str, Any]) -> str:
+    """The ``message`` cell of an estimator record: its warnings, then its own line (a warning on a valid
+    result, or why nothing was measured)."""
+    return _join([*(record.get("warnings") or []), record.get("message")])
+
+
+def _load(path: str, options: BatchOptions) -> Video:
+    return prepare_video(
+        path,
+        dt=options.dt,
+        dx=options.dx,
+        timestamps="resample" if options.resample else "uniform",
+        roi=options.roi,
+        calibration=options.calibration,
+    )
+
+
+def _preparation(video: Video) -> dict[str, Any]:
+    """The ``roi`` and ``calibration`` cells: what :func:`prepare_video` did to this video."""
+    roi = video.meta.get("roi")
+    calibration = video.meta.get("calibration")
+    return {
+        "roi": ",".join(str(v) for v in roi) if roi else None,
+        "calibration": calibration["table"] if calibration else None,
+    }
+
+
+def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str, Any]]:
+    """Rows of same-shaped videos estimated in one estimator call."""
+    dtype = getattr(torch, options.dtype)
+    est = ANRAEstimator(strict=False)
+    start = time.perf_counter()
+    frames = torch.stack([v.frames.to(dtype) for v in videos])
+    dt = torch.tensor([v.dt for v in videos], dtype=torch.float64)
+    dx = torch.tensor([v.dx for v in videos], dtype=torch.float64)
+    result = est(frames, dt, dx)
+    share = (time.perf_counter() - start) / len(videos)
+    rows = []
+    for i, video in enumerate(videos):
+        t, h, w = video.frames.shape
+        record = result.to_record(i)
+        ok = record["valid"]
+        rows.append(
+            {
+                "path": str(video.source),
+                "status": "ok" if ok else "error",
+                "error": "" if ok else f"{video.source}: {record['message']}",
+                **{key: record[key] for key in _RECORD_COLUMNS},
+                "frames": t,
+                "height": h,
+                "width": w,
+                "dt": video.dt,
+                "dx": video.dx,
+                "a_true": video.truth.a if video.truth is not None else None,
+                "seconds": share,
+                **_preparation(video),
+                "message": _message(record),
+            }
+        )
+    return rows
+
+
+def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> None:
+    from anra_torch.forecast import assess_gain
+
+    start = time.perf_counter()
+    try:
+        result = assess_gain(video.frames, video.dt, video.dx, fit_fraction=options.fit_fraction)
+    except (ValueError, TypeError) as err:
+        row.update(status="error", error=f"{video.source}: diagnose: {one_line(err)}")
+        return
+    names = [e["name"] for e in result.diagnosis.effects]
+    row.update(
+        top_effect=names[0] if names else "none",
+        effects=";".join(names),
+        gain=result.gain,
+        noise_floor=result.noise_floor,
+        base_rmse=result.base_rmse,
+        extended_rmse=result.extended_rmse,
+        seconds=row["seconds"] + time.perf_counter() - start,
+    )
+
+
+def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str, Any]]:
+    """One row per path, in order: load, estimate same-shaped videos together, diagnose if asked.
+
+    Never raises for a bad input: its row says ``status="error"`` with the one-line reason. Used as is by
+    the local run and by each Dask task.
+    """
+    rows: dict[int, dict[str, Any]] = {}
+    groups: dict[tuple[int, ...], list[tuple[int, Video]]] = {}
+    for i, path in enumerate(paths):
+        try:
+            video = _load(path, options)
+        except (ValueError, TypeError, OSError) as err:
+            rows[i] = _error_row(path, one_line(err))
+            continue
+        groups.setdefault(tuple(video.frames.shape), []).append((i, video))
+    for members in groups.values():
+        try:
+            found = _estimate_group([v for _, v in members], options)
+        except (ValueError, TypeError, RuntimeError):
+            # Something in the batch is wrong (e.g. frames too small): estimate one by one for exact rows.
+            found = []
+            for i, video in members:
+                try:
+                    found.extend(_estimate_group([video], options))
+                except (ValueError, TypeError, RuntimeError) as err:
+                    found.append(_error_row(paths[i], f"{video.source}: {one_line(err)}"))
+        for (i, video), row in zip(members, found, strict=True):
+            row["path"] = paths[i]
+            if options.diagnose and row["status"] == "ok":
+                _diagnose_row(row, video, options)
+            rows[i] = row
+    return [rows[i] for i in range(len(paths))]
+
+
+def _chunks(items: Sequence[str], size: int) -> Iterator[list[str]]:
+    for start in range(0, len(items), size):
+        yield list(items[start : start + size])
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """What :func:`run_batch` did.
+
+    Attributes:
+        out: the table written.
+        total: inputs after expansion.
+        skipped: inputs already done in an earlier run.
+        ok: inputs processed now with status ``ok``.
+        failed: inputs processed now with status ``error``.
+        seconds: wall time of this run.
+    """
+
+    out: Path
+    total: int
+    skipped: int
+    ok: int
+    failed: int
+    seconds: float
+
+
+Runner = Callable[[list[list[str]], BatchOptions], Iterable[list[dict[str, Any]]]]
+"""Maps chunks of paths to their rows, yielding one list per chunk as it finishes (any order)."""
+
+
+def _local_runner(chunks: list[list[str]], options: BatchOptions) -> Iterator[list[dict[str, Any]]]:
+    for chunk in chunks:
+        yield process_paths(chunk, options)
+
+
+def _check_run(out: Path, batch_size: object, dtype: object) -> None:
+    """The checks of :func:`run_batch` on its table, batch size and dtype (see its Raises)."""
+    check_format(out)
+    if not (isinstance(batch_size, int) and batch_size >= 1):
+        raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    if out.suffix.lower() == ".parquet":
+        parquet()
+
+
+def run_batch(
+    inputs: Iterable[PathLike],
+    out: PathLike,
+    *,
+    dt: float | None = None,
+    dx: float | None = None,
+    diagnose: bool = False,
+    batch_size: int = 8,
+    dtype: str = "float32",
+    progress: bool = True,
+    runner: Runner | None = None,
+    resample: bool = False,
+    roi: ROI | str | None = None,
+    calibration: CalibrationTable | PathLike | None = None,
+    rerun: bool = False,
+) -> BatchSummary:
+    """Estimate (and optionally diagnose) every input video into a resumable table.
+
+    Args:
+        inputs: files, folders or glob patterns (see :func:`expand_inputs`).
+        out: the table, ``.csv`` or ``.parquet`` (Parquet needs the ``parquet`` extra); rows of earlier
+            runs are kept, inputs already ``ok`` are skipped.
+        dt: frame period in s overriding the files.
+        dx: pixel size in mm overriding the files.
+        diagnose: also diagnose each video (hidden effects, forecast gain; ~1-5 s per video).
+        batch_size: consecutive inputs read and estimated together (same-shaped ones in one call); also the
+            number of rows at risk if the run is interrupted.
+        dtype: ``"float32"`` (default, fast) or ``"float64"``.
+        progress: show a tqdm progress bar on stderr.
+        runner: how chunks are processed; default in this process (see :mod:`anra_torch.distributed`).
+        resample: resample non-uniform timestamps onto their median step instead of an error row.
+        roi: analyse only this region of every video: ``(x0, y0, width, height)`` px or ``"X0,Y0,W,H"``; a
+            video it does not fit gets an error row.
+        calibration: map apparent to true temperature in every video: a table or the path of a
+            ``true,apparent`` CSV (read once, here).
+        rerun: recompute and replace ``ok`` rows made with other parameters (otherwise they stop the run).
+
+    Returns:
+        :class:`BatchSummary`.
+
+    Shape:
+        No tensors: each video is read as ``(T, H, W)`` frames and estimated with same-shaped others.
+
+    Raises:
+        ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, a malformed ``roi``, a bad
+            calibration file, an ``out`` that is not a batch table or (without ``rerun``) holds ``ok`` rows
+            of these inputs made with other parameters. Bad inputs never raise: they get error rows.
+    """
+    out = Path(out)
+    _check_run(out, batch_size, dtype)
+    if roi is not None:  # a malformed region is the caller's mistake, not one row's
+        roi = parse_roi(roi if isinstance(roi, str) else ",".join(str(v) for v in roi))
+    if calibration is not None and not isinstance(calibration, CalibrationTable):
+        calibration = load_calibration(calibration)
+    options = BatchOptions(
+        dt=dt, dx=dx, diagnose=diagnose, dtype=dtype, resample=resample, roi=roi, calibration=calibration
+    )
+    start = time.perf_counter()
+    paths = expand_inputs(inputs)
+    table = {row_key(row["path"]): row for row in read_table(out)}
+    todo, stamps, changed = plan(paths, table, options, rerun=rerun, out=out)
+    key = json.dumps(options.parameters(), sort_keys=True)
+    skipped = len(paths) - len(todo)
+    ok = failed = 0
+    from tqdm.auto import tqdm
+
+    with tqdm(total=len(todo), unit="video", desc="anra batch", disable=not progress) as bar:
+        for rows in (runner or _local_runner)(list(_chunks(todo, batch_size)), options):
+            for row in rows:
+                row |= {"input_stamp": stamps.get(row["path"], ""), "parameters": key}
+                if row["path"] in changed:
+                    row["message"] = _join([row.get("message"), "recomputed: the input has changed"])
+                table[row_key(row["path"])] = row
+                ok += row["status"] == "ok"
+                failed += row["status"] != "ok"
+            write_table(out, list(table.values()))
+            bar.update(len(rows))
+    if not todo and not out.exists():
+        write_table(out, [])
+    return BatchSummary(out, len(paths), skipped, ok, failed, time.perf_counter() - start)

@@ -1,0 +1,76 @@
+"""The README's "Use" block runs as written: its Python, then every command of its shell block, in order,
+in an empty folder, with the venv's ``anra`` on PATH.
+
+The data folder ``../shared/data`` (next to the repository) is resolved to its absolute path; a command that
+needs it is left out when it is absent. Each process gets one torch thread (``OMP_NUM_THREADS=1``), as the
+README advises on shared cores.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+BIN = Path(sys.executable).parent
+
+
+def use_blocks(language: str) -> list[str]:
+    """The ``language`` code blocks of the README's "## Use" section."""
+    text = (ROOT / "README.md").read_text()
+    section = text.split("\n## Use\n", 1)[1].split("\n## ", 1)[0]
+    return re.findall(rf"```{language}\n(.*?)```", section, flags=re.S)
+
+
+def commands() -> list[str]:
+    """The shell commands of the "Use" block, one per line, comments and blank lines dropped."""
+    (block,) = use_blocks("bash")
+    return [line for line in block.splitlines() if shlex.split(line, comments=True)]
+
+
+def test_the_use_block_is_found() -> None:
+    found = commands()
+    assert len(found) >= 8 and all(line.startswith("anra ") for line in found)
+    # Every input file a command reads is made by an earlier command (or is the repository's data).
+    made: set[str] = set()
+    for line in found:
+        argv = shlex.split(line, comments=True)
+        if "-o" in argv:
+            made.add(argv[argv.index("-o") + 1])
+        for arg in argv:
+            if arg.endswith(".npz") and argv[argv.index(arg) - 1] not in ("-o", "--out"):
+                assert arg in made, f"{line}: reads {arg} before any command makes it"
+            if arg == "videos/":
+                assert any(m.startswith("videos/") for m in made), line
+
+
+@pytest.mark.slow
+def test_readme_use_commands_run_in_order(tmp_path: Path) -> None:
+    assert (BIN / "anra").exists(), f"no anra next to {sys.executable}"
+    env = os.environ | {"PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "OMP_NUM_THREADS": "1"}
+    (python,) = use_blocks("python")
+    done = subprocess.run(
+        [sys.executable, "-c", python], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, f"README Python block: {done.stderr[-3000:]}"
+    outputs = {}
+    for line in commands():
+        argv = shlex.split(line, comments=True)
+        if any("../shared/data" in a for a in argv):
+            if not DATA.is_dir():
+                continue
+            argv = [a.replace("../shared/data", str(DATA)) for a in argv]
+        done = subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, f"{line}\n{done.stderr[-3000:]}"
+        outputs[line] = done.stdout
+    # What the comments claim: the second batch run finds both videos done.
+    (again,) = [out for line, out in outputs.items() if line.startswith("anra --threads 1 batch")]
+    assert "0 ok, 0 failed, 2 already done (2 inputs)" in again
+    assert (tmp_path / "results" / "demo" / "report.md").exists() and (tmp_path / "maps.npz").exists()
