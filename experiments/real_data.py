@@ -32,12 +32,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from anra_torch.estimator import ANRAEstimator
 from anra_torch.forecast import PhaseDiagnosis, diagnose_recording
-from anra_torch.video import Phase, Video, hot_spot_signal, prepare_video
+from anra_torch.report.phases import forecast_figure, timeline_figure
+from anra_torch.video import Video, prepare_video
 from anra_torch.video.calibration import PixelSize
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -53,59 +53,6 @@ CAUSES = {
     "heterogeneity": "a region that conducts differently",
     "nonlinear_diffusion": "temperature-dependent diffusivity",
 }
-
-
-# ---------------------------------------------------------------------------------------------- figures
-def fig3(path: Path, title: str, figure: tuple, unit: str) -> None:
-    """Measured, predicted (plain, extended) and their deviations at the last held-out frame."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    measured, plain, ext, after = figure
-    m, p, e = measured[-1], plain[-1], ext[-1]
-    lo, hi = float(np.nanmin(m)), float(np.nanmax(m))
-    dev = max(float(np.nanmax(np.abs(p - m))), float(np.nanmax(np.abs(e - m))), 1e-9)
-    fig, axes = plt.subplots(2, 3, figsize=(11, 6.2), constrained_layout=True)
-    panels = [
-        (m, "measured", "inferno", lo, hi),
-        (p, "plain heat equation", "inferno", lo, hi),
-        (p - m, "plain - measured", "RdBu_r", -dev, dev),
-        (m, "measured", "inferno", lo, hi),
-        (e, "extended model", "inferno", lo, hi),
-        (e - m, "extended - measured", "RdBu_r", -dev, dev),
-    ]
-    for ax, (img, name, cmap, vmin, vmax) in zip(axes.flat, panels, strict=True):
-        im = ax.imshow(img, cmap=cmap, vmin=vmin, vmax=vmax)
-        ax.set_title(name, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-        fig.colorbar(im, ax=ax, shrink=0.8, label=unit)
-    fig.suptitle(f"{title}: {after:.1f} s after the split", fontsize=10)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def signal_figure(path: Path, name: str, video: Video, phases: list[Phase]) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    signal, _ = hot_spot_signal(video.frames)
-    t = video.t.numpy() if video.t is not None else np.arange(signal.numel()) * video.dt
-    fig, ax = plt.subplots(figsize=(6, 3), constrained_layout=True)
-    ax.plot(t, signal.numpy(), "k.-", ms=3, lw=0.8)
-    colours = {"baseline": "0.85", "heating": "tab:red", "cooling": "tab:blue", "steady": "tab:green"}
-    for ph in phases:
-        ax.axvspan(ph.t_start, ph.t_stop, color=colours[ph.name], alpha=0.2, label=ph.name)
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel(f"hot spot ({video.unit})")
-    ax.set_title(name, fontsize=9)
-    ax.legend(fontsize=8)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
 
 
 # ------------------------------------------------------------------------------------------------ main
@@ -168,7 +115,7 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
             calibration=video.meta.get("calibration"),
         )
         found = diagnose_recording(video.frames, video.dt, video.dx, video.t)
-        signal_figure(out / f"{name}_phases.png".replace(" ", "_"), name, video, [f.phase for f in found])
+        timeline_figure(out / f"{name}_phases.png".replace(" ", "_"), name, video, [f.phase for f in found])
         record["phases"] = []
         for phase in found:
             row = phase_row(video, phase)
@@ -178,12 +125,10 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
                 figure = tuple(f[k].numpy() for k in ("measured", "plain", "extended"))
                 after = f["measured"].shape[0] * video.dt
                 png = out / f"{name}_{phase.phase.name}.png".replace(" ", "_")
-                fig3(
-                    png,
-                    f"{name} {phase.phase.name} ({phase.family}; {phase.model})",
-                    (*figure, after),
-                    video.unit,
+                title = (
+                    f"{name} {phase.phase.name} ({phase.family}; {phase.model}): {after:.1f} s after split"
                 )
+                forecast_figure(png, title, figure, video.unit)
             rows.append((name, row))
         record["seconds"] = time.perf_counter() - tick
     (out / "results.json").write_text(json.dumps(results, indent=1, default=float))

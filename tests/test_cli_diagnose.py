@@ -89,7 +89,7 @@ def test_human_output_and_report(
     code, out, err = run(capsys, "diagnose", loss_video, "--fit-fraction", "0.5", "--report", out_dir)
     assert (code, err) == (0, "")
     assert "plain heat equation: a = " in out and "extended: dT/dt = " in out and "gain" in out
-    assert f"report: {out_dir / 'report.md'}" in out
+    assert f"report: {out_dir / 'phases.md'}, {out_dir / 'report.md'}" in out
     for name in ("report.md", "forecast.png", "maps.png", "rmse.png"):
         assert (out_dir / name).stat().st_size > 1000
     text = (out_dir / "report.md").read_text()

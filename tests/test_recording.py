@@ -126,6 +126,10 @@ def test_cli_diagnoses_an_8x8_box_and_estimate_flags_it_unresolved(
     record = json.loads(capsys.readouterr().out)
     assert len(record["phases"]) == 1 and record["phases"][0]["family"] == "small_box"
     assert record["base"]["diffusivity"] is None and record["base"]["flags"] == ["unresolved"]
+    assert main(["diagnose", str(path), "--report", str(tmp_path / "report")]) == 0
+    assert "phases.md" in capsys.readouterr().out
+    written = {p.name for p in (tmp_path / "report").iterdir()}
+    assert {"phases.md", "phases.png", f"phase_0_{record['phase']}.png"} <= written
     assert main(["estimate", str(path), "--json"]) == 2
     out = json.loads(capsys.readouterr().out)
     assert out["valid"] is False and out["diffusivity"] is None and "unresolved" in out["message"]

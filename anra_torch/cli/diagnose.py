@@ -69,7 +69,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "(an object with 'error' on failure)",
     )
     parser.add_argument(
-        "--report", metavar="DIR", help="write report.md with figures (forecasts, residual, RMSE) to DIR"
+        "--report",
+        metavar="DIR",
+        help="write to DIR phases.md (the phases' timeline, forecasts and residual maps) and report.md (the "
+        "longest phase in detail: forecasts, residual, RMSE)",
     )
     parser.add_argument(
         "--source-map",
@@ -120,9 +123,10 @@ def _small_box_summary(main: Any) -> dict[str, Any]:
     }
 
 
-def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any, Any, Video]:
+def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any, Any, Video, list[Any]]:
     """The ``diagnose --json`` object, the :class:`GainResult` of its longest analysed phase (None for a
-    small box), the :class:`SourceMapGain` with ``--source-map`` (else None) and that phase's frames."""
+    small box), the :class:`SourceMapGain` with ``--source-map`` (else None), that phase's frames and every
+    phase's :class:`PhaseDiagnosis`."""
     from anra_torch.forecast import extended_effects
 
     phases, main = _phases(video, args)
@@ -131,7 +135,7 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
     records = {"phase": main.phase.name, "phases": [p.to_record() for p in phases]}
     result = main.result
     if result is None:
-        return clean_json({**_small_box_summary(main), **records}), None, None, video
+        return clean_json({**_small_box_summary(main), **records}), None, None, video, phases
     frames = video.frames
     diagnosis = result.diagnosis
     per_effect = [
@@ -185,7 +189,7 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
         }
     if any(input_record(video).values()):
         summary["input"] = input_record(video)
-    return clean_json({**summary, **records}), result, mapped, video
+    return clean_json({**summary, **records}), result, mapped, video, phases
 
 
 def run(args: argparse.Namespace) -> int:
@@ -193,8 +197,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         if not 0 < args.fit_fraction < 1:
             raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
-        video = load_input(args)
-        summary, result, mapped, video = _summary(video, args)
+        recording = load_input(args)
+        summary, result, mapped, video, phases = _summary(recording, args)
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
             print(json.dumps({"path": str(args.video), "error": one_line(err)}))
@@ -207,14 +211,16 @@ def run(args: argparse.Namespace) -> int:
         _print_phases(summary)
         if result is not None:
             _print_balance(video, summary, result)
-    if args.report is not None and result is None:
-        print("  no report: the longest phase was analysed by the small-box models (no balance filters fit)")
-    elif args.report is not None:
-        from anra_torch.report import write_diagnosis_report
+    if args.report is not None:
+        from anra_torch.report import write_diagnosis_report, write_phase_report
 
-        path = write_diagnosis_report(args.report, video, result.diagnosis, result, source_map=mapped)
+        written = [write_phase_report(args.report, recording, phases)]
+        if result is not None:  # the longest phase in detail, when the balance analysed it
+            written.append(
+                write_diagnosis_report(args.report, video, result.diagnosis, result, source_map=mapped)
+            )
         if not args.json:
-            print(f"  report: {path}")
+            print(f"  report: {', '.join(str(p) for p in written)}")
     return 0
 
 

@@ -4,12 +4,15 @@
   RTC attention, windowed field and per-frame estimates (``anra demo``);
 - :func:`write_diagnosis_report` (:mod:`~anra_torch.report.diagnosis`): a hidden-effect diagnosis and its
   forecast test (``anra diagnose --report``);
+- :func:`write_phase_report` (:mod:`~anra_torch.report.phases`): a recording's phases, their timeline and
+  forecasts (``anra diagnose --report``);
 - shared helpers (number format, axes in mm, colour maps) in :mod:`~anra_torch.report.figures`.
 """
 
 from anra_torch.report.diagnosis import DIAGNOSIS_FIGURES, write_diagnosis_report
 from anra_torch.report.estimate import FIGURES, attention_map, write_estimate_report
 from anra_torch.report.figures import format_pm
+from anra_torch.report.phases import write_phase_report
 
 __all__ = [
     "DIAGNOSIS_FIGURES",
@@ -18,4 +21,5 @@ __all__ = [
     "format_pm",
     "write_diagnosis_report",
     "write_estimate_report",
+    "write_phase_report",
 ]
