@@ -410,6 +410,43 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _diagnose_seconds(path: Path, threads: list[str], busy: bool) -> float:
+    """Wall time of ``anra diagnose PATH`` in a fresh process, beside a CPU-bound spinner when ``busy``."""
+    spinner = None
+    if busy:  # one other CPU-bound process, started first so it is running when the command starts
+        spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        time.sleep(2.0)
+    try:
+        tick = time.perf_counter()
+        anra = [sys.executable, "-c", "import sys; from anra_torch.cli import main; sys.exit(main())"]
+        subprocess.run([*anra, *threads, "diagnose", str(path)], check=True, capture_output=True)
+        return time.perf_counter() - tick
+    finally:
+        if spinner is not None:
+            spinner.kill()
+            spinner.wait()
+
+
+def shared_machine(out: Path, repeats: int) -> dict:
+    """``anra diagnose`` of a 128 x 128 x 81 video (one hidden advection): idle with the default threads,
+    and beside one CPU-bound process with the default threads and with every core (the old default).
+    Each the median of ``repeats`` runs; the ratios to the idle time are what count."""
+    import os
+
+    from anra_torch.effects import hidden_effect_video
+
+    path = hidden_effect_video(["advection"], seed=0, size=128, duration=81 / 30).to_npz(out / "shared.npz")
+    cores = ["--threads", str(os.cpu_count() or 1)]
+    cases = {"idle, default": ([], False), "busy, default": ([], True), "busy, all cores": (cores, True)}
+    seconds = {
+        name: float(np.median([_diagnose_seconds(path, threads, busy) for _ in range(repeats)]))
+        for name, (threads, busy) in cases.items()
+    }
+    path.unlink()
+    idle = seconds["idle, default"]
+    return {"seconds": seconds, "ratio_to_idle": {k: v / idle for k, v in seconds.items()}}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default="results/bench", help="output folder (bench.json, bench.md)")
@@ -418,10 +455,23 @@ def main() -> None:
     parser.add_argument(
         "--quick", action="store_true", help="batches 1 and 8 only, long video 1k and 2k frames"
     )
+    parser.add_argument(
+        "--shared",
+        action="store_true",
+        help="only the shared-machine case: anra diagnose idle and beside one CPU-bound process",
+    )
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         print(json.dumps(measure(json.loads(args.worker))))
+        return
+    if args.shared:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        result = shared_machine(out, max(args.repeats, 1))
+        (out / "shared.json").write_text(json.dumps(result, indent=1))
+        for name, secs in result["seconds"].items():
+            print(f"anra diagnose, {name}: {secs:.1f} s ({result['ratio_to_idle'][name]:.2f}x idle)")
         return
     from tqdm.auto import tqdm
 
