@@ -442,3 +442,15 @@ def test_threads_option_sets_torch_threads(paper96: Path, capsys: pytest.Capture
         assert "argument --threads: must be an integer >= 1" in capsys.readouterr().err
     finally:
         torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize(("running", "expected"), [(1, 4), (2, 3), (4, 1), (9, 1)])
+def test_default_threads_leave_the_cores_other_processes_run_on(
+    tmp_path: Path, running: int, expected: int
+) -> None:
+    from anra_torch.cli import free_cores
+
+    loadavg = tmp_path / "loadavg"
+    loadavg.write_text(f"3.93 4.27 4.78 {running}/88 20791\n")  # the runnable count includes this process
+    assert free_cores(4, loadavg) == expected
+    assert free_cores(4, tmp_path / "absent") == 4

@@ -28,15 +28,15 @@ COMMANDS = (estimate, simulate, diagnose, batch, demo, features)
 """The command modules, in the order ``anra --help`` lists them."""
 
 
-def free_cores(cores: int) -> int:
+def free_cores(cores: int, loadavg: Path = Path("/proc/loadavg")) -> int:
     """``cores`` less the processes other than this one that are running right now (``/proc/loadavg``'s
-    runnable count), at least 1; ``cores`` where that count is unavailable.
+    runnable count, this process included), at least 1; ``cores`` where that count is unavailable.
 
     A thread pool wider than the free cores stalls at every parallel step while a neighbour holds a core
     (measured on 2 cores: a diagnosis 10x slower beside one busy process with 2 threads, under 2x with 1).
     """
     try:
-        running = int(Path("/proc/loadavg").read_text().split()[3].split("/")[0])
+        running = int(loadavg.read_text().split()[3].split("/")[0])
     except (OSError, ValueError, IndexError):
         return cores
     return max(1, min(cores, cores - (running - 1)))
