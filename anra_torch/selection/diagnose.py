@@ -59,7 +59,7 @@ from torch import Tensor
 from anra_torch.balance.artefacts import Artefacts, find_artefacts
 from anra_torch.balance.noise import NoiseModel, measure_noise
 from anra_torch.balance.system import BalanceSystem, Fit
-from anra_torch.checks import as_video, positive
+from anra_torch.checks import as_video, mostly_finite, positive
 from anra_torch.effects import EFFECTS
 from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
 from anra_torch.selection.statistics import wald_score
@@ -76,7 +76,6 @@ SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
 _MIN_VALID_PX = 16  # a smoothing candidate must leave at least this many pixels per side
 _MIN_SIGNIFICANCE = 3.0  # |a| / std_error below this (and no effect): no thermal activity
 _F64 = torch.float64
-_MAX_NON_FINITE = 0.05  # a few non-finite samples are artefacts to repair; more is a broken recording
 
 
 # ------------------------------------------------------------------------------------------ result
@@ -140,14 +139,7 @@ def _as_frames(frames: object) -> Tensor:
         raise ValueError(
             f"frames must have shape (T, H, W), got {tuple(video.shape)}; diagnose one video per call"
         )
-    video = video[0].detach().to(_F64)
-    bad = int((~torch.isfinite(video)).sum())
-    if bad > _MAX_NON_FINITE * video.numel():
-        raise ValueError(
-            f"frames must be mostly finite, got {bad} non-finite values of {video.numel()} (more than "
-            f"{100 * _MAX_NON_FINITE:g} %); crop or fill them first"
-        )
-    return video
+    return mostly_finite(video[0].detach().to(_F64))
 
 
 def _background(frame: Tensor, ring: int = 2) -> float:
