@@ -271,7 +271,7 @@ def in_range_values(
         limit: largest magnitude accepted (data units), default :data:`VALUE_LIMIT`.
 
     Returns:
-        The frames with the masked samples set to NaN, and a record ``{"non_finite", "beyond_limit",
+        The frames with the masked samples (infinities too) set to NaN, and a record ``{"non_finite", "beyond_limit",
         "samples"`` (counts), ``"limit"`` (data units), ``"largest"`` (the largest finite magnitude masked,
         or None)``}``.
 
@@ -303,8 +303,8 @@ def in_range_values(
             f"{name} must hold finite values within +-{limit:g} (data units), got none: {n_bad} non-finite "
             f"and {n_beyond} beyond the limit of {total} samples"
         )
-    if n_beyond:
-        frames = torch.where(beyond, torch.full_like(values, torch.nan), values)
+    if n_bad or n_beyond:  # every masked sample is NaN (an infinity too), so one test finds them all
+        frames = torch.where(finite & ~beyond, values, torch.full_like(values, torch.nan))
     return frames, found
 
 
