@@ -271,9 +271,9 @@ def in_range_values(
         limit: largest magnitude accepted (data units), default :data:`VALUE_LIMIT`.
 
     Returns:
-        The frames with the masked samples (infinities too) set to NaN, and a record ``{"non_finite", "beyond_limit",
-        "samples"`` (counts), ``"limit"`` (data units), ``"largest"`` (the largest finite magnitude masked,
-        or None)``}``.
+        The frames with the masked samples (infinities too) set to NaN, and a record ``{"non_finite",
+        "beyond_limit", "samples"`` (counts), ``"limit"`` (data units), ``"largest"`` (the largest finite
+        magnitude masked, or None)``}``.
 
     Shape:
         Any shape, kept.

@@ -538,6 +538,11 @@ def _verdicts(
         warnings.append(found)
         if not changing:
             messages.append("frames are constant: no thermal activity, no diffusivity estimated")
+        elif not ok and signal == 0 and not math.isfinite(zz):  # 0 / 0: no pixel left to balance
+            messages.append(
+                "no pixel has a filter window free of masked samples and with signal (too many masked "
+                "samples or too small a frame); no diffusivity estimated"
+            )
         elif not ok and not (math.isfinite(signal) and math.isfinite(zz)):
             messages.append(
                 "the balance of dT/dt and the Laplacian is not finite (an overflow: check that dt is in s, "

@@ -50,6 +50,7 @@ one-pixel edge, a source a Gaussian moving on a straight line.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -285,6 +286,8 @@ def _result(system: BalanceSystem, selection: Selection, plain: Fit, artefacts: 
         for name in selection.selected
     ]
     found.sort(key=lambda e: -e["score"])
+    expected = system.expected_rss(final)  # 0 for noiseless (e.g. quantised, noise-free) frames
+    fit_ratio = final.rss / expected if expected > 0 else (math.inf if final.rss > 0 else 1.0)
     a_plain = float(plain.beta[0])
     a_se = float(plain.cov[0, 0].clamp_min(0).sqrt())
     if not found and abs(a_plain) < _MIN_SIGNIFICANCE * a_se:
@@ -304,7 +307,7 @@ def _result(system: BalanceSystem, selection: Selection, plain: Fit, artefacts: 
         noise_sd=float(system.noise.sd),
         smoothing=system.sigma,
         mean=system.mean,
-        fit_ratio=final.rss / system.expected_rss(final),
+        fit_ratio=fit_ratio,
         residual_map=system.residual(final).mean(0),
         margin=system.margin,
         noise=system.noise,

@@ -125,7 +125,7 @@ def input_warnings(video: Video) -> list[str]:
         return []
     parts = []
     if found["non_finite"]:
-        parts.append(f"{found['non_finite']} non-finite (NaN or inf)")
+        parts.append(f"{found['non_finite']} non-finite")
     if found["beyond_limit"]:
         parts.append(
             f"{found['beyond_limit']} beyond +-{found['limit']:g} {video.unit}, the largest "

@@ -68,11 +68,13 @@ def load_npz(path: Path) -> RawVideo:
     """
     _check_magic(path, ".npz")
     try:
-        archive = np.load(path, allow_pickle=False)
-        if not isinstance(archive, np.lib.npyio.NpzFile):
-            raise _NotAnArchive
-        with archive:
-            data = {key: archive[key] for key in archive.files}
+        # Our own handle: numpy leaves its own open when the zip directory is unreadable (ResourceWarning).
+        with open(path, "rb") as handle:
+            archive = np.load(handle, allow_pickle=False)
+            if not isinstance(archive, np.lib.npyio.NpzFile):
+                raise _NotAnArchive
+            with archive:
+                data = {key: archive[key] for key in archive.files}
     except _NotAnArchive:
         raise ValueError(f"{path}: is a single .npy array, not an .npz archive; rename it to .npy") from None
     except ValueError as err:
@@ -105,16 +107,19 @@ def load_npy(path: Path) -> RawVideo:
     """
     _check_magic(path, ".npy")
     try:
-        frames = np.load(path, allow_pickle=False)
+        with open(path, "rb") as handle:
+            frames = np.load(handle, allow_pickle=False)
+            if not isinstance(frames, np.ndarray):
+                frames.close()
+                raise ValueError(f"{path}: is an .npz archive, not a single .npy array; rename it to .npz")
     except ValueError as err:
+        if str(err).startswith(f"{path}: "):
+            raise
         raise _value_error(path, err, ".npy", "a numeric array (numpy.save)") from err
     except (EOFError, OSError, pickle.UnpicklingError) as err:
         raise ValueError(
             f"{path}: cannot read as .npy ({one_line(err, kind=True)}); the file may be truncated or corrupt"
         ) from err
-    if not isinstance(frames, np.ndarray):
-        frames.close()
-        raise ValueError(f"{path}: is an .npz archive, not a single .npy array; rename it to .npz")
     return RawVideo(frames=frames)
 
 
