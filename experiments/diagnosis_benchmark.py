@@ -438,9 +438,7 @@ def gain_available(no_gain: bool) -> bool:
 
         return True
     except Exception as err:  # noqa: BLE001
-        print(
-            f"gain: not measured (anra_torch.forecast.assess_gain does not import: {err})", file=sys.stderr
-        )
+        print(f"gain: not measured (anra_torch.forecast.assess_gain does not import: {err})", file=sys.stderr)
         return False
 
 
@@ -516,8 +514,7 @@ def main() -> None:
         f"process(es) with one thread each; times are per case (one core).",
         f"PySINDy weak form on the first {min(sindy_n, args.cases)} cases of each group, "
         f"threshold {args.sindy_threshold} (normalised columns); mapping rule in the script's docs.",
-        "gain: "
-        + ("anra_torch.forecast.assess_gain" if gain else "not measured (assess_gain unavailable)"),
+        "gain: " + ("anra_torch.forecast.assess_gain" if gain else "not measured (assess_gain unavailable)"),
         f"errors (exceptions): {sum(r['outcome'] == 'error' for r in records)}",
     ]
     if args.simulator != "library":
