@@ -75,8 +75,9 @@ def diffusivity_warnings(a: float, *, dt: float, dx: float, z: float | None = No
         return []
     found = []
     if z is not None and z < -3.0:
+        how = f"{z:.1f} standard errors below 0" if math.isfinite(z) else "noise-free: a zero standard error"
         found.append(
-            f"the diffusivity is significantly negative ({z:.1f} standard errors below 0): heat is added "
+            f"the diffusivity is significantly negative ({how}): heat is added "
             "faster than it spreads (a source?), the plain heat equation does not describe these frames; "
             "see anra diagnose"
         )

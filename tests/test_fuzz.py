@@ -2,9 +2,10 @@
 
 For each of ``estimate``, ``diagnose``, ``features`` and ``batch``, a seeded generator makes at least
 :data:`CASES` inputs from the hardening issue's table and beyond: dtypes (float16/32/64, int8/16/32/64,
-uint8/16, bool, complex), shapes (1-D, 2-D, 4-D, empty, one frame, tiny, up to 32 x 32 x 20; diagnose's few full runs at 28 x 28 x 24), values (NaN,
-infinities, 1e3 to 1e300 samples, constant, all NaN, time-reversed, huge offsets), spacings (in the file,
-missing, zero, negative, non-finite, tiny, huge; as flags or in the file), random bytes, truncated files.
+uint8/16, bool, complex), shapes (1-D, 2-D, 4-D, empty, one frame, tiny, up to 32 x 32 x 20; diagnose's
+few full runs at 28 x 28 x 24 to bound its cost), values (NaN, infinities, 1e3 to 1e300 samples,
+constant, all NaN, time-reversed, huge offsets), spacings (in the file, missing, zero, negative,
+non-finite, tiny, huge; as flags or in the file), random bytes, truncated files.
 Each run calls :func:`anra_torch.cli.main` in this process and checks:
 
 - the exit status is 0 or 2 (1 would be an internal error, a bug);

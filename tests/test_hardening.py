@@ -335,6 +335,9 @@ def test_diffusivity_warnings_name_the_unit_mix_up() -> None:
         in diffusivity_warnings(-0.15, dt=0.04, dx=0.1, z=-5.0)[0]
     )
     assert diffusivity_warnings(-0.15, dt=0.04, dx=0.1)[0].startswith("the diffusivity is negative")
+    assert (
+        "(noise-free: a zero standard error)" in diffusivity_warnings(-0.15, dt=0.04, dx=0.1, z=-math.inf)[0]
+    )
     assert diffusivity_warnings(math.nan, dt=0.04, dx=0.1) == []
 
 
