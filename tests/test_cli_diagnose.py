@@ -44,7 +44,9 @@ def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[st
         "raw",
         "noise",
         "artefacts",
+        "warnings",
     }
+    assert record["warnings"] == []  # the extended model explains the data: no flag
     assert record["noise"]["white"] is True and record["artefacts"]["fixed_effects"] == []
     assert set(record["raw"]) == {"base_rmse", "extended_rmse", "gain", "noise_floor"}
     assert record["raw"]["noise_floor"] > record["noise_floor"] > 0  # smoothing removes most noise
