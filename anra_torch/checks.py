@@ -14,6 +14,9 @@ import torch
 from torch import Tensor
 
 __all__ = [
+    "MAX_NON_FINITE",
+    "SPACING_RANGE",
+    "VALUE_LIMIT",
     "as_fields",
     "as_spacing",
     "as_video",
@@ -21,11 +24,27 @@ __all__ = [
     "check_dtype",
     "check_int",
     "check_shape",
+    "in_range_values",
+    "mostly_finite",
     "number",
     "one_line",
     "positive",
+    "spacing_in_range",
     "uniform_step",
 ]
+
+VALUE_LIMIT = 1e6
+"""Largest magnitude (data units) of a sample that can be a measurement: above any temperature in K, C or F
+(the sun's surface is 5.8e3 K) and above any 16-bit raw sensor count (65535), far below where float32
+squares overflow. Samples beyond it, and non-finite ones, are masked by :func:`in_range_values`."""
+
+MAX_NON_FINITE = 0.05
+"""Largest fraction of non-finite samples :func:`mostly_finite` lets through: a few are artefacts to repair,
+more is a broken recording."""
+
+SPACING_RANGE = (1e-6, 1e6)
+"""Frame periods (s) and pixel sizes (mm) :func:`spacing_in_range` accepts: 1 MHz to one frame every 11
+days, 1 nm to 1 km per pixel; outside, dx^2 / dt and the derivatives' scales leave the float range."""
 
 
 def number(
@@ -234,3 +253,87 @@ def uniform_step(times: object, *, name: str = "t", rtol: float = 1e-3) -> float
     if not math.isfinite(mean):
         raise ValueError(f"{name} must be finite timestamps in s")
     return mean
+
+
+def in_range_values(
+    frames: Tensor, *, name: str = "frames", limit: float = VALUE_LIMIT
+) -> tuple[Tensor, dict]:
+    """Mask the samples that cannot be measurements: non-finite, or beyond ``+-limit`` (data units).
+
+    The one policy for input values (every command reads its video through
+    :func:`anra_torch.video.prepare_video`, which calls this): such samples are set to NaN, counted, and
+    left to the analyses' masks; a video with no sample left is refused.
+
+    Args:
+        frames: the samples, any shape and real dtype (integers are kept unless a sample is masked, then
+            they become float64).
+        name: the argument's name, for the message.
+        limit: largest magnitude accepted (data units), default :data:`VALUE_LIMIT`.
+
+    Returns:
+        The frames with the masked samples (infinities too) set to NaN, and a record ``{"non_finite",
+        "beyond_limit", "samples"`` (counts), ``"limit"`` (data units), ``"largest"`` (the largest finite
+        magnitude masked, or None)``}``.
+
+    Shape:
+        Any shape, kept.
+
+    Raises:
+        ValueError: no sample (an empty array) or none finite within ``+-limit``.
+
+    Example:
+        >>> masked, found = in_range_values(torch.tensor([1.0, float("nan"), 3e30, -2.0]))
+        >>> masked.tolist()[::3], found["non_finite"], found["beyond_limit"]
+        ([1.0, -2.0], 1, 1)
+    """
+    total = frames.numel()
+    values = frames if frames.is_floating_point() else frames.to(torch.float64)  # int16 abs would wrap
+    finite = torch.isfinite(values)
+    beyond = finite & (values.abs() > limit)
+    n_bad, n_beyond = total - int(finite.sum()), int(beyond.sum())
+    found = {
+        "non_finite": n_bad,
+        "beyond_limit": n_beyond,
+        "samples": total,
+        "limit": limit,
+        "largest": float(values[beyond].abs().max()) if n_beyond else None,
+    }
+    if total == 0 or n_bad + n_beyond == total:
+        raise ValueError(
+            f"{name} must hold finite values within +-{limit:g} (data units), got none: {n_bad} non-finite "
+            f"and {n_beyond} beyond the limit of {total} samples"
+        )
+    if n_bad or n_beyond:  # every masked sample is NaN (an infinity too), so one test finds them all
+        frames = torch.where(finite & ~beyond, values, torch.full_like(values, torch.nan))
+    return frames, found
+
+
+def spacing_in_range(value: float, name: str, unit: str) -> float:
+    """``value`` if it lies in :data:`SPACING_RANGE` (a frame period in s or a pixel size in mm).
+
+    Raises:
+        ValueError: outside the range, with the likely unit mix-up when there is one.
+    """
+    low, high = SPACING_RANGE
+    if not low <= value <= high:
+        raise ValueError(
+            f"{name} must be between {low:g} and {high:g} {unit}, got {value:g}; check its unit "
+            f"(dt in s, dx in mm)"
+        )
+    return value
+
+
+def mostly_finite(frames: Tensor, *, name: str = "frames") -> Tensor:
+    """``frames`` if at most :data:`MAX_NON_FINITE` of their samples are non-finite (analyses that repair a
+    few, such as the diagnosis, cannot work around more).
+
+    Raises:
+        ValueError: more non-finite samples, with their true count.
+    """
+    bad = int((~torch.isfinite(frames)).sum())
+    if bad > MAX_NON_FINITE * frames.numel():
+        raise ValueError(
+            f"{name} must be mostly finite, got {bad} non-finite values of {frames.numel()} (more than "
+            f"{100 * MAX_NON_FINITE:g} %); crop or fill them first"
+        )
+    return frames

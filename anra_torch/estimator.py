@@ -20,6 +20,7 @@ residual weights back through the transposed filters.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 
@@ -32,6 +33,7 @@ from anra_torch.balance.batch_noise import BatchNoise, batch_noise
 from anra_torch.balance.filters import MatchedFilters
 from anra_torch.balance.moments import TermNoise, accumulate
 from anra_torch.checks import as_spacing, as_video
+from anra_torch.flags import diffusivity_warnings
 from anra_torch.layers.attention import RTCAttention, UniformAttention
 
 __all__ = ["ANRAEstimator", "ANRAResult", "MODES", "AUTO_SMOOTHING"]
@@ -56,7 +58,7 @@ def _concat(parts: list[ANRAResult]) -> ANRAResult:
     changes = {}
     for f in fields(ANRAResult):
         values = [getattr(p, f.name) for p in parts]
-        if isinstance(values[0], tuple):  # messages, noise, artefacts: one entry per video
+        if isinstance(values[0], tuple):  # messages, warnings, noise, artefacts: one entry per video
             changes[f.name] = tuple(m for v in values for m in v)
         elif values[0] is not None:
             changes[f.name] = torch.cat(values)
@@ -87,8 +89,11 @@ class ANRAResult:
         field: windowed diffusivity map aligned with the input frames, ``(B, H, W)`` (NaN where
             ``confidence == 0``: the border the filters cannot reach, or windows without signal), or None.
         confidence: reliability of each window in [0, 1], ``(B, H, W)``, or None.
-        messages: one line per video: the reason when not valid; for a valid video empty, or a warning
-            when the diffusivity is significantly negative (a source dominates; the value is kept).
+        messages: one line per video: the reason when not valid; for a valid video empty, or
+            ``"warning: "`` and its ``warnings`` joined by ``"; "`` (the value is kept).
+        warnings: per video, the plausibility flags of a valid estimate
+            (:func:`anra_torch.flags.diffusivity_warnings`): significantly negative (a source dominates),
+            or outside every known material (with the likely unit mix-up of dt or dx); empty when none.
         noise: per video, the measured noise model as a record (``"sd"``, ``"time_correlation"``,
             ``"space_length_px"``, ``"white"``; :meth:`NoiseModel.describe
             <anra_torch.balance.noise.NoiseModel.describe>`).
@@ -108,6 +113,7 @@ class ANRAResult:
     field: Tensor | None
     confidence: Tensor | None
     messages: tuple[str, ...]
+    warnings: tuple[tuple[str, ...], ...] = ()
     noise: tuple[dict, ...] = ()
     artefacts: tuple[dict, ...] = ()
 
@@ -129,6 +135,7 @@ class ANRAResult:
 
         Returns:
             ``{"diffusivity", "std_error"`` (mm^2/s, None when not finite), ``"valid"``, ``"message"``,
+            ``"warnings"`` (a list of lines: implausible or negative diffusivity; empty when none),
             ``"smoothing_px"`` (px), ``"noise_sd"`` (``unit``), ``"reliability"``, ``"n_masked"``,
             ``"units"}`` (key -> unit), ``"noise"`` (the measured noise model, ``unit``) and
             ``"artefacts"`` (what was found and masked).
@@ -155,6 +162,7 @@ class ANRAResult:
             "std_error": finite(self.std_error),
             "valid": bool(pick(self.valid)),
             "message": self.messages[index],
+            "warnings": list(self.warnings[index]) if index < len(self.warnings) else [],
             "smoothing_px": float(pick(self.smoothing)),
             "noise_sd": float(pick(self.noise_sd)),
             "reliability": float(pick(self.reliability)),
@@ -446,9 +454,7 @@ class ANRAEstimator(nn.Module):
         low = torch.where(finite, video, torch.full_like(video, torch.inf)).amin((1, 2, 3))
         changing = torch.where(finite, video, torch.full_like(video, -torch.inf)).amax((1, 2, 3)) > low
         valid = changing & measured & torch.isfinite(estimate)
-        z = estimate / chosen.std_error
-        rows = zip(valid.tolist(), changing.tolist(), reliability.tolist(), z.tolist(), strict=True)
-        messages = tuple(_message(*row) for row in rows)
+        messages, warnings = _verdicts(valid, changing, reliability, estimate, chosen.std_error, dt_, dx_)
         field, confidence = self._field(chosen) if self.window is not None else (None, None)
         nan = torch.full_like(estimate, torch.nan)
         k = torch.arange(per_frame.shape[1], dtype=video.dtype)
@@ -466,6 +472,7 @@ class ANRAEstimator(nn.Module):
             field=field,
             confidence=confidence,
             messages=messages,
+            warnings=warnings,
             noise=tuple(
                 m.describe() | {"sd": float(sd)} for m, sd in zip(noise.models, noise_sd, strict=True)
             ),
@@ -512,20 +519,41 @@ class ANRAEstimator(nn.Module):
         )
 
 
-def _message(ok: bool, moving: bool, reliability: float, z: float) -> str:
-    """The result's line for one video: why it is not valid, a warning, or ""."""
-    if not moving:
-        return "frames are constant: no thermal activity, no diffusivity estimated"
-    if not ok:
-        return (
-            f"frames show no thermal activity above the noise (signal fraction {reliability:.3f}, estimate "
-            f"{abs(z):.1f} standard errors from 0; need >= {_MIN_RELIABILITY} and >= {_MIN_SIGNIFICANCE:g}); "
-            "no diffusivity estimated"
-        )
-    if z < -_MIN_SIGNIFICANCE:
-        return (
-            f"warning: the diffusivity is significantly negative ({z:.1f} standard errors below 0): heat is "
-            "added faster than it spreads (a source?), the plain heat equation does not describe these "
-            "frames; see anra diagnose"
-        )
-    return ""
+def _verdicts(
+    valid: Tensor,
+    moving: Tensor,
+    reliability: Tensor,
+    estimate: Tensor,
+    std_error: Tensor,
+    dt: Tensor,
+    dx: Tensor,
+) -> tuple[tuple[str, ...], tuple[tuple[str, ...], ...]]:
+    """Per video, the result's line (why it is not valid, its warnings joined, or "") and its warnings
+    (:func:`anra_torch.flags.diffusivity_warnings`; none for an invalid video)."""
+    messages, warnings = [], []
+    z = estimate / std_error
+    rows = zip(*(v.tolist() for v in (valid, moving, reliability, z, estimate, dt, dx)), strict=True)
+    for ok, changing, signal, zz, a, step, size in rows:
+        found = tuple(diffusivity_warnings(a, dt=step, dx=size, z=zz)) if ok else ()
+        warnings.append(found)
+        if not changing:
+            messages.append("frames are constant: no thermal activity, no diffusivity estimated")
+        elif not ok and signal == 0 and not math.isfinite(zz):  # 0 / 0: no pixel left to balance
+            messages.append(
+                "no pixel has a filter window free of masked samples and with signal (too many masked "
+                "samples or too small a frame); no diffusivity estimated"
+            )
+        elif not ok and not (math.isfinite(signal) and math.isfinite(zz)):
+            messages.append(
+                "the balance of dT/dt and the Laplacian is not finite (an overflow: check that dt is in s, "
+                "dx in mm and the frames' values are temperatures); no diffusivity estimated"
+            )
+        elif not ok:
+            messages.append(
+                f"frames show no thermal activity above the noise (signal fraction {signal:.3f}, estimate "
+                f"{abs(zz):.1f} standard errors from 0; need >= {_MIN_RELIABILITY} and >= "
+                f"{_MIN_SIGNIFICANCE:g}); no diffusivity estimated"
+            )
+        else:
+            messages.append("warning: " + "; ".join(found) if found else "")
+    return tuple(messages), tuple(warnings)

@@ -33,6 +33,7 @@ JSON_KEYS = {
     "std_error",
     "valid",
     "message",
+    "warnings",
     "frames",
     "height",
     "width",
@@ -142,7 +143,7 @@ def test_estimate_json_recovers_the_paper_diffusivity(
     assert set(s) == JSON_KEYS
     assert s["diffusivity"] == pytest.approx(0.2, rel=0.01)
     assert 0 < s["std_error"] < 0.002
-    assert s["valid"] is True and s["message"] == ""
+    assert s["valid"] is True and s["message"] == "" and s["warnings"] == []
     assert (s["frames"], s["height"], s["width"]) == (28, 96, 96)
     assert s["dt"] == pytest.approx(1 / 27) and s["dx"] == pytest.approx(10 / 224)
     assert s["mode"] == "lsq" and s["smoothing_px"] >= 0 and s["n_masked"] == 0

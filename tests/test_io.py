@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Callable
 from pathlib import Path
 
@@ -242,8 +243,18 @@ BAD: dict[str, tuple[Callable[[Path], Path], dict, str]] = {
         {},
         r"corrupt\.npz: cannot read as \.npz \(BadZipFile: Bad CRC-32",
     ),
-    "empty npz": (lambda p: _bytes(p, "e.npz", b""), {}, r"e\.npz: cannot read as \.npz \(EOFError"),
-    "junk npz": (lambda p: _bytes(p, "j.npz", b"hello" * 20), {}, r"j\.npz: holds pickled Python objects"),
+    "empty npz": (
+        lambda p: _bytes(p, "e.npz", b""),
+        {},
+        r"e\.npz: is empty \(0 bytes\), not a valid \.npz \(zip\)",
+    ),
+    "junk npz": (lambda p: _bytes(p, "j.npz", b"hello" * 20), {}, r"j\.npz: not a valid \.npz \(zip\) file"),
+    "pickle npz": (
+        lambda p: _bytes(p, "k.npz", pickle.dumps({"frames": [1, 2]}, protocol=4)),
+        {},
+        r"k\.npz: holds pickled Python objects, which are never loaded",
+    ),
+    "junk npy": (lambda p: _bytes(p, "j.npy", b"hello" * 20), {}, r"j\.npy: not a valid \.npy file"),
     "object array": (
         lambda p: _write(p, "o.npz", frames=np.array([None, 1], dtype=object), dt=0.1),
         {},

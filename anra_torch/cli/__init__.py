@@ -7,12 +7,14 @@ its own subparser (``add_parser``) and running it (``run``); the flags and helpe
 
 Units everywhere: lengths in mm, times in s, diffusivity in mm^2/s, temperatures in the data's own unit.
 Every failure the user can cause (bad file, bad flag, a video without thermal activity) ends in one line
-``anra: error: <message>`` on stderr and exit status 2, never a traceback.
+``anra: error: <message>`` on stderr and exit status 2, never a traceback. Anything else is a bug: one line
+``anra: internal error: <type>: <message> ...`` and exit status 1; set ``ANRA_TRACEBACK=1`` to see where.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -68,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``anra`` command line; returns the exit status (0 ok, 2 error).
+    """Run the ``anra`` command line; returns the exit status (0 ok, 2 error, 1 internal error).
 
     Args:
         argv: arguments without the program name; default ``sys.argv[1:]``.
@@ -92,3 +94,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
+    except Exception as err:  # a bug, not the user's mistake: still one line, unless asked for the traceback
+        if os.environ.get("ANRA_TRACEBACK"):
+            raise
+        print(
+            f"{PROG}: internal error: {one_line(err, kind=True)} (a bug: please report it with the input; "
+            "ANRA_TRACEBACK=1 shows where)",
+            file=sys.stderr,
+        )
+        return 1

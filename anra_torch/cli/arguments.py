@@ -7,6 +7,7 @@ region flags without VIDEO) and reads it with :func:`load_input`, i.e. :func:`an
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from collections.abc import Callable
 from typing import Any
@@ -84,8 +85,9 @@ def load_input(args: argparse.Namespace, *, need_dx: bool = True) -> Video:
 
 
 def input_record(video: Video) -> dict[str, Any]:
-    """What the loading did: ``resampled`` (from what), ``roi`` (px), ``calibration``; null when not done."""
-    return {key: video.meta.get(key) for key in ("resampled", "roi", "calibration")}
+    """What the loading did: ``resampled`` (from what), ``roi`` (px), ``calibration``, ``masked_values``
+    (samples masked as not finite or beyond +-1e6); null when not done."""
+    return {key: video.meta.get(key) for key in ("resampled", "roi", "calibration", "masked_values")}
 
 
 def print_input(video: Video) -> None:
@@ -149,12 +151,25 @@ def integer(unit: str, *, minimum: int, odd: bool = False) -> Callable[[str], in
     return parse
 
 
-def clean_json(value: Any) -> Any:
-    """NaN and infinities -> None, recursively (JSON has no NaN)."""
+def clean_json(value: Any, nulled: list[str] | None = None, where: str = "") -> Any:
+    """NaN and infinities -> None, recursively (JSON has no NaN); their keys (``a.b[2]``) go to ``nulled``."""
     if isinstance(value, dict):
-        return {k: clean_json(v) for k, v in value.items()}
+        return {k: clean_json(v, nulled, f"{where}.{k}" if where else str(k)) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [clean_json(v) for v in value]
+        return [clean_json(v, nulled, f"{where}[{i}]") for i, v in enumerate(value)]
     if isinstance(value, float) and not math.isfinite(value):
+        if nulled is not None:
+            nulled.append(where)
         return None
     return value
+
+
+def json_line(record: dict[str, Any]) -> str:
+    """``record`` as one line of strict JSON: a non-finite number becomes null and ``record["warnings"]``
+    (created when missing) says which keys were nulled, so no NaN or inf ever reaches the output."""
+    nulled: list[str] = []
+    clean = clean_json(record, nulled)
+    if nulled:
+        shown = ", ".join(nulled[:8]) + (f" and {len(nulled) - 8} more" if len(nulled) > 8 else "")
+        clean["warnings"] = [*clean.get("warnings", []), f"not finite, reported as null: {shown}"]
+    return json.dumps(clean, allow_nan=False)

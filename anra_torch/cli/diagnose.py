@@ -4,8 +4,10 @@
 params, gain each), ``extended`` (equation, params, forecast RMSE), ``gain``, ``noise_floor``, ``scale_px``,
 ``time_window``, ``assimilated``, ``gain_above_floor``, ``raw``, ``noise`` (the measured noise model) and
 ``artefacts`` (the camera artefacts found and masked); ``source_map`` with ``--source-map``;
-``input`` when the video was prepared by --resample, --roi or --calibration. On failure:
-``{"path", "error"}``.
+``input`` when the video was prepared by --resample, --roi or --calibration; ``warnings``, a list of lines,
+empty when all is well: input samples masked, the final model's diffusivity negative or outside every known
+material, "the model does not explain the data" when its forecast RMSE stays above 3 noise floors (with the
+ratio), a number not finite and reported as null. On failure: ``{"path", "error"}``.
 """
 
 from __future__ import annotations
@@ -22,12 +24,13 @@ from anra_torch.cli.arguments import (
     format_list,
     input_record,
     integer,
+    json_line,
     load_input,
     number,
     print_input,
 )
 from anra_torch.effects import equation_text
-from anra_torch.video import Video
+from anra_torch.video import Video, input_warnings
 
 __all__ = ["add_parser", "run"]
 
@@ -99,6 +102,8 @@ def _phases(video: Video, args: argparse.Namespace) -> tuple[list[Any], Any]:
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
     analysed = [p for p in phases if p.reason is None]
+    if not analysed and len(phases) == 1:  # one phase: its own reason is the error
+        raise ValueError(f"{video.source}: {phases[0].reason}")
     if not analysed:
         reasons = "; ".join(
             f"{p.phase.name} (frames {p.phase.start}-{p.phase.stop - 1}): {p.reason}" for p in phases
@@ -135,7 +140,8 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
     records = {"phase": main.phase.name, "phases": [p.to_record() for p in phases]}
     result = main.result
     if result is None:
-        return clean_json({**_small_box_summary(main), **records}), None, None, video, phases
+        summary = {**_small_box_summary(main), **records, "warnings": input_warnings(video)}
+        return summary, None, None, video, phases
     frames = video.frames
     diagnosis = result.diagnosis
     per_effect = [
@@ -189,7 +195,8 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
         }
     if any(input_record(video).values()):
         summary["input"] = input_record(video)
-    return clean_json({**summary, **records}), result, mapped, video, phases
+    summary["warnings"] = input_warnings(video) + list(result.warnings)
+    return {**summary, **records}, result, mapped, video, phases
 
 
 def run(args: argparse.Namespace) -> int:
@@ -204,13 +211,16 @@ def run(args: argparse.Namespace) -> int:
             print(json.dumps({"path": str(args.video), "error": one_line(err)}))
         raise
     if args.json:
-        print(json.dumps(summary, allow_nan=False))
+        print(json_line(summary))
     else:
         print(f"{video.source}")
         print_input(video)
-        _print_phases(summary)
+        shown = clean_json(summary)
+        _print_phases(shown)
         if result is not None:
-            _print_balance(video, summary, result)
+            _print_balance(video, shown, result)
+        for line in shown["warnings"]:
+            print(f"  warning: {line}")
     if args.report is not None:
         from anra_torch.report import write_diagnosis_report, write_phase_report
 
@@ -222,6 +232,11 @@ def run(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"  report: {', '.join(str(p) for p in written)}")
     return 0
+
+
+def _n(value: float | None, spec: str = ".4g") -> str:
+    """A number for the human summary, "n/a" for a non-finite one (null in the JSON)."""
+    return "n/a" if value is None else format(value, spec)
 
 
 def _print_phases(summary: dict[str, Any]) -> None:
@@ -238,11 +253,11 @@ def _print_phases(summary: dict[str, Any]) -> None:
             a = f"a unresolved (conduction faster than a frame: a > {bound:.3g} mm^2/s)"
         else:
             flag = f" [{', '.join(base['flags'])}]" if base.get("flags") else ""
-            a = f"a = {base['diffusivity']:.4g} mm^2/s{flag}"
+            a = f"a = {_n(base['diffusivity'])} mm^2/s{flag}"
         names = ", ".join(e["name"] for e in p["effects"]) or "none"
         print(
-            f"{where}: {a}; causes: {names}; extended model {p['model']}, gain {p['gain']:.3f} "
-            f"(noise floor {p['noise_floor']:.3g})"
+            f"{where}: {a}; causes: {names}; extended model {p['model']}, gain {_n(p['gain'], '.3f')} "
+            f"(noise floor {_n(p['noise_floor'], '.3g')})"
         )
 
 
@@ -251,24 +266,25 @@ def _print_balance(video: Video, summary: dict[str, Any], result: Any) -> None:
     base, ext = summary["base"], summary["extended"]
     print(f"  details of the longest phase ({summary['phase']}):")
     print(
-        f"  plain heat equation: a = {base['diffusivity']:.4g} mm^2/s, forecast RMSE "
-        f"{base['prediction_rmse']:.4g} (noise floor {summary['noise_floor']:.4g} {video.unit}, frames "
-        f"smoothed by a {summary['scale_px']:g} px Gaussian and averaged over {summary['time_window']} "
-        f"frames; forecasts from the state of the last {summary['assimilated']} fit frames)"
+        f"  plain heat equation: a = {_n(base['diffusivity'])} mm^2/s, forecast RMSE "
+        f"{_n(base['prediction_rmse'])} (noise floor {_n(summary['noise_floor'])} {video.unit}, frames "
+        f"smoothed by a {_n(summary['scale_px'], 'g')} px Gaussian and averaged over "
+        f"{summary['time_window']} frames; forecasts from the state of the last {summary['assimilated']} "
+        "fit frames)"
     )
     if summary["effects"]:
-        found = ", ".join(f"{e['name']} (gain {e['gain']:.2f})" for e in summary["effects"])
+        found = ", ".join(f"{e['name']} (gain {_n(e['gain'], '.2f')})" for e in summary["effects"])
         print(f"  effects: {found}")
         print(f"  extended: {ext['equation']}")
-        print(f"  extended forecast RMSE {ext['prediction_rmse']:.4g}, gain {summary['gain']:.3f}")
+        print(f"  extended forecast RMSE {_n(ext['prediction_rmse'])}, gain {_n(summary['gain'], '.3f')}")
     else:
         print("  no effect beyond heat diffusion found (gain 0)")
     if "source_map" in summary:
         sm = summary["source_map"]
         print(
-            f"  source map: a = {sm['a']:.4g} mm^2/s, b = {sm['b']:.4g} 1/s, q {sm['q_min']:.4g} to "
-            f"{sm['q_max']:.4g} {video.unit}/s; forecast RMSE {sm['prediction_rmse']:.4g}, "
-            f"gain {sm['gain']:.3f}"
+            f"  source map: a = {_n(sm['a'])} mm^2/s, b = {_n(sm['b'])} 1/s, q {_n(sm['q_min'])} to "
+            f"{_n(sm['q_max'])} {video.unit}/s; forecast RMSE {_n(sm['prediction_rmse'])}, "
+            f"gain {_n(sm['gain'], '.3f')}"
         )
     print(
         f"  diagnosed frames 0-{result.split}, forecast {result.held_out} held-out frames "

@@ -3,7 +3,10 @@
 ``anra estimate --json`` prints one object on one line:
 
 - ``path``; ``diffusivity`` and ``std_error`` (mm^2/s, null when no estimate); ``valid`` (bool) and
-  ``message`` (the reason when not valid, a warning for a significantly negative diffusivity, else "");
+  ``message`` (the reason when not valid, the diffusivity's warnings, else "");
+- ``warnings``: a list of lines, empty when all is well: input samples masked (non-finite or beyond
+  +-1e6), a significantly negative diffusivity, one outside every known material (about 1e-3 to 2e3
+  mm^2/s, with the likely unit mix-up of dt or dx), a number not finite and reported as null;
 - ``frames``, ``height``, ``width`` (px); ``dt`` (s); ``dx`` (mm); ``mode``;
 - ``smoothing_px`` (the Gaussian sigma chosen from the data); ``noise_sd`` (data units); ``reliability``
   (signal fraction of the regressor energy, 1 is noiseless); ``n_masked`` (non-finite pixel values);
@@ -18,7 +21,7 @@ false) and exits with status 2.
 from __future__ import annotations
 
 import argparse
-import json
+import math
 import sys
 import time
 from dataclasses import replace
@@ -31,12 +34,14 @@ from anra_torch.cli.arguments import (
     format_list,
     input_record,
     integer,
+    json_line,
     load_input,
     print_input,
 )
 from anra_torch.estimator import MODES, ANRAEstimator, ANRAResult
+from anra_torch.forecast.recording import find_phases
 from anra_torch.report import format_pm
-from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, recording_phases
+from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
 
 __all__ = ["add_parser", "run"]
 
@@ -81,6 +86,7 @@ def _summary(video: Video, result: ANRAResult, est: ANRAEstimator, elapsed: floa
     summary: dict[str, Any] = {
         "path": str(video.source),
         **{key: record[key] for key in ("diffusivity", "std_error", "valid", "message")},
+        "warnings": input_warnings(video) + record["warnings"],
         "frames": t,
         "height": h,
         "width": w,
@@ -110,6 +116,11 @@ def _summary(video: Video, result: ANRAResult, est: ANRAEstimator, elapsed: floa
     return summary
 
 
+def _shown(value: float | None, spec: str = ".4g") -> str:
+    """A number for the human summary, "n/a" when not finite (JSON null)."""
+    return "n/a" if value is None or not math.isfinite(value) else format(value, spec)
+
+
 def _print_summary(s: dict[str, Any]) -> None:
     a = s["diffusivity"]
     print(f"{s['path']}")
@@ -119,13 +130,13 @@ def _print_summary(s: dict[str, Any]) -> None:
         f"dt = {s['dt']:.6g} s ({1 / s['dt']:.4g} Hz), dx = {s['dx']:.6g} mm"
     )
     print(
-        f"  smoothing {s['smoothing_px']:g} px (chosen from the data), noise sd {s['noise_sd']:.4g} "
-        f"{s['units']['noise_sd']}, reliability {s['reliability']:.3f}"
+        f"  smoothing {s['smoothing_px']:g} px (chosen from the data), noise sd {_shown(s['noise_sd'])} "
+        f"{s['units']['noise_sd']}, reliability {_shown(s['reliability'], '.3f')}"
     )
     if s["n_masked"]:
         print(f"  masked {s['n_masked']} non-finite pixel values")
-    if s["message"]:
-        print(f"  {s['message']}")
+    for line in s["warnings"]:
+        print(f"  warning: {line}")
     if s["window_px"] is not None:
         median = f"median {s['field_median']:.4g} mm^2/s" if s["field_median"] is not None else "no estimate"
         print(
@@ -188,14 +199,17 @@ def _estimate(video: Video, est: ANRAEstimator) -> tuple[dict[str, Any], ANRARes
     except ValueError as err:
         if "px for these filters" not in str(err):
             raise ValueError(f"{video.source}: {err}") from err
-        return _small_box_record(video), None
+        try:
+            return _small_box_record(video), None
+        except ValueError as small:
+            raise ValueError(f"{video.source}: {small}") from small
     return {}, result
 
 
 def _phases(video: Video, est: ANRAEstimator) -> tuple[list[dict[str, Any]], Phase]:
     """Every phase's estimate, and the phase the top level describes: the longest valid source-free one
     (cooling, then baseline or steady), else the longest."""
-    phases = recording_phases(video.frames, video.t)
+    phases = find_phases(video.frames, video.t)
     records, chosen = [], None
     for phase in phases:
         head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
@@ -231,12 +245,14 @@ def run(args: argparse.Namespace) -> int:
     est = ANRAEstimator(mode=args.mode, window=args.window, strict=False)
     video = load_input(args)
     start = time.perf_counter()
-    phases = recording_phases(video.frames, video.t)
+    phases = find_phases(video.frames, video.t)
     records, phase = _phases(video, est) if len(phases) > 1 else ([], phases[0])
     part = _part(video, phase) if len(phases) > 1 else video
     small, result = _estimate(part, est)
     if result is None:
-        summary = {"path": str(video.source), **small, "frames": part.frames.shape[0]}
+        flagged = [small["message"]] if not small["valid"] else []
+        summary = {"path": str(video.source), **small, "warnings": input_warnings(video) + flagged}
+        summary["frames"] = part.frames.shape[0]
         summary.update(height=part.frames.shape[1], width=part.frames.shape[2], dt=video.dt, dx=video.dx)
     else:
         summary = _summary(part, result, est, time.perf_counter() - start)
@@ -250,7 +266,7 @@ def run(args: argparse.Namespace) -> int:
     if any(input_record(video).values()):
         summary["input"] = input_record(video)
     if args.json:
-        print(json.dumps(summary, allow_nan=False))
+        print(json_line(summary))
     if not summary["valid"]:
         # No diffusivity: exit 2 in both modes; --json still printed its flagged record above.
         print(f"{PROG}: error: {video.source}: {summary['message']}", file=sys.stderr)

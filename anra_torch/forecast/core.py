@@ -173,8 +173,16 @@ def extended_effects(
         try:
             effects.append(Effect(name, params))
         except (TypeError, ValueError) as err:
-            raise ValueError(f"diagnosed effect {name!r} cannot be simulated: {err}") from err
+            raise _unphysical(f"diagnosed effect {name!r} cannot be simulated: {err}") from err
     return tuple(effects)
+
+
+def _unphysical(reason: str) -> ValueError:
+    """The error for a diagnosed model that cannot be simulated: it is about the input, not the code."""
+    return ValueError(
+        f"the frames do not behave like physical heat transfer: {reason}; check the input (frames in "
+        "reverse time order, an unmodelled source, corrupt samples, wrong dt or dx)"
+    )
 
 
 def simulate_model(
@@ -202,12 +210,25 @@ def simulate_model(
 
     Shape:
         ``initial`` ``(H, W)``; output ``(n_frames, H, W)``.
+
+    Raises:
+        ValueError: a model that cannot be simulated (e.g. a fitted ``a(T)`` negative over the video's
+            temperatures), worded as what it says about the frames.
     """
     chosen = extended_effects(diagnosis) if effects is None else tuple(effects)
     a = diagnosis.base if chosen else diagnosis.a_plain
-    return simulate_effects(
-        initial.to(_F64), a=max(a, 0.0), dx=dx, dt=dt, n_frames=n_frames, effects=chosen, boundary="neumann"
-    )
+    try:
+        return simulate_effects(
+            initial.to(_F64),
+            a=max(a, 0.0),
+            dx=dx,
+            dt=dt,
+            n_frames=n_frames,
+            effects=chosen,
+            boundary="neumann",
+        )
+    except ValueError as err:  # e.g. a fitted a(T) that turns negative over the video's temperatures
+        raise _unphysical(f"the diagnosed model cannot be simulated: {err}") from err
 
 
 def assimilated_state(fit_frames: Tensor, step: Callable[[int, Tensor], Tensor], frames: int) -> Tensor:

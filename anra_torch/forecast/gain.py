@@ -21,7 +21,10 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from anra_torch.balance.artefacts import find_artefacts
+from anra_torch.checks import mostly_finite
 from anra_torch.effects import Effect
+from anra_torch.flags import diffusivity_warnings, model_failure
 from anra_torch.forecast.core import (
     TIME_WINDOW,
     assimilated_state,
@@ -84,6 +87,11 @@ class GainResult:
         time_window: frames of the moving average in time at the evaluation scale (1: none).
         assimilated: the fit part's last frames assimilated into both forecasts' starting states (1: the
             measured split frame).
+        warnings: lines for the user (:mod:`anra_torch.flags`), empty when all is well: the final model's
+            diffusivity (``extended_a`` when effects were found, else ``base_a``) negative or outside every
+            known material, and the final model's forecast RMSE above
+            :data:`~anra_torch.flags.MODEL_FAILURE_RATIO` noise floors ("the model does not explain the
+            data", with the ratio).
 
     Shape:
         ``times``, ``rmse_base``, ``rmse_extended`` ``(K,)``; ``predicted_*``, ``measured`` ``(K, H, W)``
@@ -118,6 +126,7 @@ class GainResult:
     elapsed: float = 0.0
     time_window: int = 1
     assimilated: int = 1
+    warnings: tuple[str, ...] = ()
 
     @property
     def held_out(self) -> int:
@@ -223,7 +232,7 @@ def assess_gain(
         frames = torch.as_tensor(frames)
     if frames.ndim != 3:
         raise ValueError(f"frames must have shape (T, H, W), got {tuple(frames.shape)}")
-    video = frames.detach().to(_F64)
+    video = mostly_finite(frames.detach().to(_F64))  # counted on the whole video, not only the fit part
     n_frames, h, w = video.shape
     split = split_index(n_frames, fit_fraction)
     if diagnosis is None:
@@ -238,7 +247,10 @@ def assess_gain(
     scale = evaluation_scale(diagnosis, scale_px)
     window = _frame_count(time_window, "time_window", TIME_WINDOW, horizon - 1)
     n_assimilated = _frame_count(assimilate, "assimilate", split + 1, split + 1, cap=False)
-    run = _Forecasts(video, diagnosis, split, dt, dx, effects, scale, window, n_assimilated)
+    # Forecasts start from, and are scored against, frames without camera artefacts (a masked sample, a
+    # spike, a dead element): the diagnosis repairs its own fit frames the same way.
+    repaired = find_artefacts(video)[0]
+    run = _Forecasts(repaired, diagnosis, split, dt, dx, effects, scale, window, n_assimilated)
     return _scored(run, tick)
 
 
@@ -296,7 +308,16 @@ def _scored(run: _Forecasts, tick: float) -> GainResult:
         time_window=run.window,
         assimilated=run.assimilated,
         elapsed=time.perf_counter() - tick,
+        warnings=_warnings(run, ext_rmse, floor),
     )
+
+
+def _warnings(run: _Forecasts, rmse: float, floor: float) -> tuple[str, ...]:
+    """The final model's flags: its diffusivity's plausibility; does it explain the held-out frames?"""
+    a = run.diagnosis.base if run.effects else run.diagnosis.a_plain
+    found = diffusivity_warnings(a, dt=run.dt, dx=run.dx)
+    failure = model_failure(rmse, floor)
+    return tuple(found + ([failure] if failure else []))
 
 
 def _effect_gains(run: _Forecasts, measured: Tensor, base_rmse: float, gain: float) -> tuple[float, ...]:

@@ -26,6 +26,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from anra_torch.balance.artefacts import find_artefacts
 from anra_torch.forecast.core import TIME_WINDOW, split_index
 from anra_torch.forecast.gain import GainResult, assess_gain
 from anra_torch.forecast.small_box import edge_explained, fit_small_box, forecast_small_box
@@ -33,7 +34,7 @@ from anra_torch.forecast.source_map import source_map_gain
 from anra_torch.selection import minimum_frame_size
 from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, recording_phases
 
-__all__ = ["PhaseDiagnosis", "diagnose_recording"]
+__all__ = ["PhaseDiagnosis", "diagnose_recording", "find_phases"]
 
 BOX_WINDOW = 100
 """Frames just before a split that a small-box model is fitted on (the most local of 100, 200 and 400)."""
@@ -121,6 +122,19 @@ class PhaseDiagnosis:
         return record
 
 
+def find_phases(frames: Tensor, t: Tensor | None = None) -> list[Phase]:
+    """:func:`~anra_torch.video.recording_phases` of the frames with their camera artefacts repaired
+    (:func:`~anra_torch.balance.artefacts.find_artefacts`): a spike or a hot element is not a heat source.
+
+    Shape:
+        ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
+    """
+    video = torch.as_tensor(frames)
+    if video.ndim != 3 or video.shape[0] < 3:
+        return recording_phases(video, t)
+    return recording_phases(find_artefacts(video)[0], t)
+
+
 def diagnose_recording(
     frames: Tensor,
     dt: float,
@@ -140,7 +154,7 @@ def diagnose_recording(
         t: timestamps in s (default ``dt`` times the frame index); used to time the phases.
         fit_fraction: each phase's fraction diagnosed; the rest is held out.
         assimilate: frames assimilated into the balance forecasts' starting state (default: adapted).
-        phases: the phases (default :func:`~anra_torch.video.recording_phases`).
+        phases: the phases (default :func:`find_phases`).
 
     Returns:
         One :class:`PhaseDiagnosis` per phase, in time order.
@@ -151,7 +165,7 @@ def diagnose_recording(
     video = torch.as_tensor(frames).to(_F64)
     times = torch.arange(video.shape[0], dtype=_F64) * dt if t is None else torch.as_tensor(t).to(_F64)
     out = []
-    for phase in recording_phases(video, times) if phases is None else phases:
+    for phase in find_phases(video, times) if phases is None else phases:
         if phase.frames < MIN_PHASE_FRAMES:
             reason = f"too short: {phase.frames} frames, need {MIN_PHASE_FRAMES}"
             out.append(PhaseDiagnosis(phase, "none", reason=reason))

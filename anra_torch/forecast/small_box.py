@@ -106,6 +106,11 @@ def fit_small_box(frames: Tensor, dt: float, dx: float, kind: str) -> SmallBoxMo
     if kind not in MODELS:
         raise ValueError(f"kind must be one of {', '.join(MODELS)}, got {kind!r}")
     video = torch.as_tensor(frames).to(_F64)
+    if video.ndim != 3 or min(video.shape[1:]) < 3:
+        raise ValueError(f"frames must have shape (T, H, W) with H, W >= 3, got {tuple(video.shape)}")
+    bad = int((~torch.isfinite(video)).sum())
+    if bad:
+        raise ValueError(f"frames must be finite for the small-box models, got {bad} non-finite values")
     if kind == "quasi_steady":
         return SmallBoxModel(kind, source=(video[:, 1:-1, 1:-1] - harmonic_interior(video)).mean(0))
     if video.shape[0] < 3:

@@ -50,6 +50,7 @@ one-pixel edge, a source a Gaussian moving on a straight line.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -59,7 +60,7 @@ from torch import Tensor
 from anra_torch.balance.artefacts import Artefacts, find_artefacts
 from anra_torch.balance.noise import NoiseModel, measure_noise
 from anra_torch.balance.system import BalanceSystem, Fit
-from anra_torch.checks import as_video, positive
+from anra_torch.checks import as_video, mostly_finite, positive
 from anra_torch.effects import EFFECTS
 from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
 from anra_torch.selection.statistics import wald_score
@@ -76,7 +77,6 @@ SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
 _MIN_VALID_PX = 16  # a smoothing candidate must leave at least this many pixels per side
 _MIN_SIGNIFICANCE = 3.0  # |a| / std_error below this (and no effect): no thermal activity
 _F64 = torch.float64
-_MAX_NON_FINITE = 0.05  # a few non-finite samples are artefacts to repair; more is a broken recording
 
 
 # ------------------------------------------------------------------------------------------ result
@@ -140,14 +140,7 @@ def _as_frames(frames: object) -> Tensor:
         raise ValueError(
             f"frames must have shape (T, H, W), got {tuple(video.shape)}; diagnose one video per call"
         )
-    video = video[0].detach().to(_F64)
-    bad = int((~torch.isfinite(video)).sum())
-    if bad > _MAX_NON_FINITE * video.numel():
-        raise ValueError(
-            f"frames must be mostly finite, got {bad} non-finite values of {video.numel()} (more than "
-            f"{100 * _MAX_NON_FINITE:g} %); crop or fill them first"
-        )
-    return video
+    return mostly_finite(video[0].detach().to(_F64))
 
 
 def _background(frame: Tensor, ring: int = 2) -> float:
@@ -302,6 +295,8 @@ def _result(system: BalanceSystem, selection: Selection, plain: Fit, artefacts: 
         for name in selection.selected
     ]
     found.sort(key=lambda e: -e["score"])
+    expected = system.expected_rss(final)  # 0 for noiseless (e.g. quantised, noise-free) frames
+    fit_ratio = final.rss / expected if expected > 0 else (math.inf if final.rss > 0 else 1.0)
     a_plain = float(plain.beta[0])
     a_se = float(plain.cov[0, 0].clamp_min(0).sqrt())
     if not found and abs(a_plain) < _MIN_SIGNIFICANCE * a_se:
@@ -321,7 +316,7 @@ def _result(system: BalanceSystem, selection: Selection, plain: Fit, artefacts: 
         noise_sd=float(system.noise.sd),
         smoothing=system.sigma,
         mean=system.mean,
-        fit_ratio=final.rss / system.expected_rss(final),
+        fit_ratio=fit_ratio,
         residual_map=system.residual(final).mean(0),
         margin=system.margin,
         noise=system.noise,

@@ -7,7 +7,8 @@
 - the steps: :func:`resample_uniform` (non-uniform timestamps, :mod:`~anra_torch.video.resample`),
   :func:`crop` and pixel masks (:mod:`~anra_torch.video.roi`), calibration tables, units and pixel-size
   intervals (:mod:`~anra_torch.video.calibration`);
-- :func:`prepare_video`: load -> resample -> roi -> calibration in one call, as every command does it;
+- :func:`prepare_video`: load -> resample -> roi -> calibration in one call, as every command does it,
+  with the one input policy (out-of-range samples masked and counted, :func:`input_warnings`);
 - :func:`segment_phases`: baseline / heating / cooling from the data (:mod:`~anra_torch.video.phases`).
 
 Shape:
@@ -26,7 +27,7 @@ from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
 from anra_torch.video.formats.numpy_formats import save_npz
 from anra_torch.video.load import TIMESTAMPS, load_video
 from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, hot_spot_signal, recording_phases, segment_phases
-from anra_torch.video.prepare import STEPS, prepare_video
+from anra_torch.video.prepare import STEPS, input_warnings, prepare_video
 from anra_torch.video.resample import resample_uniform
 from anra_torch.video.roi import ROI, apply_mask, crop, dead_pixel_mask, parse_roi, reflection_mask
 
@@ -49,6 +50,7 @@ __all__ = [
     "crop",
     "dead_pixel_mask",
     "hot_spot_signal",
+    "input_warnings",
     "load_calibration",
     "load_video",
     "parse_roi",

@@ -4,18 +4,30 @@
 region is cut from the (resampled) frames in their own pixel coordinates, and the calibration table maps only
 the values that will be analysed (its extrapolated fraction is counted on those). ``anra estimate``,
 ``diagnose``, ``features`` and ``batch`` all call :func:`prepare_video`, so they read a file the same way.
+
+The input policy lives here, once for every command. Right after loading (and resampling):
+
+- a sample that cannot be a measurement (NaN, an infinity, or beyond ``+-``
+  :data:`~anra_torch.checks.VALUE_LIMIT` = 1e6 data units: a float overflow, a sensor's error code) is
+  masked (set to NaN, which every analysis drops and counts), never refused on its own;
+  ``meta["masked_values"]`` counts them and :func:`input_warnings` says it in one line;
+- a video with no sample left (all NaN, or a region holding none) is refused;
+- ``dt`` and ``dx`` must lie in :data:`~anra_torch.checks.SPACING_RANGE` (1e-6 to 1e6 s or mm): beyond,
+  the arithmetic leaves the float range and no number it gives would mean anything.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
+from anra_torch.checks import in_range_values, spacing_in_range
 from anra_torch.video.calibration import CalibrationTable, apply_calibration, load_calibration
 from anra_torch.video.core import PathLike, Video
 from anra_torch.video.load import load_video
 from anra_torch.video.roi import ROI, crop, parse_roi
 
-__all__ = ["STEPS", "prepare_video"]
+__all__ = ["STEPS", "input_warnings", "prepare_video"]
 
 STEPS = ("load", "resample", "roi", "calibration")
 """The steps in the order :func:`prepare_video` applies them (``meta["steps"]`` lists those done)."""
@@ -47,14 +59,17 @@ def prepare_video(
     Returns:
         The prepared :class:`~anra_torch.video.Video`. Its ``meta`` says what was done: ``"steps"`` (the names
         of :data:`STEPS` done, in order), ``"resampled"`` (from what), ``"roi"`` (``[x0, y0, w, h]`` px),
-        ``"calibration"`` (table and extrapolated fraction).
+        ``"calibration"`` (table and extrapolated fraction), ``"masked_values"`` (when samples were masked:
+        counts ``"non_finite"`` and ``"beyond_limit"`` of ``"samples"``, the ``"limit"`` and the ``"largest"``
+        magnitude masked).
 
     Shape:
         Frames ``(T, H, W)`` in the file -> ``(T', height, width)`` (``T'`` after resampling).
 
     Raises:
-        ValueError: every error of :func:`~anra_torch.video.load_video`, a bad or too large ``roi``, a bad
-            calibration file, and (with ``need_dx``) no pixel size in the file nor in ``dx``.
+        ValueError: every error of :func:`~anra_torch.video.load_video`, no finite sample within the limit
+            (in the file or in ``roi``), ``dt`` or ``dx`` outside the spacing range, a bad or too large
+            ``roi``, a bad calibration file, and (with ``need_dx``) no pixel size in the file nor in ``dx``.
 
     Example:
         >>> import tempfile, numpy as np
@@ -64,7 +79,7 @@ def prepare_video(
         >>> tuple(video.frames.shape), video.meta["steps"], video.meta["roi"]
         ((6, 3, 4), ['load', 'roi'], [2, 1, 4, 3])
     """
-    video = load_video(path, dt=dt, dx=dx, timestamps=timestamps)
+    video = _checked(load_video(path, dt=dt, dx=dx, timestamps=timestamps), "")
     steps = ["load", "resample"] if "resampled" in video.meta else ["load"]
     if roi is not None:
         video = crop(video, parse_roi(roi) if isinstance(roi, str) else roi)
@@ -73,6 +88,48 @@ def prepare_video(
         table = calibration if isinstance(calibration, CalibrationTable) else load_calibration(calibration)
         video = apply_calibration(video, table)
         steps.append("calibration")
+    if roi is not None or calibration is not None:
+        video = _checked(video, " in the region" if roi is not None else "")
     if need_dx and video.dx is None:
         raise ValueError(f"{video.source}: no pixel size: the file has no 'dx'; pass --dx in mm")
     return replace(video, meta={**video.meta, "steps": steps})
+
+
+def _checked(video: Video, where: str) -> Video:
+    """The input policy (module docstring): spacing in range, out-of-range samples masked and counted,
+    refused when none is left (``where``: which frames, for the message)."""
+    try:
+        spacing_in_range(video.dt, "dt", "s")
+        if video.dx is not None:
+            spacing_in_range(video.dx, "dx", "mm")
+        frames, found = in_range_values(video.frames, name=f"frames{where}")
+    except ValueError as err:
+        raise ValueError(f"{video.source}: {err}") from None
+    if not found["beyond_limit"] and not found["non_finite"]:
+        return video
+    before = video.meta.get("masked_values")
+    if before is not None:  # a second pass (after roi / calibration) adds only what it newly masked
+        found = {**before, "beyond_limit": before["beyond_limit"] + found["beyond_limit"]}
+    return replace(video, frames=frames, meta={**video.meta, "masked_values": found})
+
+
+def input_warnings(video: Video) -> list[str]:
+    """One line per input problem :func:`prepare_video` found and masked (empty when none), for the
+    ``warnings`` of every command's record.
+
+    Shape:
+        No tensors.
+    """
+    found: dict[str, Any] | None = video.meta.get("masked_values")
+    if not found:
+        return []
+    parts = []
+    if found["non_finite"]:
+        parts.append(f"{found['non_finite']} non-finite")
+    if found["beyond_limit"]:
+        parts.append(
+            f"{found['beyond_limit']} beyond +-{found['limit']:g} {video.unit}, the largest "
+            f"{found['largest']:.3g}: not a measurement"
+        )
+    masked = found["non_finite"] + found["beyond_limit"]
+    return [f"input: {masked} of {found['samples']} samples masked ({'; '.join(parts)})"]

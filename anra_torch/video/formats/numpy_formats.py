@@ -39,18 +39,42 @@ def _value_error(path: Path, err: ValueError, kind: str, save: str) -> ValueErro
     return ValueError(f"{path}: cannot read as {kind} ({one_line(err, kind=True)}); the file may be corrupt")
 
 
+_MAGIC = {b"PK": ".npz", b"\x93N": ".npy"}
+"""The first bytes of a zip archive (``.npz``) and of a ``.npy`` array."""
+
+
+def _check_magic(path: Path, kind: str) -> None:
+    """Refuse a file that is neither an ``.npz`` (zip) nor an ``.npy`` before ``numpy.load`` reads it: numpy
+    would take any other bytes for a pickle. A real pickle (protocol 2-5 header) is named as such."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(2)
+    except OSError as err:
+        raise ValueError(f"{path}: cannot read ({one_line(err, kind=True)})") from err
+    if head in _MAGIC:
+        return
+    if len(head) == 2 and head[0] == 0x80 and 2 <= head[1] <= 5:
+        raise ValueError(f"{path}: holds pickled Python objects, which are never loaded; save numeric arrays")
+    valid = "a valid .npz (zip) file" if kind == ".npz" else "a valid .npy file"
+    empty = "is empty (0 bytes), " if not head else ""
+    raise ValueError(f"{path}: {empty}not {valid}; the file may be corrupt or of another format")
+
+
 def load_npz(path: Path) -> RawVideo:
     """An ``.npz`` archive: ``frames``, ``dt`` / ``t``, ``dx``, scalars to ``meta``, a simulation's truth.
 
     Shape:
         ``frames`` as stored (:func:`~anra_torch.video.load_video` requires ``(T, H, W)``); ``t`` ``(T,)``.
     """
+    _check_magic(path, ".npz")
     try:
-        archive = np.load(path, allow_pickle=False)
-        if not isinstance(archive, np.lib.npyio.NpzFile):
-            raise _NotAnArchive
-        with archive:
-            data = {key: archive[key] for key in archive.files}
+        # Our own handle: numpy leaves its own open when the zip directory is unreadable (ResourceWarning).
+        with open(path, "rb") as handle:
+            archive = np.load(handle, allow_pickle=False)
+            if not isinstance(archive, np.lib.npyio.NpzFile):
+                raise _NotAnArchive
+            with archive:
+                data = {key: archive[key] for key in archive.files}
     except _NotAnArchive:
         raise ValueError(f"{path}: is a single .npy array, not an .npz archive; rename it to .npy") from None
     except ValueError as err:
@@ -81,17 +105,21 @@ def load_npy(path: Path) -> RawVideo:
     Shape:
         ``frames`` as stored (:func:`~anra_torch.video.load_video` requires ``(T, H, W)``).
     """
+    _check_magic(path, ".npy")
     try:
-        frames = np.load(path, allow_pickle=False)
+        with open(path, "rb") as handle:
+            frames = np.load(handle, allow_pickle=False)
+            if not isinstance(frames, np.ndarray):
+                frames.close()
+                raise ValueError(f"{path}: is an .npz archive, not a single .npy array; rename it to .npz")
     except ValueError as err:
+        if str(err).startswith(f"{path}: "):
+            raise
         raise _value_error(path, err, ".npy", "a numeric array (numpy.save)") from err
     except (EOFError, OSError, pickle.UnpicklingError) as err:
         raise ValueError(
             f"{path}: cannot read as .npy ({one_line(err, kind=True)}); the file may be truncated or corrupt"
         ) from err
-    if not isinstance(frames, np.ndarray):
-        frames.close()
-        raise ValueError(f"{path}: is an .npz archive, not a single .npy array; rename it to .npz")
     return RawVideo(frames=frames)
 
 

@@ -1,0 +1,127 @@
+"""Plausibility and model-failure flags: the warnings a result carries, worded once for every command.
+
+A number can be valid and still wrong: a diffusivity no material has (a pixel size in metres where mm were
+meant reads 1e6 times too small), a negative one (heat gathering instead of spreading), or a model whose
+forecast stays far above the noise floor. :class:`~anra_torch.estimator.ANRAResult` and
+:class:`~anra_torch.forecast.GainResult` keep these lines in their ``warnings``; ``anra estimate``,
+``diagnose`` and ``batch`` print them.
+"""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["MODEL_FAILURE_RATIO", "PLAUSIBLE_DIFFUSIVITY", "diffusivity_warnings", "model_failure"]
+
+PLAUSIBLE_DIFFUSIVITY = (1e-3, 2e3)
+"""Diffusivities of known materials, mm^2/s: aerogels and foams ~0.01-0.03, tissue and polymers ~0.1,
+metals 10-170, diamond and pyrolytic graphite ~1e3; a wide margin on each side."""
+
+MODEL_FAILURE_RATIO = 3.0
+"""A forecast RMSE above this multiple of the noise floor is a model that does not explain the data."""
+
+_MIXUPS = (
+    # (spacing, the unit it was probably given in, factor from that unit to mm or s)
+    ("dx", "m", 1e3),
+    ("dx", "cm", 10.0),
+    ("dx", "um", 1e-3),
+    ("dt", "ms", 1e-3),
+    ("dt", "min", 60.0),
+)
+"""Unit mix-ups :func:`diffusivity_warnings` names as the likely cause (a scales as dx^2 / dt)."""
+
+
+def _likely_cause(a: float, dt: float, dx: float) -> str:
+    """The unit mix-up that brings ``|a|`` into :data:`PLAUSIBLE_DIFFUSIVITY` closest to 1 mm^2/s."""
+    low, high = PLAUSIBLE_DIFFUSIVITY
+    best = None
+    for name, unit, factor in _MIXUPS:
+        fixed = abs(a) * (factor**2 if name == "dx" else 1 / factor)
+        if low <= fixed <= high and (best is None or abs(math.log10(fixed)) < abs(math.log10(best[0]))):
+            best = (fixed, name, unit, factor)
+    if best is None:
+        return "; check that dt is in s, dx in mm and the frames are temperatures"
+    fixed, name, unit, factor = best
+    value = dx if name == "dx" else dt
+    wanted = "mm" if name == "dx" else "s"
+    return (
+        f"; likely cause: {name} = {value:g} given in {unit} instead of {wanted} "
+        f"({name} = {value * factor:g} {wanted} would give {math.copysign(fixed, a):.3g} mm^2/s)"
+    )
+
+
+def diffusivity_warnings(a: float, *, dt: float, dx: float, z: float | None = None) -> list[str]:
+    """The warnings a diffusivity deserves: negative, or outside every known material.
+
+    Args:
+        a: the diffusivity, mm^2/s (a non-finite value gets no warning: it is reported as no estimate).
+        dt: frame period, s (for the likely unit mix-up).
+        dx: pixel size, mm.
+        z: ``a`` in standard errors, when known: a negative ``a`` is then flagged only below -3.
+
+    Returns:
+        Zero, one or two lines.
+
+    Shape:
+        No tensors.
+
+    Example:
+        >>> diffusivity_warnings(6e-9, dt=0.04, dx=0.0001)[0].split("; ")[1]
+        'likely cause: dx = 0.0001 given in m instead of mm (dx = 0.1 mm would give 0.006 mm^2/s)'
+        >>> diffusivity_warnings(0.15, dt=0.04, dx=0.1)
+        []
+    """
+    if not math.isfinite(a):
+        return []
+    found = []
+    if z is not None and z < -3.0:
+        how = f"{z:.1f} standard errors below 0" if math.isfinite(z) else "noise-free: a zero standard error"
+        found.append(
+            f"the diffusivity is significantly negative ({how}): heat is added "
+            "faster than it spreads (a source?), the plain heat equation does not describe these frames; "
+            "see anra diagnose"
+        )
+    elif z is None and a < 0:
+        found.append(
+            "the diffusivity is negative: heat gathers instead of spreading (a source, or frames in "
+            "reverse order?), the plain heat equation does not describe these frames"
+        )
+    low, high = PLAUSIBLE_DIFFUSIVITY
+    if not low <= abs(a) <= high:
+        found.append(
+            f"the diffusivity {a:.3g} mm^2/s is outside every known material (about {low:g} to {high:g} "
+            f"mm^2/s in magnitude){_likely_cause(a, dt, dx)}"
+        )
+    return found
+
+
+def model_failure(rmse: float, floor: float, *, what: str = "forecast") -> str | None:
+    """The warning for a model whose ``what`` RMSE stays above :data:`MODEL_FAILURE_RATIO` noise floors.
+
+    Args:
+        rmse: the model's error (data units).
+        floor: the least error a perfect model would reach (data units).
+        what: the error's name in the message.
+
+    Returns:
+        One line naming the ratio to the floor, or None when the model explains the data.
+
+    Shape:
+        No tensors.
+
+    Example:
+        >>> model_failure(0.03, 0.001)[:72]
+        'the model does not explain the data: its forecast RMSE 0.03 is 30 times '
+        >>> model_failure(0.002, 0.001) is None
+        True
+    """
+    if not math.isfinite(rmse):
+        return f"the model does not explain the data: its {what} is not finite (the simulation diverged)"
+    if not math.isfinite(floor) or floor < 0 or rmse <= MODEL_FAILURE_RATIO * floor:
+        return None
+    ratio = f"{rmse / floor:.3g} times" if floor > 0 else "infinitely above"
+    return (
+        f"the model does not explain the data: its {what} RMSE {rmse:.3g} is {ratio} the noise floor "
+        f"{floor:.3g} (more than {MODEL_FAILURE_RATIO:g}: an effect not modelled, a camera artefact, or "
+        "wrong spacing)"
+    )

@@ -1,0 +1,378 @@
+"""The hardening issue's table, row by row: hostile input values, spacings and files through the CLI.
+
+The input policy (:mod:`anra_torch.video.prepare`): a sample that is non-finite or beyond +-1e6 data units
+is masked and counted, the same way for estimate, diagnose, features and batch; a video with no sample left
+is refused in one line; dt and dx must lie in 1e-6..1e6 s / mm. Results carry ``warnings`` (an implausible
+or negative diffusivity, a model that does not explain the data) and JSON never holds NaN or inf. Each test
+checks its row against an independent reference: the same video without the bad sample, the library called
+directly, or arithmetic on the printed numbers.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from anra_torch import ANRAEstimator
+from anra_torch.checks import VALUE_LIMIT, in_range_values
+from anra_torch.cli import main
+from anra_torch.cli.arguments import json_line
+from anra_torch.flags import PLAUSIBLE_DIFFUSIVITY, diffusivity_warnings, model_failure
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def strict_json(text: str) -> dict:
+    """Parse one JSON line, refusing NaN and infinities (what ``allow_nan=False`` forbids)."""
+
+    def refuse(name: str) -> None:
+        raise AssertionError(f"non-finite number {name} in JSON")
+
+    assert text.count("\n") == 1, text
+    return json.loads(text, parse_constant=refuse)
+
+
+def one_line_error(code: int, out: str, err: str, match: str) -> None:
+    assert code == 2, (code, err)
+    assert err.startswith("anra: error: ") and err.count("\n") == 1, err
+    assert "Traceback" not in err and re.search(match, err), err
+    assert not re.search(r"\bnan\b", err, re.IGNORECASE), err
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The paper's case at 32 x 32 px, 30 frames (dx = 0.3125 mm, a = 0.2 mm^2/s), from ``anra simulate``."""
+    path = tmp_path_factory.mktemp("hardening") / "clean.npz"
+    assert main(["simulate", "--size", "32", "--frames", "30", "-o", str(path)]) == 0
+    return path
+
+
+def variant(clean: Path, path: Path, frames: np.ndarray) -> Path:
+    with np.load(clean) as data:
+        arrays = {k: data[k] for k in data.files}
+    np.savez(path, **{**arrays, "frames": frames})
+    return path
+
+
+def frames_of(clean: Path, dtype: type = np.float64) -> np.ndarray:
+    with np.load(clean) as data:
+        return data["frames"].astype(dtype)
+
+
+def spiked(clean: Path, tmp_path: Path, value: float, dtype: type = np.float64) -> tuple[Path, np.ndarray]:
+    """The clean video with one sample (frame 10, row 16, column 16) set to ``value``."""
+    frames = frames_of(clean, dtype)
+    frames[10, 16, 16] = value
+    return variant(clean, tmp_path / f"spike_{value:g}.npz", frames), frames
+
+
+def json_of(*argv: str) -> dict:
+    """The JSON object a command prints (outside capsys, for module fixtures)."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(list(argv)) == 0
+    return strict_json(out.getvalue())
+
+
+@pytest.fixture(scope="module")
+def clean_estimate(clean: Path) -> dict:
+    """``anra estimate --json`` of the clean video: the reference for the variants."""
+    return json_of("estimate", str(clean), "--json")
+
+
+@pytest.fixture(scope="module")
+def clean_diagnosis(clean: Path) -> dict:
+    """``anra diagnose --json`` of the clean video: the reference for the spiked ones."""
+    return json_of("diagnose", str(clean), "--json")
+
+
+# ----------------------------------------------------------------------------- values beyond any physics
+def test_a_1e30_sample_is_masked_and_estimate_matches_the_library_without_it(
+    clean: Path, clean_estimate: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, frames = spiked(clean, tmp_path, 1e30)
+    code, out, err = run(capsys, "estimate", path, "--json")
+    assert (code, err) == (0, "")
+    s = strict_json(out)
+    # Reference: the estimator called directly on the frames with that sample made NaN.
+    frames[10, 16, 16] = np.nan
+    with np.load(clean) as data:
+        dt, dx = float(data["dt"]), float(data["dx"])
+    ref = ANRAEstimator()(torch.from_numpy(frames), dt, dx)
+    assert s["valid"] is True and s["n_masked"] == 1
+    assert s["diffusivity"] == pytest.approx(float(ref.diffusivity), rel=1e-9)
+    # The mask drops every output pixel whose filters reach the sample: within the standard error.
+    assert abs(s["diffusivity"] - clean_estimate["diffusivity"]) < 3 * clean_estimate["std_error"]
+    assert s["input"]["masked_values"]["beyond_limit"] == 1 and s["input"]["masked_values"]["largest"] == 1e30
+    expected = (
+        "input: 1 of 30720 samples masked (1 beyond +-1e+06 data units, the largest 1e+30: not a measurement)"
+    )
+    assert s["warnings"] == [expected]
+
+
+def test_batch_takes_the_same_decision_as_estimate_on_a_float32_1e15_sample(
+    clean: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, _ = spiked(clean, tmp_path, 1e15, np.float32)
+    code, out, err = run(capsys, "estimate", path, "--json")
+    alone = strict_json(out)
+    assert (code, err) == (0, "") and alone["valid"] is True
+    table = tmp_path / "rows.csv"
+    code, out, err = run(capsys, "batch", path, "--out", table, "--no-progress")  # float32, as the issue's
+    assert (code, err) == (0, "")
+    with table.open() as handle:
+        (row,) = list(csv.DictReader(handle))
+    assert row["status"] == "ok" and int(row["n_masked"]) == 1
+    rtol = 100 * torch.finfo(torch.float32).eps  # both in float32; summation order may differ
+    assert float(row["diffusivity"]) == pytest.approx(alone["diffusivity"], rel=rtol)
+
+
+def test_a_1e300_sample_gives_valid_json_in_estimate(
+    clean: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, _ = spiked(clean, tmp_path, 1e300)
+    code, out, err = run(capsys, "estimate", path, "--json")
+    assert (code, err) == (0, "")
+    s = strict_json(out)
+    assert s["valid"] is True and s["n_masked"] == 1 and "1e+300" in s["warnings"][0]
+
+
+@pytest.mark.parametrize("value", [1e300, 1e20, 1e3])
+def test_diagnose_of_one_bad_sample_matches_the_clean_video(
+    value: float, clean: Path, clean_diagnosis: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """1e300 raised LinAlgError, 1e20 and 1e3 internal checks: now beyond 1e6 is masked, 1e3 is a spike the
+    artefact stage repairs, and the diagnosis is the clean video's."""
+    path, _ = spiked(clean, tmp_path, value)
+    code, out, err = run(capsys, "diagnose", path, "--json")
+    assert (code, err) == (0, "")
+    s = strict_json(out)
+    assert s["base"]["diffusivity"] == pytest.approx(clean_diagnosis["base"]["diffusivity"], rel=0.01)
+    assert s["extended"]["prediction_rmse"] < 1.5 * clean_diagnosis["extended"]["prediction_rmse"]
+    masked = [w for w in s["warnings"] if w.startswith("input: ")]
+    assert len(masked) == (value > VALUE_LIMIT)
+    assert not any("does not explain" in w for w in s["warnings"])
+
+
+def test_diagnose_text_of_a_1e300_sample_is_not_a_traceback(
+    clean: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, _ = spiked(clean, tmp_path, 1e300)
+    code, out, err = run(capsys, "diagnose", path)
+    assert (code, err) == (0, "")
+    assert "warning: input: 1 of 30720 samples masked" in out and "plain heat equation: a = 0.2" in out
+
+
+# ------------------------------------------------------------------------------------------ all NaN
+@pytest.mark.parametrize("command", ["estimate", "diagnose", "features"])
+def test_an_all_nan_video_is_refused_with_the_true_count(
+    command: str, clean: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = np.full_like(frames_of(clean), np.nan)
+    path = variant(clean, tmp_path / "void.npz", frames)
+    one_line_error(
+        *run(capsys, command, path),
+        rf"void\.npz: frames must hold finite values within \+-1e\+06 \(data units\), got none: "
+        rf"{frames.size} non-finite and 0 beyond the limit of {frames.size} samples",
+    )
+
+
+def test_batch_gives_an_all_nan_video_an_error_row(
+    clean: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = variant(clean, tmp_path / "void.npz", np.full_like(frames_of(clean), np.nan))
+    table = tmp_path / "rows.csv"
+    code, _, _ = run(capsys, "batch", path, "--out", table, "--no-progress")
+    with table.open() as handle:
+        (row,) = list(csv.DictReader(handle))
+    assert code == 2 and row["status"] == "error" and "got none: 30720 non-finite" in row["error"]
+
+
+def test_diagnose_counts_non_finite_samples_over_the_whole_video(
+    clean: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The count used to cover only the diagnosed (fit) frames: here the NaN are all in the held-out part."""
+    frames = frames_of(clean)
+    frames[20:] = np.nan  # 10 of 30 frames: 10240 samples, all after the split
+    path = variant(clean, tmp_path / "late.npz", frames)
+    expected = (
+        r"late\.npz: frames must be mostly finite, got 10240 non-finite values of 30720 \(more than 5 %\)"
+    )
+    one_line_error(*run(capsys, "diagnose", path), expected)
+
+
+# ----------------------------------------------------------------------------------------- spacings
+@pytest.mark.parametrize(("flag", "value", "unit"), [("--dt", "1e-300", "s"), ("--dx", "1e300", "mm")])
+def test_a_spacing_outside_the_float_range_is_refused_clearly(
+    flag: str, value: str, unit: str, clean: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    name, shown = flag[2:], re.escape(f"{float(value):g}")
+    for command in ("estimate", "diagnose", "features"):
+        one_line_error(
+            *run(capsys, command, clean, flag, value),
+            rf"clean\.npz: {name} must be between 1e-06 and 1e\+06 {unit}, got {shown}; "
+            r"check its unit \(dt in s, dx in mm\)",
+        )
+
+
+def test_the_estimator_never_prints_nan_for_an_overflowing_spacing(clean: Path) -> None:
+    """The library itself (no spacing range there): the message names the overflow, not nan."""
+    frames = torch.from_numpy(frames_of(clean))
+    result = ANRAEstimator(strict=False)(frames, 1e-300, 0.3125)
+    assert not bool(result.valid)
+    assert "not finite (an overflow" in result.messages[0] and "nan" not in result.messages[0]
+
+
+def test_dx_in_metres_gets_a_plausibility_warning(
+    clean: Path, clean_estimate: dict, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run(capsys, "estimate", clean, "--dx", "0.0003125", "--json")  # 0.3125 mm in metres
+    assert (code, err) == (0, "")
+    s = strict_json(out)
+    # a scales as dx^2: (0.0003125 / 0.3125)^2 = 1e-6 of the file's own estimate.
+    assert s["diffusivity"] == pytest.approx(1e-6 * clean_estimate["diffusivity"], rel=1e-9)
+    (warning,) = s["warnings"]
+    assert "is outside every known material (about 0.001 to 2000 mm^2/s" in warning
+    fixed = float(re.search(r"dx = 0\.3125 mm would give ([\d.e-]+) mm\^2/s", warning).group(1))
+    assert "likely cause: dx = 0.0003125 given in m instead of mm" in warning
+    assert fixed == pytest.approx(s["diffusivity"] * 1e6, rel=1e-3)
+    assert s["message"] == f"warning: {warning}"
+    code, out, _ = run(capsys, "estimate", clean, "--dx", "0.0003125")
+    assert code == 0 and f"  warning: {warning}\n" in out
+
+
+# ------------------------------------------------------------------------------------- model failure
+def test_a_time_reversed_video_is_reported_as_not_explained(
+    clean: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = variant(clean, tmp_path / "reversed.npz", frames_of(clean)[::-1].copy())
+    code, out, err = run(capsys, "diagnose", path, "--json")
+    assert (code, err) == (0, "")
+    s = strict_json(out)
+    ratio = s["extended"]["prediction_rmse"] / s["noise_floor"]
+    assert ratio > 3 and s["base"]["diffusivity"] < 0
+    failure = [w for w in s["warnings"] if w.startswith("the model does not explain the data")]
+    assert len(failure) == 1 and f"is {ratio:.3g} times the noise floor" in failure[0]
+    assert any(w.startswith("the diffusivity is negative") for w in s["warnings"])
+
+
+# -------------------------------------------------------------------------------------- broken files
+@pytest.mark.parametrize("command", ["estimate", "diagnose", "features"])
+def test_random_bytes_named_npz_are_not_a_valid_zip(
+    command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "junk.npz"
+    path.write_bytes(np.random.default_rng(0).bytes(5000))
+    one_line_error(
+        *run(capsys, command, path, "--dx", "0.1", "--dt", "0.1"), r"junk\.npz: not a valid \.npz \(zip\)"
+    )
+
+
+def test_batch_row_for_random_bytes_says_not_a_valid_zip(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "junk.npz"
+    path.write_bytes(np.random.default_rng(1).bytes(5000))
+    table = tmp_path / "rows.csv"
+    code, _, _ = run(capsys, "batch", path, "--out", table, "--no-progress")
+    with table.open() as handle:
+        (row,) = list(csv.DictReader(handle))
+    assert code == 2 and "not a valid .npz (zip) file" in row["error"]
+
+
+# --------------------------------------------------------------------------------- the pieces alone
+def test_in_range_values_masks_and_counts_like_numpy() -> None:
+    rng = np.random.default_rng(0)
+    values = 30 + rng.standard_normal((5, 6, 7))
+    values[0, 0, :3] = [np.nan, np.inf, -np.inf]
+    values[1, 2, 3], values[4, 5, 6] = 2e6, -1e300
+    masked, found = in_range_values(torch.from_numpy(values))
+    bad = ~np.isfinite(values) | (np.abs(np.nan_to_num(values, posinf=0, neginf=0)) > 1e6)
+    np.testing.assert_array_equal(np.isnan(masked.numpy()), bad)
+    np.testing.assert_array_equal(masked.numpy()[~bad], values[~bad])
+    assert found == {"non_finite": 3, "beyond_limit": 2, "samples": 210, "limit": 1e6, "largest": 1e300}
+    # integer counts: kept as they are unless one is beyond the limit
+    counts = torch.tensor([[[20000, 65535]]], dtype=torch.int32)
+    assert in_range_values(counts)[0] is counts
+    big = in_range_values(torch.tensor([[[20000, 2**31 - 1]]], dtype=torch.int32))[0]
+    assert big.dtype == torch.float64 and math.isnan(big[0, 0, 1]) and big[0, 0, 0] == 20000
+    with pytest.raises(ValueError, match=r"got none: 0 non-finite and 0 beyond the limit of 0 samples"):
+        in_range_values(torch.zeros(0, 4, 4))
+
+
+def test_diffusivity_warnings_name_the_unit_mix_up() -> None:
+    low, high = PLAUSIBLE_DIFFUSIVITY
+    assert diffusivity_warnings(0.15, dt=0.04, dx=0.1) == []
+    assert (
+        diffusivity_warnings(low, dt=0.04, dx=0.1) == [] and diffusivity_warnings(high, dt=0.04, dx=0.1) == []
+    )
+    # dt in ms: a reads 1000 times too small
+    (warning,) = diffusivity_warnings(1.5e-4, dt=40.0, dx=0.1)
+    assert "likely cause: dt = 40 given in ms instead of s (dt = 0.04 s would give 0.15 mm^2/s)" in warning
+    # dx in um: a reads 1e6 times too large
+    (warning,) = diffusivity_warnings(1.5e5, dt=0.04, dx=100.0)
+    assert "likely cause: dx = 100 given in um instead of mm (dx = 0.1 mm would give 0.15 mm^2/s)" in warning
+    # nothing explains 1e30: the generic advice
+    (warning,) = diffusivity_warnings(1e30, dt=0.04, dx=0.1)
+    assert warning.endswith("check that dt is in s, dx in mm and the frames are temperatures")
+    # negative: significant with a z-score, any with none; no warning for a non-finite value
+    assert diffusivity_warnings(-0.15, dt=0.04, dx=0.1, z=-2.0) == []
+    assert (
+        "significantly negative (-5.0 standard errors"
+        in diffusivity_warnings(-0.15, dt=0.04, dx=0.1, z=-5.0)[0]
+    )
+    assert diffusivity_warnings(-0.15, dt=0.04, dx=0.1)[0].startswith("the diffusivity is negative")
+    assert (
+        "(noise-free: a zero standard error)" in diffusivity_warnings(-0.15, dt=0.04, dx=0.1, z=-math.inf)[0]
+    )
+    assert diffusivity_warnings(math.nan, dt=0.04, dx=0.1) == []
+
+
+def test_model_failure_states_the_ratio_to_the_floor() -> None:
+    assert model_failure(0.003, 0.001) is None  # exactly 3 floors: still explained
+    assert "RMSE 0.0031 is 3.1 times the noise floor 0.001" in model_failure(0.0031, 0.001)
+    assert "is infinitely above the noise floor 0" in model_failure(0.1, 0.0)
+    assert "not finite" in model_failure(math.nan, 0.001)
+
+
+def test_json_line_never_writes_nan() -> None:
+    record = {"a": 1.0, "b": math.nan, "c": {"d": [1.0, math.inf]}, "warnings": ["x"]}
+    line = json_line(record)
+    parsed = strict_json(line + "\n")
+    assert parsed == {
+        "a": 1.0,
+        "b": None,
+        "c": {"d": [1.0, None]},
+        "warnings": ["x", "not finite, reported as null: b, c.d[1]"],
+    }
+
+
+def test_an_internal_error_is_one_line_with_exit_1(
+    clean: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import anra_torch.cli.estimate as estimate_command
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("linalg.eigh: failed to converge")
+
+    monkeypatch.setattr(estimate_command, "ANRAEstimator", broken)
+    monkeypatch.delenv("ANRA_TRACEBACK", raising=False)
+    code, out, err = run(capsys, "estimate", clean)
+    assert code == 1 and out == "" and err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith("anra: internal error: RuntimeError: linalg.eigh: failed to converge (a bug")
+    monkeypatch.setenv("ANRA_TRACEBACK", "1")
+    with pytest.raises(RuntimeError, match="failed to converge"):
+        main(["estimate", str(clean)])
