@@ -31,8 +31,9 @@ def _error_row(path: str, message: str) -> dict[str, Any]:
 
 
 def _join(parts: Iterable[object]) -> str:
-    """Non-empty parts, ``;``-joined once each, in order."""
-    return "; ".join(dict.fromkeys(str(p) for p in parts if p))
+    """Non-empty parts, ``;``-joined once each, in order (a leading ``warning: `` dropped, so the estimator's
+    warning line and the same text in its ``warnings`` list count once)."""
+    return "; ".join(dict.fromkeys(str(p).removeprefix("warning: ") for p in parts if p))
 
 
 def _message(record: dict[str, Any]) -> str:
@@ -46,7 +47,7 @@ def _load(path: str, options: BatchOptions) -> Video:
         path,
         dt=options.dt,
         dx=options.dx,
-        timestamps="resample" if options.resample else "uniform",
+        timestamps="resample",  # as every command: only non-uniform timestamps are resampled, and said so
         roi=options.roi,
         calibration=options.calibration,
     )
