@@ -146,3 +146,18 @@ def test_irregular_times_with_a_12x_step_range_need_no_flag(
     assert main(["diagnose", str(path), "--json"]) == 0
     record = json.loads(capsys.readouterr().out)
     assert record["input"]["resampled"]["from_frames"] == 60 and record["phases"]
+
+
+def test_effects_that_do_not_forecast_or_sit_outside_the_frame_are_flagged() -> None:
+    from anra_torch.forecast.recording import _implausible
+
+    effects = [
+        {"name": "source", "params": {"x0": 400.0, "y0": 5.0, "x1": 401.0, "y1": 5.0}, "gain": 0.3},
+        {"name": "advection", "params": {"vx": 1.0, "vy": 0.0}, "gain": -4.0},
+        {"name": "linear_loss", "params": {"b": 0.1, "T_ref": 20.0}, "gain": 0.5},
+    ]
+    flagged = _implausible(effects, height=20.0, width=20.0)
+    assert len(flagged) == 3  # the source's start and end outside the 20 mm frame, the advection's gain
+    assert all("missing" in line for line in flagged)
+    assert flagged[0].startswith("source: x0, y0 = (400, 5) mm lies outside the 20 x 20 mm field of view")
+    assert flagged[2].startswith("advection: its own held-out gain is -4")

@@ -195,7 +195,7 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
         }
     if any(input_record(video).values()):
         summary["input"] = input_record(video)
-    summary["warnings"] = input_warnings(video) + list(result.warnings)
+    summary["warnings"] = input_warnings(video) + list(result.warnings) + list(main.warnings)
     return {**summary, **records}, result, mapped, video, phases
 
 

@@ -73,6 +73,8 @@ class PhaseDiagnosis:
         result: the balance family's :class:`~anra_torch.forecast.GainResult`.
         forecasts: the held-out frames as ``"measured"``, ``"plain"`` and ``"extended"`` (the chosen
             model) forecasts, at the scale their RMSE was taken on (for figures); None when not analysed.
+        warnings: signs of a missing term: an effect whose own held-out gain is not positive, or placed
+            outside the field of view (:func:`_implausible`).
 
     Shape:
         each of ``forecasts`` ``(K, H, W)``.
@@ -93,6 +95,7 @@ class PhaseDiagnosis:
     reason: str | None = None
     result: GainResult | None = None
     forecasts: dict[str, Tensor] | None = None
+    warnings: list[str] = field(default_factory=list)
 
     def to_record(self) -> dict[str, Any]:
         """The phase as a JSON-ready dict (the ``"phases"`` element of ``anra diagnose --json``)."""
@@ -112,6 +115,7 @@ class PhaseDiagnosis:
             "gain": self.gain,
             "noise_floor": self.noise_floor,
             "candidates": self.candidates,
+            "warnings": list(self.warnings),
         }
         if self.flags:
             record["base"]["flags"] = list(self.flags)
@@ -209,6 +213,7 @@ def _balance_phase(
     )
     if result.diagnosis.a_plain < 0:
         diagnosis.flags.append("negative")
+    diagnosis.warnings = _implausible(effects, part.shape[1] * dx, part.shape[2] * dx)
     held = {"parametric": (result.extended_rmse, result.gain)}
     predicted = {"parametric": result.predicted_extended}
     validation: dict[str, float] = {}
@@ -232,6 +237,29 @@ def _balance_phase(
         name: {"validation_rmse": validation.get(name), "gain": held[name][1]} for name in held
     }
     return diagnosis
+
+
+def _implausible(effects: list[dict[str, Any]], height: float, width: float) -> list[str]:
+    """Signs of a missing term among the named ``effects`` of a ``height`` x ``width`` mm frame: an own
+    held-out gain of zero or below, or a position (the effect's ``positions``, mm) outside the frame."""
+    from anra_torch.effects import EFFECTS
+
+    out = []
+    for e in effects:
+        name, params = e["name"], e["params"]
+        if not e["gain"] > 0:
+            out.append(
+                f"{name}: its own held-out gain is {e['gain']:.3g} (not positive): it fits the diagnosed "
+                "frames but does not forecast; a sign of a term the model is missing"
+            )
+        for kx, ky in EFFECTS[name].positions:
+            x, y = params.get(kx, 0.0), params.get(ky, 0.0)
+            if not (0 <= x <= width and 0 <= y <= height):
+                out.append(
+                    f"{name}: {kx}, {ky} = ({x:.3g}, {y:.3g}) mm lies outside the {width:.3g} x "
+                    f"{height:.3g} mm field of view; a sign of a term the model is missing"
+                )
+    return out
 
 
 def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, options: dict) -> dict[str, float]:
