@@ -3,7 +3,7 @@
 ``anra estimate --json`` prints one object on one line:
 
 - ``path``; ``diffusivity`` and ``std_error`` (mm^2/s, null when no estimate); ``valid`` (bool) and
-  ``message`` (the reason when not valid, the diffusivity's warnings, else "");
+  ``message`` (the reason when not valid, else "");
 - ``warnings``: a list of lines, empty when all is well: input samples masked (non-finite or beyond
   +-1e6), a significantly negative diffusivity, one outside every known material (about 1e-3 to 2e3
   mm^2/s, with the likely unit mix-up of dt or dx), a number not finite and reported as null;
