@@ -89,8 +89,8 @@ class ANRAResult:
         field: windowed diffusivity map aligned with the input frames, ``(B, H, W)`` (NaN where
             ``confidence == 0``: the border the filters cannot reach, or windows without signal), or None.
         confidence: reliability of each window in [0, 1], ``(B, H, W)``, or None.
-        messages: one line per video: the reason when not valid; for a valid video empty, or
-            ``"warning: "`` and its ``warnings`` joined by ``"; "`` (the value is kept).
+        messages: one line per video: the reason when not valid, else empty (a valid video's flags are in
+            ``warnings``; the value is kept).
         warnings: per video, the plausibility flags of a valid estimate
             (:func:`anra_torch.flags.diffusivity_warnings`): significantly negative (a source dominates),
             or outside every known material (with the likely unit mix-up of dt or dx); empty when none.
@@ -528,7 +528,7 @@ def _verdicts(
     dt: Tensor,
     dx: Tensor,
 ) -> tuple[tuple[str, ...], tuple[tuple[str, ...], ...]]:
-    """Per video, the result's line (why it is not valid, its warnings joined, or "") and its warnings
+    """Per video, the result's line (why it is not valid, else "") and its warnings
     (:func:`anra_torch.flags.diffusivity_warnings`; none for an invalid video)."""
     messages, warnings = [], []
     z = estimate / std_error
@@ -555,5 +555,5 @@ def _verdicts(
                 f"{_MIN_SIGNIFICANCE:g}); no diffusivity estimated"
             )
         else:
-            messages.append("warning: " + "; ".join(found) if found else "")
+            messages.append("")  # a valid video's flags are its warnings (joined once by their readers)
     return tuple(messages), tuple(warnings)

@@ -657,7 +657,7 @@ def test_extra_repr_shows_the_configuration() -> None:
 
 
 def test_significantly_negative_diffusivity_is_kept_with_a_warning() -> None:
-    """A heating spot (source, little diffusion) reads as a < 0: the value stays, the message says why."""
+    """A heating spot (source, little diffusion) reads as a < 0: the value stays, a warning says why."""
     from anra_torch.effects import simulate_effects
 
     y, x = torch.meshgrid(torch.arange(48.0), torch.arange(48.0), indexing="ij")
@@ -666,6 +666,7 @@ def test_significantly_negative_diffusivity_is_kept_with_a_warning() -> None:
     video = video + 0.01 * torch.randn(video.shape, dtype=video.dtype)
     result = ANRAEstimator()(video, 0.1, 0.2)
     assert bool(result.valid) and float(result.diffusivity) < -3 * float(result.std_error)
-    assert result.messages[0].startswith("warning: the diffusivity is significantly negative (")
+    assert result.messages == ("",)  # valid: the flag is a warning, the value is kept
+    assert result.warnings[0][0].startswith("the diffusivity is significantly negative (")
     clean = ANRAEstimator()(simulate_effects(20 + 5 * spot, a=0.1, dx=0.2, dt=0.1, n_frames=20), 0.1, 0.2)
-    assert clean.messages == ("",)
+    assert clean.messages == ("",) and clean.warnings == ((),)

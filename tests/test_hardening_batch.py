@@ -248,7 +248,7 @@ def test_batch_message_column_keeps_warnings(tmp_path: Path, monkeypatch: pytest
 
     def with_warnings(self, index=0, **kwargs):
         record = to_record(self, index, **kwargs)
-        return record | {"warnings": ["first warning", "second warning", record["message"]]}
+        return record | {"warnings": ["first warning", "second warning", *record["warnings"]]}
 
     monkeypatch.setattr(ANRAResult, "to_record", with_warnings)
     run_batch([backwards], tmp_path / "w.csv", progress=False)

@@ -3,7 +3,7 @@
 ``anra estimate --json`` prints one object on one line:
 
 - ``path``; ``diffusivity`` and ``std_error`` (mm^2/s, null when no estimate); ``valid`` (bool) and
-  ``message`` (the reason when not valid, the diffusivity's warnings, else "");
+  ``message`` (the reason when not valid, else "");
 - ``warnings``: a list of lines, empty when all is well: input samples masked (non-finite or beyond
   +-1e6), a significantly negative diffusivity, one outside every known material (about 1e-3 to 2e3
   mm^2/s, with the likely unit mix-up of dt or dx), a number not finite and reported as null;
@@ -44,6 +44,9 @@ from anra_torch.report import format_pm
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
 
 __all__ = ["add_parser", "run"]
+
+_PHASE_KEYS = ("diffusivity", "std_error", "valid", "message", "warnings")
+"""What each entry of ``phases`` takes from its estimate (a valid one's flags are in ``warnings``)."""
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -215,16 +218,15 @@ def _phases(video: Video, est: ANRAEstimator) -> tuple[list[dict[str, Any]], Pha
         head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
         head.update(t_start=phase.t_start, t_stop=phase.t_stop)
         if phase.frames < MIN_PHASE_FRAMES:
-            records.append({**head, "diffusivity": None, "valid": False, "message": "too short"})
+            records.append(
+                {**head, "diffusivity": None, "valid": False, "message": "too short", "warnings": []}
+            )
             continue
         part = _part(video, phase)
         record, result = _estimate(part, est)
         if result is not None:
-            record = {
-                k: result.to_record(unit=video.unit)[k]
-                for k in ("diffusivity", "std_error", "valid", "message")
-            }
-        records.append({**head, **record})
+            record = {k: result.to_record(unit=video.unit)[k] for k in _PHASE_KEYS}
+        records.append({"warnings": [], **head, **record})
         rank = (
             phase.name in SOURCE_FREE and bool(record["valid"]),
             -SOURCE_FREE.index(phase.name) if phase.name in SOURCE_FREE else -9,
@@ -259,7 +261,7 @@ def run(args: argparse.Namespace) -> int:
     if not records:
         head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
         head.update(t_start=phase.t_start, t_stop=phase.t_stop)
-        records = [{**head, **{k: summary.get(k) for k in ("diffusivity", "std_error", "valid", "message")}}]
+        records = [{**head, **{k: summary.get(k) for k in _PHASE_KEYS}}]
     summary["phase"] = phase.name
     summary["phases"] = records
     summary = clean_json(summary)
