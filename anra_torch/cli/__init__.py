@@ -35,7 +35,8 @@ def free_cores(cores: int, loadavg: Path = Path("/proc/loadavg")) -> int:
     runnable count, this process included), at least 1; ``cores`` where that count is unavailable.
 
     A thread pool wider than the free cores stalls at every parallel step while a neighbour holds a core
-    (measured on 2 cores: a diagnosis 10x slower beside one busy process with 2 threads, under 2x with 1).
+    (``experiments/bench_scale.py --shared``, 2 cores, a 128 px diagnosis beside one busy process: 1.48x its
+    idle time with this default, 2.96x with both cores).
     """
     try:
         running = int(loadavg.read_text().split()[3].split("/")[0])
