@@ -162,19 +162,14 @@ SOURCE_FREE = ("cooling", "baseline", "steady")
 def _small_box_record(video: Video) -> dict[str, Any]:
     """A region too small for the filters: the small-box plain fit, unresolved when the interior follows
     its edges within a frame (the lower bound on ``a`` that implies)."""
-    import math
-
-    from anra_torch.forecast.recording import UNRESOLVED
-    from anra_torch.forecast.small_box import edge_explained, fit_small_box
+    from anra_torch.forecast.small_box import fit_small_box, unresolved_bound
 
     frames, (h, w) = video.frames, video.frames.shape[1:]
     if min(h, w) < 3 or frames.shape[0] < 3:
         return {"diffusivity": None, "std_error": None, "valid": False, "message": "too small: need 3 x 3 px"}
     a = fit_small_box(frames, video.dt, video.dx, "plain").a
-    if edge_explained(frames) >= UNRESOLVED:
-        bound = 1.0 / (
-            video.dt * math.pi**2 * (1 / ((w - 1) * video.dx) ** 2 + 1 / ((h - 1) * video.dx) ** 2)
-        )
+    bound = unresolved_bound(frames, video.dt, video.dx)
+    if bound is not None:
         message = (
             f"unresolved: conduction crosses the {h} x {w} px region within a frame (a > {bound:.3g} mm^2/s)"
         )
@@ -183,7 +178,7 @@ def _small_box_record(video: Video) -> dict[str, Any]:
             "std_error": None,
             "valid": False,
             "message": message,
-            "lower_bound": bound,
+            "diffusivity_lower_bound": bound,
         }
     if not PLAUSIBLE[0] <= a <= PLAUSIBLE[1]:
         message = (
@@ -209,10 +204,11 @@ def _estimate(video: Video, est: ANRAEstimator) -> tuple[dict[str, Any], ANRARes
     return {}, result
 
 
-def _phases(video: Video, est: ANRAEstimator) -> tuple[list[dict[str, Any]], Phase]:
-    """Every phase's estimate, and the phase the top level describes: the longest valid source-free one
-    (cooling, then baseline or steady), else the longest."""
-    phases = find_phases(video.frames, video.t)
+def _phases(
+    video: Video, est: ANRAEstimator, phases: list[Phase]
+) -> tuple[list[dict[str, Any]], Phase, tuple[dict[str, Any], ANRAResult | None] | None]:
+    """Every phase's estimate; the phase the top level describes (the longest valid source-free one:
+    cooling, then baseline or steady; else the longest) and its :func:`_estimate` (None when too short)."""
     records, chosen = [], None
     for phase in phases:
         head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
@@ -233,8 +229,8 @@ def _phases(video: Video, est: ANRAEstimator) -> tuple[list[dict[str, Any]], Pha
             phase.frames,
         )
         if chosen is None or rank > chosen[0]:
-            chosen = (rank, phase)
-    return records, (chosen[1] if chosen else phases[0])
+            chosen = (rank, phase, (record if result is None else {}, result))
+    return records, *((chosen[1], chosen[2]) if chosen else (phases[0], None))
 
 
 def _part(video: Video, phase: Phase) -> Video:
@@ -248,9 +244,9 @@ def run(args: argparse.Namespace) -> int:
     video = load_input(args)
     start = time.perf_counter()
     phases = find_phases(video.frames, video.t)
-    records, phase = _phases(video, est) if len(phases) > 1 else ([], phases[0])
+    records, phase, estimated = _phases(video, est, phases) if len(phases) > 1 else ([], phases[0], None)
     part = _part(video, phase) if len(phases) > 1 else video
-    small, result = _estimate(part, est)
+    small, result = estimated if estimated is not None else _estimate(part, est)
     if result is None:
         flagged = [small["message"]] if not small["valid"] else []
         summary = {"path": str(video.source), **small, "warnings": input_warnings(video) + flagged}

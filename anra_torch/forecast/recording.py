@@ -29,7 +29,7 @@ from torch import Tensor
 from anra_torch.balance.artefacts import find_artefacts
 from anra_torch.forecast.core import TIME_WINDOW, split_index
 from anra_torch.forecast.gain import GainResult, assess_gain
-from anra_torch.forecast.small_box import edge_explained, fit_small_box, forecast_small_box
+from anra_torch.forecast.small_box import fit_small_box, forecast_small_box, unresolved_bound
 from anra_torch.forecast.source_map import source_map_gain
 from anra_torch.selection import minimum_frame_size
 from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, recording_phases
@@ -41,10 +41,6 @@ BOX_WINDOW = 100
 
 BOX_HORIZON = 200
 """Held-out frames forecast at most by a small-box model."""
-
-UNRESOLVED = 0.5
-"""Share of the interior's change explained by the steady state for its edges above which conduction is
-taken as faster than a frame (the diffusivity unresolved)."""
 
 _SOURCES = ("source", "periodic_source")
 _F64 = torch.float64
@@ -344,11 +340,11 @@ def _small_box_phase(phase: Phase, part: Tensor, dt: float, dx: float, fit_fract
             "extended": forecasts[chosen],
         },
     )
-    if edge_explained(fit) >= UNRESOLVED:
-        lx, ly = (part.shape[2] - 1) * dx, (part.shape[1] - 1) * dx
+    bound = unresolved_bound(fit, dt, dx)
+    if bound is not None:
         diagnosis.diffusivity = None
         diagnosis.flags.append("unresolved")
-        diagnosis.diffusivity_bound = 1.0 / (dt * math.pi**2 * (1 / lx**2 + 1 / ly**2))
+        diagnosis.diffusivity_bound = bound
     elif plain.a < 0:
         diagnosis.flags.append("negative")
     if chosen == "quasi_steady":

@@ -42,6 +42,10 @@ MODELS = ("plain", "loss", "quasi_steady")
 SMOOTH_FRAMES = 11
 """Frames of the moving average in time applied to both sides of the PDE before the least squares."""
 
+UNRESOLVED = 0.5
+"""Share of the interior's change explained by the steady state for its edges above which conduction is
+taken as faster than a frame (the diffusivity unresolved)."""
+
 _F64 = torch.float64
 _STABLE = 0.4  # explicit Euler: substep * (4 a / dx^2 + b) below this
 
@@ -207,3 +211,17 @@ def edge_explained(frames: Tensor) -> float:
     harmonic = harmonic - harmonic.mean(0)
     total = float(inner.pow(2).sum())
     return 1.0 - float((inner - harmonic).pow(2).sum()) / total if total > 0 else 1.0
+
+
+def unresolved_bound(frames: Tensor, dt: float, dx: float) -> float | None:
+    """When conduction crosses the region within a frame (:func:`edge_explained` at least
+    :data:`UNRESOLVED`), the lower bound on ``a`` (mm^2/s) that implies: the slowest mode of the box,
+    ``1 / (a pi^2 (1/Lx^2 + 1/Ly^2))``, relaxes within ``dt``; else None (the diffusivity is resolved).
+
+    Shape:
+        ``frames`` ``(T, H, W)``.
+    """
+    if edge_explained(frames) < UNRESOLVED:
+        return None
+    h, w = frames.shape[-2:]
+    return 1.0 / (dt * math.pi**2 * (1 / ((w - 1) * dx) ** 2 + 1 / ((h - 1) * dx) ** 2))
