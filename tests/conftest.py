@@ -34,3 +34,9 @@ def dtype(request: pytest.FixtureRequest) -> torch.dtype:
 def tol(dtype: torch.dtype) -> float:
     """Relative tolerance for an exact-up-to-rounding comparison in ``dtype``."""
     return TOLERANCES[dtype]
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Run the tests marked slow first (in their usual order): under ``pytest -n 2`` the long ones then
+    start while the other worker still has short ones left, instead of one running alone at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)

@@ -185,8 +185,18 @@ def _floor(frames: Tensor, *, sample: int = 200_000) -> float:
     flat = flat[torch.isfinite(flat)].double()
     if flat.numel() < 2:
         return 0.0
-    low, high = torch.quantile(flat, torch.tensor([0.001, 0.999], dtype=flat.dtype)).tolist()
-    return RESOLUTION * (high - low)
+    return RESOLUTION * (_quantile(flat, 0.999) - _quantile(flat, 0.001))
+
+
+def _quantile(flat: Tensor, q: float) -> float:
+    """``torch.quantile(flat, q)`` (linear interpolation) by selection instead of a full sort."""
+    position = q * (flat.numel() - 1)
+    below = int(position)
+    low = float(flat.kthvalue(below + 1).values)
+    if below + 1 >= flat.numel():
+        return low
+    high = float(flat.kthvalue(below + 2).values)
+    return low + (position - below) * (high - low)
 
 
 def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
@@ -203,18 +213,22 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
     if t < 5:
         return none
     second = frames[1:-1] - 0.5 * (frames[:-2] + frames[2:])
-    nonzero = second[second != 0]
-    scale = robust_sd(nonzero) if nonzero.numel() else 0.0
+    flat = second.reshape(-1)
+    sampled = flat[:: max(1, flat.numel() // 200_000)]  # robust_sd's sample, before the zeros are dropped
+    nonzero = sampled[sampled != 0]
+    scale = robust_sd(nonzero, sample=None) if nonzero.numel() else 0.0
     if scale == 0:
         return none
     threshold = max(OUTLIER_Z * scale, floor)
-    flagged = second.abs() > threshold
+    flagged = (second.abs() > threshold).nonzero()
+    if flagged.numel() == 0:
+        return none
     # A single-sample spike is alone: no neighbour in the same frame is flagged (a moving edge or a fast
-    # peak flags its neighbours too).
-    ones = torch.ones(1, 1, 3, 3, dtype=frames.dtype)
-    crowd = F.conv2d(flagged[:, None].to(frames.dtype), ones, padding=1)[:, 0]  # flagged in each 3 x 3
-    alone = flagged & (crowd < 1.5)
-    candidates = alone.nonzero()
+    # peak flags its neighbours too). Counted at the flagged samples only: they are few.
+    marks = F.pad(second.abs() > threshold, (1, 1, 1, 1))
+    k0, i0, j0 = flagged.unbind(1)
+    crowd = sum(marks[k0, i0 + di, j0 + dj].long() for di in range(3) for dj in range(3))
+    candidates = flagged[crowd == 1]
     if candidates.numel() == 0:
         return none
     k, i, j = candidates[:, 0] + 1, candidates[:, 1], candidates[:, 2]

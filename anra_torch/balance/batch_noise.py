@@ -107,20 +107,22 @@ def batch_noise(video: Tensor, finite: Tensor, *, noise_sd: float | None = None)
         ``video``, ``finite`` ``(B, T, H, W)``.
     """
     b = video.shape[0]
+    white = None if noise_sd is not None else estimate_noise_sd(video.detach(), mask=finite).reshape(b)
     cleaned, artefacts, models = [], [], []
     for index in range(b):  # artefacts and noise are properties of each recording
         one = torch.where(finite[index], video[index], torch.nan)
         repaired, found = find_artefacts(one.detach())
         cleaned.append(repaired.to(video.dtype))
         artefacts.append(found)
-        if noise_sd is not None:
+        if white is None:
             models.append(NoiseModel(float(noise_sd)))
-        else:
-            models.append(measure_noise(repaired, static_pattern=found.fixed_pattern))
-    if noise_sd is not None:
+        else:  # nothing repaired: the white estimate of the repaired video is the batch's
+            known = None if found.any else float(white[index])
+            models.append(measure_noise(repaired, static_pattern=found.fixed_pattern, white_sd=known))
+    if white is None:
         sd = torch.full((b,), float(noise_sd), dtype=video.dtype)
     else:
-        white = estimate_noise_sd(video.detach(), mask=finite).reshape(b).to(video.dtype)
+        white = white.to(video.dtype)
         sd = torch.stack(
             [white[i] if models[i].white and not artefacts[i].fixed_pattern else torch.tensor(
                 float(models[i].sd), dtype=video.dtype) for i in range(b)]

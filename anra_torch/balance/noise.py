@@ -265,7 +265,9 @@ def _time_correlation(deviation: Tensor, quiet: Tensor, *, stride: int = 1) -> t
     return tuple(rho)
 
 
-def measure_noise(frames: Tensor, *, static_pattern: bool = False) -> NoiseModel:
+def measure_noise(
+    frames: Tensor, *, static_pattern: bool = False, white_sd: float | None = None
+) -> NoiseModel:
     """The noise model of one (artefact-free) video, measured from the video itself.
 
     From the frames' deviations from their pixel's time mean (no static pattern, no static thermal field
@@ -276,14 +278,15 @@ def measure_noise(frames: Tensor, *, static_pattern: bool = False) -> NoiseModel
     the noise is white and its level is :func:`estimate_noise_sd` (the estimate used for white noise
     everywhere), unless the video has a static pattern (``static_pattern``), which the spatial differences
     of :func:`estimate_noise_sd` would count as noise: then the level comes from the deviations alone, and
-    the pattern's parts from :func:`_static_parts`.
+    the pattern's parts from :func:`_static_parts`. ``white_sd`` is that white estimate when the caller
+    has it already (one full pass over the video less).
 
     Shape:
         ``frames`` ``(T, H, W)``.
     """
     video = frames.double()
     t, h, w = video.shape
-    white = NoiseModel(float(estimate_noise_sd(video)))
+    white = NoiseModel(float(estimate_noise_sd(video)) if white_sd is None else float(white_sd))
     if t < 8 or min(h, w) < 12:
         return white
     deviation = video - video.mean(0)
