@@ -126,12 +126,21 @@ def test_noiseless_recovery_for_every_configuration(
         time_length=time_length,
         laplacian_family=lap_family,
         laplacian_size=lap_size,
+        noise_sd=0.0,  # the stencils alone; the measured noise of a clean video: the test below
     )
     result = estimator(clean112.frames, clean112.dt, clean112.dx)
     assert bool(result.valid.all()) and result.messages == ("",)
     assert result.per_frame.shape == (1, clean112.frames.shape[1] - time_length + 1)
     error = float(result.diffusivity[0]) / A_PAPER - 1
     assert abs(error) < NOISELESS_TOL[time_family], f"{error:+.5f}"
+
+
+@pytest.mark.parametrize("mode", ["lsq", "ratio"])
+def test_noiseless_recovery_with_the_noise_measured(clean112: SyntheticVideo, mode: str) -> None:
+    """The default path: artefacts looked for and the noise measured on the clean video change nothing."""
+    result = ANRAEstimator(mode=mode)(clean112.frames, clean112.dt, clean112.dx)
+    assert bool(result.valid.all()) and result.messages == ("",)
+    assert abs(float(result.diffusivity[0]) / A_PAPER - 1) < NOISELESS_TOL["smooth"]
 
 
 # ------------------------------------------------------------------------------ paper case, noisy

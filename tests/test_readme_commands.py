@@ -1,25 +1,23 @@
 """The README's "Use" block runs as written: its Python, then every command of its shell block, in order,
-in an empty folder, with the venv's ``anra`` on PATH.
+in an empty folder.
 
 The data folder ``../shared/data`` (next to the repository) is resolved to its absolute path; a command that
-needs it is left out when it is absent. Each process gets one torch thread (``OMP_NUM_THREADS=1``), as the
-README advises on shared cores.
+needs it is left out when it is absent.
 """
 
 from __future__ import annotations
 
-import os
 import re
 import shlex
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+import torch
+
+from anra_torch.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
-BIN = Path(sys.executable).parent
 
 
 def use_blocks(language: str) -> list[str]:
@@ -52,24 +50,30 @@ def test_the_use_block_is_found() -> None:
 
 
 @pytest.mark.slow
-def test_readme_use_commands_run_in_order(tmp_path: Path) -> None:
-    assert (BIN / "anra").exists(), f"no anra next to {sys.executable}"
-    env = os.environ | {"PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "OMP_NUM_THREADS": "1"}
+def test_readme_use_commands_run_in_order(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """In this process, through ``anra_torch.cli.main`` (torch is imported once, not per command; the
+    console script itself is run in ``tests/test_cli.py::test_entry_points_run_outside_the_process``)."""
+    monkeypatch.chdir(tmp_path)
     (python,) = use_blocks("python")
-    done = subprocess.run(
-        [sys.executable, "-c", python], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
-    )
-    assert done.returncode == 0, f"README Python block: {done.stderr[-3000:]}"
+    exec(compile(python, "README.md", "exec"), {})  # noqa: S102 - the README's own example
     outputs = {}
-    for line in commands():
-        argv = shlex.split(line, comments=True)
-        if any("../shared/data" in a for a in argv):
-            if not DATA.is_dir():
-                continue
-            argv = [a.replace("../shared/data", str(DATA)) for a in argv]
-        done = subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
-        assert done.returncode == 0, f"{line}\n{done.stderr[-3000:]}"
-        outputs[line] = done.stdout
+    threads = torch.get_num_threads()
+    try:
+        for line in commands():
+            argv = shlex.split(line, comments=True)
+            if any("../shared/data" in a for a in argv):
+                if not DATA.is_dir():
+                    continue
+                argv = [a.replace("../shared/data", str(DATA)) for a in argv]
+            capsys.readouterr()
+            code = main(argv[1:])
+            done = capsys.readouterr()
+            assert code == 0, f"{line}\n{done.err[-3000:]}"
+            outputs[line] = done.out
+    finally:
+        torch.set_num_threads(threads)
     # What the comments claim: the second batch run finds both videos done.
     (again,) = [out for line, out in outputs.items() if line.startswith("anra --threads 1 batch")]
     assert "0 ok, 0 failed, 2 already done (2 inputs)" in again
