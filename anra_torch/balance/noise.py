@@ -338,14 +338,17 @@ def _components(v1: float, v2: float, v3: float) -> tuple[float, float, float]:
     under half a pixel (its correlation at one pixel under 0.14), is counted as white (length 0).
     """
     observed = torch.tensor([v1, v2, v3], dtype=torch.float64)
-    best = (float("inf"), v1 / 70, 0.0, 0.0)
-    for length in [0.05 * k for k in range(10, 61)]:
-        design = torch.tensor([[70.0, _gain(s, length)] for s in (1, 2, 3)], dtype=torch.float64)
-        solution = torch.linalg.lstsq(design, observed[:, None]).solution[:, 0].clamp_min(0)
-        residual = float(((design @ solution - observed) / observed).pow(2).sum())
-        if residual < best[0]:
-            best = (residual, float(solution[0]), float(solution[1]), length)
-    _, white, correlated, length = best
+    lengths = [0.05 * k for k in range(10, 61)]
+    design = torch.tensor(
+        [[[70.0, _gain(s, length)] for s in (1, 2, 3)] for length in lengths], dtype=torch.float64
+    )  # (lengths, 3, 2): every length's least squares in one batched solve
+    solution = torch.linalg.lstsq(design, observed.expand(len(lengths), 3)[..., None]).solution[..., 0]
+    solution = solution.clamp_min(0)
+    residual = (((design @ solution[..., None])[..., 0] - observed) / observed).pow(2).sum(-1)
+    best = int(residual.argmin())  # the first of equal residuals, as a scan would keep
+    if not float(residual[best]) < float("inf"):
+        return v1 / 70, 0.0, 0.0
+    white, correlated, length = float(solution[best, 0]), float(solution[best, 1]), lengths[best]
     if correlated < 0.1 * (white + correlated):
         return v1 / 70, 0.0, 0.0
     return white, correlated, length
