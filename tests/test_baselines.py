@@ -178,6 +178,7 @@ def paper_noisy() -> tuple[torch.Tensor, float, float, float]:
     return video.frames, video.dt, video.dx, float(anra.std_error)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(BASELINES))
 def test_baselines_fail_on_the_paper_case_as_reported(
     paper_noisy: tuple[torch.Tensor, float, float, float], name: str

@@ -84,6 +84,7 @@ def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[st
     assert record["base"]["prediction_rmse"] > 2 * record["extended"]["prediction_rmse"]
 
 
+@pytest.mark.slow
 def test_human_output_and_report(
     loss_video: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -148,6 +149,7 @@ def test_bad_fit_fraction(tmp_path: Path, capsys: pytest.CaptureFixture[str], va
     assert code == 2 and err.startswith("anra: error: ") and err.count("\n") == 1 and "fit" in err
 
 
+@pytest.mark.slow
 def test_source_map_option_reports_the_beam_model(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A ring-shaped beam (not a Gaussian spot): --source-map forecasts it near the noise floor."""
     import torch

@@ -144,6 +144,7 @@ def test_noiseless_recovery_with_the_noise_measured(clean112: SyntheticVideo, mo
 
 
 # ------------------------------------------------------------------------------ paper case, noisy
+@pytest.mark.slow
 def test_paper_case_noise_001_default(paper96_001: SyntheticVideo) -> None:
     a, se = estimate_each(ANRAEstimator(), paper96_001)
     err = relative_error(a, A_PAPER)
@@ -153,6 +154,7 @@ def test_paper_case_noise_001_default(paper96_001: SyntheticVideo) -> None:
     assert np.mean(se) / A_PAPER < 1.5e-3  # a variance regression (e.g. a bad smoothing pick) breaks this
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "noise,tolerance",
     [(0.05, 0.01), (0.1, 0.02)],
@@ -165,6 +167,7 @@ def test_paper_case_heavier_noise_median(noise: float, tolerance: float) -> None
     assert abs(np.median(relative_error(a, A_PAPER))) < tolerance
 
 
+@pytest.mark.slow
 def test_paper_case_crop_80_every_seed_within_one_percent() -> None:
     video = paper_video(n_videos=16, seed=1, noise_sd=0.01, crop=80)
     a, _ = estimate_each(ANRAEstimator(), video)
@@ -203,6 +206,7 @@ def test_blobs_on_a_warm_background(a: float, dx: float, fps: float) -> None:
 
 
 # ------------------------------------------------------------------------------ errors in variables
+@pytest.mark.slow
 def test_without_eiv_correction_lsq_is_biased_low(paper96_005: SyntheticVideo) -> None:
     raw, _ = estimate_each(ANRAEstimator(smoothing=0.0, eiv_correction=False), paper96_005)
     # measured -99.96 %: the raw Laplacian's noise energy swamps the denominator
@@ -213,6 +217,7 @@ def test_without_eiv_correction_lsq_is_biased_low(paper96_005: SyntheticVideo) -
     assert all("no thermal activity above the noise" in m for m in flagged.messages)
 
 
+@pytest.mark.slow
 def test_eiv_correction_removes_the_bias(paper96_005: SyntheticVideo) -> None:
     raw, _ = estimate_each(ANRAEstimator(smoothing=2.0, eiv_correction=False), paper96_005)
     corrected, _ = estimate_each(ANRAEstimator(smoothing=2.0), paper96_005)

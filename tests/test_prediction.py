@@ -23,6 +23,7 @@ def video(names: list[str], seed: int, **kwargs: float):
     return hidden_effect_video(names, seed=seed, size=64, duration=3.0, **kwargs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "seed", "min_gain", "floors"),
     # Extended RMSE measured at 1.31, 1.07 and 1.30 floors: assimilating the 55 fit frames lowers the floor
@@ -97,6 +98,7 @@ def test_pure_video_has_no_effect_and_plain_forecast_sits_on_the_floor(
         assert result.base_rmse == result.base_rmse_raw and result.noise_floor > result.noise_floor_raw
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["linear_loss", "source"])
 def test_assimilating_the_fit_part_lowers_the_floor_and_raises_the_gain(name: str) -> None:
     """From the split frame alone its noise is most of the floor; the assimilated state averages it out."""
@@ -158,6 +160,7 @@ def test_bad_scale_is_one_line_error() -> None:
         assess_gain(v.frames, v.dt, v.dx, scale_px=-1.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["anisotropy", "linear_loss"])
 def test_extended_effects_round_trip_on_noiseless_video(name: str) -> None:
     v = video([name], 0, noise_frac=1e-4)
@@ -199,6 +202,7 @@ def test_unmappable_effect_raises_clear_error() -> None:
         extended_effects(diagnosis)
 
 
+@pytest.mark.slow
 def test_given_diagnosis_is_used() -> None:
     v = video(["advection"], 0)
     split = split_index(v.frames.shape[0], 0.5)

@@ -98,6 +98,7 @@ def test_csv_recording_gets_its_phases_and_gains_from_the_library_default() -> N
     assert heating.diffusivity is None and heating.flags == ["unresolved"] and heating.diffusivity_bound > 1
 
 
+@pytest.mark.slow
 @needs_data
 def test_laser_heating_source_map_is_chosen_inside_the_fit_frames() -> None:
     """Nov19_2 heating: the split inside the fit frames prefers the measured beam map to the Gaussian spot,

@@ -21,6 +21,7 @@ def small(names: list[str]):
     return hidden_effect_video(names, seed=1, size=48, duration=2.0, fps=20)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "key"), [("linear_loss", "b"), ("advection", "vx")])
 def test_refinement_recovers_a_perturbed_parameter(name: str, key: str) -> None:
     v = small([name])

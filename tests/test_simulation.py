@@ -373,6 +373,7 @@ def test_gradient_in_scalar_a_matches_finite_difference() -> None:
     assert grad.item() == pytest.approx(fd.item(), rel=1e-7)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("boundary", ["neumann", "dirichlet", "periodic"])
 def test_gradcheck_field_a_and_initial(boundary: str) -> None:
     # Fixed substeps: the automatic count is a step function of a (see simulate_heat's docstring).
