@@ -95,8 +95,12 @@ class BatchNoise:
         return out
 
 
+@torch.compiler.disable(reason="data-dependent statistics (medians, counts): nothing for a graph to capture")
 def batch_noise(video: Tensor, finite: Tensor, *, noise_sd: float | None = None) -> BatchNoise:
     """Repair, measure and choose for each video of a batch (see the module docs).
+
+    Left out of ``torch.compile`` graphs (it runs eagerly there, gradients included): its branches on
+    measured values would only break the graph many times over and cost most of the compile time.
 
     Args:
         video: centred frames ``(B, T, H, W)``; masked samples (``~finite``) are left to the caller.
