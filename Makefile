@@ -1,9 +1,7 @@
 # Two commands do all set-up on a fresh machine: `make demo` and `make test`.
 VENV    ?= .venv
 PY      := $(VENV)/bin/python
-# --no-compile: Python byte-compiles on first import only what is used (pip would compile all of torch:
-# 51 s -> 22 s for the install on 2 cores).
-PIP     := $(PY) -m pip install -q --no-compile -c constraints.txt
+PIP     := $(PY) -m pip install -q -c constraints.txt
 STAMP   := $(VENV)/.anra-installed
 OUT     ?= results/demo
 
