@@ -95,12 +95,13 @@ class BatchNoise:
         return out
 
 
-@torch.compiler.disable(reason="data-dependent statistics (medians, counts): nothing for a graph to capture")
 def batch_noise(video: Tensor, finite: Tensor, *, noise_sd: float | None = None) -> BatchNoise:
     """Repair, measure and choose for each video of a batch (see the module docs).
 
     Left out of ``torch.compile`` graphs (it runs eagerly there, gradients included): its branches on
-    measured values would only break the graph many times over and cost most of the compile time.
+    measured values would only break the graph many times over and cost most of the compile time. (The
+    exclusion is made when compiling: ``torch.compiler.disable`` at import would load the compiler, 1.3 s,
+    into every process.)
 
     Args:
         video: centred frames ``(B, T, H, W)``; masked samples (``~finite``) are left to the caller.
@@ -110,6 +111,12 @@ def batch_noise(video: Tensor, finite: Tensor, *, noise_sd: float | None = None)
     Shape:
         ``video``, ``finite`` ``(B, T, H, W)``.
     """
+    if torch.compiler.is_compiling():
+        return torch.compiler.disable(_batch_noise)(video, finite, noise_sd=noise_sd)
+    return _batch_noise(video, finite, noise_sd=noise_sd)
+
+
+def _batch_noise(video: Tensor, finite: Tensor, *, noise_sd: float | None) -> BatchNoise:
     b = video.shape[0]
     white = None if noise_sd is not None else estimate_noise_sd(video.detach(), mask=finite).reshape(b)
     cleaned, artefacts, models = [], [], []
