@@ -27,6 +27,7 @@ from anra_torch.checks import VALUE_LIMIT, in_range_values
 from anra_torch.cli import main
 from anra_torch.cli.arguments import json_line
 from anra_torch.flags import PLAUSIBLE_DIFFUSIVITY, diffusivity_warnings, model_failure
+from anra_torch.video import CalibrationTable, input_warnings, prepare_video
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
@@ -177,6 +178,40 @@ def test_diagnose_text_of_a_1e300_sample_is_not_a_traceback(
 
 
 # ------------------------------------------------------------------------------------------ all NaN
+def test_a_bad_sample_is_masked_before_irregular_times_are_resampled(clean: Path, tmp_path: Path) -> None:
+    """Resampling would blend a 1e7 error code into its neighbours (one came out at 4.8e5, under the limit);
+    masked as read, it is counted once and no resampled value is beyond any temperature."""
+    frames = frames_of(clean)
+    frames[3, 16, 16] = 1e7
+    t = np.arange(frames.shape[0], dtype=np.float64) * 0.1
+    t[2::3] += 0.03  # irregular steps: resampled by default
+    path = tmp_path / "irregular.npz"
+    with np.load(clean) as data:
+        np.savez(path, frames=frames, t=t, dx=data["dx"])
+    video = prepare_video(path, timestamps="resample")
+    assert "resampled" in video.meta and video.meta["masked_values"]["beyond_limit"] == 1
+    finite = video.frames[torch.isfinite(video.frames)]
+    assert float(finite.abs().max()) < 100.0
+
+
+def test_a_calibration_that_pushes_values_beyond_the_limit_is_counted_with_the_largest(
+    clean: Path, tmp_path: Path
+) -> None:
+    """The file has only a NaN (no largest value yet); the calibration's extrapolation adds values beyond
+    the limit: the warning names them and the largest, instead of failing on a missing number."""
+    frames = frames_of(clean)
+    frames[0, 0, 0] = np.nan
+    path = variant(clean, tmp_path / "nan.npz", frames)
+    top = float(np.nanmax(frames))
+    # the identity up to just below the hottest reading, then 1e12 true per apparent unit
+    steep = CalibrationTable(np.array([0.0, top - 0.01, top - 0.01 + 1e10]), np.array([0.0, top - 0.01, top]))
+    video = prepare_video(path, calibration=steep)
+    found = video.meta["masked_values"]
+    assert found["non_finite"] == 1 and found["beyond_limit"] > 0 and found["largest"] > VALUE_LIMIT
+    (line,) = input_warnings(video)
+    assert f"{found['beyond_limit']} beyond" in line
+
+
 @pytest.mark.parametrize("command", ["estimate", "diagnose", "features"])
 def test_an_all_nan_video_is_refused_with_the_true_count(
     command: str, clean: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -213,19 +213,17 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
     if t < 5:
         return none
     second = frames[1:-1] - 0.5 * (frames[:-2] + frames[2:])
-    flat = second.reshape(-1)
-    sampled = flat[:: max(1, flat.numel() // 200_000)]  # robust_sd's sample, before the zeros are dropped
-    nonzero = sampled[sampled != 0]
-    scale = robust_sd(nonzero, sample=None) if nonzero.numel() else 0.0
+    scale = robust_sd(second, nonzero=True)
     if scale == 0:
         return none
     threshold = max(OUTLIER_Z * scale, floor)
-    flagged = (second.abs() > threshold).nonzero()
+    over = second.abs() > threshold
+    flagged = over.nonzero()
     if flagged.numel() == 0:
         return none
     # A single-sample spike is alone: no neighbour in the same frame is flagged (a moving edge or a fast
     # peak flags its neighbours too). Counted at the flagged samples only: they are few.
-    marks = F.pad(second.abs() > threshold, (1, 1, 1, 1))
+    marks = F.pad(over, (1, 1, 1, 1))
     k0, i0, j0 = flagged.unbind(1)
     crowd = sum(marks[k0, i0 + di, j0 + dj].long() for di in range(3) for dj in range(3))
     candidates = flagged[crowd == 1]

@@ -218,13 +218,13 @@ def fourth_difference(x: Tensor, dim: int, stride: int = 1) -> Tensor:
     return sum(t * x.narrow(dim, i * stride, n) for i, t in enumerate(_TAPS))
 
 
-def robust_sd(x: Tensor, *, sample: int | None = 200_000) -> float:
+def robust_sd(x: Tensor, *, sample: int | None = 200_000, nonzero: bool = False) -> float:
     """Normal-consistent median absolute deviation of the finite values of ``x`` (0 when there are none),
-    over at most ``sample`` evenly spaced values (None: all of them)."""
+    over at most ``sample`` evenly spaced values (None: all of them), without exact zeros if ``nonzero``."""
     flat = x.reshape(-1)
     if sample is not None:
         flat = flat[:: max(1, flat.numel() // sample)]
-    flat = flat[torch.isfinite(flat)]
+    flat = flat[torch.isfinite(flat) & (flat != 0)] if nonzero else flat[torch.isfinite(flat)]
     if flat.numel() == 0:
         return 0.0
     return float((flat - flat.median()).abs().median()) * _MAD_TO_SD

@@ -77,6 +77,11 @@ def _time_filter(frames: Tensor, taps: Tensor) -> Tensor:
     """
     if frames.requires_grad and torch.is_grad_enabled():
         return _TimeFilter.apply(frames, taps)
+    return _time_conv(frames, taps)
+
+
+def _time_conv(frames: Tensor, taps: Tensor) -> Tensor:
+    """The forward of :func:`_time_filter`: one Conv3d."""
     weight = taps.to(frames.dtype).reshape(taps.shape[0], 1, -1, 1, 1)
     return F.conv3d(frames.unsqueeze(1), weight)
 
@@ -87,8 +92,7 @@ class _TimeFilter(torch.autograd.Function):
     @staticmethod
     def forward(ctx: Any, frames: Tensor, taps: Tensor) -> Tensor:
         ctx.taps = taps.tolist()
-        weight = taps.to(frames.dtype).reshape(taps.shape[0], 1, -1, 1, 1)
-        return F.conv3d(frames.unsqueeze(1), weight)
+        return _time_conv(frames, taps)
 
     @staticmethod
     def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, None]:

@@ -253,9 +253,9 @@ def _usable_smoothing(video: Tensor, smoothing: float | Sequence[float] | None) 
     else:
         sigmas = SMOOTHING if smoothing is None else tuple(float(s) for s in smoothing)
     side = min(video.shape[1:])
-    usable = tuple(s for s in sigmas if side - 2 * (GaussianSmoothing(s).radius + 1) >= _MIN_VALID_PX)
+    usable = tuple(s for s in sigmas if side >= minimum_frame_size(s))
     if not usable:
-        need = min(2 * (GaussianSmoothing(s).radius + 1) for s in sigmas) + _MIN_VALID_PX
+        need = minimum_frame_size(sigmas)
         raise ValueError(
             f"frames must be at least {need} x {need} px for this smoothing, "
             f"got {video.shape[1]} x {video.shape[2]}"

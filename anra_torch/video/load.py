@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from anra_torch.checks import uniform_step
+from anra_torch.checks import in_range_values, uniform_step
 from anra_torch.video.core import UNIFORM_RTOL, Loader, PathLike, Video, positive_spacing
 from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
 from anra_torch.video.resample import resample_uniform
@@ -139,6 +139,7 @@ def load_video(
     dt: float | None = None,
     dx: float | None = None,
     timestamps: str = "uniform",
+    mask_values: bool = False,
 ) -> Video:
     """Read a thermal video (a file, or a folder of one file per frame); explicit ``dt`` / ``dx`` win.
 
@@ -155,6 +156,9 @@ def load_video(
             refuses them, ``"keep"`` keeps them (``dt`` = median step, :attr:`Video.uniform` False),
             ``"resample"`` interpolates linearly onto a uniform grid at the median step and states it in
             ``meta["resampled"]``.
+        mask_values: mask the samples that cannot be measurements (:func:`~anra_torch.checks.in_range_values`)
+            as read, before any resampling could blend them into their neighbours; counted in
+            ``meta["masked_values"]`` when there are any.
 
     Returns:
         A :class:`Video` with ``frames`` as stored (integer counts stay integers; resampled frames are
@@ -211,5 +215,12 @@ def load_video(
         where = "(argument)" if dx is not None else "in the file"
         spacing = positive_spacing(dx if dx is not None else raw.dx, path, "dx", "mm", where)
         meta["dx_source"] = origin
+    if mask_values:
+        try:
+            frames, found = in_range_values(frames)
+        except ValueError as err:
+            raise ValueError(f"{path}: {err}") from None
+        if found["non_finite"] or found["beyond_limit"]:
+            meta["masked_values"] = found
     video = Video(frames=frames, dt=step, dx=spacing, t=t, source=path, meta=meta, truth=raw.truth)
     return resample_uniform(video) if resample else video

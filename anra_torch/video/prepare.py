@@ -5,7 +5,8 @@ region is cut from the (resampled) frames in their own pixel coordinates, and th
 the values that will be analysed (its extrapolated fraction is counted on those). ``anra estimate``,
 ``diagnose``, ``features`` and ``batch`` all call :func:`prepare_video`, so they read a file the same way.
 
-The input policy lives here, once for every command. Right after loading (and resampling):
+The input policy lives here, once for every command. As the file is read (before resampling, which would
+blend a bad sample into its neighbours) and again after roi and calibration:
 
 - a sample that cannot be a measurement (NaN, an infinity, or beyond ``+-``
   :data:`~anra_torch.checks.VALUE_LIMIT` = 1e6 data units: a float overflow, a sensor's error code) is
@@ -79,7 +80,7 @@ def prepare_video(
         >>> tuple(video.frames.shape), video.meta["steps"], video.meta["roi"]
         ((6, 3, 4), ['load', 'roi'], [2, 1, 4, 3])
     """
-    video = _checked(load_video(path, dt=dt, dx=dx, timestamps=timestamps), "")
+    video = _spacing_checked(load_video(path, dt=dt, dx=dx, timestamps=timestamps, mask_values=True))
     steps = ["load", "resample"] if "resampled" in video.meta else ["load"]
     if roi is not None:
         video = crop(video, parse_roi(roi) if isinstance(roi, str) else roi)
@@ -95,21 +96,30 @@ def prepare_video(
     return replace(video, meta={**video.meta, "steps": steps})
 
 
-def _checked(video: Video, where: str) -> Video:
-    """The input policy (module docstring): spacing in range, out-of-range samples masked and counted,
-    refused when none is left (``where``: which frames, for the message)."""
+def _spacing_checked(video: Video) -> Video:
+    """``dt`` and ``dx`` within the spacing range (module docstring)."""
     try:
         spacing_in_range(video.dt, "dt", "s")
         if video.dx is not None:
             spacing_in_range(video.dx, "dx", "mm")
+    except ValueError as err:
+        raise ValueError(f"{video.source}: {err}") from None
+    return video
+
+
+def _checked(video: Video, where: str) -> Video:
+    """After roi and calibration: what the calibration pushed beyond the limit masked and added to the
+    count, refused when no sample is left (``where``: which frames, for the message)."""
+    try:
         frames, found = in_range_values(video.frames, name=f"frames{where}")
     except ValueError as err:
         raise ValueError(f"{video.source}: {err}") from None
-    if not found["beyond_limit"] and not found["non_finite"]:
+    if not found["beyond_limit"]:
         return video
     before = video.meta.get("masked_values")
-    if before is not None:  # a second pass (after roi / calibration) adds only what it newly masked
-        found = {**before, "beyond_limit": before["beyond_limit"] + found["beyond_limit"]}
+    if before is not None:  # the samples masked on reading are NaN now: only the new ones are added
+        largest = max(before["largest"] or 0.0, found["largest"])
+        found = {**before, "beyond_limit": before["beyond_limit"] + found["beyond_limit"], "largest": largest}
     return replace(video, frames=frames, meta={**video.meta, "masked_values": found})
 
 

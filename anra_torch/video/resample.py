@@ -51,7 +51,9 @@ def resample_uniform(video: Video, dt: float | None = None) -> Video:
 
     def interpolate(frames: Tensor) -> Tensor:
         frames = frames.double()
-        return (1 - weight) * frames[left] + weight * frames[right]
+        blend = (1 - weight) * frames[left] + weight * frames[right]
+        # On a sample's own time the other side has no weight: a masked (NaN) neighbour stays out.
+        return torch.where(weight == 0, frames[left], torch.where(weight == 1, frames[right], blend))
 
     meta = dict(video.meta)
     meta["resampled"] = {
