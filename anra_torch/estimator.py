@@ -311,6 +311,12 @@ class ANRAEstimator(nn.Module):
         """Spatial smoothing candidates (px)."""
         return tuple(f.sigma for f in self.filters)
 
+    @property
+    def minimum_frame_size(self) -> int:
+        """The smallest frame side (px) these filters accept: the least wide candidate's margins plus the
+        least valid interior."""
+        return min(2 * f.margin for f in self.filters) + _MIN_VALID_PX
+
     def _valid_mask(self, finite: Tensor, margin: int) -> Tensor:
         """True where the whole filter support of an output pixel is finite; ``(B, K, H'', W'')``."""
         bad = (~finite).to(torch.float32).unsqueeze(1)
@@ -437,7 +443,7 @@ class ANRAEstimator(nn.Module):
         noise_sd = noise.sd
         usable = [i for i, f in enumerate(self.filters) if min(h, w) - 2 * f.margin >= _MIN_VALID_PX]
         if not usable:
-            need = min(2 * f.margin for f in self.filters) + _MIN_VALID_PX
+            need = self.minimum_frame_size
             raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
         time_terms = self.filters[0].time_stage(video, dt_)
         candidates = [self._candidate(i, time_terms, finite, dt_, dx_, noise) for i in usable]

@@ -7,6 +7,7 @@ finite-difference heat equation with a source switched off at a known frame for 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -69,6 +70,24 @@ def test_diagnose_recording_analyses_each_phase_on_its_own() -> None:
     assert cooling.diffusivity == pytest.approx(A, rel=0.05)
     record = heating.to_record()
     assert record["kind"] == "heating" and record["gain"] > 0.2 and "candidates" in record
+
+
+def test_estimate_gives_phase_times_in_seconds(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A uniform video has no timestamps: the phases' times are frame numbers times dt, as in diagnose."""
+    path = save_npz(tmp_path / "laser.npz", _heated_then_cooled(off=60), dt=DT, dx=DX)
+    main(["estimate", str(path), "--json"])
+    heating, cooling = json.loads(capsys.readouterr().out)["phases"]
+    assert heating["t_start"] == 0.0 and cooling["t_start"] == pytest.approx(cooling["start_frame"] * DT)
+    assert cooling["t_stop"] == pytest.approx((cooling["stop_frame"] - 1) * DT)
+
+
+def test_a_negative_fitted_loss_rate_is_taken_as_zero_in_the_forecast() -> None:
+    """A fitted b < 0 (a box that warms) would grow like exp(|b| t) over the horizon: it is clamped."""
+    frames = torch.full((40, 6, 6), 30.0, dtype=torch.float64)
+    fitted = fit_small_box(frames, DT, DX, "loss")
+    growing = dataclasses.replace(fitted, b=-0.5, t_ref=20.0, c=0.0)
+    forecast = forecast_small_box(growing, frames, DT, DX, 0, 30)
+    torch.testing.assert_close(forecast, frames[1:31], rtol=0, atol=1e-12)
 
 
 def test_harmonic_interior_is_exact_on_a_discrete_harmonic_field() -> None:

@@ -141,6 +141,8 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
     result = main.result
     if result is None:
         summary = {**_small_box_summary(main), **records, "warnings": input_warnings(video)}
+        if any(input_record(video).values()):
+            summary["input"] = input_record(video)
         return summary, None, None, video, phases
     frames = video.frames
     diagnosis = result.diagnosis

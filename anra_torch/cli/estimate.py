@@ -39,6 +39,7 @@ from anra_torch.cli.arguments import (
     print_input,
 )
 from anra_torch.estimator import MODES, ANRAEstimator, ANRAResult
+from anra_torch.flags import diffusivity_warnings
 from anra_torch.forecast.recording import find_phases
 from anra_torch.report import format_pm
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
@@ -152,9 +153,6 @@ def _print_summary(s: dict[str, Any]) -> None:
     print(f"  took {s['elapsed_s']:.2f} s")
 
 
-PLAUSIBLE = (1e-3, 2e3)
-"""Diffusivities of known materials, mm^2/s (insulating foams to diamond and silver)."""
-
 SOURCE_FREE = ("cooling", "baseline", "steady")
 """Phase kinds without a heat source, in the order their diffusivity is preferred for the top level."""
 
@@ -180,11 +178,9 @@ def _small_box_record(video: Video) -> dict[str, Any]:
             "message": message,
             "diffusivity_lower_bound": bound,
         }
-    if not PLAUSIBLE[0] <= a <= PLAUSIBLE[1]:
-        message = (
-            f"not resolved: the small-box fit gives a = {a:.3g} mm^2/s, outside every known material "
-            f"({PLAUSIBLE[0]:g} to {PLAUSIBLE[1]:g} mm^2/s): too little diffusion in these frames (a source?)"
-        )
+    flagged = diffusivity_warnings(a, dt=video.dt, dx=video.dx)
+    if flagged:
+        message = "not resolved by the small-box fit: " + "; ".join(flagged)
         return {"diffusivity": a, "std_error": None, "valid": False, "message": message}
     message = "small-box fit (5-point Laplacian, measured edges); no standard error"
     return {"diffusivity": a, "std_error": None, "valid": True, "message": message}
@@ -192,23 +188,24 @@ def _small_box_record(video: Video) -> dict[str, Any]:
 
 def _estimate(video: Video, est: ANRAEstimator) -> tuple[dict[str, Any], ANRAResult | None]:
     """The estimate of one run of frames: ANRA where its filters fit, else the small-box record."""
-    try:
-        result = est(video.frames, video.dt, video.dx)
-    except ValueError as err:
-        if "px for these filters" not in str(err):
-            raise ValueError(f"{video.source}: {err}") from err
+    t, h, w = video.frames.shape
+    if min(h, w) < est.minimum_frame_size and t >= est.time.length:  # too few frames: the estimator says so
         try:
             return _small_box_record(video), None
         except ValueError as small:
             raise ValueError(f"{video.source}: {small}") from small
-    return {}, result
+    try:
+        return {}, est(video.frames, video.dt, video.dx)
+    except ValueError as err:
+        raise ValueError(f"{video.source}: {err}") from err
 
 
 def _phases(
     video: Video, est: ANRAEstimator, phases: list[Phase]
-) -> tuple[list[dict[str, Any]], Phase, tuple[dict[str, Any], ANRAResult | None] | None]:
+) -> tuple[list[dict[str, Any]], Phase | None, tuple[dict[str, Any], ANRAResult | None] | None]:
     """Every phase's estimate; the phase the top level describes (the longest valid source-free one:
-    cooling, then baseline or steady; else the longest) and its :func:`_estimate` (None when too short)."""
+    cooling, then baseline or steady; else the longest) and its :func:`_estimate`; None and None when every
+    phase is too short (the top level then describes the whole recording)."""
     records, chosen = [], None
     for phase in phases:
         head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
@@ -230,7 +227,7 @@ def _phases(
         )
         if chosen is None or rank > chosen[0]:
             chosen = (rank, phase, (record if result is None else {}, result))
-    return records, *((chosen[1], chosen[2]) if chosen else (phases[0], None))
+    return records, *((chosen[1], chosen[2]) if chosen else (None, None))
 
 
 def _part(video: Video, phase: Phase) -> Video:
@@ -243,9 +240,9 @@ def run(args: argparse.Namespace) -> int:
     est = ANRAEstimator(mode=args.mode, window=args.window, strict=False)
     video = load_input(args)
     start = time.perf_counter()
-    phases = find_phases(video.frames, video.t)
+    phases = find_phases(video.frames, video.t, dt=video.dt)
     records, phase, estimated = _phases(video, est, phases) if len(phases) > 1 else ([], phases[0], None)
-    part = _part(video, phase) if len(phases) > 1 else video
+    part = video if phase is None or len(phases) == 1 else _part(video, phase)  # None: every phase too short
     small, result = estimated if estimated is not None else _estimate(part, est)
     if result is None:
         flagged = [small["message"]] if not small["valid"] else []
@@ -254,17 +251,17 @@ def run(args: argparse.Namespace) -> int:
         summary.update(height=part.frames.shape[1], width=part.frames.shape[2], dt=video.dt, dx=video.dx)
     else:
         summary = _summary(part, result, est, time.perf_counter() - start)
-    if not records:
+    if not records:  # one phase
         head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
         head.update(t_start=phase.t_start, t_stop=phase.t_stop)
         records = [{**head, **{k: summary.get(k) for k in _PHASE_KEYS}}]
-    summary["phase"] = phase.name
+    summary["phase"] = phase.name if phase is not None else "recording"
     summary["phases"] = records
-    summary = clean_json(summary)
     if any(input_record(video).values()):
         summary["input"] = input_record(video)
     if args.json:
         print(json_line(summary))
+    summary = clean_json(summary)
     if not summary["valid"]:
         # No diffusivity: exit 2 in both modes; --json still printed its flagged record above.
         print(f"{PROG}: error: {video.source}: {summary['message']}", file=sys.stderr)

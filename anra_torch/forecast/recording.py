@@ -122,14 +122,21 @@ class PhaseDiagnosis:
         return record
 
 
-def find_phases(frames: Tensor, t: Tensor | None = None) -> list[Phase]:
+def find_phases(frames: Tensor, t: Tensor | None = None, *, dt: float | None = None) -> list[Phase]:
     """:func:`~anra_torch.video.recording_phases` of the frames with their camera artefacts repaired
     (:func:`~anra_torch.balance.artefacts.find_artefacts`): a spike or a hot element is not a heat source.
+
+    Args:
+        frames: the recording.
+        t: frame times in s; default ``k dt`` (frame numbers without ``dt``).
+        dt: frame period in s, for the phases' times when ``t`` is None.
 
     Shape:
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
     """
     video = torch.as_tensor(frames)
+    if t is None and dt is not None:
+        t = torch.arange(video.shape[0], dtype=_F64) * dt
     if video.ndim != 3 or video.shape[0] < 3:
         return recording_phases(video, t)
     return recording_phases(find_artefacts(video)[0], t)
@@ -163,9 +170,8 @@ def diagnose_recording(
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
     """
     video = torch.as_tensor(frames).to(_F64)
-    times = torch.arange(video.shape[0], dtype=_F64) * dt if t is None else torch.as_tensor(t).to(_F64)
     out = []
-    for phase in find_phases(video, times) if phases is None else phases:
+    for phase in find_phases(video, t, dt=dt) if phases is None else phases:
         if phase.frames < MIN_PHASE_FRAMES:
             reason = f"too short: {phase.frames} frames, need {MIN_PHASE_FRAMES}"
             out.append(PhaseDiagnosis(phase, "none", reason=reason))

@@ -167,7 +167,7 @@ def forecast_small_box(
         for s in range(substeps):
             w = (s + 1) / substeps
             edge = (1 - w) * video[start + k] + w * video[start + k + 1]
-            u[1:-1, 1:-1] += h * (a * _laplacian5(u, dx) - model.b * (u[1:-1, 1:-1] - model.t_ref) + model.c)
+            u[1:-1, 1:-1] += h * (a * _laplacian5(u, dx) - b * (u[1:-1, 1:-1] - model.t_ref) + model.c)
             u[0], u[-1], u[:, 0], u[:, -1] = edge[0], edge[-1], edge[:, 0], edge[:, -1]
         out[k] = u
     return out
