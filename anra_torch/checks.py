@@ -7,7 +7,7 @@ that names the argument, the requirement and what was received.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import torch
@@ -25,6 +25,7 @@ __all__ = [
     "check_int",
     "check_shape",
     "in_range_values",
+    "join_messages",
     "mostly_finite",
     "number",
     "one_line",
@@ -89,6 +90,16 @@ def one_line(err: BaseException, *, kind: bool = False) -> str:
     """
     text = " ".join(str(err).split()) or type(err).__name__
     return f"{type(err).__name__}: {text}" if kind else text
+
+
+def join_messages(parts: Iterable[object]) -> str:
+    """The non-empty ``parts``, ``"; "``-joined, each once, in order: one message cell from several lines.
+
+    Example:
+        >>> join_messages(["masked", "", None, "negative a", "masked"])
+        'masked; negative a'
+    """
+    return "; ".join(dict.fromkeys(str(p) for p in parts if p))
 
 
 def positive(value: object, name: str, unit: str) -> float:

@@ -71,7 +71,7 @@ from torch import Tensor, nn
 from anra_torch.balance.filters import MatchedFilters
 from anra_torch.balance.loss import LOSS_REPLICATES, fit_loss_windows
 from anra_torch.balance.noise import estimate_noise_sd
-from anra_torch.checks import as_spacing, as_video, one_line
+from anra_torch.checks import as_spacing, as_video, join_messages, one_line
 from anra_torch.dose import (
     CEM43_R,
     GAS_CONSTANT,
@@ -212,10 +212,6 @@ def _max_over(m: Tensor, where: Tensor | None) -> Tensor:
         return m.flatten(1).amax(1)
     top = torch.where(where, m, -torch.inf).flatten(1).amax(1)
     return torch.where(where.flatten(1).any(1), top, torch.nan)
-
-
-def _join(*parts: str) -> str:
-    return "; ".join(dict.fromkeys(p for p in parts if p))
 
 
 class TissueFeatures(nn.Module):
@@ -363,11 +359,13 @@ class TissueFeatures(nn.Module):
         # Only the estimator's reasons for no diffusivity are passed on: its warning on a valid, significantly
         # negative a is the rule on heated scenes, where the source has its own map.
         messages = tuple(
-            _join(
-                "" if result is None or bool(result.valid[i]) else result.messages[i],
-                f"rate and ANRA maps not computed: {reason}" if reason else "",
-                raw_note,
-                f"{int(n)} non-finite samples masked" if int(n) else "",
+            join_messages(
+                [
+                    "" if result is None or bool(result.valid[i]) else result.messages[i],
+                    f"rate and ANRA maps not computed: {reason}" if reason else "",
+                    raw_note,
+                    f"{int(n)} non-finite samples masked" if int(n) else "",
+                ]
             )
             for i, n in enumerate(summary["n_masked"].tolist())
         )

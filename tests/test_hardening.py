@@ -137,6 +137,8 @@ def test_batch_takes_the_same_decision_as_estimate_on_a_float32_1e15_sample(
     with table.open() as handle:
         (row,) = list(csv.DictReader(handle))
     assert row["status"] == "ok" and int(row["n_masked"]) == 1
+    assert "1 beyond +-1e+06" in row["message"] and "not a measurement" in row["message"]  # as estimate says
+    assert any("1 beyond +-1e+06" in w for w in alone["warnings"])
     rtol = 100 * torch.finfo(torch.float32).eps  # both in float32; summation order may differ
     assert float(row["diffusivity"]) == pytest.approx(alone["diffusivity"], rel=rtol)
 

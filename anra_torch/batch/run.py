@@ -15,9 +15,17 @@ from anra_torch.batch.inputs import PathLike, expand_inputs
 from anra_torch.batch.options import BatchOptions
 from anra_torch.batch.resume import plan
 from anra_torch.batch.table import check_format, parquet, read_table, row_key, write_table
-from anra_torch.checks import one_line
+from anra_torch.checks import join_messages, one_line
 from anra_torch.estimator import ANRAEstimator
-from anra_torch.video import ROI, CalibrationTable, Video, load_calibration, parse_roi, prepare_video
+from anra_torch.video import (
+    ROI,
+    CalibrationTable,
+    Video,
+    input_warnings,
+    load_calibration,
+    parse_roi,
+    prepare_video,
+)
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
 
@@ -30,16 +38,10 @@ def _error_row(path: str, message: str) -> dict[str, Any]:
     return {"path": path, "status": "error", "error": message}
 
 
-def _join(parts: Iterable[object]) -> str:
-    """Non-empty parts, ``;``-joined once each, in order (a leading ``warning: `` dropped, so the estimator's
-    warning line and the same text in its ``warnings`` list count once)."""
-    return "; ".join(dict.fromkeys(str(p).removeprefix("warning: ") for p in parts if p))
-
-
-def _message(record: dict[str, Any]) -> str:
-    """The ``message`` cell of an estimator record: its warnings, then its own line (a warning on a valid
-    result, or why nothing was measured)."""
-    return _join([*(record.get("warnings") or []), record.get("message")])
+def _message(record: dict[str, Any], video: Video) -> str:
+    """The ``message`` cell of an estimator record: what the input policy masked, the estimator's warnings,
+    then its own line (a warning on a valid result, or why nothing was measured)."""
+    return join_messages([*input_warnings(video), *(record.get("warnings") or []), record.get("message")])
 
 
 def _load(path: str, options: BatchOptions) -> Video:
@@ -92,7 +94,7 @@ def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str
                 "a_true": video.truth.a if video.truth is not None else None,
                 "seconds": share,
                 **_preparation(video),
-                "message": _message(record),
+                "message": _message(record, video),
             }
         )
     return rows
@@ -270,7 +272,7 @@ def run_batch(
             for row in rows:
                 row |= {"input_stamp": stamps.get(row["path"], ""), "parameters": key}
                 if row["path"] in changed:
-                    row["message"] = _join([row.get("message"), "recomputed: the input has changed"])
+                    row["message"] = join_messages([row.get("message"), "recomputed: the input has changed"])
                 table[row_key(row["path"])] = row
                 ok += row["status"] == "ok"
                 failed += row["status"] != "ok"

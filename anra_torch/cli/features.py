@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 from anra_torch.cli.arguments import (
     add_video_arguments,
-    clean_json,
     format_list,
     input_record,
+    json_line,
     load_input,
     print_input,
 )
@@ -66,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         record["out"] = save_feature_maps(args.out, maps, dt=video.dt, dx=video.dx)
     if args.json:
-        print(json.dumps(clean_json(record), allow_nan=False))
+        print(json_line(record))
         return 0
     print(f"{video.source}: {record['frames']} frames of {record['height']} x {record['width']} px")
     print_input(video)

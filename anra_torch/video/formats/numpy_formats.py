@@ -26,10 +26,6 @@ from anra_torch.video.core import PathLike, RawVideo, Truth, positive_spacing
 __all__ = ["load_npy", "load_npz", "save_npz"]
 
 
-class _NotAnArchive(Exception):
-    pass
-
-
 def _value_error(path: Path, err: ValueError, kind: str, save: str) -> ValueError:
     """The one-line error for a ``ValueError`` of ``numpy.load`` (pickled content, or corrupt)."""
     if "pickle" in str(err) or "Object arrays" in str(err):
@@ -51,8 +47,12 @@ def _check_magic(path: Path, kind: str) -> None:
             head = handle.read(2)
     except OSError as err:
         raise ValueError(f"{path}: cannot read ({one_line(err, kind=True)})") from err
-    if head in _MAGIC:
+    if _MAGIC.get(head) == kind:
         return
+    if head in _MAGIC:  # numpy reads by these bytes, not by the suffix: say which file it really is
+        other = "a single .npy array" if kind == ".npz" else "an .npz archive"
+        want = "an .npz archive" if kind == ".npz" else "a single .npy array"
+        raise ValueError(f"{path}: is {other}, not {want}; rename it to {_MAGIC[head]}")
     if len(head) == 2 and head[0] == 0x80 and 2 <= head[1] <= 5:
         raise ValueError(f"{path}: holds pickled Python objects, which are never loaded; save numeric arrays")
     valid = "a valid .npz (zip) file" if kind == ".npz" else "a valid .npy file"
@@ -69,14 +69,8 @@ def load_npz(path: Path) -> RawVideo:
     _check_magic(path, ".npz")
     try:
         # Our own handle: numpy leaves its own open when the zip directory is unreadable (ResourceWarning).
-        with open(path, "rb") as handle:
-            archive = np.load(handle, allow_pickle=False)
-            if not isinstance(archive, np.lib.npyio.NpzFile):
-                raise _NotAnArchive
-            with archive:
-                data = {key: archive[key] for key in archive.files}
-    except _NotAnArchive:
-        raise ValueError(f"{path}: is a single .npy array, not an .npz archive; rename it to .npy") from None
+        with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
+            data = {key: archive[key] for key in archive.files}
     except ValueError as err:
         raise _value_error(path, err, ".npz", "numeric arrays (numpy.savez)") from err
     except (zipfile.BadZipFile, EOFError, zlib.error, pickle.UnpicklingError, KeyError, OSError) as err:
@@ -109,12 +103,7 @@ def load_npy(path: Path) -> RawVideo:
     try:
         with open(path, "rb") as handle:
             frames = np.load(handle, allow_pickle=False)
-            if not isinstance(frames, np.ndarray):
-                frames.close()
-                raise ValueError(f"{path}: is an .npz archive, not a single .npy array; rename it to .npz")
     except ValueError as err:
-        if str(err).startswith(f"{path}: "):
-            raise
         raise _value_error(path, err, ".npy", "a numeric array (numpy.save)") from err
     except (EOFError, OSError, pickle.UnpicklingError) as err:
         raise ValueError(
