@@ -455,3 +455,22 @@ def test_default_threads_leave_the_cores_other_processes_run_on(
     loadavg.write_text(f"3.93 4.27 4.78 {running}/88 20791\n")  # the runnable count includes this process
     assert free_cores(4, loadavg) == expected
     assert free_cores(4, tmp_path / "absent") == 4
+
+
+def test_the_default_thread_count_does_not_shrink_call_after_call(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The free-core default starts from the process's own count each time, not from the last command's."""
+    import anra_torch.cli as cli
+
+    bases: list[int] = []
+    monkeypatch.setattr(cli, "free_cores", lambda cores: bases.append(cores) or max(1, cores - 1))
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(4)  # each call's default then sets fewer
+        for seed in range(3):
+            argv = ["simulate", "--size", "16", "--frames", "8", "--seed", str(seed)]
+            assert main([*argv, "-o", str(tmp_path / f"v{seed}.npz")]) == 0
+    finally:
+        torch.set_num_threads(before)
+    assert len(bases) == 3 and len(set(bases)) == 1

@@ -14,6 +14,7 @@ Every failure the user can cause (bad file, bad flag, a video without thermal ac
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 from collections.abc import Sequence
@@ -70,6 +71,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@functools.cache
+def _process_threads() -> int:
+    """torch's thread count when this process first ran a command: the base of the free-core default, so a
+    process that calls :func:`main` again and again does not shrink it call after call."""
+    import torch
+
+    return torch.get_num_threads()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``anra`` command line; returns the exit status (0 ok, 2 error, 1 internal error).
 
@@ -80,9 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         import torch
 
-        torch.set_num_threads(
-            args.threads if args.threads is not None else free_cores(torch.get_num_threads())
-        )
+        torch.set_num_threads(args.threads if args.threads is not None else free_cores(_process_threads()))
         return args.run(args)
     except SystemExit as done:  # --help, --version
         return done.code if isinstance(done.code, int) else 0 if done.code is None else 2
