@@ -122,6 +122,16 @@ def test_an_8x8_box_gets_the_quasi_steady_model_and_an_unresolved_diffusivity() 
     assert phase.diffusivity_bound == pytest.approx((7 * DX) ** 2 / (2 * np.pi**2 * DT))
 
 
+def test_one_masked_sample_does_not_stop_the_small_box_analysis() -> None:
+    """The small-box models need finite frames: they get the repaired ones, as the phases do."""
+    frames = torch.as_tensor(_quasi_steady_box())
+    holed = frames.clone()
+    holed[40, 3, 3] = torch.nan
+    (clean,) = diagnose_recording(frames, DT, DX)
+    (phase,) = diagnose_recording(holed, DT, DX)
+    assert phase.family == "small_box" and phase.reason is None and phase.model == clean.model
+
+
 def test_small_box_loss_model_recovers_its_rates() -> None:
     # dT/dt = -b (T - T_ref) + c on a uniform box (Lap T = 0): exponential relaxation, exact in the fit.
     b, c, t_ref = 0.2, 0.5, 25.0

@@ -137,9 +137,12 @@ def find_phases(frames: Tensor, t: Tensor | None = None, *, dt: float | None = N
     video = torch.as_tensor(frames)
     if t is None and dt is not None:
         t = torch.arange(video.shape[0], dtype=_F64) * dt
-    if video.ndim != 3 or video.shape[0] < 3:
-        return recording_phases(video, t)
-    return recording_phases(find_artefacts(video)[0], t)
+    return recording_phases(_repaired(video), t)
+
+
+def _repaired(video: Tensor) -> Tensor:
+    """The frames with their camera artefacts repaired and no sample left non-finite (as they are)."""
+    return find_artefacts(video)[0] if video.ndim == 3 and video.shape[0] >= 3 else video
 
 
 def diagnose_recording(
@@ -170,18 +173,22 @@ def diagnose_recording(
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
     """
     video = torch.as_tensor(frames).to(_F64)
+    repaired = _repaired(video)  # once: the phases, the small boxes and the source map need finite frames
+    if phases is None:
+        times = torch.arange(video.shape[0], dtype=_F64) * dt if t is None else t
+        phases = recording_phases(repaired, times)
     out = []
-    for phase in find_phases(video, t, dt=dt) if phases is None else phases:
+    for phase in phases:
         if phase.frames < MIN_PHASE_FRAMES:
             reason = f"too short: {phase.frames} frames, need {MIN_PHASE_FRAMES}"
             out.append(PhaseDiagnosis(phase, "none", reason=reason))
             continue
-        part = video[phase.start : phase.stop]
+        part, clean = video[phase.start : phase.stop], repaired[phase.start : phase.stop]
         try:
-            if min(part.shape[1:]) >= minimum_frame_size():
-                out.append(_balance_phase(phase, part, dt, dx, fit_fraction, assimilate))
+            if min(part.shape[1:]) >= minimum_frame_size():  # it repairs and reports the artefacts itself
+                out.append(_balance_phase(phase, part, clean, dt, dx, fit_fraction, assimilate))
             else:
-                out.append(_small_box_phase(phase, part, dt, dx, fit_fraction))
+                out.append(_small_box_phase(phase, clean, dt, dx, fit_fraction))
         except ValueError as err:
             out.append(PhaseDiagnosis(phase, "none", reason=str(err)))
     return out
@@ -192,9 +199,16 @@ def _gain(rmse: float, base: float) -> float:
 
 
 def _balance_phase(
-    phase: Phase, part: Tensor, dt: float, dx: float, fit_fraction: float, assimilate: int | None
+    phase: Phase,
+    part: Tensor,
+    clean: Tensor,
+    dt: float,
+    dx: float,
+    fit_fraction: float,
+    assimilate: int | None,
 ) -> PhaseDiagnosis:
-    """The balance family: assess_gain; the source map against the parametric source when a source acts."""
+    """The balance family: assess_gain; the source map (on ``clean``, the repaired frames: it needs finite
+    ones) against the parametric source when a source acts."""
     held_out = part.shape[0] - 1 - split_index(part.shape[0], fit_fraction)
     sparse = held_out < TIME_WINDOW  # frames seconds apart: a few frames already span the dynamics
     options = {"time_window": 1, "assimilate": assimilate or 1} if sparse else {"assimilate": assimilate}
@@ -221,12 +235,13 @@ def _balance_phase(
     validation: dict[str, float] = {}
     if any(n in _SOURCES for n in names) or phase.name == "heating":
         try:
-            mapped = source_map_gain(part, dt, dx, result)
+            mapped = source_map_gain(clean, dt, dx, result)
             held["source_map"] = (mapped.rmse, mapped.gain)
             predicted["source_map"] = mapped.predicted
-            validation = _inner_balance(part[: result.split + 1], dt, dx, fit_fraction, options)
-        except ValueError:
+            validation = _inner_balance(clean[: result.split + 1], dt, dx, fit_fraction, options)
+        except ValueError as err:
             validation = {}
+            diagnosis.warnings.append(f"the source map was not compared: {err}")
     chosen = min(validation, key=validation.__getitem__) if validation else "parametric"
     diagnosis.model = chosen
     diagnosis.extended_rmse, diagnosis.gain = held[chosen]
