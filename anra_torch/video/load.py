@@ -133,6 +133,26 @@ def _step_of(t: Tensor, stored: Any, path: Path, timestamps: str) -> tuple[float
     return step, resample
 
 
+def _masked(frames: Tensor, path: Path, meta: dict[str, Any]) -> Tensor:
+    """``frames`` with the samples that cannot be measurements masked, counted in ``meta``."""
+    try:
+        frames, found = in_range_values(frames)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
+    if found["non_finite"] or found["beyond_limit"]:
+        meta["masked_values"] = found
+    return frames
+
+
+def _pixel_size(dx: float | None, stored: Any, path: Path, meta: dict[str, Any]) -> float | None:
+    """The pixel size in mm: the argument wins over the file; None without either."""
+    if dx is None and stored is None:
+        return None
+    meta["dx_source"] = "argument" if dx is not None else "file"
+    where = "(argument)" if dx is not None else "in the file"
+    return positive_spacing(dx if dx is not None else stored, path, "dx", "mm", where)
+
+
 def load_video(
     path: PathLike,
     *,
@@ -187,13 +207,10 @@ def load_video(
     path = Path(path)
     if not path.exists():
         raise ValueError(f"{path}: no such file")
-    loader = _folder_loader_for(path) if path.is_dir() else _loader_for(path)
-    raw = loader(path)
+    raw = (_folder_loader_for(path) if path.is_dir() else _loader_for(path))(path)
     frames = _frames(raw.frames, path)
     meta = dict(raw.meta)
-    n = frames.shape[0]
-    t = _timestamps(raw.t, path, n) if raw.t is not None else None
-
+    t = _timestamps(raw.t, path, frames.shape[0]) if raw.t is not None else None
     resample = False
     if dt is not None:
         step = positive_spacing(dt, path, "dt", "s", "(argument)")
@@ -209,18 +226,8 @@ def load_video(
             f"{path}: no frame period: the file has neither 'dt' nor 't'; "
             "pass dt in s (--dt on the command line)"
         )
-    spacing = None
-    if dx is not None or raw.dx is not None:  # the argument wins over the file
-        origin = "argument" if dx is not None else "file"
-        where = "(argument)" if dx is not None else "in the file"
-        spacing = positive_spacing(dx if dx is not None else raw.dx, path, "dx", "mm", where)
-        meta["dx_source"] = origin
+    spacing = _pixel_size(dx, raw.dx, path, meta)
     if mask_values:
-        try:
-            frames, found = in_range_values(frames)
-        except ValueError as err:
-            raise ValueError(f"{path}: {err}") from None
-        if found["non_finite"] or found["beyond_limit"]:
-            meta["masked_values"] = found
+        frames = _masked(frames, path, meta)
     video = Video(frames=frames, dt=step, dx=spacing, t=t, source=path, meta=meta, truth=raw.truth)
     return resample_uniform(video) if resample else video
