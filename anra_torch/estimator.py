@@ -42,6 +42,9 @@ MODES = ("lsq", "ratio")
 AUTO_SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
 """Spatial smoothing candidates (px) tried by ``smoothing="auto"``."""
 
+POOR_FIT = 0.9
+"""Share of ``dT/dt`` that ``a Lap T`` must explain (:attr:`ANRAResult.explained`) not to be flagged."""
+
 _MIN_RELIABILITY = 0.05  # below this fraction of signal in the regressor energy, nothing is measurable
 _MIN_SIGNIFICANCE = 3.0  # |a| / std_error below this is indistinguishable from noise
 _MIN_VALID_PX = 8  # a candidate smoothing must leave at least this many pixels per side
@@ -83,6 +86,10 @@ class ANRAResult:
         noise_sd: noise standard deviation used (units of the data), ``(B,)``.
         smoothing: spatial Gaussian sigma used (px), ``(B,)``.
         reliability: fraction of the regressor energy that is signal, not noise (1 is noiseless), ``(B,)``.
+        explained: share of ``dT/dt`` (its weighted energy above the noise) that ``a Lap T`` explains, in
+            [0, 1], ``(B,)``: the noise-corrected ``R^2`` of the plain heat equation. Below
+            :data:`POOR_FIT` the estimate is flagged (a term the plain model misses dominates); NaN in
+            ``"ratio"`` mode.
         valid: False for a video without measurable thermal activity, ``(B,)``.
         n_masked: number of pixel values masked (non-finite, or dead elements constant in every frame
             while the scene changes), ``(B,)``.
@@ -108,6 +115,7 @@ class ANRAResult:
     noise_sd: Tensor
     smoothing: Tensor
     reliability: Tensor
+    explained: Tensor
     valid: Tensor
     n_masked: Tensor
     field: Tensor | None
@@ -166,6 +174,7 @@ class ANRAResult:
             "smoothing_px": float(pick(self.smoothing)),
             "noise_sd": float(pick(self.noise_sd)),
             "reliability": float(pick(self.reliability)),
+            "explained": finite(self.explained),
             "n_masked": int(pick(self.n_masked)),
             "units": {"diffusivity": "mm^2/s", "std_error": "mm^2/s", "smoothing_px": "px", "noise_sd": unit},
             "noise": self.noise[index] if index < len(self.noise) else None,
@@ -194,6 +203,7 @@ class _Candidate:
             return enough
         return enough & (self.estimate(mode).abs() >= _MIN_SIGNIFICANCE * self.std_error)
 
+    rate_energy: Tensor  # (B, K) sum_ij w U^2 - variance correction
     num: Tensor  # (B, K) sum_ij w U L - covariance correction
     den: Tensor  # (B, K) sum_ij w L^2 - variance correction
     energy: Tensor  # (B, K) sum_ij w L^2
@@ -347,7 +357,8 @@ class ANRAEstimator(nn.Module):
             covariance = noise.covariance(filters, _NAMES, dt, dx, rate.shape[1:]).to(rate.dtype)
             term_noise = TermNoise(covariance, slope=slope)  # Stein: noisy weights inflate sum(w U L)
         per_frame = accumulate(terms, _NAMES, dims=(-2, -1), weights=weights, noise=term_noise)
-        num, den, energy = (
+        rate_energy, num, den, energy = (
+            per_frame.corrected[..., 0, 0],
             per_frame.corrected[..., 0, 1],
             per_frame.corrected[..., 1, 1],
             per_frame.raw[..., 1, 1],
@@ -380,7 +391,7 @@ class ANRAEstimator(nn.Module):
                 self._to_frame(m, filters.margin)
                 for m in (field.corrected[..., 0, 1], field.corrected[..., 1, 1], field.raw[..., 1, 1])
             )
-        return _Candidate(num, den, energy, ratio, std_error, *maps)
+        return _Candidate(rate_energy, num, den, energy, ratio, std_error, *maps)
 
     def _box(self, m: Tensor) -> Tensor:
         w = self.window
@@ -460,7 +471,10 @@ class ANRAEstimator(nn.Module):
         low = torch.where(finite, video, torch.full_like(video, torch.inf)).amin((1, 2, 3))
         changing = torch.where(finite, video, torch.full_like(video, -torch.inf)).amax((1, 2, 3)) > low
         valid = changing & measured & torch.isfinite(estimate)
+        explained = _explained(chosen) if self.mode == "lsq" else torch.full_like(estimate, torch.nan)
         messages, warnings = _verdicts(valid, changing, reliability, estimate, chosen.std_error, dt_, dx_)
+        rows = zip(warnings, explained.tolist(), valid.tolist(), strict=True)
+        warnings = tuple(w + _poor_fit(e) if ok else w for w, e, ok in rows)
         field, confidence = self._field(chosen) if self.window is not None else (None, None)
         nan = torch.full_like(estimate, torch.nan)
         k = torch.arange(per_frame.shape[1], dtype=video.dtype)
@@ -473,6 +487,7 @@ class ANRAEstimator(nn.Module):
             noise_sd=noise_sd,
             smoothing=sigmas[choice],
             reliability=reliability,
+            explained=explained,
             valid=valid,
             n_masked=(~finite).sum((1, 2, 3)),
             field=field,
@@ -523,6 +538,25 @@ class ANRAEstimator(nn.Module):
             f"mode={self.mode!r}, smoothing={self.sigmas}, eiv_correction={self.eiv_correction}, "
             f"noise_sd={self.noise_sd}, window={self.window}, strict={self.strict}"
         )
+
+
+def _explained(chosen: _Candidate) -> Tensor:
+    """The noise-corrected ``R^2`` of ``U = a L`` at the least-squares ``a``: ``(sum U L)^2 / (sum L^2 sum
+    U^2)`` over the weighted, corrected sums, in [0, 1] (0 where ``dT/dt`` has no energy above the noise)."""
+    uu, ul, ll = chosen.rate_energy.sum(1), chosen.num.sum(1), chosen.den.sum(1)
+    ok = (uu > 0) & (ll > 0)
+    share = ul * ul / torch.where(ok, uu * ll, torch.ones_like(uu))
+    return torch.where(ok, share.clamp(0.0, 1.0), torch.zeros_like(uu))
+
+
+def _poor_fit(explained: float) -> tuple[str, ...]:
+    if not explained < POOR_FIT:
+        return ()
+    return (
+        f"the plain heat equation explains only {100 * explained:.0f} % of dT/dt (below "
+        f"{100 * POOR_FIT:.0f} %): the diffusivity is the best fit of a model that does not describe these "
+        "frames (heat flowing into depth, a loss or a source); see anra diagnose",
+    )
 
 
 def _verdicts(

@@ -36,6 +36,7 @@ PARAMS = {
     "heterogeneity": ["x", "y", "radius", "a_inside", "a_outside"],
     "nonlinear_diffusion": ["a0", "beta", "T_ref"],
     "periodic_source": ["x", "y", "width", "rate", "frequency", "phase"],
+    "depth_conduction": ["strength", "t_heat", "depth_time", "T_ref"],
 }
 """The fixed names of the truth records (a later JSON relies on them)."""
 
@@ -47,6 +48,7 @@ EXAMPLES = {
     "heterogeneity": {"x": 8.0, "y": 8.0, "radius": 4.0, "a_inside": 0.3, "a_outside": 0.1},
     "nonlinear_diffusion": {"a0": 0.1, "beta": 0.05, "T_ref": 30.0},
     "periodic_source": {"x": 8.0, "y": 7.0, "width": 1.2, "rate": 4.0, "frequency": 0.5, "phase": 1.0},
+    "depth_conduction": {"strength": 1.0, "t_heat": -0.2, "depth_time": 3.0, "T_ref": 29.0},
 }
 
 

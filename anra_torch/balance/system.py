@@ -189,7 +189,10 @@ class BalanceSystem:
         """
         columns = tuple(columns)
         gram, cross = self.normal_equations(columns)
-        inverse = torch.linalg.pinv(gram, hermitian=True)
+        # Equilibrated: a column far smaller than L (a term that nearly vanishes) must not be cut by the
+        # pseudo-inverse's relative cutoff, which would give it a zero coefficient with a zero variance.
+        scale = gram.diagonal().abs().clamp_min(1e-300).rsqrt()
+        inverse = scale[:, None] * torch.linalg.pinv(scale[:, None] * gram * scale, hermitian=True) * scale
         beta = inverse @ cross
         residual = self.u - sum(float(beta[i]) * self.terms[c] for i, c in enumerate(columns))
         backs = pushback(residual, self.frames, [self.detached[c] for c in columns])

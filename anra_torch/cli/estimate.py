@@ -97,7 +97,7 @@ def _summary(video: Video, result: ANRAResult, est: ANRAEstimator, elapsed: floa
         "dt": video.dt,
         "dx": video.dx,
         "mode": est.mode,
-        **{key: record[key] for key in ("smoothing_px", "noise_sd", "reliability", "n_masked")},
+        **{key: record[key] for key in ("smoothing_px", "noise_sd", "reliability", "explained", "n_masked")},
         **{key: record[key] for key in ("noise", "artefacts")},
         "window_px": est.window,
         "field_median": None,

@@ -9,6 +9,7 @@ from __future__ import annotations
 from anra_torch.effects import (
     advection,
     anisotropy,
+    depth_conduction,
     heterogeneity,
     linear_loss,
     nonlinear_diffusion,
@@ -29,6 +30,7 @@ EFFECTS: dict[str, EffectSpec] = {
         heterogeneity.SPEC,
         nonlinear_diffusion.SPEC,
         periodic_source.SPEC,
+        depth_conduction.SPEC,
     )
 }
 """The effects by name (the names and parameter names of every truth record and diagnosis)."""

@@ -37,6 +37,8 @@ from torch import Tensor
 from anra_torch.checks import check_choice, check_dtype, check_int, check_shape, number
 from anra_torch.effects.model import Effect, check_effects
 from anra_torch.effects.scene import HiddenEffectVideo, Scene, draw_scene
+from anra_torch.simulation.krylov import gmres
+from anra_torch.simulation.plate import check_depth_partners, with_depth
 
 __all__ = [
     "CONTINUOUS_TERMS",
@@ -57,7 +59,6 @@ _GAUSS = (-math.sqrt(0.6), 0.0, math.sqrt(0.6))  # Gauss-Legendre nodes on [-1, 
 _WEIGHTS = (5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0)
 _NEWTON_STEPS = 8
 _TOLERANCE = 1e-10  # of the temperature span: stage equations are solved to this
-_GMRES_RESTART, _GMRES_CYCLES = 30, 10
 
 
 # ------------------------------------------------------------------------------- continuous model
@@ -80,6 +81,10 @@ class Continuum:
         forcings: heat inputs (:data:`Forcing`, data units per s).
         diffusivity: ``a(x, y)`` in mm^2/s at points in mm (NumPy arrays), or None.
         conductivity: ``(a0, beta, T_ref)`` of a temperature-dependent diffusivity, or None.
+        depth: ``(strength, t_heat, depth_time, T_ref)`` of conduction into a plate below the surface, or
+            None: ``T - T_ref`` is the rest of the (linear) model's solution times
+            ``(theta(t - t_heat) / theta(-t_heat))^strength``, the plate's exact depth factor
+            (:func:`plate_factor`).
 
     Shape:
         ``diffusivity`` maps broadcastable ``x``, ``y`` to their broadcast shape.
@@ -92,6 +97,7 @@ class Continuum:
     forcings: list[Forcing] = field(default_factory=list)
     diffusivity: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
     conductivity: tuple[float, float, float] | None = None
+    depth: tuple[float, float, float, float] | None = None
 
     @property
     def spectral(self) -> bool:
@@ -134,6 +140,10 @@ def _periodic_source(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
     m.forcings.append(q)
 
 
+def _depth(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
+    m.depth = (p["strength"], p["t_heat"], p["depth_time"], p["T_ref"])
+
+
 def _heterogeneity(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
     def a(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         disc = 0.5 * (1.0 + np.tanh((p["radius"] - np.hypot(x - p["x"], y - p["y"])) / ctx.dx))
@@ -161,6 +171,7 @@ CONTINUOUS_TERMS: dict[str, Term] = {
     "heterogeneity": _heterogeneity,
     "source": _source,
     "periodic_source": _periodic_source,
+    "depth_conduction": _depth,
 }
 """Each effect's continuous model: ``(params, continuum, context)`` fills in its part of :class:`Continuum`
 (the parameters of :data:`anra_torch.effects.EFFECTS`, none of its operators)."""
@@ -365,45 +376,12 @@ class _Operators:
             residual = z - c * self._flux(self._faces(u), u) - rhs
             if float(np.abs(residual).max()) <= self.tolerance:
                 return u
-            step = _gmres(lambda v, u=u: v - c * self.jvp(u, self.inverse(v, c)), -residual, self.tolerance)
+            step = gmres(lambda v, u=u: v - c * self.jvp(u, self.inverse(v, c)), -residual, self.tolerance)
             z = z + step
         raise RuntimeError(
             f"independent simulator: Newton did not converge in {_NEWTON_STEPS} steps at t={t:.4g} s "
             f"(residual {float(np.abs(residual).max()):.3g}); use more substeps"
         )
-
-
-def _dot(u: np.ndarray, v: np.ndarray) -> float:
-    """``sum u v`` without BLAS (whose thread pool can stall a busy machine for no gain at this size)."""
-    return float(np.multiply(u, v).sum())
-
-
-def _gmres(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, tolerance: float) -> np.ndarray:
-    """``x`` with ``|matvec(x) - b| <= tolerance / 10`` (2-norm): restarted GMRES, modified Gram-Schmidt."""
-    x, residual, goal = np.zeros_like(b), b, 0.1 * tolerance
-    for _ in range(_GMRES_CYCLES):
-        beta = math.sqrt(_dot(residual, residual))
-        if beta <= goal:
-            return x
-        basis, hessenberg = [residual / beta], np.zeros((_GMRES_RESTART + 1, _GMRES_RESTART))
-        target = np.zeros(_GMRES_RESTART + 1)
-        target[0] = beta
-        for j in range(_GMRES_RESTART):
-            w = matvec(basis[j])
-            for i, v in enumerate(basis):
-                hessenberg[i, j] = _dot(v, w)
-                w = w - hessenberg[i, j] * v
-            hessenberg[j + 1, j] = math.sqrt(_dot(w, w))
-            small, rhs = hessenberg[: j + 2, : j + 1], target[: j + 2]
-            y = np.linalg.lstsq(small, rhs, rcond=None)[0]
-            if np.linalg.norm(small @ y - rhs) <= goal or hessenberg[j + 1, j] == 0.0:
-                break
-            basis.append(w / hessenberg[j + 1, j])
-        x = x + sum(c * v for c, v in zip(y, basis, strict=False))
-        residual = b - matvec(x)
-    if math.sqrt(_dot(residual, residual)) > goal:
-        raise RuntimeError("independent simulator: GMRES did not converge; use more substeps")
-    return x
 
 
 def _tr_bdf2(ops: _Operators, u: np.ndarray, t: float, h: float) -> np.ndarray:
@@ -447,11 +425,10 @@ def simulate_independent(
 ) -> Tensor:
     """Simulate ``dT/dt = a Lap T + effects`` from a continuous initial field, as a camera sees it.
 
-    The frame (origin at its top-left corner, pixel ``(i, j)`` covering ``[j dx, (j + 1) dx]`` in x and
-    ``[i dx, (i + 1) dx]`` in y) lies in a periodic domain ``pad`` px wider on each side; ``initial`` is
-    evaluated over the whole domain and should reach its edges smoothly (e.g. hot spots on a uniform
-    background, or a field periodic over the frame with ``pad=0``). Frame ``k`` holds the solution at
-    ``k dt`` averaged over each pixel. See the module docs for the two methods.
+    The frame (pixel ``(i, j)`` covers ``[j dx, (j + 1) dx]`` in x, ``[i dx, (i + 1) dx]`` in y) lies in a
+    periodic domain ``pad`` px wider on each side, where ``initial`` should reach the edges smoothly (hot
+    spots on a uniform background, or a field periodic over the frame with ``pad=0``). Frame ``k`` is the
+    solution at ``k dt`` averaged over each pixel (methods: module docs; ``depth_conduction``: exact factor).
 
     Args:
         initial: ``T0(x, y)`` at points in mm (float64 tensors that broadcast).
@@ -467,10 +444,7 @@ def simulate_independent(
         method: one of :data:`METHODS`.
 
     Returns:
-        The video, float64.
-
-    Shape:
-        Output ``(n_frames, H, W)``.
+        The video, float64, ``(n_frames, H, W)``.
 
     Raises:
         ValueError: bad sizes or spacings, effects without a continuous model, ``method="spectral"`` for
@@ -503,12 +477,29 @@ def simulate_independent(
             "method='spectral' needs constant coefficients and no heat input, got effects "
             f"{', '.join(e.name for e in effects)}; use method='finite_volume' or 'auto'"
         )
+    if model.depth is not None:  # exact: the rest of the model times the plate's depth factor
+        settings = {"shape": shape, "a": a, "dx": dx, "dt": dt, "n_frames": n_frames, "pad": pad}
+        settings |= {"refine": refine, "substeps": substeps, "method": method}
+        return _with_plate(initial, effects, model.depth, settings)
     if method == "finite_volume" or not model.spectral:
         domain = _Domain((height, width), dx, pad, refine)
         return torch.from_numpy(_finite_volume(model, initial, domain, dt, n_frames, substeps))
     samples = _Domain((height, width), dx, pad, 1)
     start = _evaluate(initial, samples.centres(1), samples.centres(0))
     return torch.from_numpy(_spectral(model, start, dx, pad, np.arange(n_frames) * dt))
+
+
+def _with_plate(
+    initial: Callable[[Tensor, Tensor], Tensor], effects: Sequence[Effect], depth: tuple, common: dict
+) -> Tensor:
+    """:func:`simulate_independent` of the effects but ``depth_conduction``, times the plate's exact depth
+    factor (:mod:`anra_torch.simulation.plate`)."""
+    rest = [e for e in check_effects(effects) if e.name != "depth_conduction"]
+    check_depth_partners(
+        _continuum(rest, common["a"], common["dx"], (common["n_frames"] - 1) * common["dt"]), depth
+    )
+    clean = simulate_independent(initial, effects=rest, **common)
+    return with_depth(clean, np.arange(common["n_frames"]) * common["dt"], depth)
 
 
 def simulate_scene(

@@ -1,0 +1,171 @@
+"""Conduction into a plate below the imaged surface, solved exactly for the independent simulator.
+
+A plate of thickness ``L`` and through-thickness diffusivity ``a_z``, insulated on both faces and heated
+at its surface at ``t_heat``, has at its surface the lateral solution times the depth factor
+
+    theta(t - t_heat) = 1 + 2 sum_n exp(-n^2 pi^2 (t - t_heat) / depth_time),   depth_time = L^2 / a_z
+
+(the cosine series of the 1-D heat equation), for any lateral pattern, lateral anisotropy, advection or
+lateral heterogeneity: the lateral and the depth problem separate. Summed here directly (400 terms), not
+with the Poisson-summed form the library's :mod:`anra_torch.effects.depth_conduction` uses, so the two
+check each other.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+import numpy as np
+import torch
+from torch import Tensor
+
+__all__ = ["check_depth_partners", "flash_plate_video", "plate_factor", "with_depth"]
+
+
+class _Linear(Protocol):
+    forcings: list
+    conductivity: object
+    loss: float
+    ambient: float
+
+
+def plate_factor(elapsed: np.ndarray, depth_time: float, terms: int = 400) -> np.ndarray:
+    """``theta`` at ``elapsed`` s (> 0) after the heating of a plate with ``depth_time`` (s) ``L^2 / a_z``.
+
+    Shape:
+        ``elapsed`` any shape -> the same.
+    """
+    n = np.arange(1, terms + 1, dtype=np.float64)
+    exponent = np.multiply.outer(np.asarray(elapsed, np.float64), n**2) * (math.pi**2 / depth_time)
+    return 1.0 + 2.0 * np.exp(-exponent).sum(-1)
+
+
+def check_depth_partners(rest: _Linear, depth: tuple[float, float, float, float]) -> None:
+    """Raise unless the rest of the model is linear and keeps ``T_ref`` where it is: only then is the
+    depth factor exact for ``T - T_ref``."""
+    t_heat, t_ref = depth[1], depth[3]
+    if not t_heat < 0:
+        raise ValueError(f"depth_conduction.t_heat must be before the first frame (< 0 s), got {t_heat!r}")
+    if rest.forcings or rest.conductivity is not None or (rest.loss > 0 and rest.ambient != t_ref):
+        raise ValueError(
+            "the independent simulator combines depth_conduction only with diffusion, anisotropy, advection, "
+            "a heterogeneity or a linear_loss to the same T_ref, got a heat input, a nonlinear diffusion or "
+            "another ambient"
+        )
+
+
+def with_depth(clean: Tensor, times: np.ndarray, depth: tuple[float, float, float, float]) -> Tensor:
+    """``T_ref + (theta(t - t_heat) / theta(-t_heat))^strength (clean - T_ref)``.
+
+    Args:
+        clean: the video of the rest of the model, ``(T, H, W)``.
+        times: frame times in s, ``(T,)``.
+        depth: ``(strength, t_heat, depth_time, T_ref)``.
+    """
+    strength, t_heat, depth_time, t_ref = depth
+    theta = plate_factor(times - t_heat, depth_time) / plate_factor(np.array(-t_heat), depth_time)
+    return t_ref + torch.from_numpy(theta**strength)[:, None, None] * (clean - t_ref)
+
+
+def flash_plate_video(
+    *,
+    size: int = 100,
+    dx: float = 0.2,
+    n_frames: int = 380,
+    rate: float = 31.0,
+    diffusivity: tuple[float, float, float] = (7.3, 1.1, 0.45),
+    thickness: float = 3.0,
+    layers: int = 30,
+    defect: tuple[float, float, float, float] | None = None,
+    t_heat: float = -0.05,
+    rise: float = 2.0,
+    noise_sd: float = 0.02,
+    seed: int = 0,
+    pad: int | None = None,
+) -> tuple[Tensor, float, float]:
+    """Flash thermography of a plate, solved in 3-D independently of the library's operators.
+
+    A plate ``thickness`` mm thick, with lateral diffusivities ``a_x, a_y`` and through-thickness ``a_z``
+    (mm^2/s), insulated on both faces, heated at its surface at ``t_heat`` s (before the first frame) by a
+    flash that is brighter towards one side (0.6 + 0.4 x a 3 mm Gaussian): lateral heat flow on a periodic
+    domain ``pad`` px wider than the frame (exact per Fourier mode), ``layers`` finite volumes through the
+    thickness (exact per column by a matrix exponential), Strang-split two steps per frame. A ``defect``
+    ``(x, y, radius, depth)`` in mm is a delamination: no heat crosses the plane at ``depth`` inside the
+    disc, so the layer above it stays warm longer. The camera sees the top cell with white noise.
+
+    Args:
+        size: frame side in px.
+        dx: pixel size in mm.
+        n_frames: frames.
+        rate: frame rate in Hz.
+        diffusivity: ``(a_x, a_y, a_z)`` in mm^2/s.
+        thickness: plate thickness in mm.
+        layers: finite volumes through the thickness.
+        defect: ``(x, y, radius, depth)`` in mm, or None.
+        t_heat: time of the flash in s relative to the first frame (< 0).
+        rise: the first frame's largest excess over the temperature before the flash (20 C), K.
+        noise_sd: camera noise sd in K.
+        seed: noise seed.
+        pad: px of lateral domain beyond each frame edge; default the frame size.
+
+    Returns:
+        ``(frames (n_frames, size, size) float32 in C, dt s, dx mm)``.
+    """
+    if not t_heat < 0:
+        raise ValueError(f"t_heat must be before the first frame (< 0 s), got {t_heat!r}")
+    a_x, a_y, a_z = diffusivity
+    pad = size if pad is None else pad
+    side = size + 2 * pad
+    dz, dt = thickness / layers, 1.0 / rate
+    centres = (np.arange(side) - pad + 0.5) * dx
+    x, y = np.meshgrid(centres, centres)  # (side, side): y along rows
+    spot = np.exp(-((x - 0.35 * size * dx) ** 2 + (y - 0.45 * size * dx) ** 2) / (2 * 3.0**2))
+    state = np.zeros((layers, side, side))
+    state[0] = 0.6 + 0.4 * spot  # the flash's energy in the top layer
+    broken = np.zeros((side, side), bool)
+    cut = layers  # no defect: no interface is cut
+    if defect is not None:
+        cx, cy, radius, depth = defect
+        broken = np.hypot(x - cx, y - cy) <= radius
+        cut = min(max(round(depth / dz), 1), layers - 1)  # the interface below layer cut - 1
+    kx = 2 * math.pi * np.fft.rfftfreq(side, dx)[None, :]
+    ky = 2 * math.pi * np.fft.fftfreq(side, dx)[:, None]
+
+    def column_step(h: float) -> tuple[np.ndarray, np.ndarray]:
+        def propagator(open_cut: bool) -> np.ndarray:
+            operator = np.zeros((layers, layers))
+            for k in range(layers - 1):  # conductance between layers k and k + 1
+                if k == cut - 1 and not open_cut:
+                    continue
+                operator[k, k] -= 1.0
+                operator[k + 1, k + 1] -= 1.0
+                operator[k, k + 1] += 1.0
+                operator[k + 1, k] += 1.0
+            values, vectors = np.linalg.eigh(operator * (a_z / dz**2))
+            return (vectors * np.exp(values * h)) @ vectors.T
+
+        return propagator(True), propagator(False)
+
+    def advance(u: np.ndarray, h: float, steps: int) -> np.ndarray:
+        intact, split = column_step(h / 2)
+        lateral = np.exp(-(a_x * kx**2 + a_y * ky**2) * h)
+        flat_broken = broken.ravel()
+        for _ in range(steps):
+            for _half in range(2):
+                columns = u.reshape(layers, -1)
+                columns = np.where(flat_broken, split @ columns, intact @ columns)
+                u = columns.reshape(layers, side, side)
+                if _half == 0:
+                    u = np.fft.irfft2(np.fft.rfft2(u) * lateral, s=(side, side))
+        return u
+
+    state = advance(state, -t_heat / 4, 4)  # from the flash to the first frame
+    frames = np.empty((n_frames, size, size))
+    for index in range(n_frames):
+        frames[index] = state[0, pad : pad + size, pad : pad + size]
+        if index + 1 < n_frames:
+            state = advance(state, dt / 2, 2)
+    frames *= rise / frames[0].max()
+    noisy = 20.0 + frames + noise_sd * np.random.default_rng(seed).standard_normal(frames.shape)
+    return torch.from_numpy(noisy.astype(np.float32)), dt, dx
