@@ -44,6 +44,19 @@ class Selection:
         spec = EFFECTS[name]
         return search_discount(spec.look_elsewhere, len(spec.regressors), self.scores[name])
 
+    def physical(self, name: str, params: dict[str, float]) -> bool:
+        """Whether fitted ``params`` are valid and simulable over the video's temperatures (a nonlinear
+        diffusivity that turns negative there cannot enter: the forecast could not run it)."""
+        spec = EFFECTS[name]
+        frames = self.system.frames.detach()
+        try:
+            if spec.check is not None:
+                spec.check(params)
+            spec.rates(params, (float(frames.min()), float(frames.max())))
+        except ValueError:
+            return False
+        return spec.valid(params)
+
     def threshold(self, name: str, tested: int) -> float:
         return -math.log10(self.alpha / tested) + EFFECTS[name].look_elsewhere
 
@@ -77,7 +90,7 @@ class Selection:
                 self.scores[name] = wald_score(fit, EFFECTS[name].regressors)
                 self.thresholds[name] = self.threshold(name, len(candidates))
                 params = EFFECTS[name].from_coefficients(fit.coefficients(), self.context())
-                if self.scores[name] > self.thresholds[name] and EFFECTS[name].valid(params):
+                if self.scores[name] > self.thresholds[name] and self.physical(name, params):
                     explained = current_excess - (fit.rss - self.system.expected_rss(fit))
                     eligible[name] = explained * search_discount(
                         EFFECTS[name].look_elsewhere, len(EFFECTS[name].regressors), self.scores[name]
