@@ -43,6 +43,7 @@ JSON_KEYS = {
     "smoothing_px",
     "noise_sd",
     "reliability",
+    "explained",
     "n_masked",
     "window_px",
     "field_median",
