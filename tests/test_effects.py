@@ -37,6 +37,7 @@ PARAMS = {
     "nonlinear_diffusion": ["a0", "beta", "T_ref"],
     "periodic_source": ["x", "y", "width", "rate", "frequency", "phase"],
     "depth_conduction": ["strength", "t_heat", "depth_time", "T_ref"],
+    "delamination": ["x", "y", "radius", "strength", "depth_time", "t_heat", "plate_time", "T_ref"],
 }
 """The fixed names of the truth records (a later JSON relies on them)."""
 
@@ -49,6 +50,16 @@ EXAMPLES = {
     "nonlinear_diffusion": {"a0": 0.1, "beta": 0.05, "T_ref": 30.0},
     "periodic_source": {"x": 8.0, "y": 7.0, "width": 1.2, "rate": 4.0, "frequency": 0.5, "phase": 1.0},
     "depth_conduction": {"strength": 1.0, "t_heat": -0.2, "depth_time": 3.0, "T_ref": 29.0},
+    "delamination": {
+        "x": 8.0,
+        "y": 7.0,
+        "radius": 3.0,
+        "strength": 1.0,
+        "depth_time": 0.4,
+        "t_heat": -0.2,
+        "plate_time": 3.0,
+        "T_ref": 29.0,
+    },
 }
 
 

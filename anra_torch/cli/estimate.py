@@ -6,10 +6,13 @@
   ``message`` (the reason when not valid, else "");
 - ``warnings``: a list of lines, empty when all is well: input samples masked (non-finite or beyond
   +-1e6), a significantly negative diffusivity, one outside every known material (about 1e-3 to 2e3
-  mm^2/s, with the likely unit mix-up of dt or dx), a number not finite and reported as null;
+  mm^2/s, with the likely unit mix-up of dt or dx), a plain heat equation that explains under 90 % of
+  dT/dt (a poor fit: see ``explained``), a number not finite and reported as null;
 - ``frames``, ``height``, ``width`` (px); ``dt`` (s); ``dx`` (mm); ``mode``;
 - ``smoothing_px`` (the Gaussian sigma chosen from the data); ``noise_sd`` (data units); ``reliability``
-  (signal fraction of the regressor energy, 1 is noiseless); ``n_masked`` (non-finite pixel values);
+  (signal fraction of the regressor energy, 1 is noiseless); ``explained`` (the share of dT/dt, above its
+  noise, that ``a Lap T`` explains: 1 for pure heat transfer; null in ratio mode, absent for a small box);
+  ``n_masked`` (non-finite pixel values);
 - ``window_px``, ``field_median`` (mm^2/s), ``field_coverage`` (pixel fraction) with ``--window``, else null;
 - ``a_true`` (mm^2/s) when the file records the truth, else null; ``elapsed_s``; ``units`` (key -> unit);
 - ``input`` (``resampled``, ``roi``, ``calibration``) when the video was prepared by those flags.
@@ -137,6 +140,8 @@ def _print_summary(s: dict[str, Any]) -> None:
         f"  smoothing {s['smoothing_px']:g} px (chosen from the data), noise sd {_shown(s['noise_sd'])} "
         f"{s['units']['noise_sd']}, reliability {_shown(s['reliability'], '.3f')}"
     )
+    if s.get("explained") is not None:
+        print(f"  the plain heat equation explains {100 * s['explained']:.1f} % of dT/dt (above its noise)")
     if s["n_masked"]:
         print(f"  masked {s['n_masked']} non-finite pixel values")
     for line in s["warnings"]:

@@ -214,6 +214,8 @@ class EffectSpec:
             time span than it was fitted on (a moving source's path); None when time does not enter.
         positive: parameters that must stay positive (refined in log space).
         draw: ``(axes, params) -> caption`` drawing its shape on a map in mm, or None.
+        requires: effects that must already be in the model before this one is tried (a local change
+            of a global effect).
     """
 
     name: str
@@ -240,6 +242,7 @@ class EffectSpec:
     retime: Callable[[dict[str, float], float, float, float | None], dict[str, float]] | None = None
     positive: frozenset[str] = frozenset()
     draw: Callable[[Any, dict[str, float]], str] | None = None
+    requires: tuple[str, ...] = ()
 
 
 def require(condition: bool, name: str, key: str, need: str, params: dict[str, float]) -> None:

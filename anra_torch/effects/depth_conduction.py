@@ -46,7 +46,7 @@ from anra_torch.effects.shapes import optimise
 if TYPE_CHECKING:
     from anra_torch.balance.system import BalanceSystem, Fit
 
-__all__ = ["SPEC", "depth_rate"]
+__all__ = ["SPEC", "depth_rate", "fitted_plate"]
 
 _F64 = torch.float64
 _STRENGTH = (0.2, 5.0)  # a fit outside is not conduction into depth (1 for a homogeneous body)
@@ -128,6 +128,13 @@ def _from_coefficients(c: dict[str, float], ctx: Context) -> dict[str, float]:
 
 # -------------------------------------------------------------------------------------- shape fit
 _FRAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_PLATES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def fitted_plate(system: BalanceSystem) -> dict[str, float] | None:
+    """The plate last fitted on ``system`` (``"elapsed"`` s at its first frame, ``"depth_time"`` s,
+    ``"offset"``: ``T_ref - Tbar``), or None before any fit: what a local change of it builds on."""
+    return _PLATES.get(system)
 
 
 def _smoothed(system: BalanceSystem) -> Tensor:
@@ -199,6 +206,7 @@ def _fit(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
     starts = _starts(system)
     theta = optimise(loss, starts if start is None else [*starts, start], iterations=40, runs=2)
     elapsed, depth_time, offset = _unpack(system, theta)
+    _PLATES[system] = {"elapsed": float(elapsed), "depth_time": float(depth_time), "offset": float(offset)}
     shape = {
         "t_heat": -float(elapsed),
         "depth_time": float(depth_time),

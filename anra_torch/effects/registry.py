@@ -9,6 +9,7 @@ from __future__ import annotations
 from anra_torch.effects import (
     advection,
     anisotropy,
+    delamination,
     depth_conduction,
     heterogeneity,
     linear_loss,
@@ -31,6 +32,7 @@ EFFECTS: dict[str, EffectSpec] = {
         nonlinear_diffusion.SPEC,
         periodic_source.SPEC,
         depth_conduction.SPEC,
+        delamination.SPEC,
     )
 }
 """The effects by name (the names and parameter names of every truth record and diagnosis)."""

@@ -77,7 +77,8 @@ class GainResult:
         extended_rmse_raw: the same for the extended forecast.
         gain_raw: ``1 - extended_rmse_raw / base_rmse_raw`` (0 when no effect was found).
         noise_floor_raw: the sensor noise sd, the least RMSE against raw frames.
-        effect_gains: each effect's own gain, ``1 - rmse_with_it_alone / base_rmse`` (evaluation scale),
+        effect_gains: each effect's own gain, what the extended model loses without it, ``(rmse_without_it
+            - rmse_extended) / base_rmse`` (evaluation scale),
             in the order of ``effects`` (the whole gain when there is one effect).
         gain_above_floor: the fraction of the plain model's error above the noise floor that the
             extension removes, ``1 - e_extended / e_base`` with ``e = sqrt(max(rmse^2 - floor^2, 0))``
@@ -321,12 +322,21 @@ def _warnings(run: _Forecasts, rmse: float, floor: float) -> tuple[str, ...]:
 
 
 def _effect_gains(run: _Forecasts, measured: Tensor, base_rmse: float, gain: float) -> tuple[float, ...]:
-    """Each effect's own gain, ``1 - rmse_with_it_alone / base_rmse``; the whole gain for one effect."""
+    """Each effect's own gain: what the extended model loses without it, ``(rmse_without_it -
+    rmse_extended) / base_rmse``; the whole gain for one effect.
+
+    Judged inside the model, not alone: an effect that completes a dominant one (the anisotropy of a plate
+    cooling into depth) forecasts worse alone than the plain model, yet the model needs it.
+    """
     if len(run.effects) <= 1:
         return (gain,) if run.effects else ()
+    if base_rmse <= 0:
+        return tuple(0.0 for _ in run.effects)
+    extended_rmse = (1.0 - gain) * base_rmse
     gains = []
     for effect in run.effects:
-        alone = run.evaluate(run.forecast((effect,)))
-        rmse = forecast_errors(alone, measured, run.diagnosis.margin)[1]
-        gains.append(1.0 - rmse / base_rmse if base_rmse > 0 else 0.0)
+        others = tuple(e for e in run.effects if e is not effect)
+        without = run.evaluate(run.forecast(others))
+        rmse = forecast_errors(without, measured, run.diagnosis.margin)[1]
+        gains.append((rmse - extended_rmse) / base_rmse)
     return tuple(gains)

@@ -55,15 +55,29 @@ class Selection:
             spec.rates(params, (float(frames.min()), float(frames.max())))
         except ValueError:
             return False
-        return spec.valid(params)
+        return spec.valid(params) and self.in_view(name, params)
+
+    def in_view(self, name: str, params: dict[str, float]) -> bool:
+        """Whether every position of a localised effect (:attr:`EffectSpec.positions`, mm) lies in the
+        frame or within a quarter of its size around it: a shape fitted far outside the field of view is a
+        term the model misses (e.g. a cooling into depth), not a source."""
+        _, height, width = self.system.shape
+        dx = self.system.dx
+        for x_key, y_key in EFFECTS[name].positions:
+            x, y = params[x_key] / (width * dx), params[y_key] / (height * dx)
+            if not (-0.25 <= x <= 1.25 and -0.25 <= y <= 1.25):
+                return False
+        return True
 
     def threshold(self, name: str, tested: int) -> float:
         return -math.log10(self.alpha / tested) + EFFECTS[name].look_elsewhere
 
     def allowed(self, name: str, effects: Sequence[str]) -> bool:
         group = EFFECTS[name]
-        return name not in effects and not (
-            group.replaces_diffusion and any(EFFECTS[e].replaces_diffusion for e in effects)
+        return (
+            name not in effects
+            and all(needed in effects for needed in group.requires)
+            and not (group.replaces_diffusion and any(EFFECTS[e].replaces_diffusion for e in effects))
         )
 
     def prepare(self, name: str, current: Fit, *, refine: bool = False) -> None:

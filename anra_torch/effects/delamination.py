@@ -1,0 +1,252 @@
+"""``delamination``: a disc where the heat flowing into depth stops short, above a subsurface defect.
+
+Over a delamination (a crack or an air gap parallel to the surface at depth ``d``) the layer above the
+defect is a thinner plate: it evens out through its thickness after ``d^2 / a_z`` instead of ``L^2 / a_z``
+and then stays warm. In the disc the depth term of :mod:`anra_torch.effects.depth_conduction` runs with
+the thin layer's rate instead of the plate's, which adds
+
+    + strength disc(r) (r_plate(t - t_heat) - r_layer(t - t_heat)) (T - T_ref)
+
+(``r_plate``, ``r_layer`` the depth rates of depth times ``plate_time`` and ``depth_time``; strength 1
+for a defect that lets no heat through). ``disc`` has a tanh edge about one pixel wide.
+
+Parameters: ``x``, ``y``, ``radius`` (mm), ``strength`` (1), ``depth_time`` (s, ``d^2 / a_z`` of the
+layer above the defect), ``t_heat`` (s), ``plate_time`` (s, ``L^2 / a_z``), ``T_ref`` (data units): the
+last three are the plate's, copied from its ``depth_conduction`` fit. Derived: ``depth_fraction``
+``d / L = sqrt(depth_time / plate_time)``.
+
+Diagnosis: tried once ``depth_conduction`` is in the model (:attr:`EffectSpec.requires`); a fitted shape
+``Y`` (the disc's term through the balance's filters), its centre, radius and depth time fitted by the
+errors-in-variables profile loss from the strongest positive structure left in the residual. Validated
+on the independent 3-D plates of :func:`anra_torch.simulation.plate.flash_plate_video` (the lateral and
+the depth problems do not separate over a defect, so the 2-D independent simulator has no model of it).
+Random draw: under the first hot spot (radius 1-2 of its sigmas), ``d / L`` in 0.2-0.5, ``strength``
+0.7-1.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from anra_torch.balance.system import NoiseSpec
+from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Shape, Term, require
+from anra_torch.effects.depth_conduction import depth_rate, fitted_plate
+from anra_torch.effects.shapes import optimise, peak, pixel_grid
+
+if TYPE_CHECKING:
+    from anra_torch.balance.system import BalanceSystem, Fit
+
+__all__ = ["SPEC"]
+
+_F64 = torch.float64
+_MIN_RADIUS_PX = 2.0
+_STRENGTH = (0.2, 5.0)
+
+
+def _edge_disc(x: Tensor, y: Tensor, cx: Any, cy: Any, radius: Any, dx: float) -> Tensor:
+    """1 inside the disc, 0 outside, with a tanh edge about one pixel wide, ``(H, W)``."""
+    r = torch.sqrt((x[None, :] - cx) ** 2 + (y[:, None] - cy) ** 2)
+    return 0.5 * (1.0 + torch.tanh((radius - r) / dx))
+
+
+def _difference(elapsed: Tensor, p: dict[str, float]) -> Tensor:
+    return depth_rate(elapsed, p["plate_time"]) - depth_rate(elapsed, p["depth_time"])
+
+
+def _build(p: dict[str, float], grid: Grid) -> Term:
+    disc = _edge_disc(grid.x, grid.y, p["x"], p["y"], p["radius"], grid.dx)
+
+    def term(t: Tensor, u: Tensor) -> Tensor:
+        elapsed = torch.as_tensor(t, dtype=_F64) - p["t_heat"]
+        if float(elapsed) <= 0.0:
+            return torch.zeros_like(u)
+        rate = p["strength"] * _difference(elapsed, p)
+        return (rate * disc).to(u) * (u - p["T_ref"])
+
+    return term
+
+
+def _sample(rng: np.random.Generator, g: Geometry) -> dict[str, float]:
+    """Under the first hot spot (the term acts on ``T - T_ref``: elsewhere there is nothing to see)."""
+    height, width = g.shape
+    if g.hotspots:
+        cx, cy, sigma = g.hotspots[0]
+        radius = sigma * rng.uniform(1.0, 2.0)
+        cx, cy = cx + rng.uniform(-0.5, 0.5) * sigma, cy + rng.uniform(-0.5, 0.5) * sigma
+    else:
+        radius = rng.uniform(6.0, 15.0) * g.dx
+        cx, cy = rng.uniform(0.3, 0.7) * g.width_mm, rng.uniform(0.3, 0.7) * g.height_mm
+    plate_time = rng.uniform(1.0, 10.0) * g.duration
+    return {
+        "x": cx,
+        "y": cy,
+        "radius": radius,
+        "strength": rng.uniform(0.7, 1.0),
+        "depth_time": plate_time * rng.uniform(0.2, 0.5) ** 2,
+        "t_heat": -rng.uniform(0.02, 0.2) * g.duration,
+        "plate_time": plate_time,
+        "T_ref": g.background,
+    }
+
+
+def _check(p: dict[str, float]) -> None:
+    require(p["radius"] > 0, "delamination", "radius", "positive in mm", p)
+    require(p["strength"] >= 0, "delamination", "strength", "non-negative (1: no heat crosses the defect)", p)
+    require(p["plate_time"] > 0, "delamination", "plate_time", "positive in s (L^2 / a_z)", p)
+    require(
+        0 < p["depth_time"] <= p["plate_time"],
+        "delamination",
+        "depth_time",
+        "in (0, plate_time] s (d <= L)",
+        p,
+    )
+
+
+def _rates(p: dict[str, float], span: tuple[float, float]) -> Rates:
+    """The disc's rate is below the plate's own at the simulation's start, ``strength r_plate(-t_heat)``."""
+    elapsed = torch.tensor(max(-p["t_heat"], 1e-9), dtype=_F64)
+    return Rates(decay=p["strength"] * float(depth_rate(elapsed, p["plate_time"])))
+
+
+def _bounds(p: dict[str, float], lo: float, hi: float, duration: float) -> tuple[float, float]:
+    return min(lo, p["T_ref"]), max(hi, p["T_ref"])
+
+
+def _from_coefficients(c: dict[str, float], ctx: Context) -> dict[str, float]:
+    p = {**ctx.shape["delamination"], "strength": c["Y"]}
+    return {**p, "depth_fraction": math.sqrt(p["depth_time"] / p["plate_time"])}
+
+
+# -------------------------------------------------------------------------------------- shape fit
+def _unpack(theta: Tensor, plate_time: float) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(x px, y px, log(radius - 2 px), logit of depth_time / plate_time)`` -> centre, radius px, s."""
+    radius = _MIN_RADIUS_PX + torch.exp(theta[2])
+    return theta[0], theta[1], radius, plate_time * torch.sigmoid(theta[3])
+
+
+def delamination_term(system: BalanceSystem, theta: Tensor, plate: dict[str, float]) -> tuple[Tensor, Tensor]:
+    """``Y`` on the output grid for ``theta`` (see :func:`_unpack`) and its noise weight map."""
+    cx, cy, radius, depth_time = _unpack(theta, plate["depth_time"])
+    gx, gy = pixel_grid(system)
+    dx = system.dx
+    disc = _edge_disc(gx, gy, cx * dx, cy * dx, radius * dx, dx)
+    t = torch.arange(system.shape[0], dtype=_F64) * system.dt + plate["elapsed"]
+    rate = depth_rate(t, plate["depth_time"]) - depth_rate(t, depth_time)
+    centred = system.frames.detach() - system.mean - plate["offset"]
+    field = rate[:, None, None] * disc[None] * centred
+    m = system.margin
+    weight = system.filters.time.average(rate[:, None, None]) * disc[m:-m, m:-m][None]
+    return system.finish(system.filters.time.average(field)), weight
+
+
+def _starts(system: BalanceSystem, fit: Fit) -> list[Tensor]:
+    """Around the strongest positive structure of the time-mean residual (where heat stays)."""
+    residual = system.residual(fit).mean(0)
+    m = system.margin
+    cx, cy = peak(residual, 4 * int(math.ceil(system.sigma)) + 6)
+    starts = []
+    for radius in (5.0, 10.0, 20.0):
+        for fraction in (0.05, 0.2):
+            starts.append(
+                torch.tensor(
+                    [
+                        cx + m + 0.5,
+                        cy + m + 0.5,
+                        math.log(radius - _MIN_RADIUS_PX),
+                        math.log(fraction / (1 - fraction)),
+                    ],
+                    dtype=_F64,
+                )
+            )
+    return starts
+
+
+def _fit(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
+    """Fit the disc and its layer's depth time to the residual of ``fit`` (or refine ``start``)."""
+    plate = fitted_plate(system)
+    if plate is None:  # only tried after depth_conduction (EffectSpec.requires): its plate is fitted
+        raise RuntimeError("delamination needs the depth_conduction fit of this balance first")
+    columns, scale = list(fit.columns), fit.rss
+
+    def loss(theta: Tensor) -> Tensor:
+        term, weight = delamination_term(system, theta, plate)
+        return system.profile_loss(columns, term, NoiseSpec("T", weight.detach())) / scale
+
+    starts = _starts(system, fit)
+    theta = optimise(loss, starts if start is None else [start, *starts], iterations=25, runs=2)
+    cx, cy, radius, depth_time = _unpack(theta, plate["depth_time"])
+    dx = system.dx
+    shape = {
+        "x": float(cx) * dx,
+        "y": float(cy) * dx,
+        "radius": float(radius) * dx,
+        "depth_time": float(depth_time),
+        "t_heat": -plate["elapsed"],
+        "plate_time": plate["depth_time"],
+        "T_ref": system.mean + plate["offset"],
+    }
+    term, weight = delamination_term(system, theta.detach(), plate)
+    return Shape(term.detach(), NoiseSpec("T", weight.detach()), shape, theta.detach())
+
+
+# ----------------------------------------------------------------------------------- presentation
+def _retime(params: dict[str, float], fit_duration: float, start: float, duration: float | None) -> dict:
+    return {**params, "t_heat": params["t_heat"] - start}
+
+
+def _inside(p: dict[str, float]) -> bool:
+    return _STRENGTH[0] <= p["strength"] <= _STRENGTH[1] and p["depth_time"] < p["plate_time"]
+
+
+def _equation(p: dict[str, float]) -> str:
+    return (
+        f"+ {p['strength']:.2f} disc(r < {p['radius']:.2f} mm at ({p['x']:.2f}, {p['y']:.2f}) mm) "
+        f"(r_plate - r_layer(d^2/a_z {p['depth_time']:.3g} s)) (T - {p['T_ref']:.1f})"
+    )
+
+
+def _draw(ax: Any, p: dict[str, float]) -> str:
+    angle = np.linspace(0.0, 2.0 * np.pi, 200)
+    ax.plot(p["x"] + p["radius"] * np.cos(angle), p["y"] + p["radius"] * np.sin(angle), "w--")
+    where = f"({p['x']:.2f}, {p['y']:.2f}) mm"
+    return f"delamination r = {p['radius']:.2f} mm at {where}, d/L {p['depth_fraction']:.2f}"
+
+
+SPEC = EffectSpec(
+    name="delamination",
+    params={
+        "x": "mm",
+        "y": "mm",
+        "radius": "mm",
+        "strength": "1",
+        "depth_time": "s",
+        "t_heat": "s",
+        "plate_time": "s",
+        "T_ref": "data units",
+    },
+    build=_build,
+    sample=_sample,
+    help="+ strength disc (r_plate - r_layer) (T - T_ref): a disc where heat flowing into depth stops "
+    "short (a subsurface defect)",
+    check=_check,
+    rates=_rates,
+    bounds=_bounds,
+    derived=lambda p: {"depth_fraction": math.sqrt(p["depth_time"] / p["plate_time"])},
+    derived_units={"depth_fraction": "1"},
+    positions=(("x", "y"),),
+    regressors=("Y",),
+    from_coefficients=_from_coefficients,
+    valid=_inside,
+    shape=_fit,
+    look_elsewhere=4.0,
+    equation=_equation,
+    retime=_retime,
+    positive=frozenset({"radius", "depth_time", "plate_time"}),
+    draw=_draw,
+    requires=("depth_conduction",),
+)
