@@ -225,6 +225,7 @@ def diagnose_terms(
         if name in selection.selected:
             others = [e for e in selection.selected if e != name]
             selection.prepare(name, system.fit(selection.columns(others)), refine=True)
+    selection.drop_unphysical()
     return _result(system, selection, plain, artefacts)
 
 

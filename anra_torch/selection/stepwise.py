@@ -118,6 +118,20 @@ class Selection:
             # fitted shape owes to its search (_search_discount).
             self.selected.append(max(eligible, key=eligible.__getitem__))
 
+    def drop_unphysical(self) -> None:
+        """Remove, one at a time, effects whose parameters in the final fit are not physical (the fit
+        moves when other effects leave or shapes are refitted): the one with the lowest score first."""
+        while self.selected:
+            coefficients = self.system.fit(self.columns(self.selected)).coefficients()
+            bad = [
+                name
+                for name in self.selected
+                if not self.physical(name, EFFECTS[name].from_coefficients(coefficients, self.context()))
+            ]
+            if not bad:
+                return
+            self.selected.remove(min(bad, key=lambda name: self.scores.get(name, 0.0)))
+
     def backward(self) -> Fit:
         """Drop effects that are no longer significant given the others; return the final fit."""
         while True:
