@@ -111,6 +111,22 @@ def test_laser_heating_source_map_is_chosen_inside_the_fit_frames() -> None:
     assert heating.candidates["parametric"]["gain"] < 0.0  # measured -0.27
 
 
+@pytest.mark.slow
+@needs_data
+def test_laser_cooling_phases_are_analysed_with_conduction_into_depth() -> None:
+    """Both laser runs' cooling phases are analysed (a delamination fitted with a negative strength once
+    stopped Nov19's); Nov19_2 cooling names depth_conduction and its parametric model gains held out."""
+    phases = {}
+    for name in ("Nov19", "Nov19_2"):
+        video = real_data.load(DATA / "laser_silicone" / name)
+        cooling = diagnose_recording(video.frames, video.dt, video.dx, video.t)[1]
+        assert cooling.phase.name == "cooling" and cooling.reason is None, cooling.reason
+        phases[name] = cooling
+    nov19_2 = phases["Nov19_2"]
+    assert "depth_conduction" in [e["name"] for e in nov19_2.effects]
+    assert nov19_2.model == "parametric" and nov19_2.gain > 0.3  # measured +0.46 (RMSE 3.44 -> 1.85 degC)
+
+
 @needs_data
 def test_cli_estimates_a_flir_folder_and_says_it_resampled(capsys: pytest.CaptureFixture[str]) -> None:
     folder = DATA / "laser_silicone" / "Nov19_2"

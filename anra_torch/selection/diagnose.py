@@ -14,6 +14,10 @@ effect                   regressors besides ``L = Lap T``      the effect's term
 ``nonlinear_diffusion``  ``N = Lap (T - Tbar)^2 / 2``          ``+ a0 beta N``
 ``source``               ``S``: a Gaussian moving on a line    ``+ rate S``
 ``heterogeneity``        ``H = div(disc grad T)``              ``+ (a_inside - a_outside) H``
+``depth_conduction``     ``Z = r(t) (T - T_ref)``: fitted      ``- strength Z``
+                         heating time and plate depth time
+``delamination``         ``Y = disc (r_plate - r_layer)``      ``+ strength Y``
+                         ``(T - T_ref)``, after depth
 =======================  ====================================  ====================================
 
 ``N`` equals ``(T - Tbar) L + |grad T|^2``; written as the Laplacian of a square it is linear in the
