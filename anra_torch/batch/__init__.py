@@ -22,7 +22,9 @@ region of interest, calibration), sends same-shaped videos through one
   negative diffusivity, ...) and, when it measured nothing, why; and a note when the row was recomputed
   because its input changed;
 - ``input_stamp`` (the input's size and modification time) and ``parameters`` (JSON: every option that
-  changes a result): the resume key.
+  changes a result): the resume key;
+- ``explained``: the share of dT/dt the plain heat equation explains (below 0.9 the row's ``message``
+  flags a poor fit).
 
 A bad input (missing, unreadable, too small, no thermal activity) gets an ``error`` row and never stops the
 others. The table is rewritten after every batch through a temporary file and :func:`os.replace`, so an

@@ -29,7 +29,15 @@ from anra_torch.video import (
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
 
-_RECORD_COLUMNS = ("diffusivity", "std_error", "smoothing_px", "noise_sd", "reliability", "n_masked")
+_RECORD_COLUMNS = (
+    "diffusivity",
+    "std_error",
+    "smoothing_px",
+    "noise_sd",
+    "reliability",
+    "n_masked",
+    "explained",
+)
 """The columns taken as they are from :meth:`~anra_torch.estimator.ANRAResult.to_record`."""
 _DIAGNOSIS_COLUMNS = ("top_effect", "effects", "gain", "noise_floor", "base_rmse", "extended_rmse")
 

@@ -42,6 +42,7 @@ BATCH_COLUMNS: dict[str, type] = {
     "message": str,
     "input_stamp": str,
     "parameters": str,
+    "explained": float,
 }
 """Output columns and their types (missing values are empty cells in CSV, nulls in Parquet)."""
 

@@ -326,7 +326,8 @@ def _effect_gains(run: _Forecasts, measured: Tensor, base_rmse: float, gain: flo
     rmse_extended) / base_rmse``; the whole gain for one effect.
 
     Judged inside the model, not alone: an effect that completes a dominant one (the anisotropy of a plate
-    cooling into depth) forecasts worse alone than the plain model, yet the model needs it.
+    cooling into depth) forecasts worse alone than the plain model, yet the model needs it. Above 1 when
+    the model without the effect forecasts worse than the plain one.
     """
     if len(run.effects) <= 1:
         return (gain,) if run.effects else ()
