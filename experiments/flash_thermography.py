@@ -8,7 +8,8 @@ Both CLI commands run in this process with default settings, as a user would run
 
 Run: ``python experiments/flash_thermography.py [--out DIR]`` (about 10 minutes on 2 cores). It prints, per
 case, the effects named in the phase with their own held-out gains and the parameters of
-``depth_conduction``, and the estimate's diffusivity, its share of dT/dt explained and its flags.
+``depth_conduction``, and the estimate's diffusivity, its share of dT/dt explained and its flags; each
+case's ``anra diagnose --report`` goes to ``DIR/caseN_report`` (README's figure: case 1's ``maps.png``).
 """
 
 from __future__ import annotations
@@ -80,7 +81,7 @@ def run(out: Path) -> list[str]:
         path = out / f"case{index}.npz"
         np.savez(path, frames=frames.numpy(), dt=dt, dx=dx)
         start, start_line = time.perf_counter(), len(lines)
-        diagnosis = _run(["diagnose", str(path), "--json"])
+        diagnosis = _run(["diagnose", str(path), "--json", "--report", str(out / f"case{index}_report")])
         estimate = _run(["estimate", str(path), "--json"])
         lines += _describe(name, diagnosis, estimate, time.perf_counter() - start)
         print("\n".join(lines[start_line:]), flush=True)
