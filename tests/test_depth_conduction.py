@@ -117,3 +117,15 @@ def test_a_vanishing_column_gets_its_real_standard_error() -> None:
     beta, se = fit.coefficients()["tiny"], fit.std_errors()["tiny"]
     assert se > 1e6 and abs(beta) < 5 * se  # was ~1e-16: a zero variance
     assert math.isfinite(fit.coefficients()["L"])
+
+
+def test_bad_parameters_and_partners_are_one_line_errors() -> None:
+    late = {**PARAMS, "t_heat": 0.2}
+    with pytest.raises(ValueError, match=r"depth_conduction.t_heat must be before the first frame \(< 0 s\)"):
+        Effect("depth_conduction", late)
+    source = Effect("source", {"x0": 6.0, "y0": 6.0, "x1": 8.0, "y1": 6.0, "rate": 1.0, "width": 1.0})
+    with pytest.raises(ValueError, match="combines depth_conduction only with diffusion"):
+        simulate_independent(
+            _spot, shape=(16, 16), a=0.3, dx=0.5, dt=0.1, n_frames=3,
+            effects=[Effect("depth_conduction", PARAMS), source],
+        )  # fmt: skip

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 from torch import Tensor
@@ -126,6 +127,15 @@ class BalanceSystem:
         self.n = self.terms["U"].numel()
         self._base = accumulate(self.detached, names, noise=self.term_noise(names))
         self.moments = self._base
+        # Fitted shape parameters by effect, as the selection last fitted them: an effect that refines
+        # another (EffectSpec.requires) builds on its entry.
+        self.shapes: dict[str, dict[str, float]] = {}
+
+    @cached_property
+    def smoothed(self) -> Tensor:
+        """The centred frames smoothed and cropped like ``U``, before time averaging: ``(T, h, w)``
+        (a term that weights whole frames, e.g. by a rate in time, is this weighted then time-averaged)."""
+        return self.finish(self.frames.detach() - self.mean)
 
     @property
     def u(self) -> Tensor:

@@ -35,8 +35,8 @@ from torch import Tensor
 
 from anra_torch.balance.system import NoiseSpec
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Shape, Term, require
-from anra_torch.effects.depth_conduction import depth_rate, fitted_plate
-from anra_torch.effects.shapes import optimise, peak, pixel_grid
+from anra_torch.effects.depth_conduction import depth_rate
+from anra_torch.effects.shapes import draw_circle, edge_disc, optimise, peak, pixel_grid
 
 if TYPE_CHECKING:
     from anra_torch.balance.system import BalanceSystem, Fit
@@ -48,23 +48,15 @@ _MIN_RADIUS_PX = 2.0
 _STRENGTH = (0.2, 5.0)
 
 
-def _edge_disc(x: Tensor, y: Tensor, cx: Any, cy: Any, radius: Any, dx: float) -> Tensor:
-    """1 inside the disc, 0 outside, with a tanh edge about one pixel wide, ``(H, W)``."""
-    r = torch.sqrt((x[None, :] - cx) ** 2 + (y[:, None] - cy) ** 2)
-    return 0.5 * (1.0 + torch.tanh((radius - r) / dx))
-
-
 def _difference(elapsed: Tensor, p: dict[str, float]) -> Tensor:
     return depth_rate(elapsed, p["plate_time"]) - depth_rate(elapsed, p["depth_time"])
 
 
 def _build(p: dict[str, float], grid: Grid) -> Term:
-    disc = _edge_disc(grid.x, grid.y, p["x"], p["y"], p["radius"], grid.dx)
+    disc = edge_disc(grid.x, grid.y, p["x"], p["y"], p["radius"], grid.dx)
 
     def term(t: Tensor, u: Tensor) -> Tensor:
-        elapsed = torch.as_tensor(t, dtype=_F64) - p["t_heat"]
-        if float(elapsed) <= 0.0:
-            return torch.zeros_like(u)
+        elapsed = torch.as_tensor(t, dtype=_F64) - p["t_heat"]  # > 0: the heating precedes the first frame
         rate = p["strength"] * _difference(elapsed, p)
         return (rate * disc).to(u) * (u - p["T_ref"])
 
@@ -98,6 +90,7 @@ def _check(p: dict[str, float]) -> None:
     require(p["radius"] > 0, "delamination", "radius", "positive in mm", p)
     require(p["strength"] >= 0, "delamination", "strength", "non-negative (1: no heat crosses the defect)", p)
     require(p["plate_time"] > 0, "delamination", "plate_time", "positive in s (L^2 / a_z)", p)
+    require(p["t_heat"] < 0, "delamination", "t_heat", "before the first frame (< 0 s)", p)
     require(
         0 < p["depth_time"] <= p["plate_time"],
         "delamination",
@@ -109,7 +102,7 @@ def _check(p: dict[str, float]) -> None:
 
 def _rates(p: dict[str, float], span: tuple[float, float]) -> Rates:
     """The disc's rate is below the plate's own at the simulation's start, ``strength r_plate(-t_heat)``."""
-    elapsed = torch.tensor(max(-p["t_heat"], 1e-9), dtype=_F64)
+    elapsed = torch.tensor(-p["t_heat"], dtype=_F64)
     return Rates(decay=p["strength"] * float(depth_rate(elapsed, p["plate_time"])))
 
 
@@ -130,14 +123,15 @@ def _unpack(theta: Tensor, plate_time: float) -> tuple[Tensor, Tensor, Tensor, T
 
 
 def delamination_term(system: BalanceSystem, theta: Tensor, plate: dict[str, float]) -> tuple[Tensor, Tensor]:
-    """``Y`` on the output grid for ``theta`` (see :func:`_unpack`) and its noise weight map."""
+    """``Y`` on the output grid for ``theta`` (see :func:`_unpack`) and its noise weight map, under the
+    ``plate`` of a depth_conduction fit (``t_heat``, ``depth_time``, ``T_ref``)."""
     cx, cy, radius, depth_time = _unpack(theta, plate["depth_time"])
     gx, gy = pixel_grid(system)
     dx = system.dx
-    disc = _edge_disc(gx, gy, cx * dx, cy * dx, radius * dx, dx)
-    t = torch.arange(system.shape[0], dtype=_F64) * system.dt + plate["elapsed"]
+    disc = edge_disc(gx, gy, cx * dx, cy * dx, radius * dx, dx)
+    t = torch.arange(system.shape[0], dtype=_F64) * system.dt - plate["t_heat"]
     rate = depth_rate(t, plate["depth_time"]) - depth_rate(t, depth_time)
-    centred = system.frames.detach() - system.mean - plate["offset"]
+    centred = system.frames.detach() - plate["T_ref"]
     field = rate[:, None, None] * disc[None] * centred
     m = system.margin
     weight = system.filters.time.average(rate[:, None, None]) * disc[m:-m, m:-m][None]
@@ -168,7 +162,7 @@ def _starts(system: BalanceSystem, fit: Fit) -> list[Tensor]:
 
 def _fit(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
     """Fit the disc and its layer's depth time to the residual of ``fit`` (or refine ``start``)."""
-    plate = fitted_plate(system)
+    plate = system.shapes.get("depth_conduction")
     if plate is None:  # only tried after depth_conduction (EffectSpec.requires): its plate is fitted
         raise RuntimeError("delamination needs the depth_conduction fit of this balance first")
     columns, scale = list(fit.columns), fit.rss
@@ -186,9 +180,9 @@ def _fit(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
         "y": float(cy) * dx,
         "radius": float(radius) * dx,
         "depth_time": float(depth_time),
-        "t_heat": -plate["elapsed"],
+        "t_heat": plate["t_heat"],
         "plate_time": plate["depth_time"],
-        "T_ref": system.mean + plate["offset"],
+        "T_ref": plate["T_ref"],
     }
     term, weight = delamination_term(system, theta.detach(), plate)
     return Shape(term.detach(), NoiseSpec("T", weight.detach()), shape, theta.detach())
@@ -211,8 +205,7 @@ def _equation(p: dict[str, float]) -> str:
 
 
 def _draw(ax: Any, p: dict[str, float]) -> str:
-    angle = np.linspace(0.0, 2.0 * np.pi, 200)
-    ax.plot(p["x"] + p["radius"] * np.cos(angle), p["y"] + p["radius"] * np.sin(angle), "w--")
+    draw_circle(ax, p["x"], p["y"], p["radius"], "w--")
     where = f"({p['x']:.2f}, {p['y']:.2f}) mm"
     return f"delamination r = {p['radius']:.2f} mm at {where}, d/L {p['depth_fraction']:.2f}"
 

@@ -15,8 +15,8 @@ falls like ``1 / sqrt(t)``, not exponentially), and falls to 0 once the plate ha
 thickness. ``strength`` is 1 for a homogeneous body heated at its surface; other values absorb a
 surface layer or a heating that lasted a while.
 
-Parameters: ``strength`` (1), ``t_heat`` (s, the heating's time relative to the video's first frame; the
-fit looks before the first frame, up to the fitted video's length), ``depth_time`` (s, ``L^2 / a_z``, the
+Parameters: ``strength`` (1), ``t_heat`` (s, the heating's time relative to the video's first frame, < 0;
+the fit looks up to the fitted video's length before it), ``depth_time`` (s, ``L^2 / a_z``, the
 time heat needs to cross the body; a half-space is ``depth_time`` >> the video), ``T_ref`` (data units, the
 temperature before heating).
 
@@ -32,7 +32,6 @@ Random draw: ``t_heat`` 2-20 % of the video before its first frame, ``depth_time
 from __future__ import annotations
 
 import math
-import weakref
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -46,7 +45,7 @@ from anra_torch.effects.shapes import optimise
 if TYPE_CHECKING:
     from anra_torch.balance.system import BalanceSystem, Fit
 
-__all__ = ["SPEC", "depth_rate", "fitted_plate"]
+__all__ = ["SPEC", "depth_rate"]
 
 _F64 = torch.float64
 _STRENGTH = (0.2, 5.0)  # a fit outside is not conduction into depth (1 for a homogeneous body)
@@ -90,9 +89,7 @@ def _build(p: dict[str, float], grid: Grid) -> Term:
     strength, t_heat, depth_time, t_ref = p["strength"], p["t_heat"], p["depth_time"], p["T_ref"]
 
     def term(t: Tensor, u: Tensor) -> Tensor:
-        elapsed = torch.as_tensor(t, dtype=_F64) - t_heat
-        if float(elapsed) <= 0.0:  # not heated yet
-            return torch.zeros_like(u)
+        elapsed = torch.as_tensor(t, dtype=_F64) - t_heat  # > 0: the heating precedes the first frame
         return (-strength * depth_rate(elapsed, depth_time)).to(u) * (u - t_ref)
 
     return term
@@ -110,12 +107,12 @@ def _sample(rng: np.random.Generator, g: Geometry) -> dict[str, float]:
 def _check(p: dict[str, float]) -> None:
     require(p["strength"] >= 0, "depth_conduction", "strength", "non-negative (1 for a homogeneous body)", p)
     require(p["depth_time"] > 0, "depth_conduction", "depth_time", "positive in s (L^2 / a_z)", p)
+    require(p["t_heat"] < 0, "depth_conduction", "t_heat", "before the first frame (< 0 s)", p)
 
 
 def _rates(p: dict[str, float], span: tuple[float, float]) -> Rates:
     """The fastest decay is at the simulation's start (t = 0 s), ``strength r(-t_heat)``."""
-    elapsed = max(-p["t_heat"], 1e-9)
-    return Rates(decay=p["strength"] * float(depth_rate(torch.tensor(elapsed), p["depth_time"])))
+    return Rates(decay=p["strength"] * float(depth_rate(torch.tensor(-p["t_heat"]), p["depth_time"])))
 
 
 def _bounds(p: dict[str, float], lo: float, hi: float, duration: float) -> tuple[float, float]:
@@ -127,23 +124,6 @@ def _from_coefficients(c: dict[str, float], ctx: Context) -> dict[str, float]:
 
 
 # -------------------------------------------------------------------------------------- shape fit
-_FRAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-_PLATES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def fitted_plate(system: BalanceSystem) -> dict[str, float] | None:
-    """The plate last fitted on ``system`` (``"elapsed"`` s at its first frame, ``"depth_time"`` s,
-    ``"offset"``: ``T_ref - Tbar``), or None before any fit: what a local change of it builds on."""
-    return _PLATES.get(system)
-
-
-def _smoothed(system: BalanceSystem) -> Tensor:
-    """The centred frames smoothed and cropped like ``U``, before time averaging: ``(T, h, w)`` (cached)."""
-    if system not in _FRAMES:
-        _FRAMES[system] = system.finish(system.frames.detach() - system.mean)
-    return _FRAMES[system]
-
-
 def _unpack(system: BalanceSystem, theta: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """``theta = (logit of the elapsed time at the first frame, log of the depth time's excess, T_ref
     offset)`` -> ``(elapsed s, depth_time s, T_ref - Tbar)``.
@@ -167,7 +147,7 @@ def depth_term(system: BalanceSystem, theta: Tensor) -> tuple[Tensor, Tensor]:
     elapsed, depth_time, offset = _unpack(system, theta)
     t = torch.arange(system.shape[0], dtype=_F64) * system.dt
     rate = depth_rate(t + elapsed, depth_time)
-    field = rate[:, None, None] * (_smoothed(system) - offset)
+    field = rate[:, None, None] * (system.smoothed - offset)
     return system.filters.time.average(field), system.filters.time.average(rate[:, None, None])
 
 
@@ -206,7 +186,6 @@ def _fit(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
     starts = _starts(system)
     theta = optimise(loss, starts if start is None else [*starts, start], iterations=40, runs=2)
     elapsed, depth_time, offset = _unpack(system, theta)
-    _PLATES[system] = {"elapsed": float(elapsed), "depth_time": float(depth_time), "offset": float(offset)}
     shape = {
         "t_heat": -float(elapsed),
         "depth_time": float(depth_time),

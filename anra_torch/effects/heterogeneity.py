@@ -24,7 +24,7 @@ from torch import Tensor
 from anra_torch.balance.moments import accumulate
 from anra_torch.balance.system import BalanceSystem, Fit, NoiseSpec
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Shape, Term, require
-from anra_torch.effects.shapes import optimise, pixel_grid
+from anra_torch.effects.shapes import draw_circle, edge_disc, optimise, pixel_grid
 from anra_torch.simulation import HeatRHS
 
 __all__ = ["SPEC"]
@@ -34,8 +34,7 @@ _MIN_RADIUS_PX = 2.0  # a smaller disc is below the smoothing scale: not identif
 
 
 def _disc_map(p: dict[str, float], grid: Grid) -> Tensor:
-    r = torch.sqrt((grid.x[None, :] - p["x"]) ** 2 + (grid.y[:, None] - p["y"]) ** 2)
-    disc = 0.5 * (1.0 + torch.tanh((p["radius"] - r) / grid.dx))  # 1 inside, 0 outside, ~1 px edge
+    disc = edge_disc(grid.x, grid.y, p["x"], p["y"], p["radius"], grid.dx)  # 1 inside, 0 outside, ~1 px edge
     return p["a_outside"] + (p["a_inside"] - p["a_outside"]) * disc
 
 
@@ -89,8 +88,7 @@ def _disc(system: BalanceSystem, theta: Tensor) -> Tensor:
     """Disc map ``(H, W)`` in [0, 1] with a tanh edge one pixel wide; ``theta = (x, y, radius code)`` (px)."""
     x, y = pixel_grid(system)
     dx = system.dx
-    r = torch.sqrt((x[None, :] - theta[0] * dx) ** 2 + (y[:, None] - theta[1] * dx) ** 2 + 1e-12)
-    return 0.5 * (1.0 + torch.tanh((_radius(theta) * dx - r) / dx))
+    return edge_disc(x, y, theta[0] * dx, theta[1] * dx, _radius(theta) * dx, dx)
 
 
 def _heterogeneity_term(system: BalanceSystem, theta: Tensor, average: Tensor) -> Tensor:
@@ -194,8 +192,7 @@ def _equation(p: dict[str, float]) -> str:
 
 
 def _draw(ax: Any, p: dict[str, float]) -> str:
-    angle = np.linspace(0.0, 2.0 * np.pi, 200)
-    ax.plot(p["x"] + p["radius"] * np.cos(angle), p["y"] + p["radius"] * np.sin(angle), "k--")
+    draw_circle(ax, p["x"], p["y"], p["radius"], "k--")
     return f"heterogeneity disc r = {p['radius']:.2f} mm at ({p['x']:.2f}, {p['y']:.2f}) mm"
 
 

@@ -22,7 +22,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Shape, Term, require
-from anra_torch.effects.shapes import optimise, pixel_grid
+from anra_torch.effects.shapes import draw_circle, optimise, pixel_grid
 
 if TYPE_CHECKING:
     from anra_torch.balance.system import BalanceSystem, Fit
@@ -157,8 +157,7 @@ def _equation(p: dict[str, float]) -> str:
 
 
 def _draw(ax: Any, p: dict[str, float]) -> str:
-    angle = np.linspace(0.0, 2.0 * np.pi, 100)
-    ax.plot(p["x"] + p["width"] * np.cos(angle), p["y"] + p["width"] * np.sin(angle), "k:")
+    draw_circle(ax, p["x"], p["y"], p["width"], "k:")
     return f"periodic source at ({p['x']:.2f}, {p['y']:.2f}) mm, {p['frequency']:.3g} Hz"
 
 

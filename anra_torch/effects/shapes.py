@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
 if TYPE_CHECKING:
     from anra_torch.balance.system import BalanceSystem
 
-__all__ = ["optimise", "peak", "pixel_grid"]
+__all__ = ["draw_circle", "edge_disc", "optimise", "peak", "pixel_grid"]
 
 _F64 = torch.float64
 
@@ -20,6 +21,23 @@ def pixel_grid(system: BalanceSystem) -> tuple[Tensor, Tensor]:
     """Pixel-centre coordinates (mm) of the full frame: x along columns ``(W,)``, y along rows ``(H,)``."""
     _, h, w = system.shape
     return (torch.arange(w, dtype=_F64) + 0.5) * system.dx, (torch.arange(h, dtype=_F64) + 0.5) * system.dx
+
+
+def edge_disc(x: Tensor, y: Tensor, cx: Any, cy: Any, radius: Any, edge: float) -> Tensor:
+    """1 inside the disc of ``radius`` around ``(cx, cy)``, 0 outside, with a tanh edge ``edge`` wide (all
+    mm; differentiable in the centre and radius, also at a pixel centre).
+
+    Shape:
+        ``x`` ``(W,)``, ``y`` ``(H,)`` -> ``(H, W)``.
+    """
+    r = torch.sqrt((x[None, :] - cx) ** 2 + (y[:, None] - cy) ** 2 + 1e-12)
+    return 0.5 * (1.0 + torch.tanh((radius - r) / edge))
+
+
+def draw_circle(ax: Any, x: float, y: float, radius: float, style: str) -> None:
+    """A circle (mm) on a map's axes, in a matplotlib line ``style``."""
+    angle = np.linspace(0.0, 2.0 * np.pi, 200)
+    ax.plot(x + radius * np.cos(angle), y + radius * np.sin(angle), style)
 
 
 def optimise(

@@ -28,10 +28,16 @@ class Selection:
     def __init__(self, system: BalanceSystem, alpha: float, names: Sequence[str], background: float) -> None:
         self.system, self.alpha, self.names, self.background = system, alpha, list(names), background
         self.selected: list[str] = []
-        self.shapes: dict[str, dict[str, float]] = {}
+        frames = system.frames.detach()
+        self.span = (float(frames.min()), float(frames.max()))  # the temperatures the video reaches
         self.thetas: dict[str, Tensor] = {}
         self.scores: dict[str, float] = {}
         self.thresholds: dict[str, float] = {}
+
+    @property
+    def shapes(self) -> dict[str, dict[str, float]]:
+        """Fitted shape parameters by effect (kept on the balance, where dependent shape fits read them)."""
+        return self.system.shapes
 
     def columns(self, effects: Sequence[str]) -> list[str]:
         return ["L"] + [r for e in effects for r in EFFECTS[e].regressors]
@@ -48,11 +54,10 @@ class Selection:
         """Whether fitted ``params`` are valid and simulable over the video's temperatures (a nonlinear
         diffusivity that turns negative there cannot enter: the forecast could not run it)."""
         spec = EFFECTS[name]
-        frames = self.system.frames.detach()
         try:
             if spec.check is not None:
                 spec.check(params)
-            spec.rates(params, (float(frames.min()), float(frames.max())))
+            spec.rates(params, self.span)
         except ValueError:
             return False
         return spec.valid(params) and self.in_view(name, params)

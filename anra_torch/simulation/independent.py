@@ -38,7 +38,7 @@ from anra_torch.checks import check_choice, check_dtype, check_int, check_shape,
 from anra_torch.effects.model import Effect, check_effects
 from anra_torch.effects.scene import HiddenEffectVideo, Scene, draw_scene
 from anra_torch.simulation.krylov import gmres
-from anra_torch.simulation.plate import check_depth_partners, with_depth
+from anra_torch.simulation.plate import with_depth
 
 __all__ = [
     "CONTINUOUS_TERMS",
@@ -493,11 +493,16 @@ def _with_plate(
     initial: Callable[[Tensor, Tensor], Tensor], effects: Sequence[Effect], depth: tuple, common: dict
 ) -> Tensor:
     """:func:`simulate_independent` of the effects but ``depth_conduction``, times the plate's exact depth
-    factor (:mod:`anra_torch.simulation.plate`)."""
+    factor (:mod:`anra_torch.simulation.plate`): exact for ``T - T_ref`` only when the rest is linear and
+    keeps ``T_ref`` where it is."""
     rest = [e for e in check_effects(effects) if e.name != "depth_conduction"]
-    check_depth_partners(
-        _continuum(rest, common["a"], common["dx"], (common["n_frames"] - 1) * common["dt"]), depth
-    )
+    model = _continuum(rest, common["a"], common["dx"], (common["n_frames"] - 1) * common["dt"])
+    if model.forcings or model.conductivity is not None or (model.loss > 0 and model.ambient != depth[3]):
+        raise ValueError(
+            "the independent simulator combines depth_conduction only with diffusion, anisotropy, advection, "
+            "a heterogeneity or a linear_loss to the same T_ref, got a heat input, a nonlinear diffusion or "
+            "another ambient"
+        )
     clean = simulate_independent(initial, effects=rest, **common)
     return with_depth(clean, np.arange(common["n_frames"]) * common["dt"], depth)
 

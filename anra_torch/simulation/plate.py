@@ -14,20 +14,12 @@ check each other.
 from __future__ import annotations
 
 import math
-from typing import Protocol
 
 import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["check_depth_partners", "flash_plate_video", "plate_factor", "with_depth"]
-
-
-class _Linear(Protocol):
-    forcings: list
-    conductivity: object
-    loss: float
-    ambient: float
+__all__ = ["flash_plate_video", "plate_factor", "with_depth"]
 
 
 def plate_factor(elapsed: np.ndarray, depth_time: float, terms: int = 400) -> np.ndarray:
@@ -39,20 +31,6 @@ def plate_factor(elapsed: np.ndarray, depth_time: float, terms: int = 400) -> np
     n = np.arange(1, terms + 1, dtype=np.float64)
     exponent = np.multiply.outer(np.asarray(elapsed, np.float64), n**2) * (math.pi**2 / depth_time)
     return 1.0 + 2.0 * np.exp(-exponent).sum(-1)
-
-
-def check_depth_partners(rest: _Linear, depth: tuple[float, float, float, float]) -> None:
-    """Raise unless the rest of the model is linear and keeps ``T_ref`` where it is: only then is the
-    depth factor exact for ``T - T_ref``."""
-    t_heat, t_ref = depth[1], depth[3]
-    if not t_heat < 0:
-        raise ValueError(f"depth_conduction.t_heat must be before the first frame (< 0 s), got {t_heat!r}")
-    if rest.forcings or rest.conductivity is not None or (rest.loss > 0 and rest.ambient != t_ref):
-        raise ValueError(
-            "the independent simulator combines depth_conduction only with diffusion, anisotropy, advection, "
-            "a heterogeneity or a linear_loss to the same T_ref, got a heat input, a nonlinear diffusion or "
-            "another ambient"
-        )
 
 
 def with_depth(clean: Tensor, times: np.ndarray, depth: tuple[float, float, float, float]) -> Tensor:
@@ -177,10 +155,12 @@ def _strang(
     """``steps`` Strang steps: half a step through the thickness (``columns``: intact and cut propagators,
     the cut ones where ``broken``), a whole lateral step (``lateral`` per Fourier mode), half a step again."""
     intact, split = columns
+    cut = bool(broken.any())
     for _ in range(steps):
         for half in range(2):
             flat = state.reshape(state.shape[0], -1)
-            state = np.where(broken, split @ flat, intact @ flat).reshape(state.shape)
+            through = np.where(broken, split @ flat, intact @ flat) if cut else intact @ flat
+            state = through.reshape(state.shape)
             if half == 0:
                 state = np.fft.irfft2(np.fft.rfft2(state) * lateral, s=state.shape[-2:])
     return state
