@@ -20,7 +20,6 @@ residual weights back through the transposed filters.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 
@@ -33,20 +32,15 @@ from anra_torch.balance.batch_noise import BatchNoise, batch_noise
 from anra_torch.balance.filters import MatchedFilters
 from anra_torch.balance.moments import TermNoise, accumulate
 from anra_torch.checks import as_spacing, as_video
-from anra_torch.flags import diffusivity_warnings
+from anra_torch.flags import MIN_RELIABILITY, MIN_SIGNIFICANCE, POOR_FIT, poor_fit, verdicts
 from anra_torch.layers.attention import RTCAttention, UniformAttention
 
-__all__ = ["ANRAEstimator", "ANRAResult", "MODES", "AUTO_SMOOTHING"]
+__all__ = ["ANRAEstimator", "ANRAResult", "MODES", "AUTO_SMOOTHING", "POOR_FIT"]
 
 MODES = ("lsq", "ratio")
 AUTO_SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
 """Spatial smoothing candidates (px) tried by ``smoothing="auto"``."""
 
-POOR_FIT = 0.9
-"""Share of ``dT/dt`` that ``a Lap T`` must explain (:attr:`ANRAResult.explained`) not to be flagged."""
-
-_MIN_RELIABILITY = 0.05  # below this fraction of signal in the regressor energy, nothing is measurable
-_MIN_SIGNIFICANCE = 3.0  # |a| / std_error below this is indistinguishable from noise
 _MIN_VALID_PX = 8  # a candidate smoothing must leave at least this many pixels per side
 
 
@@ -198,10 +192,10 @@ class _Candidate:
 
         The paper's ratio estimator has no such test: it is reported as it comes out.
         """
-        enough = _reliability(self.den.sum(1), self.energy.sum(1)) >= _MIN_RELIABILITY
+        enough = _reliability(self.den.sum(1), self.energy.sum(1)) >= MIN_RELIABILITY
         if mode == "ratio":
             return enough
-        return enough & (self.estimate(mode).abs() >= _MIN_SIGNIFICANCE * self.std_error)
+        return enough & (self.estimate(mode).abs() >= MIN_SIGNIFICANCE * self.std_error)
 
     rate_energy: Tensor  # (B, K) sum_ij w U^2 - variance correction
     num: Tensor  # (B, K) sum_ij w U L - covariance correction
@@ -209,6 +203,7 @@ class _Candidate:
     energy: Tensor  # (B, K) sum_ij w L^2
     ratio: Tensor  # (B, K) paper's sum_ij w U / L
     std_error: Tensor  # (B,)
+    spread: Tensor  # (B,) sd of the noise part of sum w (U - a L) L: std_error's numerator, NaN unless asked
     field_num: Tensor | None  # (B, H, W)
     field_den: Tensor | None
     field_energy: Tensor | None
@@ -339,15 +334,20 @@ class ANRAEstimator(nn.Module):
     def _candidate(
         self,
         index: int,
-        time_terms: tuple[Tensor, Tensor],
+        video: Tensor,
         finite: Tensor,
         dt: Tensor,
         dx: Tensor,
         noise: BatchNoise,
+        *,
+        with_error: bool = True,
     ) -> _Candidate:
+        """The sums of smoothing candidate ``index`` over a centred ``(B, T, H, W)`` batch; without
+        ``with_error`` its standard error is NaN (no adjoint pass: :mod:`anra_torch.chunked` measures it
+        on a pilot instead)."""
         filters = self.filters[index]
-        # Time filtering happened once on the raw frames (it commutes with the spatial filters).
-        terms = filters.terms(None, dt, dx, _NAMES, time_stage=time_terms)
+        stage = filters.smoothed_stage(video, dt)  # one Gaussian pass per candidate
+        terms = filters.terms(None, dt, dx, _NAMES, time_stage=stage, smoothed=True)
         terms = {k: noise.fixed_effects(v) for k, v in terms.items()}
         rate, lap = terms["U"], terms["L"]
         valid = self._valid_mask(finite, filters.margin) if not bool(finite.all()) else None
@@ -368,14 +368,18 @@ class ANRAEstimator(nn.Module):
             ratio = torch.where(lap == 0, torch.zeros_like(lap), weights * rate / safe_lap).sum((-2, -1))
         else:
             ratio = torch.zeros_like(num)
-        if self.mode == "lsq":
+        spread = torch.full_like(num[:, 0], torch.nan)
+        if self.mode == "lsq" and not with_error:
+            std_error = spread
+        elif self.mode == "lsq":
             total = den.sum(1)
             estimate = num.sum(1) / torch.where(total == 0, torch.ones_like(total), total)
             # Sandwich for one regressor: sd |A^T (w L)| / |sum w (L^2 - var)|.
             lever = noise.fixed_effects((weights * lap).detach())  # the projection is its own transpose
             a = estimate.detach().view(-1, 1, 1, 1)
             back = filters.adjoint({"U": lever, "L": -a * lever}, dt.detach(), dx.detach())
-            std_error = noise.spread(back) / total.abs().clamp_min(torch.finfo(rate.dtype).tiny)
+            spread = noise.spread(back)
+            std_error = spread / total.abs().clamp_min(torch.finfo(rate.dtype).tiny)
             # The correction's own error: the measured noise variance is known to a relative error.
             correction = (energy - den).sum(1) * noise.variance_error.to(rate.dtype)
             std_error = torch.hypot(std_error, estimate.detach() * correction / total.abs().clamp_min(1e-300))
@@ -391,7 +395,7 @@ class ANRAEstimator(nn.Module):
                 self._to_frame(m, filters.margin)
                 for m in (field.corrected[..., 0, 1], field.corrected[..., 1, 1], field.raw[..., 1, 1])
             )
-        return _Candidate(rate_energy, num, den, energy, ratio, std_error, *maps)
+        return _Candidate(rate_energy, num, den, energy, ratio, std_error, spread, *maps)
 
     def _box(self, m: Tensor) -> Tensor:
         w = self.window
@@ -456,8 +460,7 @@ class ANRAEstimator(nn.Module):
         if not usable:
             need = self.minimum_frame_size
             raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
-        time_terms = self.filters[0].time_stage(video, dt_)
-        candidates = [self._candidate(i, time_terms, finite, dt_, dx_, noise) for i in usable]
+        candidates = [self._candidate(i, video, finite, dt_, dx_, noise) for i in usable]
         chosen, measured, choice = self._choose(candidates)
         num, den, energy, ratio = chosen.num, chosen.den, chosen.energy, chosen.ratio
         total_den = den.sum(1)
@@ -472,9 +475,9 @@ class ANRAEstimator(nn.Module):
         changing = torch.where(finite, video, torch.full_like(video, -torch.inf)).amax((1, 2, 3)) > low
         valid = changing & measured & torch.isfinite(estimate)
         explained = _explained(chosen) if self.mode == "lsq" else torch.full_like(estimate, torch.nan)
-        messages, warnings = _verdicts(valid, changing, reliability, estimate, chosen.std_error, dt_, dx_)
+        messages, warnings = verdicts(valid, changing, reliability, estimate, chosen.std_error, dt_, dx_)
         rows = zip(warnings, explained.tolist(), valid.tolist(), strict=True)
-        warnings = tuple(w + _poor_fit(e) if ok else w for w, e, ok in rows)
+        warnings = tuple(w + poor_fit(e) if ok else w for w, e, ok in rows)
         field, confidence = self._field(chosen) if self.window is not None else (None, None)
         nan = torch.full_like(estimate, torch.nan)
         k = torch.arange(per_frame.shape[1], dtype=video.dtype)
@@ -528,7 +531,7 @@ class ANRAEstimator(nn.Module):
         confidence = torch.where(
             f_energy > 0, (f_den / f_energy.clamp_min(1e-300)).clamp(0, 1), torch.zeros_like(f_den)
         )
-        ok = (confidence > _MIN_RELIABILITY) & (f_den > 0)
+        ok = (confidence > MIN_RELIABILITY) & (f_den > 0)
         source = f_num / torch.where(ok, f_den, torch.ones_like(f_den))
         field = torch.where(ok, source, torch.full_like(source, torch.nan))
         return field, torch.where(ok, confidence, torch.zeros_like(confidence))
@@ -547,53 +550,3 @@ def _explained(chosen: _Candidate) -> Tensor:
     ok = (uu > 0) & (ll > 0)
     share = ul * ul / torch.where(ok, uu * ll, torch.ones_like(uu))
     return torch.where(ok, share.clamp(0.0, 1.0), torch.zeros_like(uu))
-
-
-def _poor_fit(explained: float) -> tuple[str, ...]:
-    if not explained < POOR_FIT:
-        return ()
-    return (
-        f"the plain heat equation explains only {100 * explained:.0f} % of dT/dt (below "
-        f"{100 * POOR_FIT:.0f} %): the diffusivity is the best fit of a model that does not describe these "
-        "frames (heat flowing into depth, a loss or a source); see anra diagnose",
-    )
-
-
-def _verdicts(
-    valid: Tensor,
-    moving: Tensor,
-    reliability: Tensor,
-    estimate: Tensor,
-    std_error: Tensor,
-    dt: Tensor,
-    dx: Tensor,
-) -> tuple[tuple[str, ...], tuple[tuple[str, ...], ...]]:
-    """Per video, the result's line (why it is not valid, else "") and its warnings
-    (:func:`anra_torch.flags.diffusivity_warnings`; none for an invalid video)."""
-    messages, warnings = [], []
-    z = estimate / std_error
-    rows = zip(*(v.tolist() for v in (valid, moving, reliability, z, estimate, dt, dx)), strict=True)
-    for ok, changing, signal, zz, a, step, size in rows:
-        found = tuple(diffusivity_warnings(a, dt=step, dx=size, z=zz)) if ok else ()
-        warnings.append(found)
-        if not changing:
-            messages.append("frames are constant: no thermal activity, no diffusivity estimated")
-        elif not ok and signal == 0 and not math.isfinite(zz):  # 0 / 0: no pixel left to balance
-            messages.append(
-                "no pixel has a filter window free of masked samples and with signal (too many masked "
-                "samples or too small a frame); no diffusivity estimated"
-            )
-        elif not ok and not (math.isfinite(signal) and math.isfinite(zz)):
-            messages.append(
-                "the balance of dT/dt and the Laplacian is not finite (an overflow: check that dt is in s, "
-                "dx in mm and the frames' values are temperatures); no diffusivity estimated"
-            )
-        elif not ok:
-            messages.append(
-                f"frames show no thermal activity above the noise (signal fraction {signal:.3f}, estimate "
-                f"{abs(zz):.1f} standard errors from 0; need >= {_MIN_RELIABILITY} and >= "
-                f"{_MIN_SIGNIFICANCE:g}); no diffusivity estimated"
-            )
-        else:
-            messages.append("")  # a valid video's flags are its warnings (joined once by their readers)
-    return tuple(messages), tuple(warnings)

@@ -10,8 +10,22 @@ forecast stays far above the noise floor. :class:`~anra_torch.estimator.ANRAResu
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
-__all__ = ["MODEL_FAILURE_RATIO", "PLAUSIBLE_DIFFUSIVITY", "diffusivity_warnings", "model_failure"]
+if TYPE_CHECKING:
+    from torch import Tensor
+
+__all__ = [
+    "MIN_RELIABILITY",
+    "MIN_SIGNIFICANCE",
+    "MODEL_FAILURE_RATIO",
+    "PLAUSIBLE_DIFFUSIVITY",
+    "POOR_FIT",
+    "diffusivity_warnings",
+    "model_failure",
+    "poor_fit",
+    "verdicts",
+]
 
 PLAUSIBLE_DIFFUSIVITY = (1e-3, 2e3)
 """Diffusivities of known materials, mm^2/s: aerogels and foams ~0.01-0.03, tissue and polymers ~0.1,
@@ -125,3 +139,66 @@ def model_failure(rmse: float, floor: float, *, what: str = "forecast") -> str |
         f"{floor:.3g} (more than {MODEL_FAILURE_RATIO:g}: an effect not modelled, a camera artefact, or "
         "wrong spacing)"
     )
+
+
+POOR_FIT = 0.9
+"""Share of ``dT/dt`` that ``a Lap T`` must explain (:attr:`ANRAResult.explained
+<anra_torch.estimator.ANRAResult.explained>`) not to be flagged."""
+
+MIN_RELIABILITY = 0.05
+"""Below this fraction of signal in the regressor energy, nothing is measurable."""
+
+MIN_SIGNIFICANCE = 3.0
+"""``|a| / std_error`` below this is indistinguishable from noise."""
+
+
+def poor_fit(explained: float) -> tuple[str, ...]:
+    """The warning of an estimate whose plain heat equation explains less than :data:`POOR_FIT` of
+    ``dT/dt`` (none at or above it)."""
+    if not explained < POOR_FIT:
+        return ()
+    return (
+        f"the plain heat equation explains only {100 * explained:.0f} % of dT/dt (below "
+        f"{100 * POOR_FIT:.0f} %): the diffusivity is the best fit of a model that does not describe these "
+        "frames (heat flowing into depth, a loss or a source); see anra diagnose",
+    )
+
+
+def verdicts(
+    valid: Tensor,
+    moving: Tensor,
+    reliability: Tensor,
+    estimate: Tensor,
+    std_error: Tensor,
+    dt: Tensor,
+    dx: Tensor,
+) -> tuple[tuple[str, ...], tuple[tuple[str, ...], ...]]:
+    """Per video, the result's line (why it is not valid, else "") and its warnings
+    (:func:`anra_torch.flags.diffusivity_warnings`; none for an invalid video)."""
+    messages, warnings = [], []
+    z = estimate / std_error
+    rows = zip(*(v.tolist() for v in (valid, moving, reliability, z, estimate, dt, dx)), strict=True)
+    for ok, changing, signal, zz, a, step, size in rows:
+        found = tuple(diffusivity_warnings(a, dt=step, dx=size, z=zz)) if ok else ()
+        warnings.append(found)
+        if not changing:
+            messages.append("frames are constant: no thermal activity, no diffusivity estimated")
+        elif not ok and signal == 0 and not math.isfinite(zz):  # 0 / 0: no pixel left to balance
+            messages.append(
+                "no pixel has a filter window free of masked samples and with signal (too many masked "
+                "samples or too small a frame); no diffusivity estimated"
+            )
+        elif not ok and not (math.isfinite(signal) and math.isfinite(zz)):
+            messages.append(
+                "the balance of dT/dt and the Laplacian is not finite (an overflow: check that dt is in s, "
+                "dx in mm and the frames' values are temperatures); no diffusivity estimated"
+            )
+        elif not ok:
+            messages.append(
+                f"frames show no thermal activity above the noise (signal fraction {signal:.3f}, estimate "
+                f"{abs(zz):.1f} standard errors from 0; need >= {MIN_RELIABILITY} and >= "
+                f"{MIN_SIGNIFICANCE:g}); no diffusivity estimated"
+            )
+        else:
+            messages.append("")  # a valid video's flags are its warnings (joined once by their readers)
+    return tuple(messages), tuple(warnings)

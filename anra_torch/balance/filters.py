@@ -57,10 +57,20 @@ _F64 = torch.float64
 class _Stages:
     """Filtered fields of one video (or batch), computed once and shared by the terms that need them."""
 
-    def __init__(self, filters: MatchedFilters, rate: Tensor, average: Tensor, dx: float | Tensor) -> None:
+    def __init__(
+        self,
+        filters: MatchedFilters,
+        rate: Tensor,
+        average: Tensor,
+        dx: float | Tensor,
+        *,
+        smoothed: bool = False,
+    ) -> None:
         self.filters, self.dx = filters, dx
         self.rate, self.average = rate, average
         self.square_source: Tensor | None = None  # S_t (T^2 / 2), set when N is asked for
+        if smoothed:  # G came first (it commutes with the time filters): one spatial pass, not two
+            self.__dict__["smooth_rate"], self.__dict__["smooth_average"] = rate, average
 
     @cached_property
     def smooth_rate(self) -> Tensor:
@@ -184,6 +194,16 @@ class MatchedFilters(nn.Module):
         """
         return self.time.with_average(frames, dt)
 
+    def smoothed_stage(self, frames: Tensor, dt: float | Tensor) -> tuple[Tensor, Tensor]:
+        """``(G D_t T, G S_t T)``: the Gaussian on the frames first, then the time filtering. One spatial
+        pass over ``T`` frames instead of two over ``K`` (the filters commute); pass it to :meth:`terms`
+        with ``smoothed=True``.
+
+        Shape:
+            ``(B, T, H, W)`` -> two ``(B, K, H - 2r, W - 2r)`` (``r`` the Gaussian's radius, crop border).
+        """
+        return self.time.with_average(self.smoother(frames).contiguous(), dt)
+
     def terms(
         self,
         frames: Tensor | None,
@@ -192,8 +212,10 @@ class MatchedFilters(nn.Module):
         names: Sequence[str],
         *,
         time_stage: tuple[Tensor, Tensor] | None = None,
+        smoothed: bool = False,
     ) -> dict[str, Tensor]:
-        """The named terms of centred ``frames`` (or of a precomputed :meth:`time_stage`).
+        """The named terms of centred ``frames`` (or of a precomputed :meth:`time_stage`, or with
+        ``smoothed`` of a :meth:`smoothed_stage`).
 
         Raises:
             ValueError: an unknown term name.
@@ -204,7 +226,7 @@ class MatchedFilters(nn.Module):
         if time_stage is None:
             assert frames is not None
             time_stage = self.time_stage(frames, dt)
-        stages = _Stages(self, *time_stage, dx)
+        stages = _Stages(self, *time_stage, dx, smoothed=smoothed)
         if "N" in names:
             assert frames is not None, "N needs the frames (it is not linear in them)"
             stages.square_source = self.time.average(0.5 * frames * frames)
@@ -338,19 +360,22 @@ class MatchedFilters(nn.Module):
         unknown = [n for n in levers if n not in ("U", "L", "T")]
         if unknown:
             raise ValueError(f"no explicit adjoint for term {unknown[0]!r}; push it back through autograd")
+        # The time adjoint first, then one transposed Gaussian for both sides (they commute).
         rate_back = average_back = None
         if "U" in levers:
-            rate_back = self.smoother.adjoint(self.laplacian.partner.adjoint(levers["U"], 1.0))
+            rate_back = self.laplacian.partner.adjoint(levers["U"], 1.0)
         for name in ("L", "T"):
             if name in levers:
                 op = self.laplacian if name == "L" else self.laplacian.partner
-                back = self.smoother.adjoint(op.adjoint(levers[name], dx if name == "L" else 1.0))
+                back = op.adjoint(levers[name], dx if name == "L" else 1.0)
                 average_back = back if average_back is None else average_back + back
         some = rate_back if rate_back is not None else average_back
         assert some is not None
         zero = torch.zeros_like(some)
-        return self.time.adjoint(
-            zero if rate_back is None else rate_back, zero if average_back is None else average_back, dt
+        return self.smoother.adjoint(
+            self.time.adjoint(
+                zero if rate_back is None else rate_back, zero if average_back is None else average_back, dt
+            )
         )
 
     def extra_repr(self) -> str:
