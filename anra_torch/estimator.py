@@ -204,6 +204,7 @@ class _Candidate:
     ratio: Tensor  # (B, K) paper's sum_ij w U / L
     std_error: Tensor  # (B,)
     spread: Tensor  # (B,) sd of the noise part of sum w (U - a L) L: std_error's numerator, NaN unless asked
+    back: Tensor | None  # (B, T, H, W) the lever pushed back (candidate_sums' back_at), else None
     field_num: Tensor | None  # (B, H, W)
     field_den: Tensor | None
     field_energy: Tensor | None
@@ -331,7 +332,7 @@ class ANRAEstimator(nn.Module):
         bad = F.max_pool3d(bad, (1, 1, k), stride=1)
         return bad.squeeze(1) == 0
 
-    def _candidate(
+    def candidate_sums(
         self,
         index: int,
         video: Tensor,
@@ -341,10 +342,13 @@ class ANRAEstimator(nn.Module):
         noise: BatchNoise,
         *,
         with_error: bool = True,
+        back_at: Tensor | None = None,
     ) -> _Candidate:
-        """The sums of smoothing candidate ``index`` over a centred ``(B, T, H, W)`` batch; without
-        ``with_error`` its standard error is NaN (no adjoint pass: :mod:`anra_torch.chunked` measures it
-        on a pilot instead)."""
+        """The sums of smoothing candidate ``index`` over a centred ``(B, T, H, W)`` batch.
+
+        Without ``with_error`` the standard error is NaN (no adjoint pass); with ``back_at`` (``a`` per
+        video, ``(B,)``) the noise lever pushed back onto the frames at that ``a`` is returned in ``back``
+        instead (:mod:`anra_torch.chunked` adds it up over chunks)."""
         filters = self.filters[index]
         stage = filters.smoothed_stage(video, dt)  # one Gaussian pass per candidate
         terms = filters.terms(None, dt, dx, _NAMES, time_stage=stage, smoothed=True)
@@ -369,16 +373,17 @@ class ANRAEstimator(nn.Module):
         else:
             ratio = torch.zeros_like(num)
         spread = torch.full_like(num[:, 0], torch.nan)
-        if self.mode == "lsq" and not with_error:
+        back = None
+        if self.mode == "lsq" and not with_error and back_at is None:
             std_error = spread
         elif self.mode == "lsq":
             total = den.sum(1)
             estimate = num.sum(1) / torch.where(total == 0, torch.ones_like(total), total)
             # Sandwich for one regressor: sd |A^T (w L)| / |sum w (L^2 - var)|.
             lever = noise.fixed_effects((weights * lap).detach())  # the projection is its own transpose
-            a = estimate.detach().view(-1, 1, 1, 1)
+            a = (estimate if back_at is None else back_at.to(estimate)).detach().view(-1, 1, 1, 1)
             back = filters.adjoint({"U": lever, "L": -a * lever}, dt.detach(), dx.detach())
-            spread = noise.spread(back)
+            spread = noise.spread(back) if back_at is None else spread
             std_error = spread / total.abs().clamp_min(torch.finfo(rate.dtype).tiny)
             # The correction's own error: the measured noise variance is known to a relative error.
             correction = (energy - den).sum(1) * noise.variance_error.to(rate.dtype)
@@ -395,7 +400,8 @@ class ANRAEstimator(nn.Module):
                 self._to_frame(m, filters.margin)
                 for m in (field.corrected[..., 0, 1], field.corrected[..., 1, 1], field.raw[..., 1, 1])
             )
-        return _Candidate(rate_energy, num, den, energy, ratio, std_error, spread, *maps)
+        back = back if back_at is not None else None
+        return _Candidate(rate_energy, num, den, energy, ratio, std_error, spread, back, *maps)
 
     def _box(self, m: Tensor) -> Tensor:
         w = self.window
@@ -460,7 +466,7 @@ class ANRAEstimator(nn.Module):
         if not usable:
             need = self.minimum_frame_size
             raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
-        candidates = [self._candidate(i, video, finite, dt_, dx_, noise) for i in usable]
+        candidates = [self.candidate_sums(i, video, finite, dt_, dx_, noise) for i in usable]
         chosen, measured, choice = self._choose(candidates)
         num, den, energy, ratio = chosen.num, chosen.den, chosen.energy, chosen.ratio
         total_den = den.sum(1)

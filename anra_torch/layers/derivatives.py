@@ -425,6 +425,7 @@ class SecondDerivatives(_SpatialOperator):
 
 
 _SLICE_TAPS = 15  # up to this many taps, shifted slices beat banded matrix products on CPU
+_BANDED_SIDES = 4  # banded products only for frames at most this many kernel lengths wide
 
 
 def _banded(taps: Tensor, n: int) -> Tensor:
@@ -467,6 +468,11 @@ class GaussianSmoothing(nn.Module):
             self._matrices[key] = _banded(self.taps.to(like), n)
         return self._matrices[key]
 
+    def _slices(self, u: Tensor) -> bool:
+        """Shifted slices (cost ~ taps per pixel) or banded matrix products (cost ~ frame side per pixel,
+        but BLAS-fast): slices for short kernels and for frames much wider than the kernel."""
+        return self.taps.numel() <= _SLICE_TAPS or max(u.shape[-2:]) > _BANDED_SIDES * self.taps.numel()
+
     def forward(self, u: Tensor) -> Tensor:
         if self.radius == 0:
             return u
@@ -476,7 +482,7 @@ class GaussianSmoothing(nn.Module):
             u = F.pad(u.reshape(-1, 1, *u.shape[-2:]), (r, r, r, r), mode=mode).reshape(
                 *u.shape[:-2], u.shape[-2] + 2 * r, u.shape[-1] + 2 * r
             )
-        if self.taps.numel() <= _SLICE_TAPS:
+        if self._slices(u):
             taps = self.taps.tolist()
             return _correlate1d(_correlate1d(u, taps, -1), taps, -2)
         lead, (h, w) = u.shape[:-2], u.shape[-2:]
@@ -495,7 +501,7 @@ class GaussianSmoothing(nn.Module):
             raise ValueError("adjoint is defined for border='crop'")
         if self.radius == 0:
             return y
-        if self.taps.numel() <= _SLICE_TAPS:
+        if self._slices(y):
             taps = self.taps.tolist()
             return _correlate1d_adjoint(_correlate1d_adjoint(y, taps, -2), taps, -1)
         lead, (h1, w1) = y.shape[:-2], y.shape[-2:]
