@@ -49,7 +49,7 @@ __all__ = ["CHUNK_BYTES", "ChunkedEstimate", "estimate_chunked"]
 
 _F64 = torch.float64
 
-CHUNK_BYTES = 24 * 2**20
+CHUNK_BYTES = 16 * 2**20
 """Default size of one chunk's field (bytes). Below glibc's largest mmap threshold (32 MiB) the allocator
 reuses freed blocks; above it every temporary is a fresh mapping, and its page faults were measured to
 double the time per frame (640 x 512 px)."""
@@ -210,7 +210,7 @@ def estimate_chunked(
         estimator: the configuration (``mode="lsq"``, uniform weights, no window); default
             ``ANRAEstimator(strict=False)``.
         chunk_frames: output frames per chunk (each chunk reads ``L - 1`` frames more); default as many
-            as keep one chunk's field under :data:`CHUNK_BYTES`.
+            as keep one chunk's field under :data:`CHUNK_BYTES` (at most ``4 L`` with ``precision``).
         pilot_blocks: pilot blocks spread over the recording.
         pilot_frames: frames per pilot block.
         pilot_side: side (px) of the pilot's window of most change, where the noise is measured and the
@@ -237,6 +237,8 @@ def estimate_chunked(
         shape = tuple(getattr(frames, "shape", ()))
         per_frame = 4 * math.prod(shape[1:]) if len(shape) == 3 else 1
         chunk_frames = max(2 * est.time.length, CHUNK_BYTES // max(per_frame, 1) - est.time.length + 1)
+        if precision is not None:  # small steps: stop near where the precision is reached
+            chunk_frames = min(chunk_frames, 4 * est.time.length)
     _check(est, precision, chunk_frames)
     if isinstance(error_every, bool) or not isinstance(error_every, int) or error_every < 1:
         raise ValueError(f"error_every must be an integer >= 1 (chunks), got {error_every!r}")

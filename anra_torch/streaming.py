@@ -28,10 +28,8 @@ masked (with their filter support) exactly as offline.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -42,8 +40,11 @@ from torch import Tensor
 from anra_torch.balance.filters import MatchedFilters
 from anra_torch.balance.moments import Moments, accumulate
 from anra_torch.balance.noise import estimate_noise_sd
+from anra_torch.video.lazy import LazyFrames
 
 __all__ = ["NpyFrames", "StreamingEstimate", "StreamingEstimator", "estimate_long"]
+
+NpyFrames = LazyFrames  # the name this module gave it first
 
 _NAMES = ("U", "L")
 
@@ -315,62 +316,6 @@ class StreamingEstimator:
         )
 
 
-class NpyFrames:
-    """Frames of a ``(T, H, W)`` ``.npy`` file read on demand by plain file reads.
-
-    Unlike ``numpy.load(..., mmap_mode="r")``, whose mapped pages stay resident and count towards the
-    process's memory as the video is read, only the requested frames are ever in memory.
-
-    Args:
-        path: a ``.npy`` file holding one C-ordered real array ``(T, H, W)``.
-
-    Shape:
-        ``frames[a:b]`` -> ``numpy.ndarray`` ``(b - a, H, W)``; ``shape`` ``(T, H, W)``.
-
-    Raises:
-        ValueError: not a readable ``.npy`` file, or not a C-ordered real ``(T, H, W)`` array.
-    """
-
-    def __init__(self, path: str | os.PathLike[str]) -> None:
-        self.path = Path(path)
-        try:
-            with self.path.open("rb") as handle:
-                version = np.lib.format.read_magic(handle)
-                read_header = (
-                    np.lib.format.read_array_header_1_0
-                    if version == (1, 0)
-                    else np.lib.format.read_array_header_2_0
-                )
-                shape, fortran, dtype = read_header(handle)
-                self._offset = handle.tell()
-        except (OSError, ValueError) as err:
-            raise ValueError(f"{self.path}: cannot read as .npy ({' '.join(str(err).split())})") from err
-        if len(shape) != 3 or fortran or dtype.kind not in "iuf":
-            raise ValueError(
-                f"{self.path}: frames must be a C-ordered real array (T, H, W), got shape {shape}, "
-                f"dtype {dtype}{', Fortran order' if fortran else ''}"
-            )
-        self.shape, self.dtype = tuple(shape), dtype
-
-    def __len__(self) -> int:
-        return self.shape[0]
-
-    def __getitem__(self, index: slice) -> np.ndarray:
-        if not isinstance(index, slice):
-            raise TypeError(f"NpyFrames supports slices of frames, got {type(index).__name__}")
-        start, stop, step = index.indices(self.shape[0])
-        if step != 1:
-            raise ValueError(f"NpyFrames reads contiguous frames only (step 1), got step {step}")
-        frame = self.shape[1] * self.shape[2]
-        count = max(stop - start, 0)
-        with self.path.open("rb") as handle:
-            handle.seek(self._offset + start * frame * self.dtype.itemsize)
-            data = np.fromfile(handle, dtype=self.dtype, count=count * frame)
-        if data.size != count * frame:
-            raise ValueError(f"{self.path}: truncated: frames {start}-{stop - 1} are not all in the file")
-        return data.reshape(count, *self.shape[1:])
-
-
 def _chunks(frames: Any, chunk: int) -> Iterator[Any]:
     for start in range(0, frames.shape[0], chunk):
         yield frames[start : start + chunk]
@@ -389,8 +334,8 @@ def estimate_long(
 
     Args:
         frames: anything with ``shape`` ``(T, H, W)`` that slices along T into arrays or tensors, e.g.
-            :class:`NpyFrames` (a ``.npy`` file read chunk by chunk), an HDF5 dataset, a tensor; only one
-            chunk at a time is converted and filtered.
+            :class:`~anra_torch.video.lazy.LazyFrames` (a ``.npy`` file read chunk by chunk), an HDF5
+            dataset, a tensor; only one chunk at a time is converted and filtered.
         dt: frame period in s.
         dx: pixel size in mm.
         chunk: frames per chunk (>= 1).

@@ -11,7 +11,7 @@ from tolerances import assert_rounding_close
 from anra_torch.chunked import estimate_chunked
 from anra_torch.estimator import ANRAEstimator
 from anra_torch.simulation import gaussian_blob
-from anra_torch.streaming import NpyFrames
+from anra_torch.video.lazy import LazyFrames as NpyFrames
 
 DT, DX, NOISE = 1 / 27, 0.1, 0.01
 

@@ -53,6 +53,7 @@ JSON_KEYS = {
     "units",
     "phase",
     "phases",
+    "chunked",
 }
 
 
@@ -475,3 +476,54 @@ def test_the_default_thread_count_does_not_shrink_call_after_call(
     finally:
         torch.set_num_threads(before)
     assert len(bases) == 3 and len(set(bases)) == 1
+
+
+def test_a_large_recording_is_read_in_chunks_with_the_same_estimate(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Above CHUNKED_VALUES an uncompressed .npz is read chunk by chunk: same diffusivity within its error."""
+    from anra_torch.cli import estimate as estimate_command
+    from anra_torch.simulation import gaussian_blob
+    from anra_torch.video import save_npz
+
+    t = torch.arange(90, dtype=torch.float64) / 27
+    clean = gaussian_blob(t, shape=(48, 56), dx=0.1, a=0.2, peak=3.0, sigma=1.0)
+    noisy = clean + 0.01 * torch.randn(
+        clean.shape, generator=torch.Generator().manual_seed(3), dtype=torch.float64
+    )
+    path = save_npz(tmp_path / "v.npz", noisy.float(), dt=1 / 27, dx=0.1)
+    whole = estimate_json(capsys, path)
+    assert whole["chunked"] is None
+    monkeypatch.setattr(estimate_command, "CHUNKED_VALUES", 10_000)
+    chunked = estimate_json(capsys, path)
+    assert set(chunked) == JSON_KEYS and chunked["frames"] == 90
+    assert chunked["chunked"]["frames_used"] == 90 and len(chunked["chunked"]["pilot"]) == 3
+    assert abs(chunked["diffusivity"] - whole["diffusivity"]) < 2 * whole["std_error"]
+    assert chunked["std_error"] == pytest.approx(whole["std_error"], rel=0.25)
+    precise = estimate_json(capsys, path, "--precision", "1%")
+    assert precise["chunked"]["frames_used"] < 90 and precise["std_error"] <= 0.01 * precise["diffusivity"]
+    code, out, _ = run(capsys, "estimate", path, "--precision", "1%")
+    assert code == 0 and "of 90 frames used" in out
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (
+            ["--precision", "0"],
+            r"argument --precision: must be a relative standard error in \(0, 100%\), got '0'",
+        ),
+        (
+            ["--precision", "abc"],
+            r"argument --precision: must be a relative standard error like 0.1% or 0.001",
+        ),
+        (
+            ["--precision", "1%", "--window", "5"],
+            r"--precision reads the recording in chunks: it needs --mode lsq",
+        ),
+    ],
+)
+def test_bad_precision_gets_a_one_line_error(
+    paper96: Path, capsys: pytest.CaptureFixture[str], argv: list[str], match: str
+) -> None:
+    assert_one_line_error(run(capsys, "estimate", paper96, *argv), match)

@@ -15,7 +15,12 @@
   ``n_masked`` (non-finite pixel values);
 - ``window_px``, ``field_median`` (mm^2/s), ``field_coverage`` (pixel fraction) with ``--window``, else null;
 - ``a_true`` (mm^2/s) when the file records the truth, else null; ``elapsed_s``; ``units`` (key -> unit);
-- ``input`` (``resampled``, ``roi``, ``calibration``) when the video was prepared by those flags.
+- ``input`` (``resampled``, ``roi``, ``calibration``) when the video was prepared by those flags;
+- ``chunked`` when the recording was read in time chunks (more than :data:`CHUNKED_VALUES` pixel values,
+  or ``--precision``; :func:`anra_torch.chunked.estimate_chunked`): ``chunk_frames``, ``frames_used`` (fewer
+  than ``frames`` when ``--precision`` was reached early), ``pilot`` (``[start, stop)`` frames of the blocks
+  that chose the smoothing and measured the noise), else null. A ``.npy`` file or an uncompressed ``.npz``
+  is then read chunk by chunk, never whole.
 
 A video without measurable thermal activity still prints its flagged object with ``--json`` (``valid``
 false) and exits with status 2.
@@ -30,6 +35,10 @@ import time
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
+import torch
+
+from anra_torch.chunked import estimate_chunked
 from anra_torch.cli.arguments import (
     PROG,
     add_video_arguments,
@@ -46,8 +55,14 @@ from anra_torch.flags import diffusivity_warnings
 from anra_torch.forecast.recording import find_phases
 from anra_torch.report import format_pm
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
+from anra_torch.video.lazy import LazyFrames, lazy_video
 
 __all__ = ["add_parser", "run"]
+
+CHUNKED_VALUES = 2**25
+"""Pixel values (128 MiB in float32) above which ``anra estimate`` reads the recording in time chunks."""
+
+_DECIMATED_VALUES = 2**22  # pixel values of the copy that the phases of a chunked recording are found on
 
 _PHASE_KEYS = ("diffusivity", "std_error", "valid", "message", "warnings")
 """What each entry of ``phases`` takes from its estimate (a valid one's flags are in ``warnings``)."""
@@ -77,11 +92,32 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="also estimate a windowed field a(x, y) in mm^2/s over PX x PX pixel windows (odd)",
     )
     parser.add_argument(
+        "--precision",
+        type=_relative,
+        metavar="PCT",
+        help="read the recording in chunks and stop once the diffusivity's relative standard error reaches "
+        "PCT (e.g. 0.1%%); the output says how many frames were used (the recording is taken as one phase)",
+    )
+    parser.add_argument(
         "--json",
         action="store_true",
         help="print one JSON object (diffusivity and std_error in mm^2/s, dt in s, dx in mm, ...)",
     )
     parser.set_defaults(run=run)
+
+
+def _relative(text: str) -> float:
+    """``--precision``: a percentage (``0.1%``) or a fraction (``0.001``) in (0, 1)."""
+    value = text.strip()
+    try:
+        number = float(value[:-1]) / 100 if value.endswith("%") else float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be a relative standard error like 0.1% or 0.001, got {text!r}"
+        ) from None
+    if not 0 < number < 1:
+        raise argparse.ArgumentTypeError(f"must be a relative standard error in (0, 100%), got {text!r}")
+    return number
 
 
 def _summary(video: Video, result: ANRAResult, est: ANRAEstimator, elapsed: float) -> dict[str, Any]:
@@ -144,6 +180,11 @@ def _print_summary(s: dict[str, Any]) -> None:
         print(f"  the plain heat equation explains {100 * s['explained']:.1f} % of dT/dt (above its noise)")
     if s["n_masked"]:
         print(f"  masked {s['n_masked']} non-finite pixel values")
+    if s.get("chunked"):
+        c = s["chunked"]
+        print(
+            f"  read in chunks of {c['chunk_frames']} frames: {c['frames_used']} of {s['frames']} frames used"
+        )
     for line in s["warnings"]:
         print(f"  warning: {line}")
     if s["window_px"] is not None:
@@ -191,22 +232,76 @@ def _small_box_record(video: Video) -> dict[str, Any]:
     return {"diffusivity": a, "std_error": None, "valid": True, "message": message}
 
 
-def _estimate(video: Video, est: ANRAEstimator) -> tuple[dict[str, Any], ANRAResult | None]:
+class _Reading:
+    """How ``anra estimate`` reads a recording: whole, or in time chunks (with a precision target)."""
+
+    def __init__(self, video: Video, est: ANRAEstimator, precision: float | None) -> None:
+        values = math.prod(video.frames.shape)
+        self.chunked = precision is not None or values > CHUNKED_VALUES
+        if self.chunked and (est.mode != "lsq" or est.window is not None):
+            if precision is not None:
+                raise ValueError(
+                    "--precision reads the recording in chunks: it needs --mode lsq without --window"
+                )
+            self.chunked = False
+        self.precision = precision
+        self.details: dict[str, Any] | None = None
+
+    def estimate(self, video: Video, est: ANRAEstimator) -> ANRAResult:
+        if not self.chunked:
+            return est(_frames(video.frames), video.dt, video.dx)
+        done = estimate_chunked(
+            video.frames,
+            video.dt,
+            video.dx,
+            estimator=est,
+            precision=self.precision,
+            progress=sys.stderr.isatty(),
+        )
+        self.details = {
+            "chunk_frames": done.chunk_frames,
+            "frames_used": done.frames_used,
+            "pilot": [list(block) for block in done.pilot],
+        }
+        return done.result
+
+
+def _frames(frames: Any) -> Any:
+    """The frames in memory (a lazily read file is read whole)."""
+    return frames[0 : len(frames)] if isinstance(frames, LazyFrames) else frames
+
+
+def _estimate(
+    video: Video, est: ANRAEstimator, reading: _Reading
+) -> tuple[dict[str, Any], ANRAResult | None]:
     """The estimate of one run of frames: ANRA where its filters fit, else the small-box record."""
     t, h, w = video.frames.shape
     if min(h, w) < est.minimum_frame_size and t >= est.time.length:  # too few frames: the estimator says so
         try:
-            return _small_box_record(video), None
+            return _small_box_record(replace(video, frames=_frames(video.frames))), None
         except ValueError as small:
             raise ValueError(f"{video.source}: {small}") from small
     try:
-        return {}, est(video.frames, video.dt, video.dx)
+        return {}, reading.estimate(video, est)
     except ValueError as err:
         raise ValueError(f"{video.source}: {err}") from err
 
 
+def _decimated(frames: Any) -> Any:
+    """The frames, or for a recording read in chunks a copy decimated in space (for its phases)."""
+    if not isinstance(frames, LazyFrames) and math.prod(frames.shape) <= CHUNKED_VALUES:
+        return frames
+    step = max(1, math.ceil(math.sqrt(math.prod(frames.shape) / _DECIMATED_VALUES)))
+    chunk = max(1, CHUNKED_VALUES // (8 * math.prod(frames.shape[1:])))
+    parts = [
+        torch.as_tensor(np.ascontiguousarray(frames[i : i + chunk][:, ::step, ::step]))
+        for i in range(0, frames.shape[0], chunk)
+    ]
+    return torch.cat(parts)
+
+
 def _phases(
-    video: Video, est: ANRAEstimator, phases: list[Phase]
+    video: Video, est: ANRAEstimator, phases: list[Phase], reading: _Reading
 ) -> tuple[list[dict[str, Any]], Phase | None, tuple[dict[str, Any], ANRAResult | None] | None]:
     """Every phase's estimate; the phase the top level describes (the longest valid source-free one:
     cooling, then baseline or steady; else the longest) and its :func:`_estimate`; None and None when every
@@ -221,7 +316,7 @@ def _phases(
             )
             continue
         part = _part(video, phase)
-        record, result = _estimate(part, est)
+        record, result = _estimate(part, est, reading)
         if result is not None:
             record = {k: result.to_record(unit=video.unit)[k] for k in _PHASE_KEYS}
         records.append({"warnings": [], **head, **record})
@@ -237,18 +332,37 @@ def _phases(
 
 def _part(video: Video, phase: Phase) -> Video:
     span = slice(phase.start, phase.stop)
-    return replace(video, frames=video.frames[span], t=None if video.t is None else video.t[span])
+    frames = video.frames
+    frames = frames.window(phase.start, phase.stop) if isinstance(frames, LazyFrames) else frames[span]
+    return replace(video, frames=frames, t=None if video.t is None else video.t[span])
+
+
+def _open(args: argparse.Namespace) -> Video:
+    """The recording: a large ``.npy`` / uncompressed ``.npz`` left on disk to be read in chunks, else
+    loaded and prepared (:func:`~anra_torch.cli.arguments.load_input`)."""
+    if args.roi is None and args.calibration is None:
+        lazy = lazy_video(args.video, dt=args.dt, dx=args.dx)
+        if lazy is not None and (args.precision is not None or math.prod(lazy.frames.shape) > CHUNKED_VALUES):
+            return lazy
+    return load_input(args)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``anra estimate`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     est = ANRAEstimator(mode=args.mode, window=args.window, strict=False)
-    video = load_input(args)
+    video = _open(args)
     start = time.perf_counter()
-    phases = find_phases(video.frames, video.t, dt=video.dt)
-    records, phase, estimated = _phases(video, est, phases) if len(phases) > 1 else ([], phases[0], None)
+    reading = _Reading(video, est, args.precision)
+    # With --precision the recording is one phase: finding phases would read all of it.
+    phases = find_phases(_decimated(video.frames), video.t, dt=video.dt) if args.precision is None else []
+    phases = phases or [
+        Phase("recording", 0, video.frames.shape[0], 0.0, video.dt * (video.frames.shape[0] - 1))
+    ]
+    records, phase, estimated = (
+        _phases(video, est, phases, reading) if len(phases) > 1 else ([], phases[0], None)
+    )
     part = video if phase is None or len(phases) == 1 else _part(video, phase)  # None: every phase too short
-    small, result = estimated if estimated is not None else _estimate(part, est)
+    small, result = estimated if estimated is not None else _estimate(part, est, reading)
     if result is None:
         flagged = [small["message"]] if not small["valid"] else []
         summary = {"path": str(video.source), **small, "warnings": input_warnings(video) + flagged}
@@ -260,6 +374,7 @@ def run(args: argparse.Namespace) -> int:
         head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
         head.update(t_start=phase.t_start, t_stop=phase.t_stop)
         records = [{**head, **{k: summary.get(k) for k in _PHASE_KEYS}}]
+    summary["chunked"] = reading.details
     summary["phase"] = phase.name if phase is not None else "recording"
     summary["phases"] = records
     if any(input_record(video).values()):
