@@ -97,6 +97,15 @@ def _range(raw: Tensor, finite: Tensor) -> tuple[float, float]:
     return float(low), float(high)
 
 
+def _chunk_frames(frames: Any, length: int, precision: float | None) -> int:
+    """The default chunk: its field under :data:`CHUNK_BYTES`, at most ``4 L`` frames with ``precision``
+    (small steps stop near where the precision is reached), at least ``2 L``."""
+    shape = tuple(getattr(frames, "shape", ()))
+    per_frame = 4 * math.prod(shape[1:]) if len(shape) == 3 else 1
+    chunk = max(2 * length, CHUNK_BYTES // max(per_frame, 1) - length + 1)
+    return min(chunk, 4 * length) if precision is not None else chunk
+
+
 def _pilot_starts(total: int, length: int, blocks: int) -> list[int]:
     """First frames of ``blocks`` runs of ``length`` frames spread evenly over ``total`` (no overlap)."""
     n = max(1, min(blocks, total // length))
@@ -233,12 +242,7 @@ def estimate_chunked(
         ``frames`` ``(T, H, W)``.
     """
     est = ANRAEstimator(strict=False) if estimator is None else estimator
-    if chunk_frames is None:
-        shape = tuple(getattr(frames, "shape", ()))
-        per_frame = 4 * math.prod(shape[1:]) if len(shape) == 3 else 1
-        chunk_frames = max(2 * est.time.length, CHUNK_BYTES // max(per_frame, 1) - est.time.length + 1)
-        if precision is not None:  # small steps: stop near where the precision is reached
-            chunk_frames = min(chunk_frames, 4 * est.time.length)
+    chunk_frames = _chunk_frames(frames, est.time.length, precision) if chunk_frames is None else chunk_frames
     _check(est, precision, chunk_frames)
     if isinstance(error_every, bool) or not isinstance(error_every, int) or error_every < 1:
         raise ValueError(f"error_every must be an integer >= 1 (chunks), got {error_every!r}")
