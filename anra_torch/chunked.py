@@ -45,9 +45,13 @@ from anra_torch.estimator import ANRAEstimator, ANRAResult
 from anra_torch.flags import MIN_RELIABILITY, MIN_SIGNIFICANCE, poor_fit, verdicts
 from anra_torch.layers.attention import UniformAttention
 
-__all__ = ["CHUNK_BYTES", "ChunkedEstimate", "estimate_chunked"]
+__all__ = ["CHUNKED_VALUES", "CHUNK_BYTES", "ChunkedEstimate", "estimate_chunked"]
 
 _F64 = torch.float64
+
+CHUNKED_VALUES = 2**25
+"""Pixel values (128 MiB in float32) above which ``anra estimate`` and ``anra batch`` read a recording in
+time chunks."""
 
 CHUNK_BYTES = 16 * 2**20
 """Default size of one chunk's field (bytes). Below glibc's largest mmap threshold (32 MiB) the allocator

@@ -290,3 +290,26 @@ def test_flir_jpeg_folders_run_as_videos_with_resample(tmp_path: Path) -> None:
     summary = run_batch([data], out, dx=0.55, progress=False)
     rows = read_table(out)
     assert summary.ok == 2 and [int(float(r["frames"])) for r in rows] == [24, 24]
+
+
+def test_a_large_recording_is_read_in_chunks_and_a_bad_one_gets_its_row(
+    videos: Path, tmp_path: Path, monkeypatch
+) -> None:
+    """Over CHUNKED_VALUES a .npz stays on disk and gets estimate_chunked's row (both videos here); a file
+    truncated on disk gets an error row and the others still run."""
+    from anra_torch.chunked import estimate_chunked
+    from anra_torch.video.lazy import LazyFrames
+
+    monkeypatch.setattr(run_module, "CHUNKED_VALUES", 100_000)  # p*.npz hold 28 x 64 x 64 = 114688 values
+    truncated = tmp_path / "cut.npy"
+    np.save(truncated, np.zeros((40, 64, 64), dtype=np.float32))
+    truncated.write_bytes(truncated.read_bytes()[:-5000])
+    out = tmp_path / "r.csv"
+    run_batch([videos / "p0.npz", videos / "sub", truncated], out, dt=1 / 27, dx=10 / 224, progress=False)
+    rows = {Path(r["path"]).name: r for r in read_table(out)}
+    chunked = estimate_chunked(LazyFrames(videos / "p0.npz"), 1 / 27, 10 / 224).result
+    assert rows["p0.npz"]["status"] == "ok"
+    assert rows["p0.npz"]["diffusivity"] == pytest.approx(float(chunked.diffusivity), rel=1e-12)
+    q = rows["q.npz"]
+    assert abs(q["diffusivity"] - _offline(videos / "sub" / "q.npz")) < q["std_error"]
+    assert rows["cut.npy"]["status"] == "error" and "truncated" in rows["cut.npy"]["error"]

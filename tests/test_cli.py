@@ -494,7 +494,7 @@ def test_a_large_recording_is_read_in_chunks_with_the_same_estimate(
     path = save_npz(tmp_path / "v.npz", noisy.float(), dt=1 / 27, dx=0.1)
     whole = estimate_json(capsys, path)
     assert whole["chunked"] is None
-    monkeypatch.setattr(estimate_command, "CHUNKED_VALUES", 10_000)
+    monkeypatch.setattr(estimate_command, "CHUNKED_VALUES", 10_000)  # the name the command reads
     chunked = estimate_json(capsys, path)
     assert set(chunked) == JSON_KEYS and chunked["frames"] == 90
     assert chunked["chunked"]["frames_used"] == 90 and len(chunked["chunked"]["pilot"]) == 3

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
@@ -16,7 +17,8 @@ from anra_torch.batch.options import BatchOptions
 from anra_torch.batch.resume import plan
 from anra_torch.batch.table import check_format, parquet, read_table, row_key, write_table
 from anra_torch.checks import join_messages, one_line
-from anra_torch.estimator import ANRAEstimator
+from anra_torch.chunked import CHUNKED_VALUES, estimate_chunked
+from anra_torch.estimator import ANRAEstimator, ANRAResult
 from anra_torch.video import (
     ROI,
     CalibrationTable,
@@ -26,6 +28,7 @@ from anra_torch.video import (
     parse_roi,
     prepare_video,
 )
+from anra_torch.video.lazy import lazy_video
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
 
@@ -83,29 +86,45 @@ def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str
     dx = torch.tensor([v.dx for v in videos], dtype=torch.float64)
     result = est(frames, dt, dx)
     share = (time.perf_counter() - start) / len(videos)
-    rows = []
-    for i, video in enumerate(videos):
-        t, h, w = video.frames.shape
-        record = result.to_record(i)
-        ok = record["valid"]
-        rows.append(
-            {
-                "path": str(video.source),
-                "status": "ok" if ok else "error",
-                "error": "" if ok else f"{video.source}: {record['message']}",
-                **{key: record[key] for key in _RECORD_COLUMNS},
-                "frames": t,
-                "height": h,
-                "width": w,
-                "dt": video.dt,
-                "dx": video.dx,
-                "a_true": video.truth.a if video.truth is not None else None,
-                "seconds": share,
-                **_preparation(video),
-                "message": _message(record, video),
-            }
-        )
-    return rows
+    return [_row(video, result, i, share) for i, video in enumerate(videos)]
+
+
+def _row(video: Video, result: ANRAResult, index: int, seconds: float) -> dict[str, Any]:
+    """The row of video ``index`` of a (batched) result."""
+    t, h, w = video.frames.shape
+    record = result.to_record(index)
+    ok = record["valid"]
+    return {
+        "path": str(video.source),
+        "status": "ok" if ok else "error",
+        "error": "" if ok else f"{video.source}: {record['message']}",
+        **{key: record[key] for key in _RECORD_COLUMNS},
+        "frames": t,
+        "height": h,
+        "width": w,
+        "dt": video.dt,
+        "dx": video.dx,
+        "a_true": video.truth.a if video.truth is not None else None,
+        "seconds": seconds,
+        **_preparation(video),
+        "message": _message(record, video),
+    }
+
+
+def _large(path: str, options: BatchOptions) -> Video | None:
+    """A recording over :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values left on disk to be read in
+    chunks (a ``.npy`` or an uncompressed ``.npz``, no region or calibration, no diagnosis), else None."""
+    if options.roi is not None or options.calibration is not None or options.diagnose:
+        return None
+    video = lazy_video(path, dt=options.dt, dx=options.dx)
+    return video if video is not None and math.prod(video.frames.shape) > CHUNKED_VALUES else None
+
+
+def _estimate_large(video: Video) -> dict[str, Any]:
+    """The row of a recording read in time chunks (:func:`~anra_torch.chunked.estimate_chunked`)."""
+    start = time.perf_counter()
+    done = estimate_chunked(video.frames, video.dt, video.dx)
+    return _row(video, done.result, 0, time.perf_counter() - start)
 
 
 def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> None:
@@ -139,6 +158,10 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
     groups: dict[tuple[int, ...], list[tuple[int, Video]]] = {}
     for i, path in enumerate(paths):
         try:
+            large = _large(path, options)
+            if large is not None:
+                rows[i] = {**_estimate_large(large), "path": path}
+                continue
             video = _load(path, options)
         except (ValueError, TypeError, OSError) as err:
             rows[i] = _error_row(path, one_line(err))

@@ -16,7 +16,8 @@
 - ``window_px``, ``field_median`` (mm^2/s), ``field_coverage`` (pixel fraction) with ``--window``, else null;
 - ``a_true`` (mm^2/s) when the file records the truth, else null; ``elapsed_s``; ``units`` (key -> unit);
 - ``input`` (``resampled``, ``roi``, ``calibration``) when the video was prepared by those flags;
-- ``chunked`` when the recording was read in time chunks (more than :data:`CHUNKED_VALUES` pixel values,
+- ``chunked`` when the recording was read in time chunks (more than
+  :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values,
   or ``--precision``; :func:`anra_torch.chunked.estimate_chunked`): ``chunk_frames``, ``frames_used`` (fewer
   than ``frames`` when ``--precision`` was reached early), ``pilot`` (``[start, stop)`` frames of the blocks
   that chose the smoothing and measured the noise), else null. A ``.npy`` file or an uncompressed ``.npz``
@@ -38,7 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from anra_torch.chunked import estimate_chunked
+from anra_torch.chunked import CHUNKED_VALUES, estimate_chunked
 from anra_torch.cli.arguments import (
     PROG,
     add_video_arguments,
@@ -58,9 +59,6 @@ from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
 from anra_torch.video.lazy import LazyFrames, lazy_video
 
 __all__ = ["add_parser", "run"]
-
-CHUNKED_VALUES = 2**25
-"""Pixel values (128 MiB in float32) above which ``anra estimate`` reads the recording in time chunks."""
 
 _DECIMATED_VALUES = 2**22  # pixel values of the copy that the phases of a chunked recording are found on
 
