@@ -24,7 +24,6 @@ from typing import NamedTuple
 
 import torch
 from torch import Tensor
-from torchdiffeq import odeint, odeint_adjoint
 
 from anra_torch.checks import check_choice, check_int, number, positive
 
@@ -276,6 +275,10 @@ def integrate(
     )
     if n_frames == 1:
         return initial.unsqueeze(0)
+    # Imported here: torchdiffeq loads scipy.integrate (~0.4 s), which commands that integrate nothing
+    # (estimate, batch) should not pay at every start.
+    from torchdiffeq import odeint, odeint_adjoint
+
     if adjoint:
         params = getattr(rhs, "adjoint_params", None) if adjoint_params is None else adjoint_params
         return odeint_adjoint(
