@@ -155,10 +155,13 @@ def _signal_crop(blocks: Tensor, finite: Tensor, side: int) -> tuple[slice, slic
     return slice(y, y + sy), slice(x, x + sx)
 
 
-def _pilot(est: ANRAEstimator, blocks: Tensor, dt: Tensor, dx: Tensor, side: int) -> _Pilot:
-    """Choose the smoothing and the noise context on the pilot blocks: dead elements and spikes over the
-    whole frame, the noise model and the smoothing candidates in the ``side`` px window of most change."""
+def _pilot(est: ANRAEstimator, blocks: Tensor, dt: Tensor, dx: Tensor, side: int, total: int) -> _Pilot:
+    """Choose the smoothing and the noise context on the pilot blocks of a ``total``-frame recording: dead
+    elements and spikes over the whole frame, the noise model and the smoothing candidates in the ``side``
+    px window of most change."""
     n = blocks.shape[0]
+    length = est.time.length
+    scale = max(1.0, (total - length + 1) / (n * (blocks.shape[1] - length + 1)))  # outputs per pilot output
     finite = torch.isfinite(blocks)
     stuck = stuck_pixels(blocks, finite)
     dead = stuck[:, 0].all(0)  # constant through every block: masked, as the estimator does
@@ -181,7 +184,11 @@ def _pilot(est: ANRAEstimator, blocks: Tensor, dt: Tensor, dx: Tensor, side: int
         sums = est.candidate_sums(i, video, finite, dt.expand(n), dx.expand(n), noise)
         num, den, energy = (float(x.sum()) for x in (sums.num, sums.den, sums.energy))
         noise_var = float(sums.spread.double().pow(2).nansum())
-        variance = noise_var / den**2 if den > 0 else math.inf
+        # The whole recording's standard error, as the estimator computes it, from the evenly spread blocks:
+        # every sum scaled by `scale`, the noise part then falls as 1 / scale while the noise variance's
+        # own error (a bias common to every frame) does not average out.
+        correction = (energy - den) * float(noise.variance_error.mean()) * num / den if den > 0 else 0.0
+        variance = (noise_var / scale + correction**2) / den**2 if den > 0 else math.inf
         measurable = den > MIN_RELIABILITY * energy and abs(num / den) >= MIN_SIGNIFICANCE * math.sqrt(
             variance
         )
@@ -262,7 +269,7 @@ def estimate_chunked(
     block = min(total, max(pilot_frames, 2 * length))
     starts = _pilot_starts(total, block, pilot_blocks)
     blocks = torch.stack([_read(frames, s, s + block, dtype) for s in starts])
-    pilot = _pilot(est, blocks, dt_, dx_, pilot_side)
+    pilot = _pilot(est, blocks, dt_, dx_, pilot_side, total)
     del blocks
     plan = (chunk_frames, error_every, precision, progress)
     sums, seen = _accumulate(frames, est, pilot, dt_, dx_, dtype, plan)
