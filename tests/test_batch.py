@@ -313,3 +313,31 @@ def test_a_large_recording_is_read_in_chunks_and_a_bad_one_gets_its_row(
     q = rows["q.npz"]
     assert abs(q["diffusivity"] - _offline(videos / "sub" / "q.npz")) < q["std_error"]
     assert rows["cut.npy"]["status"] == "error" and "truncated" in rows["cut.npy"]["error"]
+
+
+def test_precision_reads_each_video_until_its_standard_error_is_reached(tmp_path: Path) -> None:
+    """``anra batch --precision``: chunked rows with frames_used; the option is part of the resume key."""
+    from anra_torch.simulation import gaussian_blob
+
+    t = torch.arange(120, dtype=torch.float64) / 27
+    clean = gaussian_blob(t, shape=(48, 48), dx=0.1, a=0.2, peak=3.0, sigma=1.0)
+    generator = torch.Generator().manual_seed(8)
+    for i in range(2):
+        noisy = clean + 0.01 * torch.randn(clean.shape, generator=generator, dtype=torch.float64)
+        save_npz(tmp_path / f"v{i}.npz", noisy.float(), dt=1 / 27, dx=0.1)
+    out = tmp_path / "r.csv"
+    assert (
+        main(["batch", str(tmp_path / "v*.npz"), "--out", str(out), "--precision", "0.2%", "--no-progress"])
+        == 0
+    )
+    for row in read_table(out):
+        assert row["status"] == "ok" and row["frames_used"] < 120
+        assert row["std_error"] <= 0.002 * row["diffusivity"]
+        assert abs(row["diffusivity"] - 0.2) < 5 * row["std_error"]
+        assert json.loads(row["parameters"])["precision"] == 0.002
+    whole = tmp_path / "whole.csv"
+    run_batch([tmp_path / "v0.npz"], whole, progress=False)
+    (row,) = read_table(whole)
+    assert row["frames_used"] is None and json.loads(row["parameters"])["precision"] is None
+    with pytest.raises(ValueError, match=r"precision must be a relative standard error in \(0, 1\), got 2"):
+        run_batch([tmp_path / "v0.npz"], whole, precision=2, progress=False)

@@ -24,7 +24,9 @@ region of interest, calibration), sends same-shaped videos through one
 - ``input_stamp`` (the input's size and modification time) and ``parameters`` (JSON: every option that
   changes a result): the resume key;
 - ``explained``: the share of dT/dt the plain heat equation explains (below 0.9 the row's ``message``
-  flags a poor fit).
+  flags a poor fit);
+- ``frames_used``: frames read when the video was read in time chunks (over
+  :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values, or with ``precision``), else empty.
 
 A bad input (missing, unreadable, too small, no thermal activity) gets an ``error`` row and never stops the
 others. The table is rewritten after every batch through a temporary file and :func:`os.replace`, so an

@@ -26,6 +26,7 @@ class BatchOptions:
         resample: resample non-uniform timestamps (FLIR JPEG folders) onto their median step
             (:func:`anra_torch.video.resample_uniform`); otherwise such a video is an error row.
         roi: region ``(x0, y0, width, height)`` in px analysed in every video, or None.
+        precision: read each video in time chunks and stop at this relative standard error, or None.
         calibration: apparent -> true temperature table applied to every video, or None (the table
             itself, not its path: Dask workers need not read it).
 
@@ -41,6 +42,7 @@ class BatchOptions:
     resample: bool = False
     roi: ROI | None = None
     calibration: CalibrationTable | None = None
+    precision: float | None = None
 
     def parameters(self) -> dict[str, Any]:
         """Every option that changes a result, JSON-ready: the ``parameters`` cell of the resume key.
@@ -65,4 +67,5 @@ class BatchOptions:
             "roi": list(self.roi) if self.roi is not None else None,
             "calibration": digest,
             "fit_fraction": self.fit_fraction,
+            "precision": self.precision,
         }

@@ -112,19 +112,28 @@ def _row(video: Video, result: ANRAResult, index: int, seconds: float) -> dict[s
 
 
 def _large(path: str, options: BatchOptions) -> Video | None:
-    """A recording over :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values left on disk to be read in
-    chunks (a ``.npy`` or an uncompressed ``.npz``, no region or calibration, no diagnosis), else None."""
-    if options.roi is not None or options.calibration is not None or options.diagnose:
-        return None
-    video = lazy_video(path, dt=options.dt, dx=options.dx)
-    return video if video is not None and math.prod(video.frames.shape) > CHUNKED_VALUES else None
+    """A recording to read in time chunks: over :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values,
+    or any with ``precision``; left on disk when it is a ``.npy`` or an uncompressed ``.npz`` (no region or
+    calibration, no diagnosis), else loaded. None for the others."""
+    if options.roi is None and options.calibration is None and not options.diagnose:
+        video = lazy_video(path, dt=options.dt, dx=options.dx)
+        if video is not None and (options.precision or math.prod(video.frames.shape) > CHUNKED_VALUES):
+            return video
+    return _load(path, options) if options.precision else None
 
 
-def _estimate_large(video: Video) -> dict[str, Any]:
+def _estimate_large(video: Video, options: BatchOptions) -> dict[str, Any]:
     """The row of a recording read in time chunks (:func:`~anra_torch.chunked.estimate_chunked`)."""
     start = time.perf_counter()
-    done = estimate_chunked(video.frames, video.dt, video.dx)
-    return _row(video, done.result, 0, time.perf_counter() - start)
+    frames = video.frames
+    if isinstance(frames, torch.Tensor):
+        frames = frames.to(getattr(torch, options.dtype))
+    done = estimate_chunked(frames, video.dt, video.dx, precision=options.precision)
+    row = _row(video, done.result, 0, time.perf_counter() - start)
+    row["frames_used"] = done.frames_used
+    if options.diagnose and row["status"] == "ok":
+        _diagnose_row(row, video, options)
+    return row
 
 
 def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> None:
@@ -160,7 +169,7 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
         try:
             large = _large(path, options)
             if large is not None:
-                rows[i] = {**_estimate_large(large), "path": path}
+                rows[i] = {**_estimate_large(large, options), "path": path}
                 continue
             video = _load(path, options)
         except (ValueError, TypeError, OSError) as err:
@@ -247,6 +256,7 @@ def run_batch(
     roi: ROI | str | None = None,
     calibration: CalibrationTable | PathLike | None = None,
     rerun: bool = False,
+    precision: float | None = None,
 ) -> BatchSummary:
     """Estimate (and optionally diagnose) every input video into a resumable table.
 
@@ -268,6 +278,9 @@ def run_batch(
         calibration: map apparent to true temperature in every video: a table or the path of a
             ``true,apparent`` CSV (read once, here).
         rerun: recompute and replace ``ok`` rows made with other parameters (otherwise they stop the run).
+        precision: read each video in time chunks (:func:`~anra_torch.chunked.estimate_chunked`) and stop
+            once the diffusivity's relative standard error reaches it (e.g. 0.001); the row's
+            ``frames_used`` says how many frames were read.
 
     Returns:
         :class:`BatchSummary`.
@@ -276,7 +289,8 @@ def run_batch(
         No tensors: each video is read as ``(T, H, W)`` frames and estimated with same-shaped others.
 
     Raises:
-        ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, a malformed ``roi``, a bad
+        ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, a ``precision`` outside (0, 1),
+            a malformed ``roi``, a bad
             calibration file, an ``out`` that is not a batch table or (without ``rerun``) holds ``ok`` rows
             of these inputs made with other parameters. Bad inputs never raise: they get error rows.
     """
@@ -286,8 +300,17 @@ def run_batch(
         roi = parse_roi(roi if isinstance(roi, str) else ",".join(str(v) for v in roi))
     if calibration is not None and not isinstance(calibration, CalibrationTable):
         calibration = load_calibration(calibration)
+    if precision is not None and not (isinstance(precision, int | float) and 0 < precision < 1):
+        raise ValueError(f"precision must be a relative standard error in (0, 1), got {precision!r}")
     options = BatchOptions(
-        dt=dt, dx=dx, diagnose=diagnose, dtype=dtype, resample=resample, roi=roi, calibration=calibration
+        dt=dt,
+        dx=dx,
+        diagnose=diagnose,
+        dtype=dtype,
+        resample=resample,
+        roi=roi,
+        calibration=calibration,
+        precision=precision,
     )
     start = time.perf_counter()
     paths = expand_inputs(inputs)

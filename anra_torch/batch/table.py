@@ -43,6 +43,7 @@ BATCH_COLUMNS: dict[str, type] = {
     "input_stamp": str,
     "parameters": str,
     "explained": float,
+    "frames_used": int,
 }
 """Output columns and their types (missing values are empty cells in CSV, nulls in Parquet)."""
 

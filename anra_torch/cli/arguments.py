@@ -151,6 +151,21 @@ def integer(unit: str, *, minimum: int, odd: bool = False) -> Callable[[str], in
     return parse
 
 
+def relative(text: str) -> float:
+    """``--precision``: a relative standard error as a percentage (``0.1%``) or a fraction (``0.001``), in
+    (0, 1)."""
+    value = text.strip()
+    try:
+        number = float(value[:-1]) / 100 if value.endswith("%") else float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be a relative standard error like 0.1% or 0.001, got {text!r}"
+        ) from None
+    if not 0 < number < 1:
+        raise argparse.ArgumentTypeError(f"must be a relative standard error in (0, 100%), got {text!r}")
+    return number
+
+
 def clean_json(value: Any, nulled: list[str] | None = None, where: str = "") -> Any:
     """NaN and infinities -> None, recursively (JSON has no NaN); their keys (``a.b[2]``) go to ``nulled``."""
     if isinstance(value, dict):

@@ -6,7 +6,14 @@ import argparse
 import json
 import sys
 
-from anra_torch.cli.arguments import PROG, add_region_arguments, add_spacing_arguments, format_list, integer
+from anra_torch.cli.arguments import (
+    PROG,
+    add_region_arguments,
+    add_spacing_arguments,
+    format_list,
+    integer,
+    relative,
+)
 
 __all__ = ["add_parser", "run"]
 
@@ -56,6 +63,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="recompute and replace rows of OUT made with other parameters (--dt, --dx, --roi, ...) instead "
         "of stopping",
     )
+    parser.add_argument(
+        "--precision",
+        type=relative,
+        metavar="PCT",
+        help="read each video in chunks and stop once its relative standard error reaches PCT (e.g. 0.1%%); "
+        "the frames_used column says how many frames were read",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object: out, total, skipped, ok, failed, seconds"
@@ -78,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         "roi": args.roi,
         "calibration": args.calibration,
         "rerun": args.rerun,
+        "precision": args.precision,
     }
     if args.dask or args.scheduler:
         from anra_torch.distributed import run_batch_dask

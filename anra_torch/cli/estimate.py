@@ -50,6 +50,7 @@ from anra_torch.cli.arguments import (
     json_line,
     load_input,
     print_input,
+    relative,
 )
 from anra_torch.estimator import MODES, ANRAEstimator, ANRAResult
 from anra_torch.flags import diffusivity_warnings
@@ -91,7 +92,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--precision",
-        type=_relative,
+        type=relative,
         metavar="PCT",
         help="read the recording in chunks and stop once the diffusivity's relative standard error reaches "
         "PCT (e.g. 0.1%%); the output says how many frames were used (the recording is taken as one phase)",
@@ -102,20 +103,6 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="print one JSON object (diffusivity and std_error in mm^2/s, dt in s, dx in mm, ...)",
     )
     parser.set_defaults(run=run)
-
-
-def _relative(text: str) -> float:
-    """``--precision``: a percentage (``0.1%``) or a fraction (``0.001``) in (0, 1)."""
-    value = text.strip()
-    try:
-        number = float(value[:-1]) / 100 if value.endswith("%") else float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"must be a relative standard error like 0.1% or 0.001, got {text!r}"
-        ) from None
-    if not 0 < number < 1:
-        raise argparse.ArgumentTypeError(f"must be a relative standard error in (0, 100%), got {text!r}")
-    return number
 
 
 def _summary(video: Video, result: ANRAResult, est: ANRAEstimator, elapsed: float) -> dict[str, Any]:
