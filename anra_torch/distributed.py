@@ -67,7 +67,7 @@ def run_batch_dask(
             embedded :class:`distributed.LocalCluster` of ``workers`` single-threaded worker processes.
         workers: workers of the embedded cluster (>= 1).
         **options: :func:`run_batch` options (``dt``, ``dx``, ``diagnose``, ``batch_size``, ``dtype``,
-            ``progress``, ``resample``, ``roi``, ``calibration``, ``rerun``).
+            ``progress``, ``resample``, ``roi``, ``calibration``, ``rerun``, ``precision``).
 
     Returns:
         :class:`anra_torch.batch.BatchSummary`.
