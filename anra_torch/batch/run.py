@@ -241,6 +241,24 @@ def _check_run(out: Path, batch_size: object, dtype: object) -> None:
         parquet()
 
 
+def _options(
+    *,
+    roi: ROI | str | None,
+    calibration: CalibrationTable | PathLike | None,
+    precision: float | None,
+    **rest: Any,
+) -> BatchOptions:
+    """The checked options: a malformed region, a bad calibration file or precision is the caller's
+    mistake, not one row's."""
+    if roi is not None:
+        roi = parse_roi(roi if isinstance(roi, str) else ",".join(str(v) for v in roi))
+    if calibration is not None and not isinstance(calibration, CalibrationTable):
+        calibration = load_calibration(calibration)
+    if precision is not None and not (isinstance(precision, int | float) and 0 < precision < 1):
+        raise ValueError(f"precision must be a relative standard error in (0, 1), got {precision!r}")
+    return BatchOptions(roi=roi, calibration=calibration, precision=precision, **rest)
+
+
 def run_batch(
     inputs: Iterable[PathLike],
     out: PathLike,
@@ -278,9 +296,8 @@ def run_batch(
         calibration: map apparent to true temperature in every video: a table or the path of a
             ``true,apparent`` CSV (read once, here).
         rerun: recompute and replace ``ok`` rows made with other parameters (otherwise they stop the run).
-        precision: read each video in time chunks (:func:`~anra_torch.chunked.estimate_chunked`) and stop
-            once the diffusivity's relative standard error reaches it (e.g. 0.001); the row's
-            ``frames_used`` says how many frames were read.
+        precision: read each video in time chunks until its relative standard error reaches it (e.g.
+            0.001; :func:`~anra_torch.chunked.estimate_chunked`); ``frames_used`` says how many were read.
 
     Returns:
         :class:`BatchSummary`.
@@ -290,28 +307,14 @@ def run_batch(
 
     Raises:
         ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, a ``precision`` outside (0, 1),
-            a malformed ``roi``, a bad
-            calibration file, an ``out`` that is not a batch table or (without ``rerun``) holds ``ok`` rows
-            of these inputs made with other parameters. Bad inputs never raise: they get error rows.
+            a malformed ``roi``, a bad calibration file, an ``out`` that is not a batch table or (without
+            ``rerun``) holds ``ok`` rows of these inputs made with other parameters. Bad inputs never raise:
+            they get error rows.
     """
     out = Path(out)
     _check_run(out, batch_size, dtype)
-    if roi is not None:  # a malformed region is the caller's mistake, not one row's
-        roi = parse_roi(roi if isinstance(roi, str) else ",".join(str(v) for v in roi))
-    if calibration is not None and not isinstance(calibration, CalibrationTable):
-        calibration = load_calibration(calibration)
-    if precision is not None and not (isinstance(precision, int | float) and 0 < precision < 1):
-        raise ValueError(f"precision must be a relative standard error in (0, 1), got {precision!r}")
-    options = BatchOptions(
-        dt=dt,
-        dx=dx,
-        diagnose=diagnose,
-        dtype=dtype,
-        resample=resample,
-        roi=roi,
-        calibration=calibration,
-        precision=precision,
-    )
+    given = {"dt": dt, "dx": dx, "diagnose": diagnose, "dtype": dtype, "resample": resample, "roi": roi}
+    options = _options(**given, calibration=calibration, precision=precision)
     start = time.perf_counter()
     paths = expand_inputs(inputs)
     table = {row_key(row["path"]): row for row in read_table(out)}
