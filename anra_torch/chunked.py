@@ -94,6 +94,29 @@ def _dtype(frames: Any) -> torch.dtype:
     return _F64 if kind in (np.float64, torch.float64) else torch.float32
 
 
+_CONTEXT = 2  # frames on each side a spike search needs (its second difference in time, and a margin)
+
+
+def _repaired(
+    frames: Any, span: tuple[int, int], pilot: _Pilot, dtype: torch.dtype, new: slice
+) -> tuple[Tensor, Any, int]:
+    """Frames ``span`` centred and repaired (:func:`~anra_torch.balance.artefacts.find_artefacts`), searched
+    with :data:`_CONTEXT` frames more on each side, so a spike in a chunk's first or last frame is found as
+    anywhere else; with what was found and the spikes repaired in the ``new`` frames (the overlap's were
+    counted with the chunk before): finite samples the repair changed, outside dead and hot elements."""
+    start, stop = span
+    low, high = max(0, start - _CONTEXT), min(frames.shape[0], stop + _CONTEXT)
+    raw = _read(frames, low, high, dtype)
+    finite = torch.isfinite(raw) & ~pilot.dead
+    video = torch.where(finite, raw - pilot.offset, torch.nan)
+    repaired, found = find_artefacts(video)
+    keep = slice(start - low, stop - low)
+    spikes = (repaired.to(dtype) != video) & finite
+    for row, col in found.bad_pixels:
+        spikes[:, row, col] = False
+    return repaired.to(dtype)[keep], found, int(spikes[keep][new].sum())
+
+
 def _range(raw: Tensor, finite: Tensor) -> tuple[float, float]:
     """The lowest and highest finite value (inf, -inf when there is none)."""
     low = torch.where(finite, raw, torch.full_like(raw, torch.inf)).amin()
@@ -329,10 +352,9 @@ def _accumulate(
                 video = torch.where(finite, video, torch.zeros_like(raw))
             artefacts = pilot.noise.artefacts
             if pilot.repair:
-                repaired, found = find_artefacts(torch.where(finite, video, torch.nan))
-                video, finite = repaired.to(dtype), torch.ones_like(finite)
-                seen["spikes"] += found.spikes
-                artefacts = (found,)
+                video, found, spikes = _repaired(frames, (start, stop + length - 1), pilot, dtype, new)
+                finite, artefacts = torch.ones_like(finite), (found,)
+                seen["spikes"] += spikes
             noise = replace(pilot.noise, cleaned=video[None], artefacts=artefacts)
             first, last = start == 0, stop == outputs
             sampled = chained or first or last or j % every == 0
