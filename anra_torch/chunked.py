@@ -155,6 +155,20 @@ def _check(estimator: ANRAEstimator, precision: float | None, chunk_frames: int)
         raise ValueError(f"chunk_frames must be an integer >= 1 (frames), got {chunk_frames!r}")
 
 
+_COUNT_UNITS = {
+    "error_every": "chunks",
+    "pilot_blocks": "blocks",
+    "pilot_frames": "frames",
+    "pilot_side": "px",
+}
+
+
+def _check_counts(**counts: object) -> None:
+    for name, value in counts.items():
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1 ({_COUNT_UNITS[name]}), got {value!r}")
+
+
 @dataclass
 class _Pilot:
     index: int  # the chosen smoothing candidate
@@ -278,8 +292,9 @@ def estimate_chunked(
     est = ANRAEstimator(strict=False) if estimator is None else estimator
     chunk_frames = _chunk_frames(frames, est.time.length, precision) if chunk_frames is None else chunk_frames
     _check(est, precision, chunk_frames)
-    if isinstance(error_every, bool) or not isinstance(error_every, int) or error_every < 1:
-        raise ValueError(f"error_every must be an integer >= 1 (chunks), got {error_every!r}")
+    _check_counts(
+        error_every=error_every, pilot_blocks=pilot_blocks, pilot_frames=pilot_frames, pilot_side=pilot_side
+    )
     shape = tuple(getattr(frames, "shape", ()))
     if len(shape) != 3:
         raise ValueError(f"frames must have shape (T, H, W), got {shape}")
