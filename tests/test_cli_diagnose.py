@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
-from anra_torch.video import save_npz
+from anra_torch.video import Video, save_npz
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
@@ -180,3 +181,19 @@ def test_source_map_option_reports_the_beam_model(tmp_path: Path, capsys: pytest
     report = (tmp_path / "rep" / "report.md").read_text()
     assert "![source map and its forecast's deviation](source_map.png)" in report
     assert (tmp_path / "rep" / "source_map.png").stat().st_size > 10_000
+
+
+def test_a_recording_too_large_to_diagnose_gets_a_one_line_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Before any work: the memory the diagnosis would need against what is available, and what to do."""
+    from anra_torch.cli import diagnose as diagnose_command
+
+    path = save_npz(tmp_path / "v.npz", np.random.default_rng(0).random((20, 40, 48)), dt=0.1, dx=0.1)
+    monkeypatch.setattr(diagnose_command, "_available_bytes", lambda: 100 * 2**20)  # 100 MiB free
+    code, out, err = run(capsys, "diagnose", path)
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "diagnosing 20 frames of 40 x 48 px needs about 0.3 GB of memory, 0.1 GB are available" in err
+    assert "diagnose a region (--roi X0,Y0,W,H) or fewer frames" in err
+    monkeypatch.setattr(diagnose_command, "_available_bytes", lambda: None)  # unknown: no refusal
+    diagnose_command._check_memory(Video(frames=torch.zeros(20, 40, 48), dt=0.1, dx=0.1))

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from anra_torch.checks import one_line
@@ -201,12 +202,45 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
     return {**summary, **records}, result, mapped, video, phases
 
 
+DIAGNOSE_BYTES_PER_VALUE = 260
+"""Peak memory of ``anra diagnose`` per pixel value of the recording, bytes (measured: 81 frames of 128 and
+192 px peaked at 675 and 1106 MB, a slope of 260 B per value over a base of about 330 MB)."""
+
+_BASE_BYTES = 330 * 2**20
+
+
+def _available_bytes() -> int | None:
+    """``MemAvailable`` of ``/proc/meminfo`` in bytes (None where there is none)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _check_memory(video: Video) -> None:
+    """Refuse, in one line, a recording whose diagnosis would not fit in the memory available (the
+    diagnosis holds the recording and its term bank at once; the estimate reads any length in chunks)."""
+    t, h, w = video.frames.shape
+    need = _BASE_BYTES + DIAGNOSE_BYTES_PER_VALUE * t * h * w
+    available = _available_bytes()
+    if available is not None and need > available:
+        raise ValueError(
+            f"{video.source}: diagnosing {t} frames of {h} x {w} px needs about {need / 2**30:.1f} GB of "
+            f"memory, {available / 2**30:.1f} GB are available; diagnose a region (--roi X0,Y0,W,H) or "
+            "fewer frames (anra estimate reads a recording of any length in chunks)"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``anra diagnose`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     try:
         if not 0 < args.fit_fraction < 1:
             raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
         recording = load_input(args)
+        _check_memory(recording)
         summary, result, mapped, video, phases = _summary(recording, args)
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
