@@ -97,24 +97,24 @@ def _dtype(frames: Any) -> torch.dtype:
 _CONTEXT = 2  # frames on each side a spike search needs (its second difference in time, and a margin)
 
 
-def _repaired(
-    frames: Any, span: tuple[int, int], pilot: _Pilot, dtype: torch.dtype, new: slice
-) -> tuple[Tensor, Any, int]:
-    """Frames ``span`` centred and repaired (:func:`~anra_torch.balance.artefacts.find_artefacts`), searched
-    with :data:`_CONTEXT` frames more on each side, so a spike in a chunk's first or last frame is found as
-    anywhere else; with what was found and the spikes repaired in the ``new`` frames (the overlap's were
-    counted with the chunk before): finite samples the repair changed, outside dead and hot elements."""
-    start, stop = span
+def _repaired(frames: Any, raw: Tensor, start: int, pilot: _Pilot, new: slice) -> tuple[Tensor, Any, int]:
+    """The chunk ``raw`` (input frames from ``start``) centred and repaired
+    (:func:`~anra_torch.balance.artefacts.find_artefacts`), searched with :data:`_CONTEXT` frames more on
+    each side, so a spike in a chunk's first or last frame is found as anywhere else; with what was found
+    and the spikes repaired in the ``new`` frames (the overlap's were counted with the chunk before):
+    finite samples the repair changed, outside dead and hot elements."""
+    stop = start + raw.shape[0]
     low, high = max(0, start - _CONTEXT), min(frames.shape[0], stop + _CONTEXT)
-    raw = _read(frames, low, high, dtype)
-    finite = torch.isfinite(raw) & ~pilot.dead
-    video = torch.where(finite, raw - pilot.offset, torch.nan)
+    context = torch.cat([_read(frames, low, start, raw.dtype), raw, _read(frames, stop, high, raw.dtype)])
+    finite = torch.isfinite(context) & ~pilot.dead
+    video = torch.where(finite, context - pilot.offset, torch.nan)
     repaired, found = find_artefacts(video)
-    keep = slice(start - low, stop - low)
-    spikes = (repaired.to(dtype) != video) & finite
+    repaired = repaired.to(raw.dtype)
+    spikes = (repaired != video) & finite
     for row, col in found.bad_pixels:
         spikes[:, row, col] = False
-    return repaired.to(dtype)[keep], found, int(spikes[keep][new].sum())
+    keep = slice(start - low, stop - low)
+    return repaired[keep], found, int(spikes[keep][new].sum())
 
 
 def _range(raw: Tensor, finite: Tensor) -> tuple[float, float]:
@@ -212,10 +212,7 @@ def _pilot(est: ANRAEstimator, blocks: Tensor, dt: Tensor, dx: Tensor, side: int
     centred = torch.where(finite, blocks - offset, torch.zeros_like(blocks))
     noise = batch_noise(centred, finite, noise_sd=est.noise_sd)
     video = torch.where(finite, noise.cleaned, centred)
-    usable = [i for i, f in enumerate(est.filters) if min(h, w) - 2 * f.margin >= 8]
-    if not usable:
-        need = est.minimum_frame_size
-        raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
+    usable = est.usable(h, w)
     best, best_var, best_a = usable[0], math.inf, 0.0
     for i in usable:  # the blocks pooled as one estimate: the candidate with the smallest standard error
         sums = est.candidate_sums(i, video, finite, dt.expand(n), dx.expand(n), noise)
@@ -367,7 +364,7 @@ def _accumulate(
                 video = torch.where(finite, video, torch.zeros_like(raw))
             artefacts = pilot.noise.artefacts
             if pilot.repair:
-                video, found, spikes = _repaired(frames, (start, stop + length - 1), pilot, dtype, new)
+                video, found, spikes = _repaired(frames, raw, start, pilot, new)
                 finite, artefacts = torch.ones_like(finite), (found,)
                 seen["spikes"] += spikes
             noise = replace(pilot.noise, cleaned=video[None], artefacts=artefacts)

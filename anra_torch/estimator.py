@@ -323,6 +323,20 @@ class ANRAEstimator(nn.Module):
         least valid interior."""
         return min(2 * f.margin for f in self.filters) + _MIN_VALID_PX
 
+    def usable(self, height: int, width: int) -> list[int]:
+        """The smoothing candidates (indices) whose filters leave enough of a ``height`` x ``width`` frame.
+
+        Raises:
+            ValueError: no candidate fits (the frame is smaller than :attr:`minimum_frame_size`).
+        """
+        usable = [i for i, f in enumerate(self.filters) if min(height, width) - 2 * f.margin >= _MIN_VALID_PX]
+        if not usable:
+            need = self.minimum_frame_size
+            raise ValueError(
+                f"frames must be at least {need} x {need} px for these filters, got {height} x {width}"
+            )
+        return usable
+
     def _valid_mask(self, finite: Tensor, margin: int) -> Tensor:
         """True where the whole filter support of an output pixel is finite; ``(B, K, H'', W'')``."""
         bad = (~finite).to(torch.float32).unsqueeze(1)
@@ -462,10 +476,7 @@ class ANRAEstimator(nn.Module):
         noise = batch_noise(video, finite, noise_sd=self.noise_sd)
         video = torch.where(finite, noise.cleaned, video)
         noise_sd = noise.sd
-        usable = [i for i, f in enumerate(self.filters) if min(h, w) - 2 * f.margin >= _MIN_VALID_PX]
-        if not usable:
-            need = self.minimum_frame_size
-            raise ValueError(f"frames must be at least {need} x {need} px for these filters, got {h} x {w}")
+        usable = self.usable(h, w)
         candidates = [self.candidate_sums(i, video, finite, dt_, dx_, noise) for i in usable]
         chosen, measured, choice = self._choose(candidates)
         num, den, energy, ratio = chosen.num, chosen.den, chosen.energy, chosen.ratio

@@ -134,8 +134,8 @@ class TimeDerivative(nn.Module):
         """Offset (frames) from the window's oldest frame to the instant the derivative applies."""
         return self.stencil.centre
 
-    def _filter(self, frames: Tensor, taps: Tensor, dt: float | Tensor | None) -> Tensor:
-        """Apply ``(C, L)`` taps; (T, H, W) in -> (C, K, H, W) out, (B, T, H, W) -> (B, C, K, H, W)."""
+    def _checked(self, frames: Tensor, dt: float | Tensor | None) -> Tensor:
+        """``frames`` as ``(B, T, H, W)``, after checking their shape, length and ``dt``."""
         if frames.ndim not in (3, 4):
             raise ValueError(f"frames must have shape (T, H, W) or (B, T, H, W), got {tuple(frames.shape)}")
         video = frames if frames.ndim == 4 else frames.unsqueeze(0)
@@ -147,6 +147,11 @@ class TimeDerivative(nn.Module):
         if dt is not None:
             _check_spacing(dt, "dt", "s")
             _check_spacing_batch(dt, "dt", video)
+        return video
+
+    def _filter(self, frames: Tensor, taps: Tensor, dt: float | Tensor | None) -> Tensor:
+        """Apply ``(C, L)`` taps; (T, H, W) in -> (C, K, H, W) out, (B, T, H, W) -> (B, C, K, H, W)."""
+        video = self._checked(frames, dt)
         out = _time_filter(video, taps)
         if dt is not None:
             # channel 0 is the derivative (per s); the others are averages. In place: no copy of the rest.
@@ -161,15 +166,13 @@ class TimeDerivative(nn.Module):
         return self._filter(frames, self.pair[None], None).select(-4, 0)
 
     def with_average(self, frames: Tensor, dt: float | Tensor) -> tuple[Tensor, Tensor]:
-        """``(forward(frames, dt), average(frames))`` from a single two-channel Conv3d."""
-        if frames.ndim != 4:
-            rate, average = self.with_average(frames.unsqueeze(0), dt)
-            return rate[0], average[0]
-        self._filter(frames[:, : self.length, :1, :1], self.taps[None], dt)  # the checks, on one pixel
-        # Shifted-slice sums along T: a two-channel Conv3d over a cropped frame ran ~10x slower on CPU.
-        rate = _correlate1d(frames, self.taps.tolist(), 1)
+        """``(forward(frames, dt), average(frames))`` as shifted-slice sums along T (a two-channel Conv3d
+        over a cropped frame ran ~10x slower on CPU)."""
+        video = self._checked(frames, dt)
+        rate = _correlate1d(video, self.taps.tolist(), 1)
         rate = rate / _per_leading(dt, rate, 3)
-        return rate, _correlate1d(frames, self.pair.tolist(), 1)
+        average = _correlate1d(video, self.pair.tolist(), 1)
+        return (rate, average) if frames.ndim == 4 else (rate[0], average[0])
 
     def adjoint(self, rate_weights: Tensor, average_weights: Tensor, dt: float | Tensor) -> Tensor:
         """Transpose of :meth:`with_average`: maps output-space weights back onto the input frames.
