@@ -19,9 +19,19 @@ _GAIN = math.sqrt(sum(t * t for t in _TAPS))  # white-noise gain sqrt(70)
 _MAD_TO_SD = 1.0 / 0.6744897501960817
 
 
+def _taps_sum(x: Tensor, dim: int, stride: int) -> Tensor:
+    """``sum_i _TAPS[i] x[i stride + k]`` along ``dim``, accumulated in place: one temporary instead of nine
+    (at 48 MB each, fresh mappings whose page faults made a 120-frame noise model 5x slower)."""
+    n = x.shape[dim] - 4 * stride
+    out = x.narrow(dim, 0, n) * _TAPS[0]
+    for i, tap in enumerate(_TAPS[1:], start=1):
+        out.add_(x.narrow(dim, i * stride, n), alpha=tap)
+    return out
+
+
 def _fourth_difference(x: Tensor, finite: Tensor, dim: int) -> tuple[Tensor, Tensor]:
     n = x.shape[dim] - 4
-    out = sum(t * x.narrow(dim, i, n) for i, t in enumerate(_TAPS))
+    out = _taps_sum(x, dim, 1)
     ok = finite.narrow(dim, 0, n)
     for i in range(1, 5):
         ok = ok & finite.narrow(dim, i, n)
@@ -214,8 +224,7 @@ def _gain(stride: int, length: float) -> float:
 def fourth_difference(x: Tensor, dim: int, stride: int = 1) -> Tensor:
     """Fourth difference ``[1, -4, 6, -4, 1]`` of ``x`` along ``dim`` at ``stride`` (valid part: shorter by
     ``4 stride``); it annihilates cubics, so a smooth thermal field barely leaks into it."""
-    n = x.shape[dim] - 4 * stride
-    return sum(t * x.narrow(dim, i * stride, n) for i, t in enumerate(_TAPS))
+    return _taps_sum(x, dim, stride)
 
 
 def robust_sd(x: Tensor, *, sample: int | None = 200_000, nonzero: bool = False) -> float:
@@ -253,11 +262,12 @@ def _time_correlation(deviation: Tensor, quiet: Tensor, *, stride: int = 1) -> t
         centre = quiet.narrow(dim, 2 * stride, h.shape[dim])
         parts.append(h[:, centre])
     h = torch.cat(parts, 1)
-    zero = float(h.pow(2).sum())
+    flat = h.reshape(t, -1)
+    zero = float(torch.tensordot(flat, flat))
     if zero == 0 or lags < 1:
         return ()
     # Each pixel's mean over t frames removes sum(rho) / t of every lag's covariance: add it back.
-    raw = [float((h[:-k] * h[k:]).sum()) / zero * t / (t - k) for k in range(1, lags + 1)]
+    raw = [float(torch.tensordot(flat[:-k], flat[k:])) / zero * t / (t - k) for k in range(1, lags + 1)]
     bias = (1 + 2 * sum(max(r, 0.0) for r in raw)) / t
     rho = [(r + bias) / (1 + bias) for r in raw]
     while rho and rho[-1] < 0.02:
