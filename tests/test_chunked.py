@@ -133,3 +133,14 @@ def test_spikes_are_repaired_in_every_chunk_and_counted_once() -> None:
     result = estimate_chunked(video, DT, DX, chunk_frames=12).result
     assert result.artefacts[0]["spikes"] == 30
     assert abs(float(result.diffusivity) - float(clean.diffusivity)) < 0.2 * float(clean.std_error)
+
+
+@pytest.mark.parametrize(("frames", "blocks"), [(30, 1), (96, 2), (200, 3)])
+def test_the_pilot_reads_at_most_a_third_of_a_recording(frames: int, blocks: int) -> None:
+    """Three blocks of 16 frames where they fit in a third of the recording, fewer (at least one) below."""
+    pilot = estimate_chunked(_video(frames), DT, DX, estimator=ANRAEstimator(strict=False)).pilot
+    assert len(pilot) == blocks
+    assert all(stop - start == 16 for start, stop in pilot)
+    assert pilot[0][0] >= 0 and pilot[-1][1] <= frames
+    if blocks > 1:  # spread from the first frame to the last
+        assert pilot[0][0] == 0 and pilot[-1][1] == frames
