@@ -7,12 +7,12 @@ input frames ``k .. k + L - 1``. So the recording is read in chunks of frames th
 filter's ``L - 1`` frames, and the per-frame sums are exactly the whole video's. Memory is bounded by the
 chunk, not the recording. What needs more than one chunk is chosen on a pilot:
 
-1. **Pilot.** ``pilot_blocks`` runs of ``pilot_frames`` consecutive frames, spread evenly over the recording,
-   go through the estimator's own steps: dead elements, the camera-artefact search, the measured noise
-   model, every smoothing candidate with its exact standard error (the adjoint pass). The blocks are pooled
-   as independent pieces of one estimate: the smoothing with the smallest pooled standard error is chosen
-   (the estimator's rule), the noise model is the block of median noise, and fixed effects are used when any
-   block needs them.
+1. **Pilot.** ``pilot_blocks`` runs of ``pilot_frames`` consecutive frames, spread evenly over the recording
+   (fewer where they would read more than a third of it), go through the estimator's own steps: dead
+   elements, the camera-artefact search, the measured noise model, every smoothing candidate with its exact
+   standard error (the adjoint pass). The blocks are pooled as independent pieces of one estimate: the
+   smoothing with the smallest pooled standard error is chosen (the estimator's rule), the noise model is
+   the block of median noise, and fixed effects are used when any block needs them.
 2. **Chunks.** The chosen smoothing balances every chunk; spikes and hot elements are repaired per chunk
    when the pilot found any.
 3. **Standard error.** On every ``error_every``-th chunk (the first included) the noise lever is pushed back

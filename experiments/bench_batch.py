@@ -6,8 +6,9 @@ Writes ``--files`` videos of 224 x 224 px x 120 frames (float32 ``.npz``: the pa
 
 - A: ``anra batch DIR --out rows.csv --no-progress`` with default settings (automatic smoothing, standard
   error, camera-artefact search, measured noise model);
-- B: ``python experiments/bench_batch.py --plain DIR``: the same estimator with one fixed smoothing (4 px) in
-  NumPy/SciPy (``bench_scale.numpy_same_estimate``: no standard error, no artefact search), file by file.
+- B: ``python experiments/bench_batch.py --plain DIR FILTERS``: the same estimator with one fixed smoothing
+  (4 px) in NumPy/SciPy (``bench_scale.numpy_same_estimate``: no standard error, no artefact search), file
+  by file; its filters are written beforehand, so it imports NumPy and SciPy only, not torch.
 
 Each run is its own process (start-up included in both); wall time from the parent, peak RSS from the
 kernel's accounting of the finished child (``os.wait4``). The ratio B / A of wall times, pair by pair: at
@@ -53,14 +54,17 @@ def write_videos(folder: Path, files: int) -> None:
         np.savez(folder / f"v{i:02d}.npz", frames=noisy.astype(np.float32), dt=dt, dx=dx)
 
 
-def plain(folder: Path) -> None:
-    """B: the plain NumPy/SciPy estimate of every file, one ``path,a`` line each."""
+def plain(folder: Path, filters: Path) -> None:
+    """B: the plain NumPy/SciPy estimate of every file, one ``name,a`` line each; the filters come from the
+    ``filters`` file, so this process imports NumPy and SciPy only (no torch)."""
     sys.path.insert(0, str(HERE))
     from bench_scale import numpy_same_estimate
 
+    with np.load(filters) as z:
+        taps = {k: z[k] for k in z.files}
     for path in sorted(folder.glob("*.npz")):
         with np.load(path) as z:
-            a = numpy_same_estimate(z["frames"], float(z["dt"]), float(z["dx"]))
+            a = numpy_same_estimate(z["frames"], float(z["dt"]), float(z["dx"]), filters=taps)
         print(f"{path.name},{a!r}", flush=True)
 
 
@@ -93,7 +97,11 @@ def measure(folder: Path, out: Path, runs: int) -> dict:
     anra = Path(sys.executable).with_name("anra")
     rows = out / "rows.csv"
     a_cmd = [str(anra), "batch", str(folder), "--out", str(rows), "--no-progress"]
-    b_cmd = [sys.executable, str(Path(__file__).resolve()), "--plain", str(folder)]
+    sys.path.insert(0, str(HERE))
+    from bench_scale import same_estimate_taps
+
+    np.savez(out / "filters.npz", **same_estimate_taps(4.0))
+    b_cmd = [sys.executable, str(Path(__file__).resolve()), "--plain", str(folder), str(out / "filters.npz")]
     logs = {"anra": out / "anra.log", "plain": out / "plain.log"}
     for log in logs.values():
         log.unlink(missing_ok=True)
@@ -148,10 +156,10 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=5, help="counted pairs after one warm-up pair")
     parser.add_argument("--files", type=int, default=12, help="videos in the folder")
     parser.add_argument("--data", help="folder of the videos (default: a temporary one)")
-    parser.add_argument("--plain", help=argparse.SUPPRESS)
+    parser.add_argument("--plain", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.plain:
-        plain(Path(args.plain))
+        plain(Path(args.plain[0]), Path(args.plain[1]))
         return
     if args.runs < 1 or args.files < 1:
         parser.error(f"--runs and --files must be >= 1, got {args.runs} and {args.files}")

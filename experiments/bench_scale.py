@@ -107,21 +107,31 @@ def make_videos(size: str, batch: int, seed: int = 0) -> tuple[np.ndarray, float
 
 
 # --------------------------------------------------------------------------- NumPy, same estimator
-def numpy_same_estimate(frames: np.ndarray, dt: float, dx: float, sigma: float = 4.0) -> float:
-    """``ANRAEstimator(smoothing=sigma)``'s diffusivity in NumPy/SciPy for one video ``(T, H, W)``.
-
-    Same filters and errors-in-variables correction; no standard error, no masking (finite input).
-    """
-    import scipy.ndimage as ndi
-
+def same_estimate_taps(sigma: float = 4.0) -> dict[str, np.ndarray]:
+    """The filters of ``ANRAEstimator(smoothing=sigma)`` as NumPy arrays: time derivative ``taps`` and its
+    average ``pair``, Gaussian ``g``, one arm ``d2`` of the 5-point Laplacian cross (unit spacing)."""
     from anra_torch.layers.stencils import gaussian_taps, laplacian_kernel, time_stencil
 
     stencil = time_stencil("smooth", 5)
-    taps, pair = stencil.taps.numpy(), stencil.pair.numpy()
-    g = gaussian_taps(sigma).numpy()
-    r = (g.size - 1) // 2
     d2 = laplacian_kernel(5, "central").numpy()[2].copy()  # the cross's horizontal arm
     d2[2] /= 2  # its centre holds both arms' centre taps
+    taps, pair, g = stencil.taps.numpy(), stencil.pair.numpy(), gaussian_taps(sigma).numpy()
+    return {"taps": taps, "pair": pair, "g": g, "d2": d2}
+
+
+def numpy_same_estimate(
+    frames: np.ndarray, dt: float, dx: float, sigma: float = 4.0, filters: dict[str, np.ndarray] | None = None
+) -> float:
+    """``ANRAEstimator(smoothing=sigma)``'s diffusivity in NumPy/SciPy for one video ``(T, H, W)``.
+
+    Same filters and errors-in-variables correction; no standard error, no masking (finite input).
+    ``filters``: :func:`same_estimate_taps` made beforehand (then NumPy and SciPy are all it imports).
+    """
+    import scipy.ndimage as ndi
+
+    filters = same_estimate_taps(sigma) if filters is None else filters
+    taps, pair, g, d2 = (filters[k] for k in ("taps", "pair", "g", "d2"))
+    r = (g.size - 1) // 2
     x = frames - frames.mean(dtype=np.float64).astype(frames.dtype)
     # noise: median absolute fourth difference along t, y, x; median of the three (anra_torch.balance.noise)
     fourth = np.array([1.0, -4.0, 6.0, -4.0, 1.0], dtype=x.dtype)
