@@ -315,6 +315,37 @@ def test_a_large_recording_is_read_in_chunks_and_a_bad_one_gets_its_row(
     assert rows["cut.npy"]["status"] == "error" and "truncated" in rows["cut.npy"]["error"]
 
 
+def test_recordings_read_in_chunks_run_side_by_side_with_the_rows_of_one_at_a_time(
+    videos: Path, tmp_path: Path, monkeypatch
+) -> None:
+    """With two torch threads, two chunked recordings run at once, one thread each: the same rows in the
+    same order as one at a time, the truncated file's error row among them, and the thread count restored."""
+    monkeypatch.setattr(run_module, "CHUNKED_VALUES", 100_000)
+    truncated = tmp_path / "cut.npy"
+    np.save(truncated, np.zeros((40, 64, 64), dtype=np.float32))
+    truncated.write_bytes(truncated.read_bytes()[:-5000])
+    inputs = [videos / "p0.npz", truncated, videos / "sub"]
+    threads = torch.get_num_threads()
+    tables = []
+    try:
+        for count in (1, 2):
+            torch.set_num_threads(count)
+            out = tmp_path / f"r{count}.csv"
+            run_batch(inputs, out, dt=1 / 27, dx=10 / 224, progress=False)
+            assert torch.get_num_threads() == count
+            tables.append(read_table(out))
+    finally:
+        torch.set_num_threads(threads)
+    one, two = tables
+    assert [Path(r["path"]).name for r in two] == ["p0.npz", "cut.npy", "q.npz"]
+    assert [r["status"] for r in two] == ["ok", "error", "ok"]
+    for a, b in zip(one, two, strict=True):
+        assert a["path"] == b["path"] and a["status"] == b["status"] and a["error"] == b["error"]
+        if a["status"] == "ok":
+            assert b["diffusivity"] == pytest.approx(a["diffusivity"], rel=1e-9)
+            assert b["std_error"] == pytest.approx(a["std_error"], rel=1e-9)
+
+
 def test_precision_reads_each_video_until_its_standard_error_is_reached(tmp_path: Path) -> None:
     """``anra batch --precision``: chunked rows with frames_used; the option is part of the resume key."""
     from anra_torch.simulation import gaussian_blob
