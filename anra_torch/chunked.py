@@ -269,6 +269,7 @@ def estimate_chunked(
     precision: float | None = None,
     error_every: int = 4,
     progress: bool = False,
+    dtype: torch.dtype | None = None,
 ) -> ChunkedEstimate:
     """Diffusivity of a recording read in time chunks (see the module docs), memory bounded by the chunk.
 
@@ -291,14 +292,16 @@ def estimate_chunked(
         error_every: push the noise lever back on every this many chunks (1: the exact standard error,
             at the cost of a second spatial pass per chunk).
         progress: show a tqdm progress bar over the frames.
+        dtype: the computation's dtype, ``torch.float32`` or ``torch.float64`` (the accumulators are
+            float64 either way); default float64 for float64 frames, else float32.
 
     Returns:
         :class:`ChunkedEstimate`.
 
     Raises:
         ValueError: frames without a ``(T, H, W)`` shape or shorter than the time filter, a bad
-            ``dt``/``dx``/``precision``/``chunk_frames``, an estimator this cannot accumulate, or (with a
-            ``strict`` estimator) a recording without measurable thermal activity.
+            ``dt``/``dx``/``precision``/``chunk_frames``/``dtype``, an estimator this cannot accumulate, or
+            (with a ``strict`` estimator) a recording without measurable thermal activity.
 
     Shape:
         ``frames`` ``(T, H, W)``.
@@ -315,7 +318,9 @@ def estimate_chunked(
     total, length = shape[0], est.time.length
     if total < length:
         raise ValueError(f"need at least {length} frames for the time filter, got {total}")
-    dtype = _dtype(frames)
+    if dtype not in (None, torch.float32, torch.float64):
+        raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype!r}")
+    dtype = _dtype(frames) if dtype is None else dtype
     dt_ = as_spacing(dt, name="dt", unit="s", batch=1, like=torch.zeros((), dtype=dtype))
     dx_ = as_spacing(dx, name="dx", unit="mm", batch=1, like=torch.zeros((), dtype=dtype))
     block = min(total, max(pilot_frames, 2 * length))

@@ -307,7 +307,8 @@ def test_a_large_recording_is_read_in_chunks_and_a_bad_one_gets_its_row(
     out = tmp_path / "r.csv"
     run_batch([videos / "p0.npz", videos / "sub", truncated], out, dt=1 / 27, dx=10 / 224, progress=False)
     rows = {Path(r["path"]).name: r for r in read_table(out)}
-    chunked = estimate_chunked(LazyFrames(videos / "p0.npz"), 1 / 27, 10 / 224).result
+    # computed in float32, batch's default, whatever the file holds
+    chunked = estimate_chunked(LazyFrames(videos / "p0.npz"), 1 / 27, 10 / 224, dtype=torch.float32).result
     assert rows["p0.npz"]["status"] == "ok"
     assert rows["p0.npz"]["diffusivity"] == pytest.approx(float(chunked.diffusivity), rel=1e-12)
     q = rows["q.npz"]

@@ -104,6 +104,7 @@ def test_a_dead_element_is_masked_and_constant_frames_are_flagged() -> None:
         ({"pilot_blocks": True}, "pilot_blocks must be an integer >= 1 (blocks), got True"),
         ({"estimator": ANRAEstimator(mode="ratio")}, "needs an estimator with mode='lsq'"),
         ({"estimator": ANRAEstimator(window=5)}, "use window=None, got 5"),
+        ({"dtype": torch.int32}, "dtype must be torch.float32 or torch.float64, got torch.int32"),
     ],
 )
 def test_bad_arguments_get_one_line_errors(kwargs, message: str) -> None:
@@ -144,3 +145,14 @@ def test_the_pilot_reads_at_most_a_third_of_a_recording(frames: int, blocks: int
     assert pilot[0][0] >= 0 and pilot[-1][1] <= frames
     if blocks > 1:  # spread from the first frame to the last
         assert pilot[0][0] == 0 and pilot[-1][1] == frames
+
+
+def test_the_computation_dtype_is_the_callers_not_the_files() -> None:
+    """float32 frames computed in float64 (``anra batch --float64``) give what float64 frames give."""
+    video = _video(40).float()
+    asked = estimate_chunked(video, DT, DX, dtype=torch.float64).result
+    stored = estimate_chunked(video.double(), DT, DX).result
+    single = estimate_chunked(video, DT, DX).result
+    assert float(asked.diffusivity) == float(stored.diffusivity)
+    assert float(asked.std_error) == float(stored.std_error)
+    assert float(single.diffusivity) != float(stored.diffusivity)  # float32 differs in its last digits

@@ -126,10 +126,8 @@ def _large(path: str, options: BatchOptions) -> Video | None:
 def _estimate_large(video: Video, options: BatchOptions) -> dict[str, Any]:
     """The row of a recording read in time chunks (:func:`~anra_torch.chunked.estimate_chunked`)."""
     start = time.perf_counter()
-    frames = video.frames
-    if isinstance(frames, torch.Tensor):
-        frames = frames.to(getattr(torch, options.dtype))
-    done = estimate_chunked(frames, video.dt, video.dx, precision=options.precision)
+    dtype = getattr(torch, options.dtype)
+    done = estimate_chunked(video.frames, video.dt, video.dx, precision=options.precision, dtype=dtype)
     row = _row(video, done.result, 0, time.perf_counter() - start)
     row["frames_used"] = done.frames_used
     if options.diagnose and row["status"] == "ok":
