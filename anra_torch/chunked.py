@@ -148,7 +148,21 @@ def _pilot_starts(total: int, length: int, blocks: int) -> list[int]:
     return [round(i * (total - length) / (n - 1)) for i in range(n)]
 
 
-def _check(estimator: ANRAEstimator, precision: float | None, chunk_frames: int) -> None:
+def _frames_total(frames: Any, length: int) -> int:
+    """The recording's frame count, checked: a ``(T, H, W)`` shape with at least ``length`` frames."""
+    shape = tuple(getattr(frames, "shape", ()))
+    if len(shape) != 3:
+        raise ValueError(f"frames must have shape (T, H, W), got {shape}")
+    if shape[0] < length:
+        raise ValueError(f"need at least {length} frames for the time filter, got {shape[0]}")
+    return shape[0]
+
+
+def _check(
+    estimator: ANRAEstimator, precision: float | None, chunk_frames: int, dtype: torch.dtype | None
+) -> None:
+    if dtype not in (None, torch.float32, torch.float64):
+        raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype!r}")
     if estimator.mode != "lsq" or not isinstance(estimator.attention, UniformAttention):
         raise ValueError(
             "estimate_chunked needs an estimator with mode='lsq' and uniform weights (its sums add over "
@@ -308,18 +322,11 @@ def estimate_chunked(
     """
     est = ANRAEstimator(strict=False) if estimator is None else estimator
     chunk_frames = _chunk_frames(frames, est.time.length, precision) if chunk_frames is None else chunk_frames
-    _check(est, precision, chunk_frames)
+    _check(est, precision, chunk_frames, dtype)
     _check_counts(
         error_every=error_every, pilot_blocks=pilot_blocks, pilot_frames=pilot_frames, pilot_side=pilot_side
     )
-    shape = tuple(getattr(frames, "shape", ()))
-    if len(shape) != 3:
-        raise ValueError(f"frames must have shape (T, H, W), got {shape}")
-    total, length = shape[0], est.time.length
-    if total < length:
-        raise ValueError(f"need at least {length} frames for the time filter, got {total}")
-    if dtype not in (None, torch.float32, torch.float64):
-        raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype!r}")
+    total, length = _frames_total(frames, est.time.length), est.time.length
     dtype = _dtype(frames) if dtype is None else dtype
     dt_ = as_spacing(dt, name="dt", unit="s", batch=1, like=torch.zeros((), dtype=dtype))
     dx_ = as_spacing(dx, name="dx", unit="mm", batch=1, like=torch.zeros((), dtype=dtype))
