@@ -21,7 +21,7 @@ _MAD_TO_SD = 1.0 / 0.6744897501960817
 
 def _taps_sum(x: Tensor, dim: int, stride: int) -> Tensor:
     """``sum_i _TAPS[i] x[i stride + k]`` along ``dim``, accumulated in place: one temporary instead of nine
-    (at 48 MB each, fresh mappings whose page faults made a 120-frame noise model 5x slower)."""
+    (at 48 MB each, fresh mappings whose page faults dominated a 120-frame noise model)."""
     n = x.shape[dim] - 4 * stride
     out = x.narrow(dim, 0, n) * _TAPS[0]
     for i, tap in enumerate(_TAPS[1:], start=1):

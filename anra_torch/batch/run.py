@@ -139,8 +139,8 @@ def _estimate_large_all(
     videos: list[tuple[int, Video]], options: BatchOptions
 ) -> Iterator[tuple[int, dict[str, Any]]]:
     """``(index, row)`` of each recording read in chunks. Several at once, one per torch thread, each on one
-    thread: their medians and memory-bound passes then use every core (1.3x on twelve 224 x 224 x 120
-    files, 2 cores). A recording that fails gets its error row; the others go on."""
+    thread: their medians and memory-bound passes then use every core (``experiments/bench_batch.py``). A
+    recording that fails gets its error row; the others go on."""
 
     def one(item: tuple[int, Video]) -> tuple[int, dict[str, Any]]:
         i, video = item
