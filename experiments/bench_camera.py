@@ -1,7 +1,9 @@
-"""Camera-scale recordings: time and peak memory of ``anra estimate`` on 640 x 512 px videos, from the CLI.
+"""Camera-scale recordings: time and peak memory of ``anra estimate`` and ``anra diagnose`` on 640 x 512 px
+videos, from the CLI.
 
 A Gaussian spot diffusing at a = 0.2 mm^2/s (dx = 0.1 mm, 30 Hz, noise sd 0.01 K), float32, written as
 ``.npy`` files of 900 frames (1.2 GB, 30 s of a 30 Hz camera) and, with ``--long``, 9000 frames (11.8 GB).
+The spot diffuses with no other effect, so ``anra diagnose`` should name none.
 Each command runs in its own process, started from a parent that stays small (Linux hands a forked child
 its parent's peak); its wall time and peak resident set (``wait4``'s ``ru_maxrss``) are recorded. In the
 same run, as the peer, the whole-video estimator (every frame and term in memory at once, what ``anra
@@ -100,20 +102,28 @@ def main() -> None:
             if not path.exists():  # in a child: a parent grown by the writing would hand its peak on
                 print(f"writing {path} ...", flush=True)
                 subprocess.run([sys.executable, __file__, "--write", str(path), str(frames)], check=True)
-            command = [anra, "estimate", str(path), "--dt", repr(1 / FPS), "--dx", repr(DX), "--json"]
-            record = run(command)
-            summary = json.loads(record.pop("stdout")) if record["code"] == 0 else {}
-            record.update(
-                what=f"anra estimate, 640 x 512 x {frames}",
-                frames=frames,
-                diffusivity=summary.get("diffusivity"),
-                std_error=summary.get("std_error"),
-                chunked=summary.get("chunked"),
-            )
-            records.append(record)
-            print(
-                json.dumps({k: record[k] for k in ("what", "seconds", "peak_mib", "diffusivity")}), flush=True
-            )
+            spacing = ["--dt", repr(1 / FPS), "--dx", repr(DX), "--json"]
+            for command in ("estimate", "diagnose"):
+                record = run([anra, command, str(path), *spacing])
+                summary = json.loads(record.pop("stdout")) if record["code"] == 0 else {}
+                record.update(what=f"anra {command}, 640 x 512 x {frames}", frames=frames)
+                if command == "estimate":
+                    record.update(
+                        diffusivity=summary.get("diffusivity"),
+                        std_error=summary.get("std_error"),
+                        chunked=summary.get("chunked"),
+                    )
+                else:
+                    record.update(
+                        diffusivity=summary.get("base", {}).get("diffusivity"),
+                        std_error=None,
+                        effects=[e["name"] for e in summary.get("effects", [])],
+                        negligible=[e["name"] for e in summary.get("negligible", [])],
+                        copy=summary.get("input", {}).get("decimated"),
+                    )
+                records.append(record)
+                shown = ("what", "seconds", "peak_mib", "diffusivity")
+                print(json.dumps({k: record[k] for k in shown}), flush=True)
         peer_frames = 120
         record = run([sys.executable, "-c", _WHOLE, str(data / "camera_900.npy"), str(peer_frames)])
         values = record.pop("stdout").split()
@@ -146,7 +156,7 @@ def report(records: list[dict]) -> str:
         lines.append(
             f"| {r['what']} | {r['seconds']:.1f} | {r['peak_mib']:.0f} | {per_frame:.1f} | {a} | {se} |"
         )
-    chunked = [r for r in records if r["what"].startswith("anra")]
+    chunked = [r for r in records if r["what"].startswith("anra estimate")]
     peer = records[-1]
     if chunked and peer["code"] == 0:
         first = chunked[0]
@@ -162,6 +172,16 @@ def report(records: list[dict]) -> str:
             f"10x the frames: {chunked[1]['seconds'] / chunked[0]['seconds']:.1f}x the time, "
             f"{chunked[1]['peak_mib'] / chunked[0]['peak_mib']:.2f}x the peak memory."
         )
+    for r in records:
+        if r["what"].startswith("anra diagnose") and r["code"] == 0 and r.get("copy"):
+            c = r["copy"]
+            lines.append(
+                f"{r['what']}: diagnosed on a copy averaged over {c['space_px']} x {c['space_px']} px and "
+                f"{c['time_frames']} frames of the region {c['region']} (x0, y0, width, height px), "
+                f"{c['shape'][0]} frames of {c['shape'][1]} x {c['shape'][2]} px; effects named: "
+                f"{', '.join(r['effects']) or 'none'} (truth: none); negligible: "
+                f"{', '.join(r['negligible']) or 'none'}."
+            )
     return "\n".join(lines) + "\n"
 
 

@@ -42,6 +42,7 @@ def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[st
         "time_window",
         "assimilated",
         "gain_above_floor",
+        "negligible",
         "raw",
         "noise",
         "artefacts",
@@ -194,6 +195,8 @@ def test_a_recording_too_large_to_diagnose_gets_a_one_line_error(
     code, out, err = run(capsys, "diagnose", path)
     assert code == 2 and out == "" and err.count("\n") == 1
     assert "diagnosing 20 frames of 40 x 48 px needs about 0.3 GB of memory, 0.1 GB are available" in err
-    assert "diagnose a region (--roi X0,Y0,W,H) or fewer frames" in err
+    assert err.rstrip().endswith("diagnose a region (--roi X0,Y0,W,H) or fewer frames")
+    code, out, err = run(capsys, "diagnose", path, "--full-resolution")
+    assert code == 2 and err.rstrip().endswith("or fewer frames, or without --full-resolution")
     monkeypatch.setattr(diagnose_command, "_available_bytes", lambda: None)  # unknown: no refusal
-    diagnose_command._check_memory(Video(frames=torch.zeros(20, 40, 48), dt=0.1, dx=0.1))
+    diagnose_command._check_memory(Video(frames=torch.zeros(20, 40, 48), dt=0.1, dx=0.1), False)

@@ -2,9 +2,11 @@
 
 ``anra diagnose --json`` prints one object: ``base`` (plain diffusivity, forecast RMSE), ``effects`` (name,
 params, gain each), ``extended`` (equation, params, forecast RMSE), ``gain``, ``noise_floor``, ``scale_px``,
-``time_window``, ``assimilated``, ``gain_above_floor``, ``raw``, ``noise`` (the measured noise model) and
-``artefacts`` (the camera artefacts found and masked); ``source_map`` with ``--source-map``;
-``input`` when the video was prepared by --resample, --roi or --calibration; ``warnings``, a list of lines,
+``time_window``, ``assimilated``, ``gain_above_floor``, ``raw``, ``negligible`` (effects significant but
+below their physical size, with that size), ``noise`` (the measured noise model) and ``artefacts`` (the
+camera artefacts found and masked); ``source_map`` with ``--source-map``;
+``input`` when the video was prepared by --resample, --roi or --calibration, or diagnosed on a block-averaged
+copy (``input.decimated``, above 2^22 pixel values unless --full-resolution); ``warnings``, a list of lines,
 empty when all is well: input samples masked, the final model's diffusivity negative or outside every known
 material, "the model does not explain the data" when its forecast RMSE stays above 3 noise floors (with the
 ratio), a number not finite and reported as null. On failure: ``{"path", "error"}``.
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -32,6 +35,7 @@ from anra_torch.cli.arguments import (
 )
 from anra_torch.effects import equation_text
 from anra_torch.video import Video, input_warnings
+from anra_torch.video.lazy import lazy_video
 
 __all__ = ["add_parser", "run"]
 
@@ -77,6 +81,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="DIR",
         help="write to DIR phases.md (the phases' timeline, forecasts and residual maps) and report.md (the "
         "longest phase in detail: forecasts, residual, RMSE)",
+    )
+    parser.add_argument(
+        "--full-resolution",
+        action="store_true",
+        help="diagnose every pixel and frame of a recording above 2^22 pixel values instead of a copy "
+        "averaged over blocks of pixels and frames (needs about 260 bytes of memory per pixel value)",
     )
     parser.add_argument(
         "--source-map",
@@ -175,6 +185,7 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
             "noise_floor": result.noise_floor_raw,
         },
     }
+    summary["negligible"] = diagnosis.negligible
     if diagnosis.noise is not None:
         summary["noise"] = diagnosis.noise.describe()
     if diagnosis.artefacts is not None:
@@ -220,7 +231,7 @@ def _available_bytes() -> int | None:
     return None
 
 
-def _check_memory(video: Video) -> None:
+def _check_memory(video: Video, full_resolution: bool) -> None:
     """Refuse, in one line, a recording whose diagnosis would not fit in the memory available (the
     diagnosis holds the recording and its term bank at once; the estimate reads any length in chunks)."""
     t, h, w = video.frames.shape
@@ -230,8 +241,45 @@ def _check_memory(video: Video) -> None:
         raise ValueError(
             f"{video.source}: diagnosing {t} frames of {h} x {w} px needs about {need / 2**30:.1f} GB of "
             f"memory, {available / 2**30:.1f} GB are available; diagnose a region (--roi X0,Y0,W,H) or "
-            "fewer frames (anra estimate reads a recording of any length in chunks)"
+            f"fewer frames{', or without --full-resolution' if full_resolution else ''}"
         )
+
+
+def _open(args: argparse.Namespace) -> tuple[Video, dict[str, Any] | None]:
+    """The recording to diagnose and, for one above :data:`DIAGNOSE_VALUES` pixel values (unless
+    --full-resolution), the record of the block-averaged copy it is replaced by
+    (:func:`~anra_torch.forecast.decimate.decimated_video`; a large ``.npy`` / uncompressed ``.npz`` is read
+    chunk by chunk, never whole)."""
+    from anra_torch.forecast.decimate import DIAGNOSE_VALUES, camera_copy
+
+    lazy = None
+    if args.roi is None and args.calibration is None and not args.full_resolution:
+        lazy = lazy_video(args.video, dt=args.dt, dx=args.dx)
+    large = lazy is not None and math.prod(lazy.frames.shape) > DIAGNOSE_VALUES
+    recording = lazy if large else load_input(args)
+    if args.full_resolution:
+        return recording, None
+    return camera_copy(recording, DIAGNOSE_VALUES)
+
+
+def _in_recording_frames(summary: dict[str, Any], decimated: dict[str, Any]) -> None:
+    """The phases' frames counted in the recording's frames (the copy's times are its blocks' means), and
+    the copy stated under ``input.decimated``."""
+    for phase in summary["phases"]:
+        phase["start_frame"] *= decimated["time_frames"]
+        phase["stop_frame"] *= decimated["time_frames"]
+    summary.setdefault("input", {})["decimated"] = decimated
+
+
+def _print_decimated(d: dict[str, Any]) -> None:
+    frames, rows, cols = d["shape"]
+    region = f" of the region x0, y0, width, height = {d['region']} px" if d["region"] else ""
+    print(
+        f"  diagnosed on a copy averaged over {d['space_px']} x {d['space_px']} px and {d['time_frames']} "
+        f"frames{region} ({frames} frames of {rows} x {cols} px; spikes repaired first: "
+        f"{d['repaired_spikes']}, dead or hot elements: {d['repaired_elements']}); phase frames count the "
+        "recording's frames"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -239,9 +287,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         if not 0 < args.fit_fraction < 1:
             raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
-        recording = load_input(args)
-        _check_memory(recording)
+        recording, decimated = _open(args)
+        _check_memory(recording, args.full_resolution)
         summary, result, mapped, video, phases = _summary(recording, args)
+        if decimated is not None:
+            _in_recording_frames(summary, decimated)
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
             print(json.dumps({"path": str(args.video), "error": one_line(err)}))
@@ -251,6 +301,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"{video.source}")
         print_input(video)
+        if decimated is not None:
+            _print_decimated(decimated)
         shown = clean_json(summary)
         _print_phases(shown)
         if result is not None:

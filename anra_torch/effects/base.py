@@ -216,6 +216,11 @@ class EffectSpec:
         draw: ``(axes, params) -> caption`` drawing its shape on a map in mm, or None.
         requires: effects that must already be in the model before this one is tried (a local change
             of a global effect).
+        size: ``(params, (T_low, T_high)) -> float``: how much the effect changes the model over the
+            temperatures the video reaches, dimensionless (e.g. the relative change of the diffusivity);
+            None when the effect states no physical size.
+        min_size: the smallest ``size`` that materially changes the model: below it a significant effect is
+            reported as negligible (with its size), not named.
     """
 
     name: str
@@ -243,6 +248,8 @@ class EffectSpec:
     positive: frozenset[str] = frozenset()
     draw: Callable[[Any, dict[str, float]], str] | None = None
     requires: tuple[str, ...] = ()
+    size: Callable[[dict[str, float], tuple[float, float]], float] | None = None
+    min_size: float = 0.0
 
 
 def require(condition: bool, name: str, key: str, need: str, params: dict[str, float]) -> None:

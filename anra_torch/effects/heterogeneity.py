@@ -8,7 +8,8 @@ fitted by the errors-in-variables profile loss from starts where the windowed di
 and where heat flows.
 
 Random draw: radius 8-20 px (at most 4 hot-spot sigmas), ``a_inside / a_outside`` in [0.3, 0.6] or
-[1.7, 3.0], ``a_outside = a``, the edge where heat crosses it during the video.
+[1.7, 3.0], ``a_outside = a``, the edge where heat crosses it during the video. Size:
+``|a_inside / a_outside - 1|``; below 5 % it is negligible.
 """
 
 from __future__ import annotations
@@ -216,4 +217,6 @@ SPEC = EffectSpec(
     equation=_equation,
     positive=frozenset({"a_inside", "a_outside", "radius"}),
     draw=_draw,
+    size=lambda p, span: abs(p["a_inside"] / p["a_outside"] - 1.0),
+    min_size=0.05,  # a disc within 5 % of its surroundings' diffusivity: negligible
 )

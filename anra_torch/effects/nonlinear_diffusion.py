@@ -3,7 +3,8 @@
 Parameters: ``a0`` (mm^2/s, > 0), ``beta`` (1/K), ``T_ref`` (data units). Simulated exactly in flux form
 through the Kirchhoff transform. Diagnosis: regressor ``N = Lap (T - Tbar)^2 / 2`` of the balance bank
 (``a(T) = c_L + c_N (T - Tbar)``, reported at ``T_ref`` = the background). Random draw: ``a0 = a``,
-``T_ref`` = background, ``beta rise`` in [0.3, 1.0].
+``T_ref`` = background, ``beta rise`` in [0.3, 1.0]. Size: ``|beta|`` times the video's temperature span
+(the relative change of the diffusivity); below 2 % it is negligible.
 """
 
 from __future__ import annotations
@@ -78,4 +79,6 @@ SPEC = EffectSpec(
     valid=lambda p: p["a0"] > 0,
     equation=_equation,
     positive=frozenset({"a0"}),
+    size=lambda p, span: abs(p["beta"]) * (span[1] - span[0]),
+    min_size=0.02,  # the diffusivity changes by less than 2 % over the video's temperatures: negligible
 )

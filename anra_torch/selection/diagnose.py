@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
@@ -112,6 +112,9 @@ class Diagnosis:
         noise: the noise model measured from the video (level, correlation in time and space) that the
             standard errors, the errors-in-variables corrections and the tests come from.
         artefacts: the camera artefacts found and what was done (:mod:`anra_torch.balance.artefacts`).
+        negligible: effects that were significant but below their physical size
+            (:attr:`~anra_torch.effects.base.EffectSpec.min_size`), not named: ``{"name", "params", "size",
+            "min_size"}`` each.
     """
 
     base: float
@@ -130,6 +133,7 @@ class Diagnosis:
     margin: int
     noise: NoiseModel | None = None
     artefacts: Artefacts | None = None
+    negligible: list[dict] = field(default_factory=list)
 
     @property
     def names(self) -> list[str]:
@@ -326,4 +330,5 @@ def _result(system: BalanceSystem, selection: Selection, plain: Fit, artefacts: 
         margin=system.margin,
         noise=system.noise,
         artefacts=artefacts,
+        negligible=[v for k, v in selection.negligible.items() if k not in selection.selected],
     )

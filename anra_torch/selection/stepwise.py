@@ -33,6 +33,7 @@ class Selection:
         self.thetas: dict[str, Tensor] = {}
         self.scores: dict[str, float] = {}
         self.thresholds: dict[str, float] = {}
+        self.negligible: dict[str, dict] = {}  # significant and physical, but below their physical size
 
     @property
     def shapes(self) -> dict[str, dict[str, float]]:
@@ -61,6 +62,20 @@ class Selection:
         except ValueError:
             return False
         return spec.valid(params) and self.in_view(name, params)
+
+    def material(self, name: str, params: dict[str, float]) -> bool:
+        """Whether the effect is at least its stated physical size (:attr:`EffectSpec.min_size`) over the
+        video's temperatures; one below it is kept in :attr:`negligible` with its size instead."""
+        spec = EFFECTS[name]
+        if spec.size is None:
+            return True
+        size = float(spec.size(params, self.span))
+        if size >= spec.min_size:
+            self.negligible.pop(name, None)
+            return True
+        self.negligible[name] = {"name": name, "params": dict(params), "size": size}
+        self.negligible[name]["min_size"] = spec.min_size
+        return False
 
     def in_view(self, name: str, params: dict[str, float]) -> bool:
         """Whether every position of a localised effect (:attr:`EffectSpec.positions`, mm) lies in the
@@ -109,7 +124,10 @@ class Selection:
                 self.scores[name] = wald_score(fit, EFFECTS[name].regressors)
                 self.thresholds[name] = self.threshold(name, len(candidates))
                 params = EFFECTS[name].from_coefficients(fit.coefficients(), self.context())
-                if self.scores[name] > self.thresholds[name] and self.physical(name, params):
+                significant = self.scores[name] > self.thresholds[name] and self.physical(name, params)
+                if not significant:
+                    self.negligible.pop(name, None)
+                elif self.material(name, params):
                     explained = current_excess - (fit.rss - self.system.expected_rss(fit))
                     eligible[name] = explained * search_discount(
                         EFFECTS[name].look_elsewhere, len(EFFECTS[name].regressors), self.scores[name]
@@ -124,15 +142,16 @@ class Selection:
             self.selected.append(max(eligible, key=eligible.__getitem__))
 
     def drop_unphysical(self) -> None:
-        """Remove, one at a time, effects whose parameters in the final fit are not physical (the fit
-        moves when other effects leave or shapes are refitted): the one with the lowest score first."""
+        """Remove, one at a time, effects whose parameters in the final fit are not physical, or below their
+        physical size (the fit moves when other effects leave or shapes are refitted): the one with the
+        lowest score first."""
         while self.selected:
             coefficients = self.system.fit(self.columns(self.selected)).coefficients()
-            bad = [
-                name
-                for name in self.selected
-                if not self.physical(name, EFFECTS[name].from_coefficients(coefficients, self.context()))
-            ]
+            bad = []
+            for name in self.selected:
+                params = EFFECTS[name].from_coefficients(coefficients, self.context())
+                if not (self.physical(name, params) and self.material(name, params)):
+                    bad.append(name)
             if not bad:
                 return
             self.selected.remove(min(bad, key=lambda name: self.scores.get(name, 0.0)))
