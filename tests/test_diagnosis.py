@@ -280,3 +280,24 @@ def test_errors_are_one_line_value_errors() -> None:
     one_line("frames are constant", torch.full_like(frames, 30.0), video.dt, video.dx)
     noise = 30.0 + 0.1 * torch.randn(frames.shape, dtype=torch.float64)
     one_line("no thermal activity above the noise", noise, video.dt, video.dx)
+
+
+@pytest.mark.slow
+def test_a_significant_effect_below_its_physical_size_is_listed_as_negligible() -> None:
+    """Nonlinear diffusion whose diffusivity changes by 1 % over the video's temperatures, at a noise low
+    enough for the balance to see it: significant, but under the 2 % that matters, so it is listed with
+    its size and not named; the same scene at 30 % names it."""
+    first = video_of(("nonlinear_diffusion",), seed=0)
+    span = float(first.frames.max() - first.frames.min())
+    sizes = {}
+    for size in (0.01, 0.3):
+        params = {"nonlinear_diffusion": {"beta": size / span}}
+        sizes[size] = diagnose(video_of(("nonlinear_diffusion",), seed=0, noise_frac=1e-4, params=params))
+    small, large = sizes[0.01], sizes[0.3]
+    assert small.names == []
+    listed = {n["name"]: n for n in small.negligible}  # measured: 0.0095, and a disc of 0.4 % beside it
+    assert listed["nonlinear_diffusion"]["min_size"] == 0.02
+    assert listed["nonlinear_diffusion"]["size"] == pytest.approx(0.01, rel=0.1)
+    assert all(n["size"] < n["min_size"] for n in small.negligible)
+    assert small.scores["nonlinear_diffusion"] > small.thresholds["nonlinear_diffusion"]  # significant
+    assert large.names == ["nonlinear_diffusion"] and large.negligible == []

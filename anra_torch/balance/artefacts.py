@@ -126,14 +126,19 @@ def _bad_pixels(frames: Tensor, finite: Tensor, floor: float = 0.0) -> Tensor:
     ``frames`` must be free of spikes (they would move a pixel's mean).
     """
     t = frames.shape[0]
-    never = ~finite.any(0)
-    high = torch.where(finite, frames, -torch.inf).amax(0)
-    low = torch.where(finite, frames, torch.inf).amin(0)
-    constant = (high == low) & finite.all(0)
+    if bool(finite.all()):  # the usual case: no masked copies of the video
+        never = torch.zeros(frames.shape[1:], dtype=torch.bool)
+        low, high = torch.aminmax(frames, dim=0)
+        constant = high == low
+        mean = frames.sum(0) / t
+    else:
+        never = ~finite.any(0)
+        high = torch.where(finite, frames, -torch.inf).amax(0)
+        low = torch.where(finite, frames, torch.inf).amin(0)
+        constant = (high == low) & finite.all(0)
+        mean = torch.where(finite, frames, 0.0).sum(0) / finite.sum(0).clamp_min(1)
     if float(constant.float().mean()) > _MAX_STUCK_FRACTION or t < 3:
         constant = torch.zeros_like(constant)
-    count = finite.sum(0)
-    mean = torch.where(finite, frames, 0.0).sum(0) / count.clamp_min(1)
     good = ~(never | constant)
     mean = torch.where(good, mean, _neighbour_median(mean, good).nan_to_num(float(mean[good].mean())))
     # An isolated impulse: far from the quadratic that its 24 neighbours fit (a smooth field, even at a
@@ -313,11 +318,11 @@ def find_artefacts(frames: Tensor) -> tuple[Tensor, Artefacts]:
     non_finite = int((~finite).sum())
     repaired = torch.where(finite, video, torch.nan) if non_finite else video.clone()
     floor = _floor(video)
-    spike_at, without = _spikes(torch.where(finite, video, 0.0), floor)
+    spike_at, without = _spikes(torch.where(finite, video, 0.0) if non_finite else video, floor)
     keep = finite[spike_at[:, 0], spike_at[:, 1], spike_at[:, 2]]
     spike_at, without = spike_at[keep], without[keep]
     repaired[spike_at[:, 0], spike_at[:, 1], spike_at[:, 2]] = without
-    bad = _bad_pixels(repaired, torch.isfinite(repaired), floor)
+    bad = _bad_pixels(repaired, torch.isfinite(repaired) if non_finite else finite, floor)
     repaired = _repair_pixels(repaired, bad)
     holes = ~torch.isfinite(repaired)  # samples still non-finite in good pixels: their pixel's mean
     if bool(holes.any()):
