@@ -161,7 +161,7 @@ def decimated_video(
     return copy, record
 
 
-SIGNAL_SHARE = 0.05
+SIGNAL_SHARE = 0.01
 """A pixel is part of the signal when its temperature range over the recording is at least this share of
 the largest (each frame's median removed first, so a global drift or offset step is no signal)."""
 
