@@ -175,12 +175,16 @@ def report(records: list[dict]) -> str:
     for r in records:
         if r["what"].startswith("anra diagnose") and r["code"] == 0 and r.get("copy"):
             c = r["copy"]
+            where = (
+                "the whole frame"
+                if c["region"] is None
+                else f"the region {c['region']} (x0, y0, width, height px)"
+            )
             lines.append(
                 f"{r['what']}: diagnosed on a copy averaged over {c['space_px']} x {c['space_px']} px and "
-                f"{c['time_frames']} frames of the region {c['region']} (x0, y0, width, height px), "
-                f"{c['shape'][0]} frames of {c['shape'][1]} x {c['shape'][2]} px; effects named: "
-                f"{', '.join(r['effects']) or 'none'} (truth: none); negligible: "
-                f"{', '.join(r['negligible']) or 'none'}."
+                f"{c['time_frames']} frames of {where}, {c['shape'][0]} frames of {c['shape'][1]} x "
+                f"{c['shape'][2]} px; effects named: {', '.join(r['effects']) or 'none'} (truth: none); "
+                f"negligible: {', '.join(r['negligible']) or 'none'}."
             )
     return "\n".join(lines) + "\n"
 
