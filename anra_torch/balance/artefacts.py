@@ -140,7 +140,8 @@ def _bad_pixels(frames: Tensor, finite: Tensor, floor: float = 0.0) -> Tensor:
     if float(constant.float().mean()) > _MAX_STUCK_FRACTION or t < 3:
         constant = torch.zeros_like(constant)
     good = ~(never | constant)
-    mean = torch.where(good, mean, _neighbour_median(mean, good).nan_to_num(float(mean[good].mean())))
+    if not bool(good.all()):
+        mean = torch.where(good, mean, _neighbour_median(mean, good).nan_to_num(float(mean[good].mean())))
     # An isolated impulse: far from the quadratic that its 24 neighbours fit (a smooth field, even at a
     # sharp peak, is close to it), by more than half its neighbourhood's range (the neighbours of an
     # impulse are pulled by it, but their range holds it).

@@ -60,14 +60,18 @@ def estimate_noise_sd(frames: Tensor, *, mask: Tensor | None = None) -> Tensor:
     finite = torch.isfinite(video)
     if mask is not None:
         finite = finite & mask.reshape(video.shape).to(torch.bool)
-    clean = torch.where(finite, video, torch.zeros_like(video))
+    everywhere = bool(finite.all())
+    clean = video if everywhere else torch.where(finite, video, torch.zeros_like(video))
     estimates = []
     for dim in (1, 2, 3):
         if video.shape[dim] < 5:
             continue
         diff, ok = _fourth_difference(clean, finite, dim)
-        values = torch.where(ok, diff.abs(), torch.full_like(diff, torch.nan)).flatten(1)
-        estimates.append(values.nanmedian(dim=1).values * (_MAD_TO_SD / _GAIN))
+        if everywhere:  # no NaN to skip: the plain median is the same number, without a masked copy
+            median = diff.abs().flatten(1).median(dim=1).values
+        else:
+            median = torch.where(ok, diff.abs(), torch.nan).flatten(1).nanmedian(dim=1).values
+        estimates.append(median * (_MAD_TO_SD / _GAIN))
     if not estimates:
         raise ValueError(
             f"frames must be at least 5 long along some axis to estimate noise, got {tuple(video.shape)}"
