@@ -7,10 +7,12 @@
   measured beam) and :func:`source_map_gain`, its forecast of the same held-out frames;
 - :mod:`~anra_torch.forecast.refine`: :func:`refine_model`, Problem-1 refinement of a diagnosed model;
 - :mod:`~anra_torch.forecast.small_box`: models for regions too small for the filters;
-- :mod:`~anra_torch.forecast.recording`: :func:`diagnose_recording`, a recording phase by phase.
+- :mod:`~anra_torch.forecast.recording`: :func:`diagnose_recording`, a recording phase by phase;
+- :mod:`~anra_torch.forecast.decimate`: the block-averaged copy a camera-sized recording is diagnosed on
+  (``anra diagnose`` makes it before the phases).
 
-The last three call :mod:`~anra_torch.forecast.core`, not each other (:func:`source_map_gain` reads the
-split and scale of a :class:`GainResult`).
+Source map, refinement and the small boxes call :mod:`~anra_torch.forecast.core`, not each other
+(:func:`source_map_gain` reads the split and scale of a :class:`GainResult`).
 """
 
 from anra_torch.forecast.core import (

@@ -16,6 +16,10 @@ frames, built while the recording is read a chunk of frames at a time:
   the diagnosis measures the copy's noise model itself.
 - **The factors keep the diffusion per frame.** ``a dt / dx^2`` changes by ``m / k^2``; :func:`decimation`
   takes the pair within the budget whose ratio is nearest 1, with at least :data:`MIN_FRAMES` frames.
+- **The signal keeps its resolution.** :func:`camera_copy` locates the part of the frame whose temperature
+  changes (:func:`signal_box`) on a first copy; when it covers at most half the frame, the copy is made
+  again from that region at the finer block it allows. On too coarse a grid the operators' truncation
+  error looks like an effect (a spot 4 blocks wide reads as a temperature-dependent diffusivity).
 
 Only whole blocks are kept: up to ``m - 1`` last frames and ``k - 1`` last rows and columns are dropped,
 and :func:`decimated_video`'s record says so.
