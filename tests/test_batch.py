@@ -373,3 +373,25 @@ def test_precision_reads_each_video_until_its_standard_error_is_reached(tmp_path
     assert row["frames_used"] is None and json.loads(row["parameters"])["precision"] is None
     with pytest.raises(ValueError, match=r"precision must be a relative standard error in \(0, 1\), got 2"):
         run_batch([tmp_path / "v0.npz"], whole, precision=2, progress=False)
+
+
+@pytest.mark.slow
+def test_diagnose_of_a_large_recording_reads_it_in_chunks_and_diagnoses_its_copy(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """Over CHUNKED_VALUES the recording stays on disk (chunked estimate), over DIAGNOSE_VALUES it is
+    diagnosed on its block-averaged copy (here 2 frames per block, the frame kept whole), and the row
+    says so."""
+    from anra_torch.forecast import decimate
+
+    path = hidden_effect_video(["advection"], seed=1, size=64, duration=6.0).to_npz(tmp_path / "adv.npz")
+    monkeypatch.setattr(run_module, "CHUNKED_VALUES", 100_000)  # 181 x 64 x 64 = 741376 values
+    monkeypatch.setattr(decimate, "DIAGNOSE_VALUES", 400_000)
+    loaded = []
+    monkeypatch.setattr(run_module, "_load", lambda *a: loaded.append(a) or None)  # never loaded whole
+    out = tmp_path / "r.csv"
+    run_batch([path], out, diagnose=True, progress=False)
+    (row,) = read_table(out)
+    assert loaded == [] and row["status"] == "ok" and row["top_effect"] == "advection"
+    assert "diagnosed on a copy averaged over 1 x 1 px and 2 frames" in row["message"]
+    assert row["gain"] > 0.3 and int(float(row["frames_used"])) == 181

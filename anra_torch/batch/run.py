@@ -29,7 +29,7 @@ from anra_torch.video import (
     parse_roi,
     prepare_video,
 )
-from anra_torch.video.lazy import lazy_video
+from anra_torch.video.lazy import LazyFrames, lazy_video
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
 
@@ -115,8 +115,8 @@ def _row(video: Video, result: ANRAResult, index: int, seconds: float) -> dict[s
 def _large(path: str, options: BatchOptions) -> Video | None:
     """A recording to read in time chunks: over :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values,
     or any with ``precision``; left on disk when it is a ``.npy`` or an uncompressed ``.npz`` (no region or
-    calibration, no diagnosis), else loaded. None for the others."""
-    if options.roi is None and options.calibration is None and not options.diagnose:
+    calibration), else loaded. None for the others."""
+    if options.roi is None and options.calibration is None:
         video = lazy_video(path, dt=options.dt, dx=options.dx)
         if video is not None and (options.precision or math.prod(video.frames.shape) > CHUNKED_VALUES):
             return video
@@ -163,14 +163,24 @@ def _estimate_large_all(
 
 
 def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> None:
-    from anra_torch.forecast import assess_gain
+    """The diagnosis columns of ``row``. A recording above
+    :data:`~anra_torch.forecast.decimate.DIAGNOSE_VALUES` pixel values is diagnosed on its block-averaged
+    copy (read chunk by chunk), and ``message`` says so."""
+    from anra_torch.forecast import assess_gain, decimate
 
     start = time.perf_counter()
     try:
-        result = assess_gain(video.frames, video.dt, video.dx, fit_fraction=options.fit_fraction)
+        copy, decimated = decimate.camera_copy(video, decimate.DIAGNOSE_VALUES)
+        frames = copy.frames
+        frames = torch.as_tensor(frames[0 : len(frames)]) if isinstance(frames, LazyFrames) else frames
+        result = assess_gain(frames, copy.dt, copy.dx, fit_fraction=options.fit_fraction)
     except (ValueError, TypeError) as err:
         row.update(status="error", error=f"{video.source}: diagnose: {one_line(err)}")
         return
+    if decimated is not None:
+        k, m = decimated["space_px"], decimated["time_frames"]
+        said = f"diagnosed on a copy averaged over {k} x {k} px and {m} frames"
+        row["message"] = join_messages([row.get("message"), said])
     names = [e["name"] for e in result.diagnosis.effects]
     row.update(
         top_effect=names[0] if names else "none",
