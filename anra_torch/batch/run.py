@@ -29,7 +29,7 @@ from anra_torch.video import (
     parse_roi,
     prepare_video,
 )
-from anra_torch.video.lazy import LazyFrames, lazy_video
+from anra_torch.video.lazy import in_memory, lazy_video
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
 
@@ -171,9 +171,7 @@ def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> N
     start = time.perf_counter()
     try:
         copy, decimated = decimate.camera_copy(video, decimate.DIAGNOSE_VALUES)
-        frames = copy.frames
-        frames = torch.as_tensor(frames[0 : len(frames)]) if isinstance(frames, LazyFrames) else frames
-        result = assess_gain(frames, copy.dt, copy.dx, fit_fraction=options.fit_fraction)
+        result = assess_gain(in_memory(copy.frames), copy.dt, copy.dx, fit_fraction=options.fit_fraction)
     except (ValueError, TypeError) as err:
         row.update(status="error", error=f"{video.source}: diagnose: {one_line(err)}")
         return

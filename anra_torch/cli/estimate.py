@@ -57,7 +57,7 @@ from anra_torch.flags import diffusivity_warnings
 from anra_torch.forecast.recording import find_phases
 from anra_torch.report import format_pm
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
-from anra_torch.video.lazy import LazyFrames, lazy_video
+from anra_torch.video.lazy import LazyFrames, in_memory, lazy_video
 
 __all__ = ["add_parser", "run"]
 
@@ -234,7 +234,7 @@ class _Reading:
 
     def estimate(self, video: Video, est: ANRAEstimator) -> ANRAResult:
         if not self.chunked:
-            return est(_frames(video.frames), video.dt, video.dx)
+            return est(in_memory(video.frames), video.dt, video.dx)
         done = estimate_chunked(
             video.frames,
             video.dt,
@@ -251,11 +251,6 @@ class _Reading:
         return done.result
 
 
-def _frames(frames: Any) -> Any:
-    """The frames in memory (a lazily read file is read whole)."""
-    return frames[0 : len(frames)] if isinstance(frames, LazyFrames) else frames
-
-
 def _estimate(
     video: Video, est: ANRAEstimator, reading: _Reading
 ) -> tuple[dict[str, Any], ANRAResult | None]:
@@ -263,7 +258,7 @@ def _estimate(
     t, h, w = video.frames.shape
     if min(h, w) < est.minimum_frame_size and t >= est.time.length:  # too few frames: the estimator says so
         try:
-            return _small_box_record(replace(video, frames=_frames(video.frames))), None
+            return _small_box_record(replace(video, frames=in_memory(video.frames))), None
         except ValueError as small:
             raise ValueError(f"{video.source}: {small}") from small
     try:

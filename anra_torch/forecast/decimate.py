@@ -37,7 +37,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.balance.artefacts import find_artefacts
-from anra_torch.video import Video
+from anra_torch.video import ROI, Video
 
 __all__ = ["DIAGNOSE_VALUES", "MIN_FRAMES", "camera_copy", "decimated_video", "decimation", "signal_box"]
 
@@ -96,9 +96,7 @@ def _chunk(frames: Any, start: int, stop: int) -> Tensor:
     return part if part.dtype == torch.float64 else part.float()
 
 
-def decimated_video(
-    video: Video, k: int, m: int, region: tuple[int, int, int, int] | None = None
-) -> tuple[Video, dict[str, Any]]:
+def decimated_video(video: Video, k: int, m: int, region: ROI | None = None) -> tuple[Video, dict[str, Any]]:
     """The recording averaged over blocks of ``k x k`` pixels and ``m`` frames, its camera artefacts
     repaired at full resolution first, and what was done.
 
@@ -140,8 +138,8 @@ def decimated_video(
         chunk = _chunk(video.frames, start, min(start + step, out_t * m))[:, y0 : y0 + h, x0 : x0 + w]
         repaired, found = find_artefacts(chunk)
         spikes += found.spikes
-        for row, col in found.bad_pixels:
-            elements[row, col] = True
+        if found.bad_pixels:
+            elements[tuple(torch.tensor(found.bad_pixels).T)] = True
         cut = repaired[:, : out_h * k, : out_w * k]
         parts.append(F.avg_pool3d(cut.double()[None, None], (m, k, k))[0, 0])
         del chunk, repaired, cut

@@ -16,11 +16,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from anra_torch.checks import uniform_step
 from anra_torch.video.core import Truth, Video
 
-__all__ = ["LazyFrames", "lazy_npz_fields", "lazy_video"]
+__all__ = ["LazyFrames", "in_memory", "lazy_npz_fields", "lazy_video"]
 
 
 class LazyFrames:
@@ -102,6 +103,15 @@ class LazyFrames:
         if data.size != count * frame:
             raise ValueError(f"{self.path}: truncated: frames {start}-{stop - 1} are not all in the file")
         return data.reshape(count, *self.shape[1:])
+
+
+def in_memory(frames: Any) -> Any:
+    """``frames`` in memory: a :class:`LazyFrames` read whole into a tensor, anything else as it is.
+
+    Shape:
+        ``(T, H, W)`` -> ``(T, H, W)``.
+    """
+    return torch.as_tensor(frames[0 : len(frames)]) if isinstance(frames, LazyFrames) else frames
 
 
 def _is_zip(path: Path) -> bool:
