@@ -184,7 +184,7 @@ def _repair_pixels(frames: Tensor, bad: Tensor) -> Tensor:
     return torch.where(good, out, out.nanmean() if bool(torch.isfinite(out).any()) else 0.0)
 
 
-def _floor(frames: Tensor, *, sample: int = 200_000) -> float:
+def _floor(frames: Tensor, *, sample: int = 50_000) -> float:
     """:data:`RESOLUTION` times the range between the 0.1 and 99.9 percentiles of the finite values."""
     flat = frames.reshape(-1)
     flat = flat[:: max(1, flat.numel() // sample)]
