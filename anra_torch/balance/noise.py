@@ -262,6 +262,21 @@ def _quiet_var(frames: Tensor, quiet: Tensor, dim: int, stride: int) -> float:
     return robust_sd(fourth_difference(frames[::step], dim, stride)[:, centre], sample=None) ** 2
 
 
+_QUIET_WINDOW = 9  # px: the window over which a pixel's deviation power is averaged
+
+
+def _quiet_pixels(deviation: Tensor) -> Tensor:
+    """The quieter half of the pixels ``(H, W)``: those whose deviation power, averaged over the
+    :data:`_QUIET_WINDOW` px around them, is at most its median. The average keeps the choice on the
+    thermal field's structure: ranking single pixels would also pick those whose noise happened to be low
+    (with noise correlated over 3 frames, a pixel's power over 81 frames varies by about 40 %, and the
+    quieter half's variance came out 15 % low)."""
+    power = deviation.pow(2).mean(0)[None, None]
+    pad = _QUIET_WINDOW // 2
+    local = F.avg_pool2d(F.pad(power, (pad, pad, pad, pad), mode="replicate"), _QUIET_WINDOW, stride=1)[0, 0]
+    return local <= local.median()
+
+
 def _time_correlation(deviation: Tensor, quiet: Tensor, *, stride: int = 1) -> tuple[float, ...]:
     """``rho_t(1 .. m)`` of a spatial high-pass of the noise: temporal autocorrelation of stride-``stride``
     fourth differences along x and y (they remove the smooth thermal field) of the frames' ``deviation``
@@ -322,8 +337,7 @@ def measure_noise(
         return white
     deviation = video - video.mean(0)
     # Over the quieter half of the pixels (the least thermal signal in their deviations).
-    power = deviation.pow(2).mean(0)
-    quiet = power <= power.median()
+    quiet = _quiet_pixels(deviation)
     v1 = [_quiet_var(deviation, quiet, d, 1) for d in (-2, -1)]
     v2 = [_quiet_var(deviation, quiet, d, 2) for d in (-2, -1)]
     rounding = 100 * torch.finfo(frames.dtype).eps * float(video.abs().amax())  # a noiseless video

@@ -206,9 +206,33 @@ class BalanceSystem:
         beta = inverse @ cross
         residual = self.u - sum(float(beta[i]) * self.terms[c] for i, c in enumerate(columns))
         backs = pushback(residual, self.frames, [self.detached[c] for c in columns])
-        cov = sandwich(inverse, backs, self.noise)
+        cov = sandwich(inverse, backs, self.noise) + self.correction_covariance(columns, inverse, beta)
         rss = float(residual.detach().pow(2).sum())
         return Fit(columns, beta, cov, rss)
+
+    def correction_covariance(self, columns: Sequence[str], inverse: Tensor, beta: Tensor) -> Tensor:
+        """The coefficients' covariance from the error of the errors-in-variables correction, ``(k, k)``.
+
+        A measured noise model's variance is known to a relative error ``e``
+        (:attr:`~anra_torch.balance.noise.NoiseModel.variance_error`; 0 for white noise), shared by every
+        noise part: the correction ``N`` of the normal equations is off by ``e N``, which moves the
+        coefficients by ``e G^-1 (N_XX beta - N_XU)`` (rank one). Where noise dominates a regressor's energy
+        (little smoothing, strongly correlated noise) this is the larger error, and the smoothing and the
+        tests must see it. A regressor whose corrected energy is not at least twice the correction's error
+        is unresolved at this smoothing (its variance is infinite): the first-order shift would be
+        meaningless there, the corrected energy being as likely near zero as where it came out.
+        """
+        error = float(self.noise.variance_error)
+        if error == 0.0:
+            return torch.zeros_like(inverse)
+        noise = self.moments.noise
+        rows = self.moments.index(columns)
+        shift = noise[rows][:, rows] @ beta.detach() - noise[rows][:, self.moments.index(["U"])[0]]
+        lever = error * (inverse @ shift)
+        out = lever[:, None] * lever[None, :]
+        energy, noise_energy = self.moments.corrected.diagonal()[rows], noise.diagonal()[rows]
+        unresolved = energy <= 2 * error * noise_energy.abs()
+        return out + torch.diag(torch.where(unresolved, torch.inf, 0.0).to(out.dtype))
 
     def expected_rss(self, fit: Fit) -> float:
         """Expected residual sum of squares of ``fit`` if the data were its model plus white noise."""
