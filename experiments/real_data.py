@@ -7,7 +7,8 @@ the CLI's own default, does everything else: the phases (baseline / heating / co
 model family per phase (the balance where its filters fit; the small-box models in 9-15 px boxes), the
 extension chosen on splits inside the fit frames, the held-out gain. No rule here depends on the recording
 or the phase. The diffusivity per phase is ``anra estimate``'s (ANRA where the filters fit; the small-box
-plain fit, or "unresolved" with its bound, elsewhere).
+plain fit, or "unresolved" with its bound, elsewhere); where the diagnosis named effects, the extended
+model's own ``a`` (``anra diagnose``'s phase ``base.diffusivity``) follows it.
 
 Unknown spacings are passed as a user would pass ``--dx``/``--dt``: laser runs 0.55 mm/px (interval
 0.5-0.6 mm from the C3-X field of view at ~10 cm, carried into an interval on ``a``, which scales as
@@ -144,7 +145,10 @@ def _diffusivity(row: dict[str, Any]) -> str:
     base = row["base"]
     if "a_anra" in row:
         lo, hi = row["a_anra_interval"] or (None, None)
-        return f"ANRA {_f(row['a_anra'])} [{_f(lo)}, {_f(hi)}] for dx 0.5-0.6 mm"
+        plain = f"ANRA {_f(row['a_anra'])} [{_f(lo)}, {_f(hi)}] for dx 0.5-0.6 mm"
+        if row["effects"] and base.get("diffusivity") is not None:  # the extended model's own a
+            return f"{plain}; extended model {_f(base['diffusivity'])}"
+        return plain
     if base.get("diffusivity_lower_bound") is not None:
         return f"unresolved: > {_f(base['diffusivity_lower_bound'])}"
     return f"small box {_f(base['diffusivity'])}"
