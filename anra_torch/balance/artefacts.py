@@ -89,8 +89,9 @@ class Artefacts:
 
     @property
     def within(self) -> tuple[str, ...]:
-        """The fixed effects the balance must use: ``("frame",)`` after offset steps, else none."""
-        return ("frame",) if self.global_offsets else ()
+        """The fixed effects the balance must use: ``"pixel"`` with a fixed pattern, ``"frame"`` after
+        offset steps (none for a clean video)."""
+        return ("pixel",) * self.fixed_pattern + ("frame",) * self.global_offsets
 
     def to_record(self) -> dict:
         """The JSON ``"artefacts"`` object."""

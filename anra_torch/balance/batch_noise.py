@@ -53,11 +53,17 @@ class BatchNoise:
         """Whether video ``index`` needs more than the white-noise formulas."""
         return not self.models[index].white or bool(self.pixel[index]) or bool(self.frame[index])
 
+    def balanced(self, index: int) -> NoiseModel:
+        """Video ``index``'s noise model as its balance sees it: without the static part where per-pixel
+        fixed effects remove it (:meth:`NoiseModel.without_static`)."""
+        model = self.models[index]
+        return model.without_static() if bool(self.pixel[index]) else model
+
     @property
     def variance_error(self) -> Tensor:
         """Relative error of each video's measured noise variance, ``(B,)`` float64
         (:attr:`NoiseModel.variance_error <anra_torch.balance.noise.NoiseModel.variance_error>`)."""
-        return torch.tensor([m.variance_error for m in self.models], dtype=_F64)
+        return torch.tensor([self.balanced(b).variance_error for b in range(len(self.models))], dtype=_F64)
 
     def fixed_effects(self, term: Tensor) -> Tensor:
         """``term`` ``(B, K, h, w)`` with each video's fixed effects removed."""
@@ -76,7 +82,7 @@ class BatchNoise:
                     float(self.sd[b]) ** 2,
                     float(dt[b]),
                     float(dx[b]),
-                    noise=self.models[b],
+                    noise=self.balanced(b),
                     within=("pixel",) * bool(self.pixel[b]) + ("frame",) * bool(self.frame[b]),
                     extent=(frames, pixels),
                 )
@@ -89,7 +95,8 @@ class BatchNoise:
             ``backs`` ``(B, T, H, W)``.
         """
         out = self.sd * backs.pow(2).sum((1, 2, 3)).sqrt()
-        for b, model in enumerate(self.models):
+        for b in range(len(self.models)):
+            model = self.balanced(b)
             if not model.white:
                 out[b] = model.quadratic(backs[b : b + 1].to(_F64))[0, 0].clamp_min(0).sqrt().to(out.dtype)
         return out

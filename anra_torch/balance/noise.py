@@ -127,6 +127,13 @@ class NoiseModel:
         """Whether the noise has a static part (a fixed pattern of the sensor)."""
         return bool(self.static_sd or self.column_sd or self.row_sd)
 
+    def without_static(self) -> NoiseModel:
+        """This model without its static part: what a balance with per-pixel fixed effects sees (each
+        pixel's time mean removed takes a fixed pattern out exactly)."""
+        return NoiseModel(
+            self.sd, time_corr=self.time_corr, space_length=self.space_length, white_sd=self.white_sd
+        )
+
     @property
     def white(self) -> bool:
         """Whether the noise is uncorrelated (in time and space, with no static part)."""
@@ -265,15 +272,16 @@ def _quiet_var(frames: Tensor, quiet: Tensor, dim: int, stride: int) -> float:
 _QUIET_WINDOW = 9  # px: the window over which a pixel's deviation power is averaged
 
 
-def _quiet_pixels(deviation: Tensor) -> Tensor:
-    """The quieter half of the pixels ``(H, W)``: those whose deviation power, averaged over the
+def _quiet_pixels(power: Tensor) -> Tensor:
+    """The quieter half of the pixels ``(H, W)``: those whose deviation power ``power`` (``(H, W)``, the
+    mean square of their deviations from their time mean), averaged over the
     :data:`_QUIET_WINDOW` px around them, is at most its median. The average keeps the choice on the
     thermal field's structure: ranking single pixels would also pick those whose noise happened to be low
     (with noise correlated over 3 frames, a pixel's power over 81 frames varies by about 40 %, and the
     quieter half's variance came out 15 % low)."""
-    power = deviation.pow(2).mean(0)[None, None]
     pad = _QUIET_WINDOW // 2
-    local = F.avg_pool2d(F.pad(power, (pad, pad, pad, pad), mode="replicate"), _QUIET_WINDOW, stride=1)[0, 0]
+    padded = F.pad(power[None, None], (pad, pad, pad, pad), mode="replicate")
+    local = F.avg_pool2d(padded, _QUIET_WINDOW, stride=1)[0, 0]
     return local <= local.median()
 
 
@@ -336,11 +344,25 @@ def measure_noise(
     if t < 8 or min(h, w) < 12:
         return white
     deviation = video - video.mean(0)
-    # Over the quieter half of the pixels (the least thermal signal in their deviations).
-    quiet = _quiet_pixels(deviation)
+    # Over the quieter half of the pixels (the least thermal signal in their deviations): ranked pixel by
+    # pixel to decide whether the noise is white (the guards against thermal signal below were set on that
+    # choice), then, for a correlated or static model, by the power around each pixel for its parts.
+    power = deviation.pow(2).mean(0)
+    model = _model_over(video, deviation, power <= power.median(), white, static_pattern)
+    if model.white:
+        return model
+    local = _model_over(video, deviation, _quiet_pixels(power), white, static_pattern)
+    return model if local.white else local
+
+
+def _model_over(
+    video: Tensor, deviation: Tensor, quiet: Tensor, white: NoiseModel, static_pattern: bool
+) -> NoiseModel:
+    """:func:`measure_noise` over the ``quiet`` pixels ``(H, W)``; ``white`` where the noise is white."""
+    t, h, w = video.shape
     v1 = [_quiet_var(deviation, quiet, d, 1) for d in (-2, -1)]
     v2 = [_quiet_var(deviation, quiet, d, 2) for d in (-2, -1)]
-    rounding = 100 * torch.finfo(frames.dtype).eps * float(video.abs().amax())  # a noiseless video
+    rounding = 100 * torch.finfo(video.dtype).eps * float(video.abs().amax())  # a noiseless video
     if min(v1) <= 70 * rounding**2:
         return white
     v3 = [_quiet_var(deviation, quiet, d, 3) for d in (-2, -1)] if min(h, w) >= 24 else v2

@@ -103,8 +103,11 @@ class BalanceSystem:
             sigma, time_family=time_family, time_length=5, laplacian_size=3, laplacian_family="holoborodko"
         )  # the 5-point stencil (its partner: a 1-px crop) and the operators of a finite-difference model
         self.dt, self.dx, self.sigma, self.noise_sd = dt, dx, sigma, noise_sd
-        self.noise = NoiseModel(noise_sd) if noise is None else noise
         self.within = tuple(within)
+        self.measured_noise = NoiseModel(noise_sd) if noise is None else noise
+        # Per-pixel fixed effects take a static pattern out exactly: the balance sees the rest.
+        pixel = "pixel" in self.within
+        self.noise = self.measured_noise.without_static() if pixel else self.measured_noise
         self.mean = float(frames.mean())
         self.frames = frames.detach().clone().requires_grad_(True)
         self.shape = tuple(frames.shape)

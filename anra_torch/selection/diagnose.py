@@ -328,7 +328,7 @@ def _result(system: BalanceSystem, selection: Selection, plain: Fit, artefacts: 
         fit_ratio=fit_ratio,
         residual_map=system.residual(final).mean(0),
         margin=system.margin,
-        noise=system.noise,
+        noise=system.measured_noise,
         artefacts=artefacts,
         negligible=[v for k, v in selection.negligible.items() if k not in selection.selected],
     )
