@@ -69,6 +69,18 @@ def test_a_fixed_pattern_is_measured_as_the_noise_static_part(pure) -> None:
     assert record["kind"] == "fixed_pattern"
 
 
+def test_a_fixed_pattern_is_taken_out_by_per_pixel_fixed_effects(pure) -> None:
+    """Three noise sds of static pattern: the estimate with per-pixel fixed effects is the clean one's
+    (measured 0.09 % apart); measured as a static part of the noise model instead it was 0.6 % off here
+    and up to 11 % on the artefact benchmark's videos."""
+    frames, _ = _planted(pure, "fixed_pattern")
+    _, found = find_artefacts(frames)
+    assert found.within == ("pixel",)
+    clean = ANRAEstimator()(pure.frames, pure.dt, pure.dx)
+    planted = ANRAEstimator()(frames, pure.dt, pure.dx)
+    assert float(planted.diffusivity) == pytest.approx(float(clean.diffusivity), rel=0.003)
+
+
 def test_correlated_noise_is_measured(pure) -> None:
     frames, _ = correlated_noise(pure.clean, seed=2, sd=2 * pure.noise_sd, length_px=1.5, length_frames=3.0)
     repaired, found = find_artefacts(frames)

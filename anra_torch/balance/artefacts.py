@@ -12,21 +12,25 @@ dead and hot elements       a pixel constant in time while the scene changes, or
                             24 neighbours (an isolated impulse)
 single-sample spikes        a sample far from the median of its five-frame         replaced by that median
                             window, unlike its neighbours in space
-static fixed pattern        spatial fourth differences of the time-mean frame     measured as the noise's
-                            far above what the temporal noise leaves in it         static part (per pixel,
-                                                                                   column and row)
+static fixed pattern        spatial fourth differences of the time-mean frame     per-pixel fixed effects in
+                            far above what the temporal noise leaves in it         the balance (exact); its
+                                                                                   parts measured and stated
 global offset steps, drift  jumps in the frames' median change                    per-frame fixed effects in
                                                                                    the balance (exact)
 ==========================  ====================================================  ==========================
 
 A static pattern ``p`` drops out of ``dT/dt`` but not of the Laplacian. Removing each pixel's time mean
-from every term (per-pixel fixed effects) would remove it exactly, but with it any stationary source (a
-laser spot held still is indistinguishable from ``Delta p`` in the balance). So the pattern is instead
-measured as the static part of the noise model (:func:`~anra_torch.balance.noise.measure_noise`): the
-errors-in-variables corrections and the standard errors then account for a noise that does not average
-out over frames, and a stationary source stays visible. A global offset ``g(t)`` added to every pixel (a
-recalibration step, a drift) has no Laplacian but enters ``dT/dt`` and ``T``: removing each frame's
-spatial mean from every term (per-frame fixed effects) removes it exactly. Each is used only when found,
+from every term (per-pixel fixed effects) removes it exactly, whatever its size: the balance then rests on
+each pixel's changes alone. The price: a term constant in time at every pixel (a source held still over
+the whole video) is removed with it, so with a fixed pattern such a source is not named (a moving source
+still is). Measuring the pattern as a static part of the noise instead kept the source but not the
+balance: three noise sds of pattern make most of a small smoothing's Laplacian energy, and a 10 % error of
+its measured variance took ``a`` to near zero and named effects on pure videos. The pattern's parts (per
+pixel, column and row) are still measured (:func:`~anra_torch.balance.noise.measure_noise`) and stated.
+
+A global offset ``g(t)`` added to every pixel (a recalibration step, a drift) has no Laplacian but enters
+``dT/dt`` and ``T``: removing each frame's spatial mean from every term (per-frame fixed effects) removes
+it exactly. Each is used only when found,
 so a clean video is analysed exactly as before.
 
 The thresholds are robust z-scores against the median absolute deviation of the same statistic over the
@@ -65,7 +69,8 @@ class Artefacts:
         bad_pixels: ``(row, column)`` of dead or hot elements, replaced by their neighbours' median.
         spikes: number of single samples replaced by their neighbourhood's median.
         non_finite: number of non-finite samples replaced.
-        fixed_pattern: whether a static pattern was found (the noise model measures its parts).
+        fixed_pattern: whether a static pattern was found (per-pixel fixed effects; the noise model
+            measures its parts).
         pattern_sd: its standard deviation estimated from the time-median frame (data units).
         steps: frames (index of the later frame) where the whole frame jumped (per-frame fixed effects).
         step_sizes: the jumps (data units).
