@@ -26,7 +26,9 @@ the whole video) is removed with it, so with a fixed pattern such a source is no
 still is). Measuring the pattern as a static part of the noise instead kept the source but not the
 balance: three noise sds of pattern make most of a small smoothing's Laplacian energy, and a 10 % error of
 its measured variance took ``a`` to near zero and named effects on pure videos. The pattern's parts (per
-pixel, column and row) are still measured (:func:`~anra_torch.balance.noise.measure_noise`) and stated.
+pixel, column and row) are still measured (:func:`~anra_torch.balance.noise.measure_noise`) and stated,
+and they are the noise model's static part in a video too short for fixed effects
+(:data:`PIXEL_EFFECTS_FRAMES`).
 
 A global offset ``g(t)`` added to every pixel (a recalibration step, a drift) has no Laplacian but enters
 ``dT/dt`` and ``T``: removing each frame's spatial mean from every term (per-frame fixed effects) removes
@@ -47,7 +49,7 @@ from torch import Tensor
 
 from anra_torch.balance.noise import fourth_difference, robust_sd
 
-__all__ = ["OUTLIER_Z", "RESOLUTION", "Artefacts", "find_artefacts", "stuck_pixels"]
+__all__ = ["OUTLIER_Z", "PIXEL_EFFECTS_FRAMES", "RESOLUTION", "Artefacts", "find_artefacts", "stuck_pixels"]
 
 OUTLIER_Z = 12.0
 """Robust z-score above which a sample, a pixel or a frame step is an artefact (the largest of 10^7
@@ -56,6 +58,11 @@ Gaussian samples is at about 5.3)."""
 RESOLUTION = 1e-3
 """Smallest artefact looked for, as a fraction of the video's range: below it an artefact cannot matter to
 the balance, and a noiseless video (whose only "noise" is rounding) finds nothing in its own curvature."""
+
+PIXEL_EFFECTS_FRAMES = 20
+"""Fewest frames for per-pixel fixed effects: in a shorter video (a phase of a few frames, a split inside
+one) each pixel's own changes carry too little of the balance, and a fixed pattern is measured as the
+noise's static part instead."""
 
 _MAX_STUCK_FRACTION = 0.01  # more constant pixels than this is a static region, not dead elements
 _PATTERN_RATIO = 4.0  # static spatial roughness over what the temporal noise leaves: a fixed pattern
@@ -75,6 +82,8 @@ class Artefacts:
         steps: frames (index of the later frame) where the whole frame jumped (per-frame fixed effects).
         step_sizes: the jumps (data units).
         global_offsets: whether per-frame fixed effects are used (steps found).
+        pixel_effects: whether per-pixel fixed effects are used (a fixed pattern in a video of at least
+            :data:`PIXEL_EFFECTS_FRAMES` frames).
     """
 
     bad_pixels: tuple[tuple[int, int], ...] = ()
@@ -86,6 +95,7 @@ class Artefacts:
     step_sizes: tuple[float, ...] = ()
     global_offsets: bool = False
     notes: tuple[str, ...] = field(default=())
+    pixel_effects: bool = False
 
     @property
     def any(self) -> bool:
@@ -96,7 +106,7 @@ class Artefacts:
     def within(self) -> tuple[str, ...]:
         """The fixed effects the balance must use: ``"pixel"`` with a fixed pattern, ``"frame"`` after
         offset steps (none for a clean video)."""
-        return ("pixel",) * self.fixed_pattern + ("frame",) * self.global_offsets
+        return ("pixel",) * self.pixel_effects + ("frame",) * self.global_offsets
 
     def to_record(self) -> dict:
         """The JSON ``"artefacts"`` object."""
@@ -347,6 +357,7 @@ def find_artefacts(frames: Tensor) -> tuple[Tensor, Artefacts]:
         steps=steps,
         step_sizes=sizes,
         global_offsets=bool(steps),
+        pixel_effects=pattern and video.shape[0] >= PIXEL_EFFECTS_FRAMES,
     )
     return repaired, found
 
