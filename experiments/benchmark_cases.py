@@ -178,7 +178,8 @@ _EXTRA_NAMES = ("negligible", "artefacts", "artifacts", "noise_model", "masked",
 
 def jsonable(value: object, depth: int = 0) -> object:
     """``value`` as JSON-ready data: tensors and arrays of up to 64 values as lists, larger ones as a
-    summary (shape, mean, count of non-zeros), dataclasses and mappings recursively, the rest as text."""
+    summary (shape, mean, count of non-zeros), a noise model as its ``describe()``, dataclasses and mappings
+    recursively, the rest as text."""
     if depth > 6:
         return str(value)
     if value is None or isinstance(value, bool | int | str):
@@ -187,6 +188,8 @@ def jsonable(value: object, depth: int = 0) -> object:
         return value if math.isfinite(value) else str(value)
     if hasattr(value, "detach"):
         value = value.detach().cpu().numpy()
+    if hasattr(value, "describe"):  # a noise model: its JSON object
+        return jsonable(value.describe(), depth + 1)
     if isinstance(value, np.generic):
         return jsonable(value.item(), depth + 1)
     if isinstance(value, np.ndarray):
