@@ -104,8 +104,8 @@ class Artefacts:
 
     @property
     def within(self) -> tuple[str, ...]:
-        """The fixed effects the balance must use: ``"pixel"`` with a fixed pattern, ``"frame"`` after
-        offset steps (none for a clean video)."""
+        """The fixed effects the balance must use: ``"pixel"`` with a fixed pattern (in a video of at least
+        :data:`PIXEL_EFFECTS_FRAMES` frames), ``"frame"`` after offset steps (none for a clean video)."""
         return ("pixel",) * self.pixel_effects + ("frame",) * self.global_offsets
 
     def to_record(self) -> dict:
