@@ -115,7 +115,9 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
             resampled=video.meta.get("resampled"),
             calibration=video.meta.get("calibration"),
         )
-        found = diagnose_recording(video.frames, video.dt, video.dx, video.t)
+        found = diagnose_recording(
+            video.frames, video.dt, video.dx, video.t, measured_t=video.meta.get("measured_t")
+        )
         timeline_figure(out / f"{name}_phases.png".replace(" ", "_"), name, video, [f.phase for f in found])
         record["phases"] = []
         for phase in found:

@@ -18,7 +18,7 @@ import torch
 from anra_torch.cli import main
 from anra_torch.forecast import diagnose_recording
 from anra_torch.forecast.small_box import edge_explained, fit_small_box, forecast_small_box, harmonic_interior
-from anra_torch.video import recording_phases, save_npz
+from anra_torch.video import Phase, load_video, recording_phases, save_npz
 
 DT, DX, A = 0.1, 0.25, 0.3  # s, mm, mm^2/s
 
@@ -164,17 +164,75 @@ def test_cli_diagnoses_an_8x8_box_and_estimate_flags_it_unresolved(
     assert out["valid"] is False and out["diffusivity"] is None and "unresolved" in out["message"]
 
 
+def _sampled_heating(times: np.ndarray, off: float, size: int = 64, noise: float = 0.05) -> np.ndarray:
+    """Explicit FTCS heat equation (a = 0.12 mm^2/s, 0.55 mm px, zero-flux edges, 0.25 s steps) with a
+    Gaussian source on until ``off`` s, sampled exactly at ``times`` (s): a camera triggered irregularly."""
+    a, dx, h = 0.12, 0.55, 0.25
+    rng = np.random.default_rng(0)
+    y, x = np.mgrid[:size, :size] * dx
+    c = (size - 1) * dx / 2
+    q = 0.3 * np.exp(-((x - c) ** 2 + (y - c) ** 2) / (2 * 3.0**2))  # K/s
+    u, now, frames = np.full((size, size), 22.0), 0.0, []
+    for target in times:
+        while now < target - 1e-9:
+            p = np.pad(u, 1, mode="edge")
+            lap = (p[1:-1, 2:] + p[1:-1, :-2] + p[2:, 1:-1] + p[:-2, 1:-1] - 4 * u) / dx**2
+            u, now = u + h * (a * lap + (q if now < off else 0.0)), now + h
+        frames.append(u.copy())
+    return np.asarray(frames) + rng.normal(0, noise, (len(times), size, size))
+
+
+def test_resampled_phases_keep_no_frame_blended_across_the_switch() -> None:
+    from anra_torch.video.resample import measured_frames, measured_part
+
+    samples = [0.0, 5.0, 65.0, 75.0, 105.0, 120.0, 140.0, 145.0, 205.0, 215.0, 245.0]  # switch at 150 s
+    grid = torch.arange(0.0, 246.0, 15.0, dtype=torch.float64)  # the median step
+    heating = measured_part(Phase("heating", 0, 11, 0.0, 150.0), grid, samples)
+    cooling = measured_part(Phase("cooling", 11, 17, 165.0, 240.0), grid, samples)
+    # 150 s takes 1/12 of the 205 s sample (kept); 165-195 s take 17-67 % of the 145 s heating sample.
+    assert (heating.start, heating.stop, heating.t_stop) == (0, 11, 150.0)
+    assert (cooling.start, cooling.stop, cooling.t_start) == (14, 17, 210.0)
+    # A camera's jitter: 54.1 s and 59.0 s samples on a 5 s grid; 60 s is the 59 s sample itself.
+    jitter = measured_part(
+        Phase("cooling", 12, 14, 60.0, 65.0), torch.arange(0.0, 66.0, 5.0), [54.1, 59.0, 64.9]
+    )
+    assert (jitter.start, jitter.stop) == (12, 14)
+    # Scored: the frame nearest each sample; not the frames inside the 5-65 s and 145-205 s gaps.
+    measured = measured_frames(grid, samples)
+    assert grid[measured].tolist() == [0.0, 60.0, 75.0, 105.0, 120.0, 135.0, 150.0, 210.0, 240.0]
+    jittered = torch.tensor([0.0, 4.1, 9.1, 14.2, 19.1, 24.1])  # a hand-triggered camera: every frame
+    assert bool(measured_frames(torch.arange(6) * 4.82, jittered).all())
+
+
 @pytest.mark.slow
 def test_irregular_times_with_a_12x_step_range_need_no_flag(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    frames = _heated_then_cooled(off=1000, n=60)[::1]
-    steps = np.tile([5.0, 60.0, 10.0, 30.0], 15)[:59]  # 5-60 s apart
+    """Frames 5-60 s apart, simulated at those times: phases without blended frames, forecasts scored at
+    the measured samples, the cooling diffusivity of the simulation."""
+    steps = np.tile([5.0, 60.0, 15.0, 40.0], 15)  # resampled at 15 s: no sample midway between two frames
     t = np.concatenate([[0.0], np.cumsum(steps)])
-    path = save_npz(tmp_path / "sparse.npz", frames, dt=float(np.median(steps)), dx=DX, t=t)
+    t = t[t <= 600.0]  # 21 samples; the source switches off at 150 s, between the 125 s and 185 s samples
+    path = save_npz(tmp_path / "sparse.npz", _sampled_heating(t, off=150.0), dt=27.5, dx=0.55, t=t)
     assert main(["diagnose", str(path), "--json"]) == 0
     record = json.loads(capsys.readouterr().out)
-    assert record["input"]["resampled"]["from_frames"] == 60 and record["phases"]
+    assert record["input"]["resampled"]["from_frames"] == 21
+    assert [p["kind"] for p in record["phases"]] == ["heating", "cooling"]
+    cooling = record["phases"][1]
+    # Its first frame takes at most FOREIGN_WEIGHT (10 %) of its value from the 125 s heating sample.
+    assert cooling["t_start"] >= 185.0 - 0.1 * 60.0 and cooling["analysed"]
+    assert main(["estimate", str(path), "--json"]) == 0
+    estimate = json.loads(capsys.readouterr().out)
+    assert estimate["phase"] == "cooling" and estimate["diffusivity"] == pytest.approx(0.12, rel=0.05)
+    video = load_video(path, timestamps="resample")
+    (_, phase) = diagnose_recording(
+        video.frames, video.dt, video.dx, video.t, measured_t=video.meta["measured_t"]
+    )
+    scored = phase.result.scored
+    held = video.t[phase.phase.start : phase.phase.stop][phase.result.split + 1 :]
+    step = record["input"]["resampled"]["dt"]
+    expected = [float(x) for x in held if np.min(np.abs(t - float(x))) < step / 2]  # a sample nearest
+    assert scored is not None and [float(x) for x in held[scored]] == expected
 
 
 def test_effects_that_do_not_forecast_or_sit_outside_the_frame_are_flagged() -> None:

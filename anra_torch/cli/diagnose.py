@@ -109,6 +109,7 @@ def _phases(video: Video, args: argparse.Namespace) -> tuple[list[Any], Any]:
             video.t,
             fit_fraction=args.fit_fraction,
             assimilate=args.assimilate,
+            measured_t=video.meta.get("measured_t"),
         )
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err

@@ -334,7 +334,11 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     reading = _Reading(video, est, args.precision)
     # With --precision the recording is one phase: finding phases would read all of it.
-    phases = find_phases(_decimated(video.frames), video.t, dt=video.dt) if args.precision is None else []
+    phases = (
+        find_phases(_decimated(video.frames), video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
+        if args.precision is None
+        else []
+    )
     phases = phases or [
         Phase("recording", 0, video.frames.shape[0], 0.0, video.dt * (video.frames.shape[0] - 1))
     ]

@@ -308,23 +308,39 @@ def interior(video: Tensor, margin: int) -> Tensor:
     return video[..., margin : video.shape[-2] - margin, margin : video.shape[-1] - margin]
 
 
-def forecast_errors(predicted: Tensor, measured: Tensor, margin: int) -> tuple[Tensor, float, float]:
+def forecast_errors(
+    predicted: Tensor, measured: Tensor, margin: int, scored: Tensor | None = None
+) -> tuple[Tensor, float, float]:
     """Per-frame RMSE ``(K,)``, overall RMSE and sum of squared errors on the interior (:func:`interior`).
 
     Args:
         predicted: a forecast, in data units.
         measured: the frames it forecasts, in the same units and at the same scale.
         margin: pixels left out at each edge.
+        scored: which frames count in the overall RMSE and sum (the measured samples of a recording
+            resampled from irregular times, not the frames interpolated between them); None: all.
 
     Returns:
-        RMSE per frame (data units), RMSE over all frames (data units), sum of squared errors (data units^2).
+        RMSE per frame (data units, every frame), RMSE over the scored frames (data units), sum of squared
+        errors over them (data units^2).
+
+    Raises:
+        ValueError: ``scored`` of another length than the frames, or scoring no frame.
 
     Shape:
-        ``predicted``, ``measured`` ``(K, H, W)``.
+        ``predicted``, ``measured`` ``(K, H, W)``; ``scored`` ``(K,)`` bool.
     """
     diff = interior(predicted, margin) - interior(measured, margin)
     squared = diff.pow(2)
     per_frame = squared.mean((-2, -1)).sqrt()
+    if scored is not None:
+        scored = torch.as_tensor(scored, dtype=torch.bool)
+        if scored.shape != per_frame.shape or not bool(scored.any()):
+            raise ValueError(
+                f"scored must mark at least one of the {per_frame.numel()} forecast frames, got "
+                f"{int(scored.sum())} of {scored.numel()}: no measured sample among the held-out frames"
+            )
+        squared = squared[scored]
     return per_frame, float(squared.mean().sqrt()), float(squared.sum())
 
 

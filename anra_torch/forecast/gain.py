@@ -93,6 +93,9 @@ class GainResult:
             known material, and the final model's forecast RMSE above
             :data:`~anra_torch.flags.MODEL_FAILURE_RATIO` noise floors ("the model does not explain the
             data", with the ratio).
+        scored: for a recording resampled from irregular times, which held-out frames are measured
+            samples: the RMSEs, sums and gains are taken on those only (``rmse_base`` and
+            ``rmse_extended`` keep every frame, for figures); None: every held-out frame.
 
     Shape:
         ``times``, ``rmse_base``, ``rmse_extended`` ``(K,)``; ``predicted_*``, ``measured`` ``(K, H, W)``
@@ -128,6 +131,7 @@ class GainResult:
     time_window: int = 1
     assimilated: int = 1
     warnings: tuple[str, ...] = ()
+    scored: Tensor | None = None
 
     @property
     def held_out(self) -> int:
@@ -159,6 +163,7 @@ class _Forecasts:
     scale: float
     window: int
     assimilated: int
+    scored: Tensor | None = None  # which held-out frames are measured samples (None: all)
 
     def forecast(self, chosen: tuple[Effect, ...]) -> Tensor:
         """The held-out frames forecast from the assimilated state, full resolution: ``(T - s - 1, H, W)``."""
@@ -190,6 +195,7 @@ def assess_gain(
     scale_px: float | None = None,
     time_window: int | None = None,
     assimilate: int | None = None,
+    scored: Tensor | None = None,
 ) -> GainResult:
     """Diagnose the first part of a video and forecast the rest with the plain and the extended model.
 
@@ -207,6 +213,9 @@ def assess_gain(
         assimilate: the fit part's last frames assimilated into each model's starting state
             (:mod:`anra_torch.forecast.core`); 1 starts from the measured split frame; default all the
             fit part's frames.
+        scored: bool per frame of ``frames``: the measured samples of a recording resampled from
+            irregular times. The held-out frames are scored only there, each on its own
+            (``time_window`` must then be 1, the default); None scores every held-out frame.
 
     Returns:
         :class:`GainResult`.
@@ -246,13 +255,26 @@ def assess_gain(
         diagnosis, fit_duration=fit_duration, start=fit_duration, duration=(horizon - 1) * dt
     )
     scale = evaluation_scale(diagnosis, scale_px)
-    window = _frame_count(time_window, "time_window", TIME_WINDOW, horizon - 1)
+    window = _frame_count(time_window, "time_window", 1 if scored is not None else TIME_WINDOW, horizon - 1)
+    held_scored = _held_out_scored(scored, n_frames, split, window)
     n_assimilated = _frame_count(assimilate, "assimilate", split + 1, split + 1, cap=False)
     # Forecasts start from, and are scored against, frames without camera artefacts (a masked sample, a
     # spike, a dead element): the diagnosis repairs its own fit frames the same way.
     repaired = find_artefacts(video)[0]
-    run = _Forecasts(repaired, diagnosis, split, dt, dx, effects, scale, window, n_assimilated)
+    run = _Forecasts(repaired, diagnosis, split, dt, dx, effects, scale, window, n_assimilated, held_scored)
     return _scored(run, tick)
+
+
+def _held_out_scored(scored: Tensor | None, n_frames: int, split: int, window: int) -> Tensor | None:
+    """The held-out part of ``scored`` ``(T,)`` (None stays None), checked against the frames and window."""
+    if scored is None:
+        return None
+    scored = torch.as_tensor(scored, dtype=torch.bool)
+    if scored.shape != (n_frames,):
+        raise ValueError(f"scored must be one bool per frame ({n_frames},), got shape {tuple(scored.shape)}")
+    if window != 1:
+        raise ValueError(f"scored frames are scored each on its own: time_window must be 1, got {window}")
+    return scored[split + 1 :]
 
 
 def _scored(run: _Forecasts, tick: float) -> GainResult:
@@ -262,10 +284,11 @@ def _scored(run: _Forecasts, tick: float) -> GainResult:
     base_full = run.forecast(())
     extended_full = run.forecast(effects) if effects else base_full
     measured, base, extended = run.evaluate(raw), run.evaluate(base_full), run.evaluate(extended_full)
-    rmse_base, base_rmse, base_sse = forecast_errors(base, measured, m)
-    rmse_ext, ext_rmse, ext_sse = forecast_errors(extended, measured, m)
-    base_raw = forecast_errors(base_full, raw, m)[1]
-    ext_raw = forecast_errors(extended_full, raw, m)[1]
+    scored = run.scored
+    rmse_base, base_rmse, base_sse = forecast_errors(base, measured, m, scored)
+    rmse_ext, ext_rmse, ext_sse = forecast_errors(extended, measured, m, scored)
+    base_raw = forecast_errors(base_full, raw, m, scored)[1]
+    ext_raw = forecast_errors(extended_full, raw, m, scored)[1]
     found = bool(effects)
     gain = 1.0 - ext_rmse / base_rmse if found and base_rmse > 0 else 0.0
     effect_gains = _effect_gains(run, measured, base_rmse, gain)
@@ -310,6 +333,7 @@ def _scored(run: _Forecasts, tick: float) -> GainResult:
         assimilated=run.assimilated,
         elapsed=time.perf_counter() - tick,
         warnings=_warnings(run, ext_rmse, floor),
+        scored=scored,
     )
 
 
@@ -338,6 +362,6 @@ def _effect_gains(run: _Forecasts, measured: Tensor, base_rmse: float, gain: flo
     for effect in run.effects:
         others = tuple(e for e in run.effects if e is not effect)
         without = run.evaluate(run.forecast(others))
-        rmse = forecast_errors(without, measured, run.diagnosis.margin)[1]
+        rmse = forecast_errors(without, measured, run.diagnosis.margin, run.scored)[1]
         gains.append((rmse - extended_rmse) / base_rmse)
     return tuple(gains)

@@ -20,6 +20,7 @@ Every phase's :meth:`PhaseDiagnosis.to_record` is the ``"phases"`` element of ``
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,6 +34,7 @@ from anra_torch.forecast.small_box import fit_small_box, forecast_small_box, unr
 from anra_torch.forecast.source_map import source_map_gain
 from anra_torch.selection import minimum_frame_size
 from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, recording_phases
+from anra_torch.video.resample import measured_frames, measured_part
 
 __all__ = ["PhaseDiagnosis", "diagnose_recording", "find_phases"]
 
@@ -122,7 +124,13 @@ class PhaseDiagnosis:
         return record
 
 
-def find_phases(frames: Tensor, t: Tensor | None = None, *, dt: float | None = None) -> list[Phase]:
+def find_phases(
+    frames: Tensor,
+    t: Tensor | None = None,
+    *,
+    dt: float | None = None,
+    measured_t: Sequence[float] | Tensor | None = None,
+) -> list[Phase]:
     """:func:`~anra_torch.video.recording_phases` of the frames with their camera artefacts repaired
     (:func:`~anra_torch.balance.artefacts.find_artefacts`): a spike or a hot element is not a heat source.
 
@@ -130,6 +138,8 @@ def find_phases(frames: Tensor, t: Tensor | None = None, *, dt: float | None = N
         frames: the recording.
         t: frame times in s; default ``k dt`` (frame numbers without ``dt``).
         dt: frame period in s, for the phases' times when ``t`` is None.
+        measured_t: for resampled frames, the measured samples' times in s: each phase keeps only the
+            frames interpolated from its own samples (:func:`~anra_torch.video.resample.measured_part`).
 
     Shape:
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
@@ -137,7 +147,10 @@ def find_phases(frames: Tensor, t: Tensor | None = None, *, dt: float | None = N
     video = torch.as_tensor(frames)
     if t is None and dt is not None:
         t = torch.arange(video.shape[0], dtype=_F64) * dt
-    return recording_phases(_repaired(video), t)
+    phases = recording_phases(_repaired(video), t)
+    if measured_t is None or t is None:
+        return phases
+    return [measured_part(phase, t, measured_t) for phase in phases]
 
 
 def _repaired(video: Tensor) -> Tensor:
@@ -154,6 +167,7 @@ def diagnose_recording(
     fit_fraction: float = 0.6,
     assimilate: int | None = None,
     phases: list[Phase] | None = None,
+    measured_t: Sequence[float] | Tensor | None = None,
 ) -> list[PhaseDiagnosis]:
     """Diagnose every phase of a recording on its own (see the module text).
 
@@ -165,6 +179,8 @@ def diagnose_recording(
         fit_fraction: each phase's fraction diagnosed; the rest is held out.
         assimilate: frames assimilated into the balance forecasts' starting state (default: adapted).
         phases: the phases (default :func:`find_phases`).
+        measured_t: for frames resampled from irregular timestamps, the measured samples' times in s
+            (``Video.meta["measured_t"]``): no phase keeps a frame blended from another phase's samples.
 
     Returns:
         One :class:`PhaseDiagnosis` per phase, in time order.
@@ -174,9 +190,12 @@ def diagnose_recording(
     """
     video = torch.as_tensor(frames).to(_F64)
     repaired = _repaired(video)  # once: the phases, the small boxes and the source map need finite frames
+    times = torch.arange(video.shape[0], dtype=_F64) * dt if t is None else torch.as_tensor(t)
     if phases is None:
-        times = torch.arange(video.shape[0], dtype=_F64) * dt if t is None else t
         phases = recording_phases(repaired, times)
+        if measured_t is not None:
+            phases = [measured_part(phase, times, measured_t) for phase in phases]
+    sampled = None if measured_t is None else measured_frames(times, measured_t)
     out = []
     for phase in phases:
         if phase.frames < MIN_PHASE_FRAMES:
@@ -184,9 +203,11 @@ def diagnose_recording(
             out.append(PhaseDiagnosis(phase, "none", reason=reason))
             continue
         part, clean = video[phase.start : phase.stop], repaired[phase.start : phase.stop]
+        scored = None if sampled is None else sampled[phase.start : phase.stop]
+        scored = None if scored is None or bool(scored.all()) else scored
         try:
             if min(part.shape[1:]) >= minimum_frame_size():  # it repairs and reports the artefacts itself
-                out.append(_balance_phase(phase, part, clean, dt, dx, fit_fraction, assimilate))
+                out.append(_balance_phase(phase, part, clean, dt, dx, fit_fraction, assimilate, scored))
             else:
                 out.append(_small_box_phase(phase, clean, dt, dx, fit_fraction))
         except ValueError as err:
@@ -206,12 +227,18 @@ def _balance_phase(
     dx: float,
     fit_fraction: float,
     assimilate: int | None,
+    scored: Tensor | None = None,
 ) -> PhaseDiagnosis:
     """The balance family: assess_gain; the source map (on ``clean``, the repaired frames: it needs finite
-    ones) against the parametric source when a source acts."""
+    ones) against the parametric source when a source acts. ``scored``: the phase's frames that are measured
+    samples (resampled irregular times): forecasts are scored there only, each frame on its own."""
     held_out = part.shape[0] - 1 - split_index(part.shape[0], fit_fraction)
     sparse = held_out < TIME_WINDOW  # frames seconds apart: a few frames already span the dynamics
-    options = {"time_window": 1, "assimilate": assimilate or 1} if sparse else {"assimilate": assimilate}
+    options: dict[str, Any] = (
+        {"time_window": 1, "assimilate": assimilate or 1} if sparse else {"assimilate": assimilate}
+    )
+    if scored is not None:
+        options.update(time_window=1, scored=scored)
     result = assess_gain(part, dt, dx, fit_fraction=fit_fraction, **options)
     names = [e["name"] for e in result.diagnosis.effects]
     effects = [
@@ -283,6 +310,8 @@ def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, optio
     """Validation RMSE of the parametric extension and the source map on a split inside the fit frames."""
     # At least 5 frames to diagnose (the time filter), the rest (at least 2) validates.
     inner_fraction = max(fit_fraction, 4 / (fit.shape[0] - 1))
+    if options.get("scored") is not None:
+        options = {**options, "scored": options["scored"][: fit.shape[0]]}
     inner = assess_gain(fit, dt, dx, fit_fraction=inner_fraction, **options)
     return {"parametric": inner.extended_rmse, "source_map": source_map_gain(fit, dt, dx, inner).rmse}
 

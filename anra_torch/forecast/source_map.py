@@ -239,6 +239,6 @@ def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) ->
     )
     forecast = model.forecast(initial, dt=dt, dx=dx, n_frames=held_out + 1)[1:]
     predicted = time_average(forecast, result.time_window)
-    rmse = forecast_errors(predicted, result.measured, m)[1]
+    rmse = forecast_errors(predicted, result.measured, m, result.scored)[1]
     gain = 1.0 - rmse / result.base_rmse if result.base_rmse > 0 else 0.0
     return SourceMapGain(model=model, predicted=predicted, rmse=rmse, gain=gain)
