@@ -717,3 +717,32 @@ def test_heterogeneity_sample_puts_the_disc_edge_near_the_first_hot_spot() -> No
         radius = p["radius"] / 0.5
         assert 8.0 <= radius <= 20.0 and centre <= 0.5 * radius + 1e-9
         assert abs(radius - centre) <= 2.0 * sigma + 1e-9, (seed, radius, centre, sigma)
+
+
+def _spreading_gaussian(
+    t: np.ndarray, size: int, dx: float, a: float, centre: tuple[float, float]
+) -> torch.Tensor:
+    """The heat equation's exact solution on an unbounded plane: a Gaussian of 0.6 mm sigma at t = 0."""
+    y, x = np.mgrid[:size, :size] * dx
+    var = 0.6**2 + 2 * a * t[:, None, None]
+    r2 = (x - centre[0]) ** 2 + (y - centre[1]) ** 2
+    return torch.from_numpy(20.0 + 5.0 * 0.6**2 / var * np.exp(-r2 / (2 * var)))
+
+
+def test_measured_edges_bound_a_crop_of_an_unbounded_field() -> None:
+    """A 32 px window on a spreading Gaussian that crosses its edges: with the exact field's edge ring as
+    the boundary the interior follows the exact solution; zero-flux edges keep the heat in."""
+    a, dx, dt = 0.15, 0.1, 0.05
+    t = np.arange(41) * dt
+    exact = _spreading_gaussian(t, 32, dx, a, centre=(0.8, 1.2))  # near a corner: heat leaves the window
+    inner = (slice(None), slice(3, -3), slice(3, -3))
+    change = float((exact[-1] - exact[0])[inner[1:]].abs().max())
+    bounded = simulate_effects(exact[0], a=a, dx=dx, dt=dt, n_frames=41, edges=exact)
+    closed = simulate_effects(exact[0], a=a, dx=dx, dt=dt, n_frames=41)
+    assert float((bounded - exact)[inner].abs().max()) < 0.01 * change  # the 5-point Laplacian's error
+    assert float((closed - exact)[inner].abs().max()) > 0.1 * change
+    torch.testing.assert_close(bounded[:, 0], exact[:, 0], rtol=0, atol=1e-9)  # the ring is the measured ring
+    with pytest.raises(ValueError, match=r"edges must be the measured frames of shape \(41, 32, 32\)"):
+        simulate_effects(exact[0], a=a, dx=dx, dt=dt, n_frames=41, edges=exact[:40])
+    with pytest.raises(ValueError, match="edges must be finite"):
+        simulate_effects(exact[0], a=a, dx=dx, dt=dt, n_frames=41, edges=exact * math.nan)

@@ -47,7 +47,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="find hidden effects and test whether they forecast held-out frames better",
         description="Diagnose which effects beyond heat diffusion (linear_loss, source, advection, "
         "anisotropy, heterogeneity, nonlinear_diffusion) act in the first part of a video, then forecast "
-        "the rest with the plain heat equation and with the extended model (RK4, zero-flux edges), each "
+        "the rest with the plain heat equation and with the extended model (RK4, bounded by the measured "
+        "frame edges), each "
         "from its own state assimilated from the fit frames, and compare their RMSE on the interior at "
         "the evaluation scale (forecasts and held-out frames smoothed alike by the diagnosis' Gaussian "
         "and a 9-frame moving average in time). gain = 1 - RMSE_extended / "

@@ -305,6 +305,7 @@ def simulate_effects(
     boundary_value: float = 0.0,
     substeps: int | None = None,
     forcing: Tensor | None = None,
+    edges: Tensor | None = None,
 ) -> Tensor:
     """Simulate a thermal video of ``dT/dt = D[T] + sum of effect terms (+ forcing)`` (method of lines, RK4).
 
@@ -326,12 +327,15 @@ def simulate_effects(
         forcing: a stationary heat-input map in data units per s, added to the right-hand side at every
             pixel (e.g. a measured source map, :mod:`anra_torch.forecast.source_map`); it does not change
             stability.
+        edges: measured frames whose outermost pixel ring the simulation follows (linearly in time): a
+            measured boundary for the pixels inside (``boundary`` then no longer matters).
 
     Returns:
-        The video in the dtype of ``initial``.
+        The video in the dtype of ``initial`` (with ``edges``, its ring is ``edges``' ring).
 
     Shape:
-        ``initial`` ``(B, H, W)`` -> output ``(B, T, H, W)`` (no ``B``: unbatched); ``forcing`` ``(H, W)``.
+        ``initial`` ``(B, H, W)`` -> output ``(B, T, H, W)`` (no ``B``: unbatched); ``forcing`` ``(H, W)``;
+        ``edges`` ``(B, T, H, W)`` (no ``B``: ``(T, H, W)``).
 
     Raises:
         TypeError: ``initial`` not real numbers, effects not :class:`Effect`.
@@ -365,8 +369,47 @@ def simulate_effects(
     if forcing is not None:
         heat, step_input = rhs, forcing * (dt / substeps)
         rhs = lambda t, u: heat(t, u) + step_input  # noqa: E731
-    out = integrate(rhs, u0, n_frames=n_frames, substeps=substeps).movedim(0, 1)  # (B, T, H, W)
+    if edges is not None:
+        rhs, u0 = _following(rhs, u0, _check_edges(edges, u0, batched, n_frames), substeps)
+    out = integrate(rhs, u0, n_frames=n_frames, substeps=substeps, perturb=edges is not None).movedim(0, 1)
     return out if batched else out[0]
+
+
+def _check_edges(edges: object, like: Tensor, batched: bool, n_frames: int) -> Tensor:
+    """Finite frames ``(T, B, H, W)`` in ``like``'s dtype, from ``(B, T, H, W)`` (or ``(T, H, W)``)."""
+    edges = torch.as_tensor(edges)
+    batch, height, width = like.shape
+    shape = (batch, n_frames, height, width) if batched else (n_frames, height, width)
+    if tuple(edges.shape) != shape:
+        raise ValueError(
+            f"edges must be the measured frames of shape {shape} (frames, rows, columns), "
+            f"got shape {tuple(edges.shape)}"
+        )
+    if not bool(torch.isfinite(edges).all()):
+        raise ValueError("edges must be finite measured frames, got non-finite values; repair them first")
+    edges = edges.to(like.dtype)
+    return edges.movedim(1, 0) if batched else edges.unsqueeze(1)
+
+
+def _following(
+    rhs: Callable[[Tensor, Tensor], Tensor], u0: Tensor, edges: Tensor, substeps: int
+) -> tuple[Callable[[Tensor, Tensor], Tensor], Tensor]:
+    """``rhs`` whose outermost ring follows ``edges`` ``(T, B, H, W)``, and ``u0`` with their first ring.
+
+    The ring's rate is the measured change over the frame interval the solver's time is in (constant
+    there, so RK4 follows the linear interpolation exactly; the integrator perturbs stage times into
+    the step so each stage sees its own interval).
+    """
+    ring = torch.ones(u0.shape[-2:], dtype=torch.bool)
+    ring[1:-1, 1:-1] = False
+    per_substep = (edges[1:] - edges[:-1]) / substeps  # (T - 1, B, H, W), change per solver time unit
+    last = max(per_substep.shape[0] - 1, 0)
+
+    def following(t: Tensor, u: Tensor) -> Tensor:
+        interval = min(max(int(float(t) // substeps), 0), last)
+        return torch.where(ring, per_substep[interval], rhs(t, u))
+
+    return following, torch.where(ring, edges[0], u0)
 
 
 def _check_forcing(forcing: object, like: Tensor) -> Tensor:

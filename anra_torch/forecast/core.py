@@ -21,8 +21,14 @@ error into the state, which is its forecast error too. (A least-squares line in 
 frames also averaged noise, but lagged wherever the field curves in time: fast sources and advection
 were forecast worse.) ``assimilate=1`` starts the forecast from the measured split frame.
 
+**Boundary.** A camera's frame edge is not insulated: heat crosses it, and only the measured frames say
+how much. Every forecast's outermost pixel ring follows the measured frames (linearly in time between
+them), a measured Dirichlet boundary for the pixels inside; the plain and the extended model share it.
+(Zero-flux edges kept heat in that left a flash plate's 20 mm frame within seconds: effects acting near
+the edges got own gains at or below zero.)
+
 **Evaluation scale.** Errors are taken on the interior (``diagnosis.margin`` px from each edge are left out:
-there the zero-flux boundary is an assumption, not a measurement, :func:`forecast_errors`) and at the
+there the measured ring's noise and the filters' reach dominate, :func:`forecast_errors`) and at the
 evaluation scale: the spatial Gaussian the diagnosis identified the model at (``diagnosis.smoothing`` px, or
 ``scale_px``, :func:`at_scale`), then a moving average of :data:`TIME_WINDOW` frames in time
 (:func:`time_average`), applied in the same way to the forecasts and to the held-out frames. The forecasts
@@ -193,8 +199,9 @@ def simulate_model(
     dx: float,
     n_frames: int,
     effects: tuple[Effect, ...] | None = None,
+    edges: Tensor | None = None,
 ) -> Tensor:
-    """Forecast ``n_frames`` frames from ``initial`` with the diagnosis' model (zero-flux edges).
+    """Forecast ``n_frames`` frames from ``initial`` with the diagnosis' model, bounded by measured edges.
 
     Args:
         initial: the measured first frame.
@@ -204,12 +211,14 @@ def simulate_model(
         dx: pixel size in mm.
         n_frames: frames to return, ``initial`` included.
         effects: the effects to include (already re-timed); None: all of :func:`extended_effects`.
+        edges: the measured frames of the forecast's span; their outermost pixel ring is the forecast's
+            boundary (:func:`anra_torch.effects.simulate_effects`). None: zero-flux edges.
 
     Returns:
         The forecast in float64.
 
     Shape:
-        ``initial`` ``(H, W)``; output ``(n_frames, H, W)``.
+        ``initial`` ``(H, W)``; ``edges`` ``(n_frames, H, W)``; output ``(n_frames, H, W)``.
 
     Raises:
         ValueError: a model that cannot be simulated (e.g. a fitted ``a(T)`` negative over the video's
@@ -226,6 +235,7 @@ def simulate_model(
             n_frames=n_frames,
             effects=chosen,
             boundary="neumann",
+            edges=edges,
         )
     except ValueError as err:  # e.g. a fitted a(T) that turns negative over the video's temperatures
         raise _unphysical(f"the diagnosed model cannot be simulated: {err}") from err
@@ -300,7 +310,7 @@ def time_average(frames: Tensor, window: int) -> Tensor:
 
 
 def interior(video: Tensor, margin: int) -> Tensor:
-    """The frames without ``margin`` px at each edge, where the zero-flux boundary is assumed, not measured.
+    """The frames without ``margin`` px at each edge (the forecasts' boundary ring and the filters' reach).
 
     Shape:
         ``(..., H, W)`` -> ``(..., H - 2 margin, W - 2 margin)``.

@@ -2,11 +2,11 @@
 
 :func:`anra_torch.selection.diagnose_terms` selects effects from how well the PDE balances on the frames.
 :func:`assess_gain` asks the question a user cares about: simulate forward
-(:func:`anra_torch.effects.simulate_effects`, RK4, zero-flux edges) from the fit part with the plain heat
-equation (``a_plain``) and with the extended model (``base`` plus the effects found), and compare both
-forecasts with frames the diagnosis never saw. The split, the assimilated starting states, the evaluation
-scale and the noise floor are those of :mod:`anra_torch.forecast.core`; the same quantities against the raw
-frames (the same forecasts unsmoothed, noise floor = sensor sd) are kept as ``*_raw``.
+(:func:`anra_torch.effects.simulate_effects`, RK4, bounded by the measured frame edges) from the fit part
+with the plain heat equation (``a_plain``) and with the extended model (``base`` plus the effects found),
+and compare both forecasts with frames the diagnosis never saw. The split, the assimilated starting states,
+the evaluation scale and the noise floor are those of :mod:`anra_torch.forecast.core`; the same quantities
+against the raw frames (the same forecasts unsmoothed, noise floor = sensor sd) are kept as ``*_raw``.
 
 Measured with ``python experiments/diagnosis_benchmark.py`` (README): see its table.
 About 1-5 s per video on one core.
@@ -166,7 +166,8 @@ class _Forecasts:
     scored: Tensor | None = None  # which held-out frames are measured samples (None: all)
 
     def forecast(self, chosen: tuple[Effect, ...]) -> Tensor:
-        """The held-out frames forecast from the assimilated state, full resolution: ``(T - s - 1, H, W)``."""
+        """The held-out frames forecast from the assimilated state, full resolution: ``(T - s - 1, H, W)``;
+        the frame's outermost pixel ring follows the measured frames (heat crosses a camera's frame edge)."""
         diagnosis, dt, dx = self.diagnosis, self.dt, self.dx
         fit_duration = self.split * dt
         names = {effect.name for effect in chosen}
@@ -174,11 +175,17 @@ class _Forecasts:
         def step(frame: int, state: Tensor) -> Tensor:  # one frame ahead from frame ``frame``
             retimed = extended_effects(diagnosis, fit_duration=fit_duration, start=frame * dt, duration=dt)
             effects_now = tuple(e for e in retimed if e.name in names)
-            return simulate_model(state, diagnosis, dt=dt, dx=dx, n_frames=2, effects=effects_now)[1]
+            edges = self.video[frame : frame + 2]
+            return simulate_model(
+                state, diagnosis, dt=dt, dx=dx, n_frames=2, effects=effects_now, edges=edges
+            )[1]
 
         initial = assimilated_state(self.video[: self.split + 1], step, self.assimilated)
         horizon = self.video.shape[0] - self.split
-        return simulate_model(initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=chosen)[1:]
+        edges = self.video[self.split :]
+        return simulate_model(
+            initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=chosen, edges=edges
+        )[1:]
 
     def evaluate(self, frames: Tensor) -> Tensor:
         """``frames`` at the evaluation scale: smoothed in space, averaged in time."""

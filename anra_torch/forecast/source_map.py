@@ -23,7 +23,8 @@ scale:
 The map has one value per pixel and needs at least two rates (four frames) per pixel; within ``margin`` px
 of the edges, where the filters do not reach, it repeats the nearest interior value (a zero there would pull
 those pixels towards 0 through ``- b T``). :meth:`SourceMapModel.forecast` simulates it with
-:func:`anra_torch.effects.simulate_effects` (zero-flux edges).
+:func:`anra_torch.effects.simulate_effects`, bounded by the measured frame edges like every held-out
+forecast.
 """
 
 from __future__ import annotations
@@ -80,11 +81,16 @@ class SourceMapModel:
         """
         return self.forcing / self.b if self.b > 0 else torch.full_like(self.forcing, math.nan)
 
-    def forecast(self, initial: Tensor, *, dt: float, dx: float, n_frames: int) -> Tensor:
-        """Simulate ``n_frames`` frames from ``initial`` (frame 0 included), zero-flux edges, float64.
+    def forecast(
+        self, initial: Tensor, *, dt: float, dx: float, n_frames: int, edges: Tensor | None = None
+    ) -> Tensor:
+        """Simulate ``n_frames`` frames from ``initial`` (frame 0 included), float64.
+
+        ``edges``: measured frames over the same span whose outermost pixel ring bounds the forecast
+        (:func:`anra_torch.effects.simulate_effects`); None: zero-flux edges.
 
         Shape:
-            ``initial`` ``(H, W)``; output ``(n_frames, H, W)``.
+            ``initial`` ``(H, W)``; ``edges`` ``(n_frames, H, W)``; output ``(n_frames, H, W)``.
         """
         loss = (Effect("linear_loss", {"b": self.b, "T_ref": 0.0}),) if self.b > 0 else ()
         return simulate_effects(
@@ -95,6 +101,7 @@ class SourceMapModel:
             n_frames=n_frames,
             effects=loss,
             forcing=self.forcing,
+            edges=edges,
         )
 
 
@@ -232,12 +239,16 @@ def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) ->
     model = fit_source_map(video[: split + 1], dt, dx, scale_px=scale, margin=max(m, 1))
     # The map is fitted at the evaluation scale: its forecast starts from the smoothed fit frames,
     # assimilated like ``result``'s (the split frame itself when ``result.assimilated`` is 1).
+    # Bounded by the measured (smoothed) frame edges, like the plain and extended forecasts.
     n = result.assimilated
-    smoothed = at_scale(video[split + 1 - n : split + 1], scale)
-    initial = assimilated_state(
-        smoothed, lambda _, state: model.forecast(state, dt=dt, dx=dx, n_frames=2)[1], n
-    )
-    forecast = model.forecast(initial, dt=dt, dx=dx, n_frames=held_out + 1)[1:]
+    smoothed = at_scale(video[split + 1 - n :], scale)
+
+    def step(frame: int, state: Tensor) -> Tensor:
+        return model.forecast(state, dt=dt, dx=dx, n_frames=2, edges=smoothed[frame : frame + 2])[1]
+
+    initial = assimilated_state(smoothed[:n], step, n)
+    edges = smoothed[n - 1 :]
+    forecast = model.forecast(initial, dt=dt, dx=dx, n_frames=held_out + 1, edges=edges)[1:]
     predicted = time_average(forecast, result.time_window)
     rmse = forecast_errors(predicted, result.measured, m, result.scored)[1]
     gain = 1.0 - rmse / result.base_rmse if result.base_rmse > 0 else 0.0
