@@ -231,8 +231,7 @@ def diagnose_terms(
     # Localised shapes are refitted to the final model (without themselves).
     for name in list(selection.shapes):
         if name in selection.selected:
-            others = [e for e in selection.selected if e != name]
-            selection.prepare(name, system.fit(selection.columns(others)), refine=True)
+            selection.refit(name)
     selection.drop_unphysical()
     return _result(system, selection, plain, artefacts)
 

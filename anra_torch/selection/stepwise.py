@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 from torch import Tensor
 
@@ -31,6 +32,7 @@ class Selection:
         frames = system.frames.detach()
         self.span = (float(frames.min()), float(frames.max()))  # the temperatures the video reaches
         self.thetas: dict[str, Tensor] = {}
+        self.fitted: dict[str, Any] = {}  # each shaped effect's last fitted shape (term, noise, params)
         self.scores: dict[str, float] = {}
         self.thresholds: dict[str, float] = {}
         self.negligible: dict[str, dict] = {}  # significant and physical, but below their physical size
@@ -106,9 +108,35 @@ class Selection:
         if group.shape is None:
             return
         fitted = group.shape(self.system, current, self.thetas.get(name) if refine else None)
-        self.system.add(group.regressors[0], fitted.term, fitted.noise)
+        self._use(name, fitted)
+
+    def _use(self, name: str, fitted: Any) -> None:
+        """Put a fitted shape's term into the balance and keep its parameters."""
+        self.system.add(EFFECTS[name].regressors[0], fitted.term, fitted.noise)
         self.shapes[name] = fitted.params
         self.thetas[name] = fitted.theta
+        self.fitted[name] = fitted
+
+    def unphysical(self) -> set[str]:
+        """The selected effects whose parameters in the current fit are not physical."""
+        coefficients = self.system.fit(self.columns(self.selected)).coefficients()
+        context = self.context()
+        return {
+            n
+            for n in self.selected
+            if not self.physical(n, EFFECTS[n].from_coefficients(coefficients, context))
+        }
+
+    def refit(self, name: str) -> None:
+        """Refit a selected effect's shape to the final model without it, unless that makes another
+        selected effect unphysical: then the shape of the forward search is kept. (An intact flash plate's
+        depth shape refitted without itself turned its loss rate and then its a_y negative, and both were
+        dropped.)"""
+        before, bad = self.fitted.get(name), self.unphysical()
+        others = [e for e in self.selected if e != name]
+        self.prepare(name, self.system.fit(self.columns(others)), refine=True)
+        if before is not None and self.unphysical() - bad:
+            self._use(name, before)
 
     def forward(self) -> None:
         while True:
