@@ -301,3 +301,39 @@ def test_a_significant_effect_below_its_physical_size_is_listed_as_negligible() 
     assert all(n["size"] < n["min_size"] for n in small.negligible)
     assert small.scores["nonlinear_diffusion"] > small.thresholds["nonlinear_diffusion"]  # significant
     assert large.names == ["nonlinear_diffusion"] and large.negligible == []
+
+
+def test_a_refitted_shape_that_makes_another_effect_unphysical_is_not_kept() -> None:
+    """The final refit of a shape is kept unless it turns another selected effect unphysical (on an intact
+    flash plate the refitted depth shape turned the loss rate negative, then a_y: both were dropped)."""
+    from anra_torch.selection.stepwise import Selection
+
+    class Shapes(Selection):
+        def __init__(self, after: set[str]) -> None:  # no balance: only the refit's decision
+            self.selected, self.after = ["depth_conduction", "linear_loss"], after
+            self.fitted, self.used = {"depth_conduction": "forward shape"}, []
+
+        def unphysical(self) -> set[str]:
+            return self.after if self.fitted["depth_conduction"] == "refitted shape" else set()
+
+        def columns(self, effects: list[str]) -> list[str]:
+            return list(effects)
+
+        @property
+        def system(self):  # noqa: ANN201
+            return type("System", (), {"fit": staticmethod(lambda columns: columns)})
+
+        def prepare(self, name: str, current: object, *, refine: bool = False) -> None:
+            assert refine and current == ["linear_loss"]  # refitted to the model without itself
+            self._use(name, "refitted shape")
+
+        def _use(self, name: str, fitted: object) -> None:
+            self.fitted[name] = fitted
+            self.used.append(fitted)
+
+    turns_bad = Shapes(after={"linear_loss"})
+    turns_bad.refit("depth_conduction")
+    assert turns_bad.used == ["refitted shape", "forward shape"]
+    harmless = Shapes(after=set())
+    harmless.refit("depth_conduction")
+    assert harmless.used == ["refitted shape"]
