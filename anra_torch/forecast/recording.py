@@ -147,7 +147,13 @@ def find_phases(
     video = torch.as_tensor(frames)
     if t is None and dt is not None:
         t = torch.arange(video.shape[0], dtype=_F64) * dt
-    phases = recording_phases(_repaired(video), t)
+    return _phases(_repaired(video), t, measured_t)
+
+
+def _phases(repaired: Tensor, t: Tensor | None, measured_t: Sequence[float] | Tensor | None) -> list[Phase]:
+    """The phases of the repaired frames; of resampled frames, each without frames blended from another
+    phase's samples (:func:`~anra_torch.video.resample.measured_part`)."""
+    phases = recording_phases(repaired, t)
     if measured_t is None or t is None:
         return phases
     return [measured_part(phase, t, measured_t) for phase in phases]
@@ -192,9 +198,7 @@ def diagnose_recording(
     repaired = _repaired(video)  # once: the phases, the small boxes and the source map need finite frames
     times = torch.arange(video.shape[0], dtype=_F64) * dt if t is None else torch.as_tensor(t)
     if phases is None:
-        phases = recording_phases(repaired, times)
-        if measured_t is not None:
-            phases = [measured_part(phase, times, measured_t) for phase in phases]
+        phases = _phases(repaired, times, measured_t)
     sampled = None if measured_t is None else measured_frames(times, measured_t)
     out = []
     for phase in phases:

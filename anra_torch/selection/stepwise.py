@@ -11,13 +11,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
-
-from torch import Tensor
 
 from anra_torch.balance.system import BalanceSystem, Fit
 from anra_torch.effects import EFFECTS
-from anra_torch.effects.base import Context
+from anra_torch.effects.base import Context, Shape
 from anra_torch.selection.statistics import search_discount, wald_score
 
 __all__ = ["Selection"]
@@ -31,8 +28,7 @@ class Selection:
         self.selected: list[str] = []
         frames = system.frames.detach()
         self.span = (float(frames.min()), float(frames.max()))  # the temperatures the video reaches
-        self.thetas: dict[str, Tensor] = {}
-        self.fitted: dict[str, Any] = {}  # each shaped effect's last fitted shape (term, noise, params)
+        self.fitted: dict[str, Shape] = {}  # each localised effect's last fitted shape
         self.scores: dict[str, float] = {}
         self.thresholds: dict[str, float] = {}
         self.negligible: dict[str, dict] = {}  # significant and physical, but below their physical size
@@ -107,25 +103,27 @@ class Selection:
         group = EFFECTS[name]
         if group.shape is None:
             return
-        fitted = group.shape(self.system, current, self.thetas.get(name) if refine else None)
+        start = self.fitted[name].theta if refine and name in self.fitted else None
+        fitted = group.shape(self.system, current, start)
         self._use(name, fitted)
 
-    def _use(self, name: str, fitted: Any) -> None:
+    def _use(self, name: str, fitted: Shape) -> None:
         """Put a fitted shape's term into the balance and keep its parameters."""
         self.system.add(EFFECTS[name].regressors[0], fitted.term, fitted.noise)
         self.shapes[name] = fitted.params
-        self.thetas[name] = fitted.theta
         self.fitted[name] = fitted
 
-    def unphysical(self) -> set[str]:
-        """The selected effects whose parameters in the current fit are not physical."""
+    def unphysical(self, *, material: bool = False) -> set[str]:
+        """The selected effects whose parameters in the current fit are not physical (or, with
+        ``material``, below their physical size: :meth:`material` then updates :attr:`negligible`)."""
         coefficients = self.system.fit(self.columns(self.selected)).coefficients()
         context = self.context()
-        return {
-            n
-            for n in self.selected
-            if not self.physical(n, EFFECTS[n].from_coefficients(coefficients, context))
-        }
+        bad = set()
+        for name in self.selected:
+            params = EFFECTS[name].from_coefficients(coefficients, context)
+            if not (self.physical(name, params) and (not material or self.material(name, params))):
+                bad.add(name)
+        return bad
 
     def refit(self, name: str) -> None:
         """Refit a selected effect's shape to the final model without it, unless that makes another
@@ -147,7 +145,7 @@ class Selection:
             current_excess = current.rss - self.system.expected_rss(current)
             eligible = {}
             for name in candidates:
-                self.prepare(name, current, refine=name in self.thetas)
+                self.prepare(name, current, refine=name in self.fitted)
                 fit = self.system.fit(self.columns([*self.selected, name]))
                 self.scores[name] = wald_score(fit, EFFECTS[name].regressors)
                 self.thresholds[name] = self.threshold(name, len(candidates))
@@ -173,15 +171,7 @@ class Selection:
         """Remove, one at a time, effects whose parameters in the final fit are not physical, or below their
         physical size (the fit moves when other effects leave or shapes are refitted): the one with the
         lowest score first."""
-        while self.selected:
-            coefficients = self.system.fit(self.columns(self.selected)).coefficients()
-            bad = []
-            for name in self.selected:
-                params = EFFECTS[name].from_coefficients(coefficients, self.context())
-                if not (self.physical(name, params) and self.material(name, params)):
-                    bad.append(name)
-            if not bad:
-                return
+        while bad := self.unphysical(material=True):
             self.selected.remove(min(bad, key=lambda name: self.scores.get(name, 0.0)))
 
     def backward(self) -> Fit:

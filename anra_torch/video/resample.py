@@ -54,9 +54,8 @@ def resample_uniform(video: Video, dt: float | None = None) -> Video:
     if n < 2:
         raise ValueError(f"{video.name}: resampling at dt = {step:g} s leaves {n} frame; choose a smaller dt")
     grid = t[0] + step * torch.arange(n, dtype=torch.float64)
-    right = torch.searchsorted(t, grid, right=True).clamp(1, t.numel() - 1)
-    left = right - 1
-    weight = ((grid - t[left]) / (t[right] - t[left])).clamp(0, 1).view(-1, 1, 1)
+    left, right, weight = _brackets(t, grid)
+    weight = weight.view(-1, 1, 1)
 
     def interpolate(frames: Tensor) -> Tensor:
         frames = frames.double()
@@ -102,13 +101,9 @@ def measured_part(phase: Phase, t: Tensor, measured_t: Sequence[float] | Tensor)
     samples = torch.as_tensor(measured_t, dtype=torch.float64)
     if phase.stop <= phase.start or grid.numel() < 2 or samples.numel() < 2:
         return phase
-    step = float(grid[1] - grid[0])
-    nearest = ((samples - grid[0]) / step).round().clamp(0, grid.numel() - 1)
+    nearest = _nearest_frame(grid, samples)
     own = (nearest >= phase.start) & (nearest < phase.stop)
-    span = grid[phase.start : phase.stop]
-    right = torch.searchsorted(samples, span, right=True).clamp(1, samples.numel() - 1)
-    left = right - 1
-    weight = ((span - samples[left]) / (samples[right] - samples[left])).clamp(0, 1)
+    left, right, weight = _brackets(samples, grid[phase.start : phase.stop])
     foreign = (1 - weight) * (~own[left]).double() + weight * (~own[right]).double()
     kept = torch.nonzero(foreign <= FOREIGN_WEIGHT).reshape(-1)
     if kept.numel() == 0:
@@ -137,6 +132,26 @@ def measured_frames(t: Tensor, measured_t: Sequence[float] | Tensor) -> Tensor:
     out = torch.zeros(grid.shape, dtype=torch.bool)
     if grid.numel() < 2:
         return ~out
-    nearest = ((samples - grid[0]) / (grid[1] - grid[0])).round().long()
-    out[nearest[(nearest >= 0) & (nearest < grid.numel())]] = True
+    out[_nearest_frame(grid, samples)] = True
     return out
+
+
+def _brackets(samples: Tensor, times: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """For each of ``times``, the samples before and after it and the linear weight of the later one.
+
+    Shape:
+        ``samples`` ``(M,)`` increasing, ``M >= 2``; ``times`` ``(K,)``; each output ``(K,)``.
+    """
+    right = torch.searchsorted(samples, times, right=True).clamp(1, samples.numel() - 1)
+    left = right - 1
+    return left, right, ((times - samples[left]) / (samples[right] - samples[left])).clamp(0, 1)
+
+
+def _nearest_frame(grid: Tensor, samples: Tensor) -> Tensor:
+    """Index of the uniform ``grid``'s frame nearest to each sample (clamped to the grid).
+
+    Shape:
+        ``grid`` ``(T,)``, ``T >= 2``; ``samples`` ``(M,)``; output ``(M,)`` long.
+    """
+    nearest = ((samples - grid[0]) / (grid[1] - grid[0])).round().long()
+    return nearest.clamp(0, grid.numel() - 1)
