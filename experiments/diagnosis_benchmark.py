@@ -426,6 +426,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--artefact-gain", action="store_true", help="--artefacts: also measure assess_gain (slow)"
     )
+    parser.add_argument(
+        "--kinds",
+        nargs="+",
+        default=None,
+        help="--artefacts: the artefact kinds to plant (default all; 'none', the reference, always runs)",
+    )
     return parser
 
 

@@ -123,6 +123,41 @@ def test_the_time_correlation_is_measured_with_its_mean_removal_corrected(pure, 
     assert max(abs(r - math.exp(-(k**2) / 18)) for k, r in enumerate(rho[:6], start=1)) < 0.03
 
 
+def _white_beside_correlated(video, seed: int) -> torch.Tensor:
+    """The camera benchmark's correlated noise (2 noise sds, 1.5 px, 3 frames) beside white noise of one
+    noise sd, both drawn anew for ``seed``."""
+    generator = torch.Generator().manual_seed(1000 + seed)
+    white = video.clean + video.noise_sd * torch.randn(video.clean.shape, generator=generator, dtype=F64)
+    return correlated_noise(white, seed=seed, sd=2 * video.noise_sd, length_px=1.5, length_frames=3.0)[0]
+
+
+def test_the_time_correlation_beside_white_noise_is_not_taken_for_a_thermal_field() -> None:
+    """A white part adds to lag 0 alone and its time mean removes 1 / t of it from every lag. Scaled by
+    the white share after the mean's correction, rho_t(1) came out at 0.982-0.987 for exp(-1/18) = 0.946
+    on 41 frames, and at 0.99 (an undecayed thermal field, so the noise was taken for white) on seeds 3
+    and 6 of these. Solved together with the mean's correction: within 0.01 at lag 1 and 0.02 at lags
+    1-3 (measured), and within 0.04 to lag 6, where 41 frames leave the lag products noisy."""
+    video = _video(seed=3, size=64, frames=41)
+    for seed in range(8):
+        model = measure_noise(_white_beside_correlated(video, seed))
+        assert not model.white
+        error = [abs(r - math.exp(-(k**2) / 18)) for k, r in enumerate(model.time_corr[:6], start=1)]
+        assert len(error) == 6 and max(error[:3]) < 0.025 and max(error) < 0.045
+
+
+@pytest.mark.parametrize("effect", ["pure", "advection", "heterogeneity", "nonlinear_diffusion"])
+def test_white_noise_on_a_small_video_is_not_taken_for_correlated_noise(effect: str) -> None:
+    """On 32 px the quieter half of the pixels still holds thermal field. Its correlation fitted at the end
+    of the lengths tried (3 px) or decaying more slowly than over 6 frames is the field's, and the noise
+    is white: before, these videos (seed 1, 41 frames) got a correlated model of 3 px with 0.68-0.77 of the
+    noise's sd, beside a white part."""
+    names = () if effect == "pure" else (effect,)
+    video = hidden_effect_video(names, seed=1, size=32, dx=0.05, fps=30.0, duration=40 / 30.0)
+    model = measure_noise(video.frames.double())
+    assert model.white
+    assert float(model.sd) == pytest.approx(video.noise_sd, rel=0.1)
+
+
 def test_offset_steps_are_found_and_give_per_frame_fixed_effects(pure) -> None:
     frames, record = _planted(pure, "offset_steps")
     repaired, found = find_artefacts(frames)
@@ -171,21 +206,33 @@ def test_strong_camera_noise_names_no_effect_and_keeps_the_diffusivity(kind: str
     assert abs(diagnosis.base - 0.15) < 3 * diagnosis.base_std_error < 0.15 * 0.2
 
 
+_SEEDS = 192  # the spread over n seeds is itself known to 1 / sqrt(2 (n - 1)): 5 % here, 15 % over 24
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 14, open: the reported standard error is 0.74 of the spread over these 24 seeds, more than "
-    "the 20 % allowed",
-)
-def test_standard_error_under_correlated_noise_matches_the_spread_over_seeds() -> None:
+@pytest.mark.parametrize("white", [False, True], ids=["correlated", "white_beside_correlated"])
+def test_standard_error_under_correlated_noise_matches_the_spread_over_seeds(white: bool) -> None:
+    """The reported standard error against the spread of the estimate over 192 noise seeds.
+
+    Measured: correlated noise alone, a mean of 0.1499 (true 0.15), a spread of 0.00286 mm^2/s and a mean
+    standard error of 0.00267 (0.94 of it); beside white noise, 0.1499, 0.00284 and 0.00270 (0.95). Over
+    the first 24 seeds alone the ratio was 0.74 (the other 24-seed blocks: 0.88-1.15): a spread over 24
+    seeds is itself uncertain by 15 %. Beside white noise, before the time correlation was solved with the
+    white part (see above), a third of the videos had their noise taken for white: the smallest smoothing
+    was chosen, the spread was 0.067 mm^2/s and the standard error 0.03 of it."""
     video = _video(seed=3, size=64, frames=41)
-    noisy = torch.stack(
-        [
-            correlated_noise(video.clean, seed=s, sd=2 * video.noise_sd, length_px=1.5, length_frames=3.0)[0]
-            for s in range(24)
-        ]
-    )
-    result = ANRAEstimator()(noisy, video.dt, video.dx)
-    # measured: mean 0.1501 (true 0.15), spread 0.0037 mm^2/s over the seeds, reported 0.0027
-    assert float(result.diffusivity.mean()) == pytest.approx(0.15, rel=0.02)
-    assert float(result.std_error.mean()) == pytest.approx(float(result.diffusivity.std()), rel=0.2)
+
+    def noisy(seed: int) -> torch.Tensor:
+        if white:
+            return _white_beside_correlated(video, seed)
+        sd = 2 * video.noise_sd
+        return correlated_noise(video.clean, seed=seed, sd=sd, length_px=1.5, length_frames=3.0)[0]
+
+    results = [
+        ANRAEstimator()(torch.stack([noisy(s) for s in range(start, start + 48)]), video.dt, video.dx)
+        for start in range(0, _SEEDS, 48)
+    ]
+    estimate = torch.cat([r.diffusivity for r in results])
+    std_error = torch.cat([r.std_error for r in results])
+    assert float(estimate.mean()) == pytest.approx(0.15, rel=0.02)
+    assert float(std_error.mean()) == pytest.approx(float(estimate.std()), rel=0.2)

@@ -221,7 +221,8 @@ _MODEL_ERROR = 0.1  # relative error of a measured correlated or static noise va
 
 _CORRELATED = 0.1  # rho_t(1) or rho_s(1) above this: the noise is measured as correlated
 _MAX_TIME_LAG = 10
-_MAX_LENGTH = 3.0  # px: camera noise correlated further than this is not told from the thermal field
+_MAX_LENGTH = 3.0  # px: noise correlated this far (where the fitted lengths end) is not told from the field
+_MAX_FRAMES = 6.0  # frames: the same in time (a Gaussian correlation of this length is 0.25 at lag 10)
 
 
 def _gain(stride: int, length: float) -> float:
@@ -285,10 +286,15 @@ def _quiet_pixels(power: Tensor) -> Tensor:
     return local <= local.median()
 
 
-def _time_correlation(deviation: Tensor, quiet: Tensor, *, stride: int = 1) -> tuple[float, ...]:
-    """``rho_t(1 .. m)`` of a spatial high-pass of the noise: temporal autocorrelation of stride-``stride``
-    fourth differences along x and y (they remove the smooth thermal field) of the frames' ``deviation``
-    from their pixel's time mean, over the ``quiet`` pixels (where the thermal field does not leak in)."""
+def _time_correlation(
+    deviation: Tensor, quiet: Tensor, *, stride: int = 1, white_ratio: float = 0.0
+) -> tuple[float, ...]:
+    """``rho_t(1 .. m)`` of the correlated noise, from a spatial high-pass: temporal autocorrelation of
+    stride-``stride`` fourth differences along x and y (they remove the smooth thermal field) of the
+    frames' ``deviation`` from their pixel's time mean, over the ``quiet`` pixels (where the thermal field
+    does not leak in). ``white_ratio`` is a white component's variance over the correlated one's in that
+    high-pass of the deviations: it adds to lag 0 alone, and the time mean removes ``1 / t`` of it from
+    every lag."""
     t = deviation.shape[0]
     lags = min(_MAX_TIME_LAG, t // 4)
     parts = []
@@ -302,14 +308,19 @@ def _time_correlation(deviation: Tensor, quiet: Tensor, *, stride: int = 1) -> t
     if zero == 0 or lags < 1:
         return ()
     raw = [float(torch.tensordot(flat[:-k], flat[k:])) / zero * t / (t - k) for k in range(1, lags + 1)]
-    # Each pixel's mean over t frames removes S / t (S = 1 + 2 sum rho) from every lag's covariance, zero
-    # included: raw = (rho - S / t) / (1 - S / t). S depends on rho itself: solved by fixed-point iteration
-    # (a contraction while 2 sum (1 - raw) < t), which the raw correlations alone would underestimate
-    # (rho_t(3) 0.57 for 0.61 on 41 frames of noise correlated over 3 frames).
+    # Each pixel's mean over t frames removes S / t (S = 1 + 2 sum rho) of the correlated part from every
+    # lag's covariance, zero included, and 1 / t of a white part: with q the two parts' ratio in the
+    # deviations, raw = (rho - S / t - q (1 - S / t) / (t - 1)) / ((1 - S / t) (1 + q)). S depends on rho
+    # itself: solved by fixed-point iteration (a contraction while 2 sum (1 - raw) < t), which the raw
+    # correlations alone would underestimate (rho_t(3) 0.57 for 0.61 on 41 frames of noise correlated over
+    # 3 frames). Scaling by 1 + q after the mean's correction instead put rho_t(1) at 0.98 for 0.946 on 41
+    # frames with a white part of half the correlated sd, and at 0.99 (taken for an undecayed thermal
+    # field, so the noise for white) in a third of them.
+    q = white_ratio
     rho = list(raw)
     for _ in range(50):
         share = min(0.9, (1 + 2 * sum(max(r, 0.0) for r in rho)) / t)
-        new = [r * (1 - share) + share for r in raw]
+        new = [(1 - share) * (r * (1 + q) + q / (t - 1)) + share for r in raw]
         done = max(abs(a - b) for a, b in zip(new, rho, strict=True)) < 1e-9
         rho = new
         if done:
@@ -367,13 +378,16 @@ def _model_over(
         return white
     v3 = [_quiet_var(deviation, quiet, d, 3) for d in (-2, -1)] if min(h, w) >= 24 else v2
     white_part, correlated_part, length = _components(sum(v1) / 2, sum(v2) / 2, sum(v3) / 2)
-    rho_t = _time_correlation(deviation, quiet, stride=3 if length > 0 else 1)
-    if length > 0:  # the lag products hold the correlated part alone: its own correlation
-        share = (70 * white_part + _gain(3, length) * correlated_part) / (_gain(3, length) * correlated_part)
-        rho_t = tuple(min(1.0, r * share) for r in rho_t)
+    # The lag products hold the correlated part alone; the white part adds to lag 0 only.
+    white_ratio = 70 * white_part / (_gain(3, length) * correlated_part) if length > 0 else 0.0
+    rho_t = _time_correlation(deviation, quiet, stride=3 if length > 0 else 1, white_ratio=white_ratio)
+    rho_t = tuple(min(1.0, r) for r in rho_t)
     lags = min(_MAX_TIME_LAG, t // 4)
-    undecayed = bool(rho_t) and (rho_t[0] >= 0.99 or (len(rho_t) >= lags and rho_t[-1] > 0.5))
-    if length > _MAX_LENGTH or undecayed:
+    # A correlation that decays more slowly than a Gaussian of _MAX_FRAMES frames is the thermal field's: on
+    # a 32 px video of a slow field, 0.94 at lag 1 but 0.41 at lag 10 (noise over 3 frames: 0.004).
+    slow = math.exp(-(lags**2) / (2 * _MAX_FRAMES**2))
+    undecayed = bool(rho_t) and (rho_t[0] >= 0.99 or (len(rho_t) >= lags and rho_t[-1] > slow))
+    if length >= _MAX_LENGTH or undecayed:
         # Thermal signal, not noise, dominates the differences (a nearly noiseless or a short video): a
         # correlation that does not decay within the lags measured cannot be told from the field.
         return white
