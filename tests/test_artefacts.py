@@ -158,6 +158,16 @@ def test_white_noise_on_a_small_video_is_not_taken_for_correlated_noise(effect: 
     assert float(model.sd) == pytest.approx(video.noise_sd, rel=0.1)
 
 
+def test_noise_on_fewer_than_20_frames_is_taken_as_white(pure) -> None:
+    """The time mean of 12 frames removes over a third of correlated noise's variance and only 3 lags are
+    measured: the level is the white estimate's, and no correlation is claimed."""
+    frames, _ = correlated_noise(
+        pure.clean[:12], seed=2, sd=2 * pure.noise_sd, length_px=1.5, length_frames=3.0
+    )
+    model = measure_noise(frames)
+    assert model.white and model.time_corr == () and model.space_length == 0.0
+
+
 def test_offset_steps_are_found_and_give_per_frame_fixed_effects(pure) -> None:
     frames, record = _planted(pure, "offset_steps")
     repaired, found = find_artefacts(frames)
