@@ -74,6 +74,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from artefact_benchmark import KINDS
 from benchmark_cases import (  # noqa: F401 - sindy_case is re-exported for other scripts
     EFFECT_NAMES,
     GROUPS,
@@ -429,7 +430,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--kinds",
         nargs="+",
-        default=None,
+        choices=KINDS,
+        default=list(KINDS),
         help="--artefacts: the artefact kinds to plant (default all; 'none', the reference, always runs)",
     )
     return parser

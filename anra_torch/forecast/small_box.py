@@ -202,10 +202,11 @@ def edge_explained(frames: Tensor) -> float:
     """Fraction of the interior's variance over time that the steady state for its edges explains (1: the
     interior follows its edges within a frame; conduction is not resolved).
 
-    Both are first averaged over :data:`SMOOTH_FRAMES` frames, as the small-box models are fitted: the
-    steady state is linear in the frames, so the average keeps it exact while the noise, which no steady
-    state explains, falls. Without it a box as fast as the same recording with noise of the interior's own
-    change got a share under a half and a diffusivity near zero instead of the flag.
+    Both are first averaged over :data:`SMOOTH_FRAMES` frames (when there are at least twice as many), as
+    the small-box models are fitted: the steady state is linear in the frames, so the average keeps it
+    exact while the noise, which no steady state explains, falls. Frame by frame, noise alone took the
+    share of a box that follows its edges under a half, and its diffusivity was reported as a number near
+    zero instead of flagged.
 
     Shape:
         ``frames`` ``(T, H, W)``.
