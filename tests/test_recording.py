@@ -7,6 +7,7 @@ finite-difference heat equation with a source switched off at a known frame for 
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import json
 from collections.abc import Callable
@@ -173,6 +174,60 @@ def test_cli_diagnoses_an_8x8_box_and_estimate_flags_it_unresolved(
     assert main(["estimate", str(path), "--json"]) == 2
     out = json.loads(capsys.readouterr().out)
     assert out["valid"] is False and out["diffusivity"] is None and "unresolved" in out["message"]
+
+
+def _still_box(seed: int, n: int = 160, size: int = 12, noise: float = 0.1) -> torch.Tensor:
+    """A box that does not change over its frames (a baseline): a constant plus white noise."""
+    return torch.as_tensor(20.0 + np.random.default_rng(seed).normal(0, noise, (n, size, size)))
+
+
+def _decaying_box(
+    seed: int, a: float = 0.05, n: int = 160, size: int = 12, noise: float = 0.01
+) -> torch.Tensor:
+    """The slowest sine mode of a box with edges at 0, decaying at the 5-point Laplacian's exact rate for
+    diffusivity ``a`` (a dt / dx^2 = 0.08: conduction resolved), plus white noise."""
+    j = np.arange(size)
+    mode = np.sin(np.pi * j / (size - 1))
+    rate = 2 * a * 4 * np.sin(np.pi / (2 * (size - 1))) ** 2 / DX**2  # 1/s
+    t = np.arange(n)[:, None, None] * DT
+    field = 5.0 * np.exp(-rate * t) * mode[None, :, None] * mode[None, None, :]
+    return torch.as_tensor(field + np.random.default_rng(seed).normal(0, noise, field.shape))
+
+
+def test_small_box_standard_error_flags_a_still_box_and_covers_the_spread() -> None:
+    """Over a box that does not change, the plain fit's ``a`` near 0 (the CSV exports' baselines: 8.5e-05
+    mm^2/s) is within 3 block standard errors of 0; on a resolved decaying mode the standard error covers
+    the spread over seeds. The block sandwich is conservative: on still boxes ``a / se`` spreads by 0.53
+    (measured over 200 seeds), not 1."""
+    still = [fit_small_box(_still_box(s), DT, DX, "plain") for s in range(40)]
+    assert all(m.significant is False for m in still)
+    z = np.array([m.a / m.a_std_error for m in still])
+    assert 0.3 < z.std() < 1.0
+    decaying = [fit_small_box(_decaying_box(s), DT, DX, "plain") for s in range(20)]
+    a = np.array([m.a for m in decaying])
+    assert all(m.significant for m in decaying)
+    assert a.mean() == pytest.approx(0.05, rel=0.02)
+    assert np.mean([m.a_std_error for m in decaying]) >= a.std()
+
+
+def test_a_still_box_is_flagged_by_estimate_diagnose_and_batch(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No silent near-zero diffusivity: estimate, the phase record and the batch row all say why."""
+    path = save_npz(tmp_path / "still.npz", _still_box(0).numpy(), dt=DT, dx=DX)
+    assert main(["estimate", str(path), "--json"]) == 2
+    out = json.loads(capsys.readouterr().out)
+    assert out["valid"] is False and "within 3 standard errors of 0" in out["message"]
+    assert out["std_error"] > abs(out["diffusivity"]) / 3
+    (phase,) = diagnose_recording(_still_box(0), DT, DX)
+    assert phase.family == "small_box" and "not_significant" in phase.to_record()["base"]["flags"]
+    assert phase.to_record()["base"]["std_error"] == pytest.approx(phase.diffusivity_std_error)
+    main(["batch", str(path), "--out", str(tmp_path / "rows.csv")])
+    capsys.readouterr()
+    with open(tmp_path / "rows.csv") as table:
+        (row,) = list(csv.DictReader(table))
+    assert row["status"] == "error" and "within 3 standard errors of 0" in row["error"]
+    assert float(row["std_error"]) > 0
 
 
 def _sampled_heating(times: np.ndarray, off: float, size: int = 64, noise: float = 0.05) -> np.ndarray:

@@ -112,6 +112,41 @@ def _row(video: Video, result: ANRAResult, index: int, seconds: float) -> dict[s
     }
 
 
+def _small_box_row(video: Video) -> dict[str, Any]:
+    """The row of a region too small for the filters: the small-box estimate, as ``anra estimate`` gives
+    it (:func:`~anra_torch.forecast.small_box.small_box_estimate`); not valid is an error row with the
+    reason, its numbers kept."""
+    from anra_torch.forecast.small_box import small_box_estimate
+
+    start = time.perf_counter()
+    t, h, w = video.frames.shape
+    record = small_box_estimate(in_memory(video.frames), video.dt, video.dx)
+    ok = record["valid"]
+    return {
+        "path": str(video.source),
+        "status": "ok" if ok else "error",
+        "error": "" if ok else f"{video.source}: {record['message']}",
+        "diffusivity": record["diffusivity"],
+        "std_error": record["std_error"],
+        "frames": t,
+        "height": h,
+        "width": w,
+        "dt": video.dt,
+        "dx": video.dx,
+        "a_true": video.truth.a if video.truth is not None else None,
+        "seconds": time.perf_counter() - start,
+        **_preparation(video),
+        "message": join_messages([*input_warnings(video), record["message"]]),
+    }
+
+
+def _small(video: Video) -> bool:
+    """Whether ``video`` is a region too small for the estimator's filters (with frames enough for them)."""
+    est = ANRAEstimator(strict=False)
+    t, h, w = video.frames.shape
+    return min(h, w) < est.minimum_frame_size and t >= est.time.length
+
+
 def _large(path: str, options: BatchOptions) -> Video | None:
     """A recording to read in time chunks: over :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values,
     or any with ``precision``; left on disk when it is a ``.npy`` or an uncompressed ``.npz`` (no region or
@@ -221,7 +256,9 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
             found = []
             for i, video in members:
                 try:
-                    found.extend(_estimate_group([video], options))
+                    found.append(
+                        _small_box_row(video) if _small(video) else _estimate_group([video], options)[0]
+                    )
                 except (ValueError, TypeError, RuntimeError) as err:
                     found.append(_error_row(paths[i], f"{video.source}: {one_line(err)}"))
         for (i, video), row in zip(members, found, strict=True):

@@ -343,7 +343,8 @@ def _print_phases(summary: dict[str, Any]) -> None:
             a = f"a unresolved (conduction faster than a frame: a > {bound:.3g} mm^2/s)"
         else:
             flag = f" [{', '.join(base['flags'])}]" if base.get("flags") else ""
-            a = f"a = {_n(base['diffusivity'])} mm^2/s{flag}"
+            se = f" +- {base['std_error']:.2g}" if base.get("std_error") is not None else ""
+            a = f"a = {_n(base['diffusivity'])}{se} mm^2/s{flag}"
         names = ", ".join(e["name"] for e in p["effects"]) or "none"
         print(
             f"{where}: {a}; causes: {names}; extended model {p['model']}, gain {_n(p['gain'], '.3f')} "

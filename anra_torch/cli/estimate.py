@@ -53,7 +53,6 @@ from anra_torch.cli.arguments import (
     relative,
 )
 from anra_torch.estimator import MODES, ANRAEstimator, ANRAResult
-from anra_torch.flags import diffusivity_warnings
 from anra_torch.forecast.recording import find_phases
 from anra_torch.report import format_pm
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
@@ -189,32 +188,10 @@ SOURCE_FREE = ("cooling", "baseline", "steady")
 
 
 def _small_box_record(video: Video) -> dict[str, Any]:
-    """A region too small for the filters: the small-box plain fit, unresolved when the interior follows
-    its edges within a frame (the lower bound on ``a`` that implies)."""
-    from anra_torch.forecast.small_box import fit_small_box, unresolved_bound
+    """A region too small for the filters: :func:`~anra_torch.forecast.small_box.small_box_estimate`."""
+    from anra_torch.forecast.small_box import small_box_estimate
 
-    frames, (h, w) = video.frames, video.frames.shape[1:]
-    if min(h, w) < 3 or frames.shape[0] < 3:
-        return {"diffusivity": None, "std_error": None, "valid": False, "message": "too small: need 3 x 3 px"}
-    a = fit_small_box(frames, video.dt, video.dx, "plain").a
-    bound = unresolved_bound(frames, video.dt, video.dx)
-    if bound is not None:
-        message = (
-            f"unresolved: conduction crosses the {h} x {w} px region within a frame (a > {bound:.3g} mm^2/s)"
-        )
-        return {
-            "diffusivity": None,
-            "std_error": None,
-            "valid": False,
-            "message": message,
-            "diffusivity_lower_bound": bound,
-        }
-    flagged = diffusivity_warnings(a, dt=video.dt, dx=video.dx)
-    if flagged:
-        message = "not resolved by the small-box fit: " + "; ".join(flagged)
-        return {"diffusivity": a, "std_error": None, "valid": False, "message": message}
-    message = "small-box fit (5-point Laplacian, measured edges); no standard error"
-    return {"diffusivity": a, "std_error": None, "valid": True, "message": message}
+    return small_box_estimate(video.frames, video.dt, video.dx)
 
 
 class _Reading:

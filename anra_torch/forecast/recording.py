@@ -56,7 +56,9 @@ class PhaseDiagnosis:
         phase: the :class:`~anra_torch.video.Phase` (kind, frames, times).
         family: ``"balance"`` (the filters fit), ``"small_box"`` or ``"none"`` (not analysed).
         diffusivity: the plain model's ``a`` in mm^2/s (None when unresolved or not analysed).
-        flags: what qualifies the diffusivity (``"unresolved"``, ``"negative"``).
+        flags: what qualifies the diffusivity (``"unresolved"``, ``"not_significant"``: within 3
+            standard errors of 0, ``"negative"``, ``"implausible"``: outside every known material).
+        diffusivity_std_error: its standard error in mm^2/s, where known (the small-box fit's).
         diffusivity_bound: the lower bound on ``a`` (mm^2/s) an unresolved diffusivity implies.
         base_rmse: the plain model's held-out RMSE (data units).
         model: the extension chosen on the inner split (``parametric``, ``source_map``, ``loss``,
@@ -82,6 +84,7 @@ class PhaseDiagnosis:
     family: str
     diffusivity: float | None = None
     flags: list[str] = field(default_factory=list)
+    diffusivity_std_error: float | None = None
     diffusivity_bound: float | None = None
     base_rmse: float | None = None
     model: str | None = None
@@ -117,6 +120,8 @@ class PhaseDiagnosis:
         }
         if self.flags:
             record["base"]["flags"] = list(self.flags)
+        if self.diffusivity_std_error is not None:
+            record["base"]["std_error"] = self.diffusivity_std_error
         if self.diffusivity_bound is not None:
             record["base"]["diffusivity_lower_bound"] = self.diffusivity_bound
         if self.reason is not None:
@@ -261,6 +266,7 @@ def _balance_phase(
     if result.diagnosis.a_plain < 0:
         diagnosis.flags.append("negative")
     diagnosis.warnings = _implausible(effects, part.shape[1] * dx, part.shape[2] * dx)
+    _flag_implausible(diagnosis, dt, dx)
     held = {"parametric": (result.extended_rmse, result.gain)}
     predicted = {"parametric": result.predicted_extended}
     validation: dict[str, float] = {}
@@ -285,6 +291,20 @@ def _balance_phase(
         name: {"validation_rmse": validation.get(name), "gain": held[name][1]} for name in held
     }
     return diagnosis
+
+
+def _flag_implausible(diagnosis: PhaseDiagnosis, dt: float, dx: float) -> None:
+    """Flag (``"implausible"``, with a warning line) a diffusivity outside every known material
+    (:data:`~anra_torch.flags.PLAUSIBLE_DIFFUSIVITY`) that no other flag already qualifies: a small box whose
+    significant ``a`` of 4e-4 mm^2/s describes the fit, not the material."""
+    from anra_torch.flags import PLAUSIBLE_DIFFUSIVITY, diffusivity_warnings
+
+    a, (low, high) = diagnosis.diffusivity, PLAUSIBLE_DIFFUSIVITY
+    if a is None or not math.isfinite(a) or low <= abs(a) <= high:
+        return
+    if not {"unresolved", "not_significant"} & set(diagnosis.flags):
+        diagnosis.flags.append("implausible")
+        diagnosis.warnings.extend(w for w in diffusivity_warnings(a, dt=dt, dx=dx, z=0.0) if "outside" in w)
 
 
 def _implausible(effects: list[dict[str, Any]], height: float, width: float) -> list[str]:
@@ -379,6 +399,7 @@ def _small_box_phase(phase: Phase, part: Tensor, dt: float, dx: float, fit_fract
         phase,
         "small_box",
         diffusivity=plain.a,
+        diffusivity_std_error=plain.a_std_error,
         base_rmse=held["plain"],
         model=chosen,
         extended_rmse=held[chosen],
@@ -396,11 +417,14 @@ def _small_box_phase(phase: Phase, part: Tensor, dt: float, dx: float, fit_fract
     )
     bound = unresolved_bound(fit, dt, dx)
     if bound is not None:
-        diagnosis.diffusivity = None
+        diagnosis.diffusivity = diagnosis.diffusivity_std_error = None
         diagnosis.flags.append("unresolved")
         diagnosis.diffusivity_bound = bound
+    elif plain.significant is False:  # within 3 standard errors of 0: the box hardly changes
+        diagnosis.flags.append("not_significant")
     elif plain.a < 0:
         diagnosis.flags.append("negative")
+    _flag_implausible(diagnosis, dt, dx)
     if chosen == "quasi_steady":
         cause = "source"
     else:  # the sign of the loss model's non-diffusive rate at the split: net heating or net loss

@@ -23,6 +23,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -34,6 +35,7 @@ __all__ = [
     "fit_small_box",
     "forecast_small_box",
     "harmonic_interior",
+    "small_box_estimate",
 ]
 
 MODELS = ("plain", "loss", "quasi_steady")
@@ -41,6 +43,13 @@ MODELS = ("plain", "loss", "quasi_steady")
 
 SMOOTH_FRAMES = 11
 """Frames of the moving average in time applied to both sides of the PDE before the least squares."""
+
+BLOCK_FRAMES = SMOOTH_FRAMES + 2
+"""Frames per block of the standard error: the moving average and the central difference correlate a
+residual with those up to this many frames away, and no further."""
+
+MIN_BLOCKS = 4
+"""Fewest blocks from which a standard error is given (fewer: None, the precision unknown)."""
 
 UNRESOLVED = 0.5
 """Share of the interior's change explained by the steady state for its edges above which conduction is
@@ -57,6 +66,9 @@ class SmallBoxModel:
     Attributes:
         kind: one of :data:`MODELS`.
         a: diffusivity in mm^2/s (``plain``, ``loss``; 0 for ``quasi_steady``).
+        a_std_error: its standard error in mm^2/s, clustered over blocks of :data:`BLOCK_FRAMES` frames
+            (the averaged residuals are correlated within a block); None for ``quasi_steady`` or fewer than
+            :data:`MIN_BLOCKS` blocks.
         b: linear loss rate in 1/s (``loss``; else 0).
         c: net heat input in data units per s (``loss``; else 0).
         t_ref: the loss' reference temperature, data units (the fit frames' mean).
@@ -72,6 +84,16 @@ class SmallBoxModel:
     c: float = 0.0
     t_ref: float = 0.0
     source: Tensor | None = None
+    a_std_error: float | None = None
+
+    @property
+    def significant(self) -> bool | None:
+        """Whether ``a`` differs from 0 by more than 3 standard errors (None: no standard error). A box that
+        hardly changes over its frames (a baseline) gives an ``a`` near 0 that says nothing about the
+        material."""
+        if self.a_std_error is None:
+            return None
+        return abs(self.a) > 3.0 * self.a_std_error
 
     def params(self) -> dict[str, float]:
         """The model's parameters in physical units (``S`` by its extremes)."""
@@ -130,9 +152,39 @@ def fit_small_box(frames: Tensor, dt: float, dx: float, kind: str) -> SmallBoxMo
         columns += [-(u[1:-1, 1:-1, 1:-1].reshape(-1) - t_ref), torch.ones_like(dudt)]
     design = torch.stack(columns, 1)
     beta = torch.linalg.lstsq(design, dudt[:, None], driver="gelsd").solution[:, 0]
+    se = _block_std_error(design, dudt - design @ beta, frames=u.shape[0] - 2)
     if kind == "plain":
-        return SmallBoxModel(kind, a=float(beta[0]), t_ref=t_ref)
-    return SmallBoxModel(kind, a=float(beta[0]), b=float(beta[1]), c=float(beta[2]), t_ref=t_ref)
+        return SmallBoxModel(kind, a=float(beta[0]), t_ref=t_ref, a_std_error=se)
+    return SmallBoxModel(
+        kind, a=float(beta[0]), b=float(beta[1]), c=float(beta[2]), t_ref=t_ref, a_std_error=se
+    )
+
+
+def _block_std_error(design: Tensor, residual: Tensor, frames: int) -> float | None:
+    """Standard error of the first coefficient of a least-squares fit whose rows are ``frames`` frames of
+    equal size, clustered over blocks of :data:`BLOCK_FRAMES` consecutive frames (the sandwich
+    ``G^-1 (sum_b s_b s_b^T) G^-1`` with ``s_b`` a block's score ``X_b^T e_b``, times ``B / (B - 1)``):
+    residuals smoothed in time are correlated within a block, and the 5-point Laplacian correlates them
+    across pixels, both inside the block's sum; neighbouring blocks' cross products enter with the Bartlett
+    weight 1/2. Conservative: a time difference of averaged frames correlates neighbouring blocks'
+    scores negatively, so on a still noisy box ``a / se`` spreads by 0.53 and on a resolved decaying mode
+    the standard error is 5x the spread over seeds (``tests/test_recording.py -k small_box_standard_error``).
+    None with fewer than :data:`MIN_BLOCKS` blocks.
+
+    Shape:
+        ``design`` ``(N, P)``, ``residual`` ``(N,)`` with ``N = frames * pixels``.
+    """
+    blocks = frames // BLOCK_FRAMES
+    if blocks < MIN_BLOCKS:
+        return None
+    rows = design.shape[0] // frames
+    used = blocks * BLOCK_FRAMES * rows
+    scores = (design[:used] * residual[:used, None]).reshape(blocks, BLOCK_FRAMES * rows, -1).sum(1)
+    gram_inv = torch.linalg.pinv(design.T @ design)
+    # Neighbouring blocks share the residuals' correlation across their border: their cross products too.
+    meat = scores.T @ scores + 0.5 * (scores[1:].T @ scores[:-1] + scores[:-1].T @ scores[1:])
+    cov = gram_inv @ meat @ gram_inv * (blocks / (blocks - 1))
+    return float(cov[0, 0].clamp_min(0).sqrt())
 
 
 def forecast_small_box(
@@ -233,3 +285,58 @@ def unresolved_bound(frames: Tensor, dt: float, dx: float) -> float | None:
         return None
     h, w = frames.shape[-2:]
     return 1.0 / (dt * math.pi**2 * (1 / ((w - 1) * dx) ** 2 + 1 / ((h - 1) * dx) ** 2))
+
+
+def small_box_estimate(frames: Tensor, dt: float, dx: float) -> dict[str, Any]:
+    """The estimate record of a region too small for the balance's filters, as ``anra estimate`` and
+    ``anra batch`` report it: the ``plain`` fit's ``a`` and standard error, valid only when it is resolved.
+
+    Not valid, with the reason in ``message``: fewer than 3 x 3 px or 3 frames; conduction crossing the
+    region within a frame (``a`` None, and ``diffusivity_lower_bound``, :func:`unresolved_bound`); ``a``
+    within 3 standard errors of 0 (the region hardly changes: a baseline); ``a`` significantly negative or
+    outside every known material (:func:`~anra_torch.flags.diffusivity_warnings`).
+
+    Returns:
+        ``{"diffusivity", "std_error"}`` in mm^2/s (None where not measured), ``"valid"``, ``"message"``.
+
+    Shape:
+        ``frames`` ``(T, H, W)``.
+    """
+    from anra_torch.flags import diffusivity_warnings
+
+    video = torch.as_tensor(frames).to(_F64)
+    h, w = video.shape[1:]
+    if min(h, w) < 3 or video.shape[0] < 3:
+        return {"diffusivity": None, "std_error": None, "valid": False, "message": "too small: need 3 x 3 px"}
+    plain = fit_small_box(video, dt, dx, "plain")
+    a, se = plain.a, plain.a_std_error
+    bound = unresolved_bound(video, dt, dx)
+    if bound is not None:
+        message = (
+            f"unresolved: conduction crosses the {h} x {w} px region within a frame (a > {bound:.3g} mm^2/s)"
+        )
+        return {
+            "diffusivity": None,
+            "std_error": None,
+            "valid": False,
+            "message": message,
+            "diffusivity_lower_bound": bound,
+        }
+    if plain.significant is False:
+        message = (
+            f"not resolved: a = {a:.3g} +- {se:.2g} mm^2/s is within 3 standard errors of 0 (the "
+            f"{h} x {w} px region hardly changes over these frames)"
+        )
+        return {"diffusivity": a, "std_error": se, "valid": False, "message": message}
+    z = None if se is None or se == 0 else a / se
+    flagged = diffusivity_warnings(a, dt=dt, dx=dx, z=z)
+    if flagged:
+        message = "not resolved by the small-box fit: " + "; ".join(flagged)
+        return {"diffusivity": a, "std_error": se, "valid": False, "message": message}
+    how = "no standard error (too few frames)" if se is None else "standard error over blocks of frames"
+    return {
+        "diffusivity": a,
+        "std_error": se,
+        "valid": True,
+        "message": f"small-box fit (5-point Laplacian, measured edges); {how}",
+    }
