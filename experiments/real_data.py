@@ -153,7 +153,9 @@ def _diffusivity(row: dict[str, Any]) -> str:
         return plain
     if base.get("diffusivity_lower_bound") is not None:
         return f"unresolved: > {_f(base['diffusivity_lower_bound'])}"
-    return f"small box {_f(base['diffusivity'])}"
+    se = f" +- {_f(base['std_error'], '.2g')}" if base.get("std_error") is not None else ""
+    flags = f" ({', '.join(base['flags'])})" if base.get("flags") else ""
+    return f"small box {_f(base['diffusivity'])}{se}{flags}"
 
 
 def table(rows: list) -> str:
