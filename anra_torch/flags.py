@@ -13,6 +13,8 @@ import math
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from torch import Tensor
 
 __all__ = [
@@ -22,6 +24,7 @@ __all__ = [
     "PLAUSIBLE_DIFFUSIVITY",
     "POOR_FIT",
     "diffusivity_warnings",
+    "extended_diffusivity_warning",
     "model_failure",
     "poor_fit",
     "verdicts",
@@ -107,6 +110,31 @@ def diffusivity_warnings(a: float, *, dt: float, dx: float, z: float | None = No
             f"mm^2/s in magnitude){_likely_cause(a, dt, dx)}"
         )
     return found
+
+
+def extended_diffusivity_warning(a: float, plain: float, effects: Sequence[str]) -> str | None:
+    """The warning for an extended model whose own diffusivity ``a`` (its coefficient of ``Lap T``; outside
+    a named disc, ``a_outside``) is outside every known material while the plain model's ``plain`` is not:
+    the named ``effects`` have taken up the lateral conduction itself, so the extension may forecast without
+    describing the material (more terms than the frames support, or a missing one). None otherwise.
+
+    Shape:
+        No tensors.
+
+    Example:
+        >>> extended_diffusivity_warning(0.00082, 0.101, ["linear_loss", "heterogeneity"])[:60]
+        "the extended model's diffusivity 0.00082 mm^2/s is outside e"
+        >>> extended_diffusivity_warning(0.12, 0.101, ["linear_loss"]) is None
+        True
+    """
+    low, high = PLAUSIBLE_DIFFUSIVITY
+    if not effects or not math.isfinite(a) or low <= abs(a) <= high or not low <= abs(plain) <= high:
+        return None
+    return (
+        f"the extended model's diffusivity {a:.3g} mm^2/s is outside every known material (the plain "
+        f"fit's: {plain:.3g}): its effects ({', '.join(effects)}) take up the conduction itself; more "
+        "terms than these frames support, or a missing one"
+    )
 
 
 def model_failure(rmse: float, floor: float, *, what: str = "forecast") -> str | None:

@@ -7,8 +7,10 @@ the CLI's own default, does everything else: the phases (baseline / heating / co
 model family per phase (the balance where its filters fit; the small-box models in 9-15 px boxes), the
 extension chosen on splits inside the fit frames, the held-out gain. No rule here depends on the recording
 or the phase. The diffusivity per phase is ``anra estimate``'s (ANRA where the filters fit; the small-box
-plain fit, or "unresolved" with its bound, elsewhere); where the diagnosis named effects, the extended
-model's own ``a`` (``anra diagnose``'s phase ``base.diffusivity``) follows it.
+plain fit, or "unresolved" with its bound, elsewhere). Beside it, for the balance family: the plain
+balance fit of ``anra diagnose`` over the phase's fit frames (its phase ``base.diffusivity``), and where
+effects were named the extended model's own coefficient of ``Lap T`` (``a_extended``; outside a named
+disc, ``a_outside``), which says whether the extended model still describes lateral conduction.
 
 Unknown spacings are passed as a user would pass ``--dx``/``--dt``: laser runs 0.55 mm/px (interval
 0.5-0.6 mm from the C3-X field of view at ~10 cm, carried into an interval on ``a``, which scales as
@@ -87,6 +89,8 @@ def phase_row(video: Video, found: PhaseDiagnosis) -> dict[str, Any]:
         a = float(est.diffusivity)
         record["a_anra"] = a if math.isfinite(a) else None
         record["a_anra_interval"] = list(LASER_DX.diffusivity_interval(a)) if math.isfinite(a) else None
+        if found.result is not None and found.effects:
+            record["a_extended"] = float(found.result.diagnosis.base)
     names = [e["name"] for e in record["effects"]]
     record["cause"] = CAUSES.get(names[0], names[0]) if names else "none found"
     return record
@@ -148,8 +152,10 @@ def _diffusivity(row: dict[str, Any]) -> str:
     if "a_anra" in row:
         lo, hi = row["a_anra_interval"] or (None, None)
         plain = f"ANRA {_f(row['a_anra'])} [{_f(lo)}, {_f(hi)}] for dx 0.5-0.6 mm"
-        if row["effects"] and base.get("diffusivity") is not None:  # the extended model's own a
-            return f"{plain}; extended model {_f(base['diffusivity'])}"
+        if base.get("diffusivity") is not None:
+            plain += f"; diagnose's plain fit {_f(base['diffusivity'])}"
+        if row.get("a_extended") is not None:
+            plain += f"; extended model {_f(row['a_extended'])}"
         return plain
     if base.get("diffusivity_lower_bound") is not None:
         return f"unresolved: > {_f(base['diffusivity_lower_bound'])}"

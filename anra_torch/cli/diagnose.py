@@ -211,7 +211,8 @@ def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], An
         }
     if any(input_record(video).values()):
         summary["input"] = input_record(video)
-    summary["warnings"] = input_warnings(video) + list(result.warnings) + list(main.warnings)
+    lines = input_warnings(video) + list(result.warnings) + list(main.warnings)
+    summary["warnings"] = list(dict.fromkeys(lines))  # the phase repeats some of the result's lines
     return {**summary, **records}, result, mapped, video, phases
 
 

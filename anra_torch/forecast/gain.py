@@ -24,7 +24,7 @@ from torch import Tensor
 from anra_torch.balance.artefacts import find_artefacts
 from anra_torch.checks import mostly_finite
 from anra_torch.effects import Effect
-from anra_torch.flags import diffusivity_warnings, model_failure
+from anra_torch.flags import diffusivity_warnings, extended_diffusivity_warning, model_failure
 from anra_torch.forecast.core import (
     TIME_WINDOW,
     assimilated_state,
@@ -346,8 +346,12 @@ def _scored(run: _Forecasts, tick: float) -> GainResult:
 
 def _warnings(run: _Forecasts, rmse: float, floor: float) -> tuple[str, ...]:
     """The final model's flags: its diffusivity's plausibility; does it explain the held-out frames?"""
-    a = run.diagnosis.base if run.effects else run.diagnosis.a_plain
-    found = diffusivity_warnings(a, dt=run.dt, dx=run.dx)
+    a, plain = run.diagnosis.base, run.diagnosis.a_plain
+    names = [e.name for e in run.effects]
+    extended = extended_diffusivity_warning(a, plain, names) if run.effects else None
+    # A plausible plain a with an implausible extended one is the effects' doing, not a unit mix-up.
+    used = a if run.effects else plain
+    found = [extended] if extended else diffusivity_warnings(used, dt=run.dt, dx=run.dx)
     failure = model_failure(rmse, floor)
     return tuple(found + ([failure] if failure else []))
 

@@ -266,6 +266,7 @@ def _balance_phase(
     if result.diagnosis.a_plain < 0:
         diagnosis.flags.append("negative")
     diagnosis.warnings = _implausible(effects, part.shape[1] * dx, part.shape[2] * dx)
+    diagnosis.warnings.extend(_extended_conduction(result, effects))
     _flag_implausible(diagnosis, dt, dx)
     held = {"parametric": (result.extended_rmse, result.gain)}
     predicted = {"parametric": result.predicted_extended}
@@ -305,6 +306,15 @@ def _flag_implausible(diagnosis: PhaseDiagnosis, dt: float, dx: float) -> None:
     if not {"unresolved", "not_significant"} & set(diagnosis.flags):
         diagnosis.flags.append("implausible")
         diagnosis.warnings.extend(w for w in diffusivity_warnings(a, dt=dt, dx=dx, z=0.0) if "outside" in w)
+
+
+def _extended_conduction(result: GainResult, effects: list[dict[str, Any]]) -> list[str]:
+    """:func:`~anra_torch.flags.extended_diffusivity_warning` of the phase's extended model."""
+    from anra_torch.flags import extended_diffusivity_warning
+
+    names = [e["name"] for e in effects]
+    found = extended_diffusivity_warning(result.diagnosis.base, result.diagnosis.a_plain, names)
+    return [found] if found else []
 
 
 def _implausible(effects: list[dict[str, Any]], height: float, width: float) -> list[str]:
