@@ -93,6 +93,22 @@ def test_correlated_noise_is_measured(pure) -> None:
     assert model.time_corr[0] > 0.5
 
 
+@pytest.mark.slow
+def test_a_known_noise_model_is_used_as_given(pure) -> None:
+    """``noise_sd`` takes a whole noise model (the planted one: what ``experiments/noise_information.py``
+    measures the balance's limits with); a model known exactly carries no variance error."""
+    from anra_torch.balance.noise import NoiseModel
+
+    frames, _ = correlated_noise(pure.clean, seed=2, sd=2 * pure.noise_sd, length_px=1.5, length_frames=3.0)
+    rho = tuple(math.exp(-(k**2) / 18) for k in range(1, 11))
+    known = NoiseModel(2 * pure.noise_sd, time_corr=rho, space_length=1.5, variance_error=0.0)
+    assert known.variance_error == 0.0 and known.without_static().variance_error == 0.0
+    assert NoiseModel(1.0, space_length=1.5).variance_error == pytest.approx(0.1)  # a measured model's
+    d = diagnose_terms(frames, pure.dt, pure.dx, smoothing=4.0, noise_sd=known)
+    assert d.noise is known and d.names == []
+    assert d.base == pytest.approx(pure.a, rel=0.1)
+
+
 def test_the_level_of_correlated_noise_is_not_biased_by_choosing_quiet_pixels() -> None:
     """Noise alone (no thermal field): ranking single pixels by their power picked those whose noise
     happened to be low (sd 0.637-0.657 of 0.7 over these seeds); ranked by the power around them, the

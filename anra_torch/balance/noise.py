@@ -100,6 +100,8 @@ class NoiseModel:
         space_length: Gaussian correlation length in px (0: none).
         white_sd: sd of an uncorrelated component beside the correlated one (data units).
         static_sd, column_sd, row_sd: sds of a fixed pattern per pixel, per column and per row.
+        variance_error: the relative error of the model's variance (None: that of a measured model,
+            :attr:`variance_error`); 0 for a model known exactly, such as a planted one.
 
     Shape:
         :meth:`quadratic` ``(P, T, H, W) -> (P, P)`` (or ``(P, N)`` rows for white noise).
@@ -115,8 +117,10 @@ class NoiseModel:
         static_sd: float = 0.0,
         column_sd: float = 0.0,
         row_sd: float = 0.0,
+        variance_error: float | None = None,
     ) -> None:
         self.sd = sd
+        self._variance_error = variance_error
         self.time_corr = tuple(float(r) for r in time_corr)
         self.space_length = float(space_length)
         self.white_sd = float(white_sd)
@@ -131,7 +135,11 @@ class NoiseModel:
         """This model without its static part: what a balance with per-pixel fixed effects sees (each
         pixel's time mean removed takes a fixed pattern out exactly)."""
         return NoiseModel(
-            self.sd, time_corr=self.time_corr, space_length=self.space_length, white_sd=self.white_sd
+            self.sd,
+            time_corr=self.time_corr,
+            space_length=self.space_length,
+            white_sd=self.white_sd,
+            variance_error=self._variance_error,
         )
 
     @property
@@ -143,7 +151,10 @@ class NoiseModel:
     def variance_error(self) -> float:
         """Relative error of the measured variance that a correction by it carries: 0 for white noise (the
         robust estimate over a whole video is precise to well under 1 %, neglected), 10 % for a correlated
-        or static model (measured: the level and lengths of planted camera noise come back within 5-10 %)."""
+        or static model (measured: the level and lengths of planted camera noise come back within 5-10 %);
+        the value given to the constructor when there was one."""
+        if self._variance_error is not None:
+            return float(self._variance_error)
         return 0.0 if self.white else _MODEL_ERROR
 
     @property

@@ -171,7 +171,7 @@ def diagnose_terms(
     *,
     alpha: float = ALPHA,
     smoothing: float | Sequence[float] | None = None,
-    noise_sd: float | None = None,
+    noise_sd: float | NoiseModel | None = None,
     effects: Sequence[str] | None = None,
     time_family: str = "smooth",
 ) -> Diagnosis:
@@ -184,7 +184,9 @@ def diagnose_terms(
         alpha: family-wise false-positive rate on pure heat-transfer video.
         smoothing: Gaussian sigma (px) or candidates; default :data:`SMOOTHING`, taking the one with
             the smallest standard error of ``a``.
-        noise_sd: known white-noise sd (data units); default estimated from the video.
+        noise_sd: the noise when it is known: a white-noise sd (data units), or a whole
+            :class:`~anra_torch.balance.noise.NoiseModel` (e.g. the one a camera's noise was planted with);
+            default measured from the video (:func:`~anra_torch.balance.noise.measure_noise`).
         effects: names in :data:`anra_torch.effects.EFFECTS` to look for; default those searched by
             default (every effect but ``periodic_source``).
         time_family: Holoborodko time family of ``dT/dt`` (:data:`anra_torch.layers.stencils.TIME_FAMILIES`).
@@ -221,6 +223,8 @@ def diagnose_terms(
         raise ValueError("frames are constant: no thermal activity to diagnose")
     if noise_sd is None:
         noise = measure_noise(video, static_pattern=artefacts.fixed_pattern)
+    elif isinstance(noise_sd, NoiseModel):
+        noise = noise_sd
     else:
         noise = NoiseModel(positive(noise_sd, "noise_sd", "data units"))
     options = {"time_family": time_family, "noise": noise, "within": artefacts.within}
