@@ -92,14 +92,22 @@ def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str
 
 def _row(video: Video, result: ANRAResult, index: int, seconds: float) -> dict[str, Any]:
     """The row of video ``index`` of a (batched) result."""
-    t, h, w = video.frames.shape
     record = result.to_record(index)
+    return _record_row(video, record, {key: record[key] for key in _RECORD_COLUMNS}, seconds)
+
+
+def _record_row(
+    video: Video, record: dict[str, Any], columns: dict[str, Any], seconds: float
+) -> dict[str, Any]:
+    """The row of one estimate ``record`` (``valid``, ``message``) with its result ``columns``: an error row
+    with the reason when it is not valid, its numbers kept."""
+    t, h, w = video.frames.shape
     ok = record["valid"]
     return {
         "path": str(video.source),
         "status": "ok" if ok else "error",
         "error": "" if ok else f"{video.source}: {record['message']}",
-        **{key: record[key] for key in _RECORD_COLUMNS},
+        **columns,
         "frames": t,
         "height": h,
         "width": w,
@@ -114,30 +122,13 @@ def _row(video: Video, result: ANRAResult, index: int, seconds: float) -> dict[s
 
 def _small_box_row(video: Video) -> dict[str, Any]:
     """The row of a region too small for the filters: the small-box estimate, as ``anra estimate`` gives
-    it (:func:`~anra_torch.forecast.small_box.small_box_estimate`); not valid is an error row with the
-    reason, its numbers kept."""
+    it (:func:`~anra_torch.forecast.small_box.small_box_estimate`)."""
     from anra_torch.forecast.small_box import small_box_estimate
 
     start = time.perf_counter()
-    t, h, w = video.frames.shape
     record = small_box_estimate(in_memory(video.frames), video.dt, video.dx)
-    ok = record["valid"]
-    return {
-        "path": str(video.source),
-        "status": "ok" if ok else "error",
-        "error": "" if ok else f"{video.source}: {record['message']}",
-        "diffusivity": record["diffusivity"],
-        "std_error": record["std_error"],
-        "frames": t,
-        "height": h,
-        "width": w,
-        "dt": video.dt,
-        "dx": video.dx,
-        "a_true": video.truth.a if video.truth is not None else None,
-        "seconds": time.perf_counter() - start,
-        **_preparation(video),
-        "message": join_messages([*input_warnings(video), record["message"]]),
-    }
+    columns = {"diffusivity": record["diffusivity"], "std_error": record["std_error"]}
+    return _record_row(video, record, columns, time.perf_counter() - start)
 
 
 def _small(video: Video) -> bool:
