@@ -99,7 +99,11 @@ def _diffusivity(frames: object, video: object) -> dict:
 
     try:
         result = ANRAEstimator(strict=False)(frames, dt=video.dt, dx=video.dx)
-        return {"a_estimate": float(result.diffusivity), "a_valid": bool(result.valid)}
+        return {
+            "a_estimate": float(result.diffusivity),
+            "a_std_error": float(result.std_error),
+            "a_valid": bool(result.valid),
+        }
     except Exception as err:  # noqa: BLE001
         return {"a_estimate": None, "a_error": f"{type(err).__name__}: {err}"}
 
