@@ -227,7 +227,7 @@ def _pilot(est: ANRAEstimator, blocks: Tensor, dt: Tensor, dx: Tensor, side: int
     scale = max(1.0, (total - length + 1) / (n * (blocks.shape[1] - length + 1)))  # outputs per pilot output
     finite = torch.isfinite(blocks)
     stuck = stuck_pixels(blocks, finite)
-    dead = stuck[:, 0].all(0)  # constant through every block: masked, as the estimator does
+    dead = stuck[:, 0].all(0)  # constant through every block: masked (the in-memory estimator repairs them)
     rows, cols = _signal_crop(blocks, finite, side)
     whole = rows == slice(None)  # the window is the whole frame: its artefact search is the noise model's
     if not whole:

@@ -467,17 +467,22 @@ class ANRAEstimator(nn.Module):
         videos without activity (they come back flagged)."""
         b, t, h, w = video.shape
         finite = torch.isfinite(video)
-        finite = finite & ~stuck_pixels(video, finite)
+        stuck = stuck_pixels(video, finite)
+        finite = finite & ~stuck
         # Remove each video's mean (derivatives ignore it): keeps float32 precise on e.g. 300 K scenes,
         # and fills masked pixels with a neutral value.
         counts = finite.sum((1, 2, 3)).clamp_min(1)
         mean = torch.where(finite, video, torch.zeros_like(video)).sum((1, 2, 3)) / counts
         video = torch.where(finite, video - mean.view(b, 1, 1, 1), torch.zeros_like(video))
         noise = batch_noise(video, finite, noise_sd=self.noise_sd)
-        video = torch.where(finite, noise.cleaned, video)
+        # Dead elements take their repair (the good neighbours' median) and stay in the fit: masked, each cut
+        # its filters' support out of every frame, and a pure video with 3 dead and 3 hot elements moved
+        # by 2.7 % from its clean estimate (0.01 % with the repair).
+        repaired = stuck & torch.isfinite(noise.cleaned)
+        video = torch.where(finite | repaired, noise.cleaned, video)
         noise_sd = noise.sd
         usable = self.usable(h, w)
-        candidates = [self.candidate_sums(i, video, finite, dt_, dx_, noise) for i in usable]
+        candidates = [self.candidate_sums(i, video, finite | repaired, dt_, dx_, noise) for i in usable]
         chosen, measured, choice = self._choose(candidates)
         num, den, energy, ratio = chosen.num, chosen.den, chosen.energy, chosen.ratio
         total_den = den.sum(1)

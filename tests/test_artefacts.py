@@ -55,6 +55,18 @@ def test_spikes_and_dead_and_hot_elements_are_found_and_repaired(pure) -> None:
     assert float((repaired - pure.frames)[:, good].abs().max()) < 8 * pure.noise_sd
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_estimator_keeps_dead_elements_repaired_not_cut_out(pure, seed: int) -> None:
+    """Dead elements (constant in time) take their repair and stay in the fit. Cut out, each took its
+    filters' support out of every frame: on the artefact benchmark a pure video with 3 dead and 3 hot
+    elements moved by 2.7 % from its clean estimate, with 4x its standard error (here: 0.27 % and 1.4x)."""
+    frames, _ = _planted(pure, "bad_elements", seed=seed)
+    clean = ANRAEstimator()(pure.frames, pure.dt, pure.dx)
+    found = ANRAEstimator()(frames, pure.dt, pure.dx)
+    assert float(found.diffusivity) == pytest.approx(float(clean.diffusivity), rel=2e-3)
+    assert float(found.std_error) == pytest.approx(float(clean.std_error), rel=0.1)
+
+
 def test_a_fixed_pattern_is_measured_as_the_noise_static_part(pure) -> None:
     frames, record = _planted(pure, "fixed_pattern")
     repaired, found = find_artefacts(frames)
