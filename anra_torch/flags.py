@@ -25,6 +25,7 @@ __all__ = [
     "POOR_FIT",
     "diffusivity_warnings",
     "extended_diffusivity_warning",
+    "implausible_diffusivity",
     "model_failure",
     "poor_fit",
     "verdicts",
@@ -103,13 +104,29 @@ def diffusivity_warnings(a: float, *, dt: float, dx: float, z: float | None = No
             "the diffusivity is negative: heat gathers instead of spreading (a source, or frames in "
             "reverse order?), the plain heat equation does not describe these frames"
         )
+    outside = implausible_diffusivity(a, dt=dt, dx=dx)
+    return found + ([outside] if outside else [])
+
+
+def implausible_diffusivity(a: float, *, dt: float, dx: float) -> str | None:
+    """The warning for a diffusivity ``a`` (mm^2/s) outside every known material
+    (:data:`PLAUSIBLE_DIFFUSIVITY`), with the likely unit mix-up of ``dt`` (s) or ``dx`` (mm); None inside
+    the range or for a non-finite ``a``.
+
+    Shape:
+        No tensors.
+
+    Example:
+        >>> implausible_diffusivity(0.15, dt=0.04, dx=0.1) is None
+        True
+    """
     low, high = PLAUSIBLE_DIFFUSIVITY
-    if not low <= abs(a) <= high:
-        found.append(
-            f"the diffusivity {a:.3g} mm^2/s is outside every known material (about {low:g} to {high:g} "
-            f"mm^2/s in magnitude){_likely_cause(a, dt, dx)}"
-        )
-    return found
+    if not math.isfinite(a) or low <= abs(a) <= high:
+        return None
+    return (
+        f"the diffusivity {a:.3g} mm^2/s is outside every known material (about {low:g} to {high:g} "
+        f"mm^2/s in magnitude){_likely_cause(a, dt, dx)}"
+    )
 
 
 def extended_diffusivity_warning(a: float, plain: float, effects: Sequence[str]) -> str | None:

@@ -111,8 +111,7 @@ def test_a_fixed_pattern_beside_a_changing_field_is_not_counted_as_white_noise(s
     """Where the thermal field leaks into the noise's differences (a correlation that does not decay, or a
     length at the end of those tried) the noise is taken as white; with a fixed pattern that white level
     came from the frames' spatial differences, which hold the pattern: 3.1 noise sds and no static part
-    here, and on a benchmark advection video the diffusivity at 0 with a loss, a source and an advection
-    named. The level now comes from the deviations from each pixel's time mean, the pattern from the
+    here. The level now comes from the deviations from each pixel's time mean, the pattern from the
     time-mean frame."""
     g = torch.Generator().manual_seed(seed)
     t, n, r = 61, 64, 8

@@ -411,8 +411,8 @@ def _model_over(
         if not static_pattern:
             return white
         # With a fixed pattern, white's level (spatial differences of the frames) holds the pattern too:
-        # the level comes from the deviations' differences below, as for white noise beside a pattern. (A
-        # fast advection's field took a 3-noise-sd pattern into a white level 3.2x the noise's: a at 0.)
+        # the level comes from the deviations' differences below, as for white noise beside a pattern
+        # (tests/test_artefacts.py -k changing_field: 3.1 noise sds before, and no static part).
         rho_t, length = (), 0.0
     time = rho_t if rho_t and rho_t[0] >= _CORRELATED else ()
     if not time and length == 0 and not static_pattern:

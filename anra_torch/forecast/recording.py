@@ -298,14 +298,13 @@ def _flag_implausible(diagnosis: PhaseDiagnosis, dt: float, dx: float) -> None:
     """Flag (``"implausible"``, with a warning line) a diffusivity outside every known material
     (:data:`~anra_torch.flags.PLAUSIBLE_DIFFUSIVITY`) that no other flag already qualifies: a small box whose
     significant ``a`` of 4e-4 mm^2/s describes the fit, not the material."""
-    from anra_torch.flags import PLAUSIBLE_DIFFUSIVITY, diffusivity_warnings
+    from anra_torch.flags import implausible_diffusivity
 
-    a, (low, high) = diagnosis.diffusivity, PLAUSIBLE_DIFFUSIVITY
-    if a is None or not math.isfinite(a) or low <= abs(a) <= high:
-        return
-    if not {"unresolved", "not_significant"} & set(diagnosis.flags):
+    a = diagnosis.diffusivity
+    outside = None if a is None else implausible_diffusivity(a, dt=dt, dx=dx)
+    if outside and not {"unresolved", "not_significant"} & set(diagnosis.flags):
         diagnosis.flags.append("implausible")
-        diagnosis.warnings.extend(w for w in diffusivity_warnings(a, dt=dt, dx=dx, z=0.0) if "outside" in w)
+        diagnosis.warnings.append(outside)
 
 
 def _extended_conduction(result: GainResult, effects: list[dict[str, Any]]) -> list[str]:
