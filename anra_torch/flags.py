@@ -57,14 +57,17 @@ def _likely_cause(a: float, dt: float, dx: float) -> str:
         fixed = abs(a) * (factor**2 if name == "dx" else 1 / factor)
         if low <= fixed <= high and (best is None or abs(math.log10(fixed)) < abs(math.log10(best[0]))):
             best = (fixed, name, unit, factor)
+    # Too small can also be the data's: frames that change by something other than lateral conduction.
+    still = ", or frames that hardly change by lateral conduction (a flat baseline, a drift, a loss)"
+    still = still if abs(a) < low else ""
     if best is None:
-        return "; check that dt is in s, dx in mm and the frames are temperatures"
+        return f"; check that dt is in s, dx in mm and the frames are temperatures{still}"
     fixed, name, unit, factor = best
     value = dx if name == "dx" else dt
     wanted = "mm" if name == "dx" else "s"
     return (
         f"; likely cause: {name} = {value:g} given in {unit} instead of {wanted} "
-        f"({name} = {value * factor:g} {wanted} would give {math.copysign(fixed, a):.3g} mm^2/s)"
+        f"({name} = {value * factor:g} {wanted} would give {math.copysign(fixed, a):.3g} mm^2/s){still}"
     )
 
 

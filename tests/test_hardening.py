@@ -359,9 +359,11 @@ def test_diffusivity_warnings_name_the_unit_mix_up() -> None:
     # dt in ms: a reads 1000 times too small
     (warning,) = diffusivity_warnings(1.5e-4, dt=40.0, dx=0.1)
     assert "likely cause: dt = 40 given in ms instead of s (dt = 0.04 s would give 0.15 mm^2/s)" in warning
+    assert warning.endswith("hardly change by lateral conduction (a flat baseline, a drift, a loss)")
     # dx in um: a reads 1e6 times too large
     (warning,) = diffusivity_warnings(1.5e5, dt=0.04, dx=100.0)
     assert "likely cause: dx = 100 given in um instead of mm (dx = 0.1 mm would give 0.15 mm^2/s)" in warning
+    assert "lateral conduction" not in warning  # too large is never the data's stillness
     # nothing explains 1e30: the generic advice
     (warning,) = diffusivity_warnings(1e30, dt=0.04, dx=0.1)
     assert warning.endswith("check that dt is in s, dx in mm and the frames are temperatures")
