@@ -322,14 +322,19 @@ def _bump(size: int) -> np.ndarray:
 def test_irregular_times_with_a_12x_step_range_need_no_flag(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Frames 5-60 s apart, simulated at those times: phases without blended frames, forecasts scored at
-    the measured samples, the cooling diffusivity of the simulation."""
+    """Frames 5-60 s apart, simulated at those times and saved as a folder of text matrices whose names
+    state the times: phases without blended frames, forecasts scored at the measured samples, the
+    cooling diffusivity of the simulation; no flag but the pixel size."""
     steps = np.tile([5.0, 60.0, 15.0, 40.0], 15)  # resampled at 15 s: no sample midway between two frames
     t = np.concatenate([[0.0], np.cumsum(steps)])
     t = t[t <= 600.0]  # 21 samples; the source switches off at 150 s, between the 125 s and 185 s samples
-    path = save_npz(tmp_path / "sparse.npz", _sampled_heating(t, off=150.0), dt=27.5, dx=0.55, t=t)
-    assert main(["diagnose", str(path), "--json"]) == 0
+    path = tmp_path / "sparse"
+    path.mkdir()
+    for time, frame in zip(t, _sampled_heating(t, off=150.0), strict=True):
+        np.savetxt(path / f"silicone_{time:g}s.txt", frame, fmt="%.4f")
+    assert main(["diagnose", str(path), "--dx", "0.55", "--json"]) == 0
     record = json.loads(capsys.readouterr().out)
+    assert record["input"]["timestamps"] == "file names"
     assert record["input"]["resampled"]["from_frames"] == 21
     assert [p["kind"] for p in record["phases"]] == ["heating", "cooling"]
     cooling = record["phases"][1]
@@ -338,10 +343,10 @@ def test_irregular_times_with_a_12x_step_range_need_no_flag(
     # The cubic through the real timestamps leaves the plain model's held-out error at the noise floor
     # (measured 0.79 of it; linear interpolation of the 60 s gaps: 2.65).
     assert cooling["base"]["prediction_rmse"] < 1.5 * cooling["noise_floor"]
-    assert main(["estimate", str(path), "--json"]) == 0
+    assert main(["estimate", str(path), "--dx", "0.55", "--json"]) == 0
     estimate = json.loads(capsys.readouterr().out)
     assert estimate["phase"] == "cooling" and estimate["diffusivity"] == pytest.approx(0.12, rel=0.05)
-    video = load_video(path, timestamps="resample")
+    video = load_video(path, dx=0.55, timestamps="resample")
     (_, phase) = diagnose_recording(
         video.frames, video.dt, video.dx, video.t, measured_t=video.meta["measured_t"]
     )

@@ -43,8 +43,8 @@ def add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
     parser.add_argument(
         "video",
         metavar="VIDEO",
-        help=f"video file ({formats}) or a folder with one file per frame (FLIR .jpg, .csv/.txt matrices); "
-        "frames (T, H, W)",
+        help=f"video file ({formats}) or a folder with one file per frame (FLIR .jpg, .csv/.txt matrices, "
+        "timed by a times.txt, '# t = 5 s' lines or names such as frame_005s.txt); frames (T, H, W)",
     )
     add_spacing_arguments(parser, "the file")
     add_region_arguments(parser)
@@ -85,13 +85,17 @@ def load_input(args: argparse.Namespace, *, need_dx: bool = True) -> Video:
 
 
 def input_record(video: Video) -> dict[str, Any]:
-    """What the loading did: ``resampled`` (from what), ``roi`` (px), ``calibration``, ``masked_values``
-    (samples masked as not finite or beyond +-1e6); null when not done."""
-    return {key: video.meta.get(key) for key in ("resampled", "roi", "calibration", "masked_values")}
+    """What the loading did: ``timestamps`` (where a folder of frame files recorded its times),
+    ``resampled`` (from what), ``roi`` (px), ``calibration``, ``masked_values`` (samples masked as not
+    finite or beyond +-1e6); null when not done."""
+    keys = ("timestamps", "resampled", "roi", "calibration", "masked_values")
+    return {key: video.meta.get(key) for key in keys}
 
 
 def print_input(video: Video) -> None:
     """The human lines saying what :func:`load_input` did (resampling, region, calibration)."""
+    if video.meta.get("timestamps"):
+        print(f"  timestamps: read from the folder's {video.meta['timestamps']}")
     r = video.meta.get("resampled")
     if r:
         print(
