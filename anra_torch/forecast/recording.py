@@ -276,6 +276,12 @@ def _balance_phase(
             mapped = source_map_gain(clean, dt, dx, result)
             held["source_map"] = (mapped.rmse, mapped.gain)
             predicted["source_map"] = mapped.predicted
+            if result.split + 1 < _INNER_FRAMES:
+                raise ValueError(
+                    f"its {result.split + 1} fit frames are fewer than the {_INNER_FRAMES} a comparison "
+                    "inside them needs (5 to diagnose, 2 to validate); the parametric source is kept, the "
+                    "source map's held-out gain is shown for information only"
+                )
             validation = _inner_balance(clean[: result.split + 1], dt, dx, fit_fraction, options)
         except ValueError as err:
             validation = {}
@@ -337,6 +343,10 @@ def _implausible(effects: list[dict[str, Any]], height: float, width: float) -> 
                     f"{height:.3g} mm field of view; a sign of a term the model is missing"
                 )
     return out
+
+
+_INNER_FRAMES = 7
+"""Fit frames the inner comparison of the source candidates needs: 5 to diagnose, 2 to validate."""
 
 
 def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, options: dict) -> dict[str, float]:
