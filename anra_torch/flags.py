@@ -87,7 +87,7 @@ def diffusivity_warnings(a: float, *, dt: float, dx: float, z: float | None = No
         No tensors.
 
     Example:
-        >>> diffusivity_warnings(6e-9, dt=0.04, dx=0.0001)[0].split("; ")[1]
+        >>> diffusivity_warnings(6e-9, dt=0.04, dx=0.0001)[0].split("; ")[1].split(", or")[0]
         'likely cause: dx = 0.0001 given in m instead of mm (dx = 0.1 mm would give 0.006 mm^2/s)'
         >>> diffusivity_warnings(0.15, dt=0.04, dx=0.1)
         []

@@ -54,6 +54,7 @@ JSON_KEYS = {
     "phase",
     "phases",
     "chunked",
+    "depth_aware",
 }
 
 

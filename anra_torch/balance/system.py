@@ -10,7 +10,7 @@ fits by least squares with the sandwich covariance of the coefficients (exact fo
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -179,13 +179,18 @@ class BalanceSystem:
 
     def add(self, name: str, term: Tensor, noise: NoiseSpec | None) -> None:
         """Register (or replace) an extra term (source, heterogeneity) on the output grid."""
-        term = self.fixed_effects(term)
-        self.terms[name] = term
-        self.detached[name] = term.detach()
-        self.kernels[name] = None if noise is None else noise.kernel
-        self.weights.pop(name, None)
-        if noise is not None and noise.weight is not None:
-            self.weights[name] = noise.weight
+        self.add_terms({name: (term, noise)})
+
+    def add_terms(self, terms: Mapping[str, tuple[Tensor, NoiseSpec | None]]) -> None:
+        """Register (or replace) several extra terms at once: their moments are computed in one pass."""
+        for name, (term, noise) in terms.items():
+            term = self.fixed_effects(term)
+            self.terms[name] = term
+            self.detached[name] = term.detach()
+            self.kernels[name] = None if noise is None else noise.kernel
+            self.weights.pop(name, None)
+            if noise is not None and noise.weight is not None:
+                self.weights[name] = noise.weight
         extras = [n for n in self.detached if n not in self._base.names]
         names = (*self._base.names, *extras)
         self.moments = extend(self._base, self.detached, extras, noise=self.term_noise(names))

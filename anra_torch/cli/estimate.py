@@ -53,8 +53,10 @@ from anra_torch.cli.arguments import (
     relative,
 )
 from anra_torch.estimator import MODES, ANRAEstimator, ANRAResult
+from anra_torch.flags import POOR_FIT
 from anra_torch.forecast.recording import find_phases
 from anra_torch.report import format_pm
+from anra_torch.selection.depth_aware import depth_aware_diffusivity
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
 from anra_torch.video.lazy import LazyFrames, in_memory, lazy_video
 
@@ -162,6 +164,8 @@ def _print_summary(s: dict[str, Any]) -> None:
     )
     if s.get("explained") is not None:
         print(f"  the plain heat equation explains {100 * s['explained']:.1f} % of dT/dt (above its noise)")
+    if s.get("depth_aware"):
+        print(f"  {_depth_aware_line(s['depth_aware'])}")
     if s["n_masked"]:
         print(f"  masked {s['n_masked']} non-finite pixel values")
     if s.get("chunked"):
@@ -183,8 +187,41 @@ def _print_summary(s: dict[str, Any]) -> None:
     print(f"  took {s['elapsed_s']:.2f} s")
 
 
+def _depth_aware_line(d: dict[str, Any]) -> str:
+    """The human line of a :func:`_depth_aware` record."""
+    if "error" in d:
+        return f"depth-aware fit not made: {d['error']}"
+    values = d["by_smoothing"]
+    scales = f"{min(values, key=float)}-{max(values, key=float)} px"
+    a = format_pm(d["diffusivity"], d["std_error"], "mm^2/s")
+    if d["consistent"]:
+        return f"depth-aware a = {a} (a loss rate free in each frame: heat into depth or the air; {scales})"
+    low, high = min(values.values()), max(values.values())
+    return (
+        f"depth-aware a = {a} (a loss rate free in each frame), but {low:.3g}-{high:.3g} mm^2/s over "
+        f"{scales}: no lateral diffusivity describes these frames"
+    )
+
+
 SOURCE_FREE = ("cooling", "baseline", "steady")
 """Phase kinds without a heat source, in the order their diffusivity is preferred for the top level."""
+
+
+def _depth_aware(
+    part: Video, result: ANRAResult | None, kind: str, reading: _Reading
+) -> dict[str, Any] | None:
+    """For a source-free run whose plain heat equation explains less than :data:`~anra_torch.flags.POOR_FIT`
+    of dT/dt (read whole, not in chunks): the :func:`depth_aware_diffusivity` record, or ``{"error": ...}``
+    when it cannot be fitted; None otherwise."""
+    if result is None or reading.chunked or kind not in SOURCE_FREE:
+        return None
+    explained = result.to_record(unit=part.unit)["explained"]
+    if explained is None or not explained < POOR_FIT:
+        return None
+    try:
+        return depth_aware_diffusivity(in_memory(part.frames), part.dt, part.dx).to_record()
+    except ValueError as err:
+        return {"error": str(err)}
 
 
 def _small_box_record(video: Video) -> dict[str, Any]:
@@ -276,6 +313,7 @@ def _phases(
         record, result = _estimate(part, est, reading)
         if result is not None:
             record = {k: result.to_record(unit=video.unit)[k] for k in _PHASE_KEYS}
+            record["depth_aware"] = _depth_aware(part, result, phase.name, reading)
         records.append({"warnings": [], **head, **record})
         rank = (
             phase.name in SOURCE_FREE and bool(record["valid"]),
@@ -334,7 +372,11 @@ def run(args: argparse.Namespace) -> int:
     if not records:  # one phase
         head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
         head.update(t_start=phase.t_start, t_stop=phase.t_stop)
-        records = [{**head, **{k: summary.get(k) for k in _PHASE_KEYS}}]
+        summary["depth_aware"] = _depth_aware(part, result, phase.name, reading)
+        records = [{**head, **{k: summary.get(k) for k in (*_PHASE_KEYS, "depth_aware")}}]
+    else:  # the described phase's (none when every phase is too short)
+        described = [r for r in records if phase is not None and r["start_frame"] == phase.start]
+        summary["depth_aware"] = described[0].get("depth_aware") if described else None
     summary["chunked"] = reading.details
     summary["phase"] = phase.name if phase is not None else "recording"
     summary["phases"] = records
