@@ -70,6 +70,8 @@ class DepthAwareFit:
             derivative is centred on, or :data:`MAX_RATES` blocks of consecutive frames in a longer run.
         rate_frames: the first frame (index in the run) of each rate's block.
         by_smoothing: ``a`` (mm^2/s) at each of those smoothing candidates (px).
+        plain_by_smoothing: the plain ``dT/dt = a Lap T`` (with the same per-frame levels) at each of them:
+            where depth matters it moves with the smoothing too.
     """
 
     diffusivity: float
@@ -78,6 +80,7 @@ class DepthAwareFit:
     rates: tuple[float, ...]
     rate_frames: tuple[int, ...]
     by_smoothing: dict[float, float]
+    plain_by_smoothing: dict[float, float]
 
     @property
     def consistent(self) -> bool:
@@ -87,7 +90,7 @@ class DepthAwareFit:
 
     def to_record(self) -> dict[str, Any]:
         """A JSON-ready record (``diffusivity``, ``std_error`` mm^2/s; ``smoothing_px`` px; ``rates`` 1/s and
-        ``rate_frames``; ``by_smoothing`` ``{"<px>": mm^2/s}``; ``consistent``)."""
+        ``rate_frames``; ``by_smoothing`` and ``plain_by_smoothing`` ``{"<px>": mm^2/s}``; ``consistent``)."""
         return {
             "diffusivity": self.diffusivity,
             "std_error": self.std_error,
@@ -95,6 +98,7 @@ class DepthAwareFit:
             "rates": list(self.rates),
             "rate_frames": list(self.rate_frames),
             "by_smoothing": {f"{s:g}": a for s, a in self.by_smoothing.items()},
+            "plain_by_smoothing": {f"{s:g}": a for s, a in self.plain_by_smoothing.items()},
             "consistent": self.consistent,
         }
 
@@ -138,9 +142,10 @@ def depth_aware_diffusivity(
         raise ValueError("frames are constant: no change to fit")
     noise = measure_noise(video, static_pattern=artefacts.fixed_pattern)
     within = tuple(dict.fromkeys(("frame", *artefacts.within)))
-    fits, shares = {}, {}
+    fits, plains, shares = {}, {}, {}
     for sigma in sigmas:
         system = BalanceSystem(video, dt, dx, sigma, float(noise.sd), noise=noise, within=within)
+        plains[sigma] = float(system.fit(["L"]).beta[0])
         index = system.moments.names.index("L")
         shares[sigma] = float(system.moments.noise[index, index] / system.moments.raw[index, index])
         rates = {}
@@ -162,6 +167,7 @@ def depth_aware_diffusivity(
         rates=tuple(-float(b) for b in fit.beta[1:]),
         rate_frames=tuple(block.start + 2 for block in blocks),
         by_smoothing={s: float(f.beta[0]) for s, f in fits.items()},
+        plain_by_smoothing={s: plains[s] for s in fits},
     )
 
 
