@@ -22,7 +22,9 @@ __all__ = [
     "MIN_SIGNIFICANCE",
     "MODEL_FAILURE_RATIO",
     "PLAUSIBLE_DIFFUSIVITY",
+    "DEPTH_BIAS",
     "POOR_FIT",
+    "depth_bias",
     "diffusivity_warnings",
     "extended_diffusivity_warning",
     "implausible_diffusivity",
@@ -198,6 +200,36 @@ MIN_RELIABILITY = 0.05
 
 MIN_SIGNIFICANCE = 3.0
 """``|a| / std_error`` below this is indistinguishable from noise."""
+
+
+DEPTH_BIAS = 1.25
+"""Ratio of the plain to a consistent depth-aware diffusivity above which the plain one is flagged."""
+
+
+def depth_bias(plain: float | None, depth_aware: dict | None) -> list[str]:
+    """The warning of a plain diffusivity more than :data:`DEPTH_BIAS` times (or under 1 / DEPTH_BIAS of)
+    the depth-aware one (a ``depth_aware`` record of
+    :meth:`~anra_torch.selection.depth_aware.DepthAwareFit.to_record` that is consistent); none otherwise.
+
+    Shape:
+        No tensors.
+
+    Example:
+        >>> depth_bias(0.25, {"diffusivity": 0.13, "consistent": True})[0][:58]
+        'the plain diffusivity 0.25 mm^2/s is 1.9x the depth-aware '
+        >>> depth_bias(0.25, {"diffusivity": 0.13, "consistent": False})
+        []
+    """
+    if plain is None or not depth_aware or not depth_aware.get("consistent"):
+        return []
+    a = depth_aware["diffusivity"]
+    if not (a > 0 and plain > 0 and max(plain / a, a / plain) > DEPTH_BIAS):
+        return []
+    return [
+        f"the plain diffusivity {plain:.3g} mm^2/s is {plain / a:.2g}x the depth-aware {a:.3g} mm^2/s (a "
+        "loss rate free in each frame, the same at every smoothing): heat flowing into depth reads as "
+        "lateral spreading; the depth-aware value is the better estimate of the lateral diffusivity"
+    ]
 
 
 def poor_fit(explained: float) -> tuple[str, ...]:

@@ -75,16 +75,21 @@ def test_diagnose_recording_analyses_each_phase_on_its_own() -> None:
     assert record["kind"] == "heating" and record["gain"] > 0.2 and "candidates" in record
 
 
-def test_a_short_heating_says_why_its_candidates_were_not_compared() -> None:
-    """9 heating frames leave 5 to fit: too few to compare the source candidates inside them. Both are
-    forecast; the parametric source is kept, and the warning says why (not an internal argument error)."""
-    frames = torch.as_tensor(_heated_then_cooled(off=9, n=30))
+def test_a_short_heating_keeps_seven_fit_frames_or_says_why_its_candidates_were_not_compared() -> None:
+    """8 heating frames leave 6 to fit (a short phase keeps 2 held out, and up to 7 to fit): too few to
+    compare the source candidates inside them. Both are forecast; the parametric source is kept, and the
+    warning says why (not an internal argument error). 10 frames keep 7: the comparison is made."""
+    frames = torch.as_tensor(_heated_then_cooled(off=7, n=30))
     heating = diagnose_recording(frames, DT, DX)[0]
-    assert (heating.phase.name, heating.phase.frames, heating.model) == ("heating", 10, "parametric")
+    assert (heating.phase.name, heating.phase.frames, heating.model) == ("heating", 8, "parametric")
+    assert heating.result.split + 1 == 6
     (line,) = [w for w in heating.warnings if w.startswith("the source map was not compared")]
     assert "its 6 fit frames are fewer than the 7 a comparison inside them needs" in line
     mapped = heating.to_record()["candidates"]["source_map"]
     assert mapped["validation_rmse"] is None and math.isfinite(mapped["gain"])
+    longer = diagnose_recording(torch.as_tensor(_heated_then_cooled(off=9, n=30)), DT, DX)[0]
+    assert (longer.phase.frames, longer.result.split + 1) == (10, 7)
+    assert all(c["validation_rmse"] is not None for c in longer.to_record()["candidates"].values())
 
 
 def test_estimate_gives_phase_times_in_seconds(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

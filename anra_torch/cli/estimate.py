@@ -53,7 +53,7 @@ from anra_torch.cli.arguments import (
     relative,
 )
 from anra_torch.estimator import MODES, ANRAEstimator, ANRAResult
-from anra_torch.flags import POOR_FIT
+from anra_torch.flags import POOR_FIT, depth_bias
 from anra_torch.forecast.recording import find_phases
 from anra_torch.report import format_pm
 from anra_torch.selection.depth_aware import depth_aware_diffusivity
@@ -208,15 +208,16 @@ SOURCE_FREE = ("cooling", "baseline", "steady")
 
 
 def _depth_aware(
-    part: Video, result: ANRAResult | None, kind: str, reading: _Reading
+    part: Video, result: ANRAResult | None, kind: str, reading: _Reading, *, heated: bool = False
 ) -> dict[str, Any] | None:
-    """For a source-free run whose plain heat equation explains less than :data:`~anra_torch.flags.POOR_FIT`
-    of dT/dt (read whole, not in chunks): the :func:`depth_aware_diffusivity` record, or ``{"error": ...}``
-    when it cannot be fitted; None otherwise."""
+    """For a source-free run (read whole, not in chunks) that follows a heating (``heated``: the source laid
+    heat down that now flows into depth) or whose plain heat equation explains less than
+    :data:`~anra_torch.flags.POOR_FIT` of dT/dt: the :func:`depth_aware_diffusivity` record, or
+    ``{"error": ...}`` when it cannot be fitted; None otherwise."""
     if result is None or reading.chunked or kind not in SOURCE_FREE:
         return None
     explained = result.to_record(unit=part.unit)["explained"]
-    if explained is None or not explained < POOR_FIT:
+    if not heated and (explained is None or not explained < POOR_FIT):
         return None
     try:
         return depth_aware_diffusivity(in_memory(part.frames), part.dt, part.dx).to_record()
@@ -313,7 +314,9 @@ def _phases(
         record, result = _estimate(part, est, reading)
         if result is not None:
             record = {k: result.to_record(unit=video.unit)[k] for k in _PHASE_KEYS}
-            record["depth_aware"] = _depth_aware(part, result, phase.name, reading)
+            heated = any(r["kind"] == "heating" for r in records)
+            record["depth_aware"] = _depth_aware(part, result, phase.name, reading, heated=heated)
+            record["warnings"] += depth_bias(record["diffusivity"], record["depth_aware"])
         records.append({"warnings": [], **head, **record})
         rank = (
             phase.name in SOURCE_FREE and bool(record["valid"]),
@@ -373,10 +376,12 @@ def run(args: argparse.Namespace) -> int:
         head = {"kind": phase.name, "start_frame": phase.start, "stop_frame": phase.stop}
         head.update(t_start=phase.t_start, t_stop=phase.t_stop)
         summary["depth_aware"] = _depth_aware(part, result, phase.name, reading)
+        summary["warnings"] += depth_bias(summary["diffusivity"], summary["depth_aware"])
         records = [{**head, **{k: summary.get(k) for k in (*_PHASE_KEYS, "depth_aware")}}]
     else:  # the described phase's (none when every phase is too short)
         described = [r for r in records if phase is not None and r["start_frame"] == phase.start]
         summary["depth_aware"] = described[0].get("depth_aware") if described else None
+        summary["warnings"] += depth_bias(summary["diffusivity"], summary["depth_aware"])
     summary["chunked"] = reading.details
     summary["phase"] = phase.name if phase is not None else "recording"
     summary["phases"] = records

@@ -216,12 +216,20 @@ def diagnose_recording(
         scored = None if scored is None or bool(scored.all()) else scored
         try:
             if min(part.shape[1:]) >= minimum_frame_size():  # it repairs and reports the artefacts itself
-                out.append(_balance_phase(phase, part, clean, dt, dx, fit_fraction, assimilate, scored))
+                fraction = _short_phase_fraction(phase.frames, fit_fraction)
+                out.append(_balance_phase(phase, part, clean, dt, dx, fraction, assimilate, scored))
             else:
                 out.append(_small_box_phase(phase, clean, dt, dx, fit_fraction))
         except ValueError as err:
             out.append(PhaseDiagnosis(phase, "none", reason=str(err)))
     return out
+
+
+def _short_phase_fraction(frames: int, fit_fraction: float) -> float:
+    """``fit_fraction``, raised for a short phase so that its fit part keeps :data:`_INNER_FRAMES` frames
+    (three time samples of dT/dt, and the inner comparison of the source candidates) while 2 are held out."""
+    target = min(_INNER_FRAMES, frames - 2)
+    return fit_fraction if round(fit_fraction * frames) >= target else target / frames
 
 
 def _gain(rmse: float, base: float) -> float:
