@@ -41,7 +41,14 @@ from anra_torch.balance.system import BalanceSystem, NoiseSpec
 from anra_torch.checks import positive
 from anra_torch.selection.diagnose import SMOOTHING, minimum_frame_size
 
-__all__ = ["MAX_RATES", "NOISE_SHARE", "SCALE_CONSISTENCY", "DepthAwareFit", "depth_aware_diffusivity"]
+__all__ = [
+    "MAX_RATES",
+    "NOISE_SHARE",
+    "RATE_VALUES",
+    "SCALE_CONSISTENCY",
+    "DepthAwareFit",
+    "depth_aware_diffusivity",
+]
 
 SCALE_CONSISTENCY = 1.5
 """Largest ratio of the highest to the lowest ``a`` over the smoothing candidates of a consistent fit."""
@@ -49,6 +56,10 @@ SCALE_CONSISTENCY = 1.5
 MAX_RATES = 32
 """Most loss rates fitted (consecutive blocks of frames share one in a longer run: the depth rate changes
 slowly once the first frames are past, and each rate adds a term to the balance)."""
+
+RATE_VALUES = 2**25
+"""Budget of rates times pixel values: each rate holds a term and a noise weight the size of the balance's,
+so a run of 4M pixel values (the largest ``anra estimate`` reads whole) gets 8 rates, about 0.5 GB."""
 
 NOISE_SHARE = 0.05
 """Largest share of ``Lap T``'s sum of squares that may be the measured noise's at a smoothing used: the
@@ -67,7 +78,8 @@ class DepthAwareFit:
         std_error: its standard error (noise only; the spread over smoothings shows the model's error).
         smoothing_px: Gaussian sigma of the fit, px.
         rates: the rate ``r`` in 1/s (positive: heat lost) of each block of frames: one per frame the time
-            derivative is centred on, or :data:`MAX_RATES` blocks of consecutive frames in a longer run.
+            derivative is centred on, or blocks of consecutive frames in a longer or larger run (at most
+            :data:`MAX_RATES`, and :data:`RATE_VALUES` over the balance's size).
         rate_frames: the first frame (index in the run) of each rate's block.
         by_smoothing: ``a`` (mm^2/s) at each of those smoothing candidates (px).
         plain_by_smoothing: the plain ``dT/dt = a Lap T`` (with the same per-frame levels) at each of them:
@@ -142,14 +154,15 @@ def depth_aware_diffusivity(
         raise ValueError("frames are constant: no change to fit")
     noise = measure_noise(video, static_pattern=artefacts.fixed_pattern)
     within = tuple(dict.fromkeys(("frame", *artefacts.within)))
-    fits, plains, shares = {}, {}, {}
+    fits, plains, shares, blocks = {}, {}, {}, {}
     for sigma in sigmas:
         system = BalanceSystem(video, dt, dx, sigma, float(noise.sd), noise=noise, within=within)
         plains[sigma] = float(system.fit(["L"]).beta[0])
         index = system.moments.names.index("L")
         shares[sigma] = float(system.moments.noise[index, index] / system.moments.raw[index, index])
         rates = {}
-        for b, block in enumerate(_blocks(system.u.shape[0])):  # r_b T in block b: T masked to its frames
+        blocks[sigma] = _blocks(system.u.shape[0], system.u.numel())
+        for b, block in enumerate(blocks[sigma]):  # r_b T in block b: T masked to its frames
             mask = torch.zeros_like(system.u)
             mask[block] = 1.0
             rates[f"T@{b}"] = (system.detached["T"] * mask, NoiseSpec("T", mask))
@@ -159,20 +172,20 @@ def depth_aware_diffusivity(
     fits = {s: fits[s] for s in quiet}
     best = min(fits, key=lambda s: float(fits[s].cov[0, 0]))
     fit = fits[best]
-    blocks = _blocks(system.u.shape[0])
     return DepthAwareFit(
         diffusivity=float(fit.beta[0]),
         std_error=math.sqrt(max(float(fit.cov[0, 0]), 0.0)),
         smoothing_px=best,
         rates=tuple(-float(b) for b in fit.beta[1:]),
-        rate_frames=tuple(block.start + 2 for block in blocks),
+        rate_frames=tuple(block.start + 2 for block in blocks[best]),
         by_smoothing={s: float(f.beta[0]) for s, f in fits.items()},
         plain_by_smoothing={s: plains[s] for s in fits},
     )
 
 
-def _blocks(k: int) -> list[slice]:
-    """The derivative frames ``0 .. k - 1`` in at most :data:`MAX_RATES` consecutive blocks of near-equal
-    length (one frame each when ``k`` allows)."""
-    edges = [round(i * k / min(k, MAX_RATES)) for i in range(min(k, MAX_RATES) + 1)]
+def _blocks(k: int, values: int) -> list[slice]:
+    """The derivative frames ``0 .. k - 1`` in consecutive blocks of near-equal length: one frame each when
+    ``k`` allows, at most :data:`MAX_RATES` and :data:`RATE_VALUES` / ``values`` (at least 4) blocks."""
+    n = min(k, MAX_RATES, max(4, RATE_VALUES // max(values, 1)))
+    edges = [round(i * k / n) for i in range(n + 1)]
     return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
