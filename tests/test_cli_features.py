@@ -143,3 +143,28 @@ def test_features_read_a_flir_folder_with_resampling(capsys: pytest.CaptureFixtu
     record = json.loads(capsys.readouterr().out)
     assert record["frames"] == 24 and record["input"]["resampled"]["from_frames"] == 25
     assert 200 < record["peak_temperature_max"] < 220  # the ~210 C peak of this run (data README)
+
+
+def test_a_recording_with_a_heating_and_a_cooling_reports_the_cooling_diffusivity(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The dose is the whole recording's; the global diffusivity is the source-free phase's, the same as
+    ``anra estimate`` gives, and the phases are listed."""
+    u0 = torch.full((40, 40), 37.0, dtype=torch.float64)
+    source = MovingSource(start=(4.0, 4.0), end=(4.0, 4.0), width=0.8, power=30.0, t_off=3.0)
+    clean = simulate_tissue(u0, 0.15, 0.0, dx=DX, dt=DT, n_frames=80, source=source)
+    noisy = clean + 0.01 * torch.randn(
+        clean.shape, generator=torch.Generator().manual_seed(3), dtype=clean.dtype
+    )
+    path = save_npz(tmp_path / "spot.npz", noisy.numpy(), dt=DT, dx=DX)
+    code, out, _ = run(capsys, "features", path, "--json")
+    record = json.loads(out)
+    assert code == 0 and [p["kind"] for p in record["phases"]] == ["heating", "cooling"]
+    assert record["diffusivity_phase"] == "cooling"
+    code, out, _ = run(capsys, "estimate", path, "--json")
+    estimate = json.loads(out)
+    assert estimate["phase"] == "cooling" and record["diffusivity_global"] == pytest.approx(
+        estimate["diffusivity"]
+    )
+    assert record["diffusivity_global"] == pytest.approx(0.15, rel=0.1)  # the simulation's, without perfusion
+    assert "(the cooling phase's)" in run(capsys, "features", path)[1]

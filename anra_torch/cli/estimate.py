@@ -60,7 +60,7 @@ from anra_torch.selection.depth_aware import depth_aware_diffusivity
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
 from anra_torch.video.lazy import LazyFrames, in_memory, lazy_video
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "phase_diffusivities", "run"]
 
 _DECIMATED_VALUES = 2**22  # pixel values of the copy that the phases of a chunked recording are found on
 
@@ -326,6 +326,18 @@ def _phases(
         if chosen is None or rank > chosen[0]:
             chosen = (rank, phase, (record if result is None else {}, result))
     return records, *((chosen[1], chosen[2]) if chosen else (None, None))
+
+
+def phase_diffusivities(video: Video) -> tuple[list[dict[str, Any]], Phase | None]:
+    """The phases of a recording held in memory, each with its estimate as ``anra estimate`` gives it
+    (``kind``, frames, times, ``diffusivity``, ...), and the phase its top level would describe (the longest
+    valid source-free one); ``([], None)`` for a recording of one phase."""
+    est = ANRAEstimator(strict=False)
+    phases = find_phases(video.frames, video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
+    if len(phases) < 2:
+        return [], None
+    records, phase, _ = _phases(video, est, phases, _Reading(video, est, None))
+    return records, phase
 
 
 def _part(video: Video, phase: Phase) -> Video:

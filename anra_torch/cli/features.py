@@ -28,7 +28,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "Temperatures are reported in Celsius. Non-finite values are masked and counted. The dose, peak "
         "and times above work on any frame size, down to one pixel, and need no --dx; the rate and ANRA "
         "maps need --dx (or the file's) and frames the filters fit (20 x 20 px, 5 frames), else they are "
-        "absent with the reason ('absent' in the JSON).",
+        "absent with the reason ('absent' in the JSON). A recording with a heating and a cooling reports "
+        "the source-free phase's global diffusivity, as anra estimate does, and lists its phases.",
     )
     add_video_arguments(parser, format_list())
     parser.add_argument(
@@ -52,6 +53,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``anra features`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
+    from anra_torch.cli.estimate import phase_diffusivities
     from anra_torch.features import feature_summary, save_feature_maps
 
     video = load_input(args, need_dx=False)
@@ -59,7 +61,16 @@ def run(args: argparse.Namespace) -> int:
         record, maps = feature_summary(video.frames, video.dt, video.dx, units=args.units, rule=args.rule)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
-    record = {"path": str(video.source), **record, "out": None}
+    record = {"path": str(video.source), **record, "out": None, "phases": [], "diffusivity_phase": None}
+    if video.dx is not None and record.get("diffusivity_global") is not None:
+        # A recording with a heating and a cooling: its diffusivity is the source-free phase's, as in estimate
+        # (the dose and the maps stay the whole recording's).
+        phases, phase = phase_diffusivities(video)
+        if phases:
+            described = [p for p in phases if phase is not None and p["start_frame"] == phase.start]
+            record["phases"] = phases
+            record["diffusivity_phase"] = phase.name if described else None
+            record["diffusivity_global"] = described[0]["diffusivity"] if described else None
     if any(input_record(video).values()):
         record["input"] = input_record(video)
     if args.out is not None:
@@ -78,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
     ):
         value = record.get(key)
         shown = "n/a" if value is None else f"{value:.4g} {record['units'][key]}"
-        print(f"  {key}: {shown}")
+        phase = f" (the {record['diffusivity_phase']} phase's)" if key == "diffusivity_global" else ""
+        print(f"  {key}: {shown}{phase if record['diffusivity_phase'] else ''}")
     if record["message"]:
         print(f"  note: {record['message']}")
     if record["out"]:
