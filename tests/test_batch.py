@@ -282,14 +282,22 @@ def test_a_folder_of_frames_is_one_input(tmp_path: Path) -> None:
     not (Path(__file__).resolve().parents[2] / "shared" / "data" / "laser_silicone").is_dir(),
     reason="../shared/data/laser_silicone is absent",
 )
-def test_flir_jpeg_folders_run_as_videos_with_resample(tmp_path: Path) -> None:
+def test_flir_jpeg_folders_run_as_videos_with_resample(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     data = Path(__file__).resolve().parents[2] / "shared" / "data" / "laser_silicone"
     assert expand_inputs([data]) == [str(data / "Nov19"), str(data / "Nov19_2")]
     out = tmp_path / "flir.csv"
     # Non-uniform EXIF times are resampled by default, as in every command (resample=True changes nothing).
     summary = run_batch([data], out, dx=0.55, progress=False)
     rows = read_table(out)
-    assert summary.ok == 2 and [int(float(r["frames"])) for r in rows] == [24, 24]
+    # 24 resampled frames each; the row measures the cooling phase (12 frames), as anra estimate does.
+    assert summary.ok == 2 and [(int(float(r["frames"])), r["phase"]) for r in rows] == [(12, "cooling")] * 2
+    for row in rows:
+        capsys.readouterr()
+        assert main(["estimate", row["path"], "--dx", "0.55", "--json"]) == 0
+        estimate = json.loads(capsys.readouterr().out)
+        assert float(row["diffusivity"]) == pytest.approx(estimate["diffusivity"], rel=1e-5)  # float32 batch
 
 
 def test_a_large_recording_is_read_in_chunks_and_a_bad_one_gets_its_row(

@@ -258,7 +258,8 @@ def test_batch_message_column_keeps_warnings(tmp_path: Path, monkeypatch: pytest
     old = ["path", "status", "error", "diffusivity", "std_error", "smoothing_px", "noise_sd", "reliability"]
     old += ["n_masked", "frames", "height", "width", "dt", "dx", "a_true", "seconds", "top_effect", "effects"]
     old += ["gain", "noise_floor", "base_rmse", "extended_rmse", "roi", "calibration"]
-    assert list(BATCH_COLUMNS) == [*old, "message", "input_stamp", "parameters", "explained", "frames_used"]
+    new = ["message", "input_stamp", "parameters", "explained", "frames_used", "phase"]
+    assert list(BATCH_COLUMNS) == [*old, *new]
 
 
 # ------------------------------------------------------------------------------ output files: the umask

@@ -26,7 +26,10 @@ region of interest, calibration), sends same-shaped videos through one
 - ``explained``: the share of dT/dt the plain heat equation explains (below 0.9 the row's ``message``
   flags a poor fit);
 - ``frames_used``: frames read when the video was read in time chunks (over
-  :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values, or with ``precision``), else empty.
+  :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values, or with ``precision``), else empty;
+- ``phase``: for a recording with a heating and a cooling (found as ``anra estimate`` finds them), the
+  phase the row measures: the longest source-free one with frames enough (``frames`` is its length); empty
+  for a recording of one phase, and for one read in chunks (estimated whole).
 
 A bad input (missing, unreadable, too small, no thermal activity) gets an ``error`` row and never stops the
 others. The table is rewritten after every batch through a temporary file and :func:`os.replace`, so an

@@ -7,7 +7,7 @@ import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +30,7 @@ from anra_torch.video import (
     prepare_video,
 )
 from anra_torch.video.lazy import in_memory, lazy_video
+from anra_torch.video.phases import MIN_PHASE_FRAMES, SOURCE_FREE
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
 
@@ -65,6 +66,35 @@ def _load(path: str, options: BatchOptions) -> Video:
         roi=options.roi,
         calibration=options.calibration,
     )
+
+
+_PHASE_VALUES = 2**20
+"""Pixel values of the copy (strided in space) that a video's phases are found on."""
+
+
+def _phase_part(video: Video) -> tuple[Video, str | None]:
+    """For a recording with a heating and a cooling, the phase its diffusivity is measured on (the longest
+    source-free one with frames enough, else the longest one, as ``anra estimate`` prefers) and its kind;
+    the video itself and None for a recording of one phase."""
+    from anra_torch.forecast.recording import (
+        find_phases,
+    )  # the forecast stack only where phases are looked for
+
+    frames = video.frames
+    step = max(1, math.ceil(math.sqrt(math.prod(frames.shape) / _PHASE_VALUES)))
+    copy = torch.as_tensor(frames[:, ::step, ::step])
+    phases = find_phases(copy, video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
+    usable = [p for p in phases if p.frames >= MIN_PHASE_FRAMES]
+    if len(phases) < 2 or not usable:
+        return video, None
+
+    def rank(phase: Any) -> tuple[bool, int, int]:
+        kind = SOURCE_FREE.index(phase.name) if phase.name in SOURCE_FREE else len(SOURCE_FREE)
+        return phase.name in SOURCE_FREE, -kind, phase.frames
+
+    phase = max(usable, key=rank)
+    span = slice(phase.start, phase.stop)
+    return replace(video, frames=frames[span], t=None if video.t is None else video.t[span]), phase.name
 
 
 def _preparation(video: Video) -> dict[str, Any]:
@@ -224,6 +254,7 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
     the local run and by each Dask task.
     """
     rows: dict[int, dict[str, Any]] = {}
+    phases: dict[int, str | None] = {}  # the phase a recording with several is estimated on
     groups: dict[tuple[int, ...], list[tuple[int, Video]]] = {}
     large: list[tuple[int, Video]] = []
     for i, path in enumerate(paths):
@@ -232,7 +263,7 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
             if found is not None:
                 large.append((i, found))
                 continue
-            video = _load(path, options)
+            video, phases[i] = _phase_part(_load(path, options))
         except (ValueError, TypeError, OSError) as err:
             rows[i] = _error_row(path, one_line(err))
             continue
@@ -253,7 +284,7 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
                 except (ValueError, TypeError, RuntimeError) as err:
                     found.append(_error_row(paths[i], f"{video.source}: {one_line(err)}"))
         for (i, video), row in zip(members, found, strict=True):
-            row["path"] = paths[i]
+            row["path"], row["phase"] = paths[i], phases.get(i)
             if options.diagnose and row["status"] == "ok":
                 _diagnose_row(row, video, options)
             rows[i] = row

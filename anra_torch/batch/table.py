@@ -44,6 +44,7 @@ BATCH_COLUMNS: dict[str, type] = {
     "parameters": str,
     "explained": float,
     "frames_used": int,
+    "phase": str,
 }
 """Output columns and their types (missing values are empty cells in CSV, nulls in Parquet)."""
 

@@ -59,6 +59,7 @@ from anra_torch.report import format_pm
 from anra_torch.selection.depth_aware import depth_aware_diffusivity
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
 from anra_torch.video.lazy import LazyFrames, in_memory, lazy_video
+from anra_torch.video.phases import SOURCE_FREE
 
 __all__ = ["add_parser", "phase_diffusivities", "run"]
 
@@ -201,10 +202,6 @@ def _depth_aware_line(d: dict[str, Any]) -> str:
         f"depth-aware a = {a} (a loss rate free in each frame), but {low:.3g}-{high:.3g} mm^2/s over "
         f"{scales}: no lateral diffusivity describes these frames"
     )
-
-
-SOURCE_FREE = ("cooling", "baseline", "steady")
-"""Phase kinds without a heat source, in the order their diffusivity is preferred for the top level."""
 
 
 def _depth_aware(

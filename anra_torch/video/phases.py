@@ -17,10 +17,20 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-__all__ = ["MIN_PHASE_FRAMES", "Phase", "hot_spot_signal", "recording_phases", "segment_phases"]
+__all__ = [
+    "MIN_PHASE_FRAMES",
+    "SOURCE_FREE",
+    "Phase",
+    "hot_spot_signal",
+    "recording_phases",
+    "segment_phases",
+]
 
 MIN_PHASE_FRAMES = 8
 """Frames a phase needs to be analysed on its own (a fit part of at least 5 and held-out frames)."""
+
+SOURCE_FREE = ("cooling", "baseline", "steady")
+"""Phase kinds without a heat source, in the order their diffusivity is preferred for a recording's."""
 
 _MATERIAL = 0.2  # a change of heat content counts when it is at least this share of its range ...
 _NOISE_MULTIPLE = 10.0  # ... and this many times the noise of the frame-mean signal
