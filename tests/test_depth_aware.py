@@ -84,6 +84,8 @@ def test_a_beam_heated_slab_once_the_heat_has_spread_in_depth() -> None:
     late = depth_aware_diffusivity(frames[6:], 10.0, 0.5)
     assert late.diffusivity == pytest.approx(A, rel=0.12) and late.consistent
     assert all(r > 0 for r in late.rates)  # heat leaves the surface in every frame
+    one = depth_aware_diffusivity(frames[6:], 10.0, 0.5, smoothing=(2.0,))
+    assert one.diffusivity == late.by_smoothing[2.0] and not one.consistent  # one smoothing: not checked
 
 
 def test_a_long_run_shares_each_rate_between_consecutive_frames() -> None:

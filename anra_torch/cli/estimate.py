@@ -197,6 +197,9 @@ def _depth_aware_line(d: dict[str, Any]) -> str:
     a = format_pm(d["diffusivity"], d["std_error"], "mm^2/s")
     if d["consistent"]:
         return f"depth-aware a = {a} (a loss rate free in each frame: heat into depth or the air; {scales})"
+    if len(values) == 1:
+        only = f"{d['smoothing_px']:g} px"
+        return f"depth-aware a = {a} (a loss rate free in each frame), at {only} only: not checked"
     low, high = min(values.values()), max(values.values())
     return (
         f"depth-aware a = {a} (a loss rate free in each frame), but {low:.3g}-{high:.3g} mm^2/s over "

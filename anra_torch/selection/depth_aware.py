@@ -96,9 +96,10 @@ class DepthAwareFit:
 
     @property
     def consistent(self) -> bool:
-        """Whether ``a`` is positive at every smoothing and within :data:`SCALE_CONSISTENCY` of itself."""
+        """Whether ``a`` is positive at every smoothing and within :data:`SCALE_CONSISTENCY` of itself, at two
+        smoothings or more (one cannot be checked)."""
         values = list(self.by_smoothing.values())
-        return min(values) > 0 and max(values) <= SCALE_CONSISTENCY * min(values)
+        return len(values) > 1 and min(values) > 0 and max(values) <= SCALE_CONSISTENCY * min(values)
 
     def to_record(self) -> dict[str, Any]:
         """A JSON-ready record (``diffusivity``, ``std_error`` mm^2/s; ``smoothing_px`` px; ``rates`` 1/s and
