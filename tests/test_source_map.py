@@ -116,3 +116,38 @@ def test_bad_spacing_and_non_finite_frames() -> None:
     frames[2, 5, 5] = math.inf
     with pytest.raises(ValueError, match="frames must be finite"):
         fit_source_map(frames, 0.1, 0.5)
+
+
+def _decaying_beam(n: int = 16, dt: float = 1.0, dx: float = 0.5, a: float = 0.12, size: int = 48) -> Tensor:
+    """Explicit FTCS (0.05 s steps, zero-flux edges) of a ring beam whose input falls like ``t^(-1/2)`` from
+    its switch-on at 0.5 s (a flux into a half-space), sampled every ``dt``."""
+    ring, _ = _ring_beam(size, dx)
+    u, now, frames, h = torch.full((size, size), 20.0, dtype=F64), 0.0, [], 0.05
+    for k in range(n):
+        while now < k * dt - 1e-9:
+            p = torch.nn.functional.pad(u[None, None], (1, 1, 1, 1), mode="replicate")[0, 0]
+            lap = (p[1:-1, 2:] + p[1:-1, :-2] + p[2:, 1:-1] + p[:-2, 1:-1] - 4 * u) / dx**2
+            on = now + h / 2 - 0.5  # s since the switch-on
+            u, now = u + h * (a * lap + (ring * on**-0.5 if on > 0 else 0.0)), now + h
+        frames.append(u.clone())
+    return torch.stack(frames)
+
+
+def test_a_decaying_input_is_recovered_and_forecasts_where_a_stationary_map_overshoots() -> None:
+    """Fitted on frames 3-12 (the clock starts at frame 3: the switch-on is at -2.5 s), away from the
+    input's singular start, which no 3-frame difference resolves."""
+    frames = _decaying_beam(n=20)
+    fit = fit_source_map(frames[3:13], 1.0, 0.5, scale_px=0.0, margin=2, decay=0.5, t_on=-2.5)
+    assert fit.a == pytest.approx(0.12, rel=0.05) and fit.t_ref == 8.0
+    ring, _ = _ring_beam(48, 0.5)
+    inner = (slice(4, -4), slice(4, -4))
+    q = ring * (11.0 - 0.5) ** -0.5  # the input at t_ref (11 s after the first frame)
+    assert float((fit.forcing - q)[inner].abs().max()) < 0.05 * float(q.max())
+    # From frame 12 on: the stationary map keeps an input of the fit frames and overshoots.
+    decaying = fit.forecast(frames[12], dt=1.0, dx=0.5, n_frames=8, start=9.0)
+    stationary = fit_source_map(frames[3:13], 1.0, 0.5, scale_px=0.0, margin=2)
+    constant = stationary.forecast(frames[12], dt=1.0, dx=0.5, n_frames=8)
+    errors = [float((f[1:] - frames[13:])[(slice(None), *inner)].abs().max()) for f in (decaying, constant)]
+    assert errors[0] < 0.2 * errors[1]
+    with pytest.raises(ValueError, match=r"decay must be >= 0 and t_on before frame 1"):
+        fit_source_map(frames[:10], 1.0, 0.5, decay=0.5, t_on=1.5)

@@ -5,8 +5,9 @@ baseline, heating, cooling, or one phase) and analyses every phase with enough f
 
 - **Frames that fit the balance's filters** (:func:`anra_torch.selection.minimum_frame_size`): the
   diagnosis and held-out forecast of :func:`~anra_torch.forecast.assess_gain`. When a source is named
-  (or the phase heats), the parametric source (a Gaussian on a path) and the measured stationary source map
-  (:func:`~anra_torch.forecast.source_map_gain`) compete on a split INSIDE the fit frames; the held-out
+  (or the phase heats), the parametric source (a Gaussian on a path) and the measured source maps
+  (:func:`~anra_torch.forecast.source_map_gain`; stationary, or decaying in time as a source over a thick
+  body does: :data:`SOURCE_MAPS`) compete on a split INSIDE the fit frames; the held-out
   frames are scored only after the choice. Frames seconds apart (fewer held-out frames than one time
   window) get no time average and start from the measured split frame.
 - **Smaller regions** (down to 3 x 3 px): the small-box models of :mod:`~anra_torch.forecast.small_box`;
@@ -61,8 +62,8 @@ class PhaseDiagnosis:
         diffusivity_std_error: its standard error in mm^2/s, where known (the small-box fit's).
         diffusivity_bound: the lower bound on ``a`` (mm^2/s) an unresolved diffusivity implies.
         base_rmse: the plain model's held-out RMSE (data units).
-        model: the extension chosen on the inner split (``parametric``, ``source_map``, ``loss``,
-            ``quasi_steady``).
+        model: the extension chosen on the inner split (``parametric``, a name in :data:`SOURCE_MAPS`,
+            ``loss``, ``quasi_steady``).
         extended_rmse: the chosen extension's held-out RMSE.
         gain: ``1 - extended_rmse / base_rmse``.
         noise_floor: a perfect model's RMSE at the same scale.
@@ -281,9 +282,10 @@ def _balance_phase(
     validation: dict[str, float] = {}
     if any(n in _SOURCES for n in names) or phase.name == "heating":
         try:
-            mapped = source_map_gain(clean, dt, dx, result)
-            held["source_map"] = (mapped.rmse, mapped.gain)
-            predicted["source_map"] = mapped.predicted
+            for name, decay in SOURCE_MAPS.items():
+                mapped = source_map_gain(clean, dt, dx, result, decay=decay, t_on=_T_ON * dt)
+                held[name] = (mapped.rmse, mapped.gain)
+                predicted[name] = mapped.predicted
             if result.split + 1 < _INNER_FRAMES:
                 raise ValueError(
                     f"its {result.split + 1} fit frames are fewer than the {_INNER_FRAMES} a comparison "
@@ -353,6 +355,13 @@ def _implausible(effects: list[dict[str, Any]], height: float, width: float) -> 
     return out
 
 
+SOURCE_MAPS = {"source_map": 0.0, "source_map_t^-0.5": 0.5, "source_map_t^-1": 1.0, "source_map_t^-1.5": 1.5}
+"""The measured source maps that compete with the parametric source, by the power of their input's decay in
+time (:func:`~anra_torch.forecast.source_map.fit_source_map`): stationary; a flux into a half-space
+(``t^(-1/2)``); and faster, as heat also spreads sideways towards a steady state (``t^(-3/2)``)."""
+
+_T_ON = 0.5  # frame periods: a source switches on between a phase's first two frames
+
 _INNER_FRAMES = 7
 """Fit frames the inner comparison of the source candidates needs: 5 to diagnose, 2 to validate."""
 
@@ -364,7 +373,11 @@ def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, optio
     if options.get("scored") is not None:
         options = {**options, "scored": options["scored"][: fit.shape[0]]}
     inner = assess_gain(fit, dt, dx, fit_fraction=inner_fraction, **options)
-    return {"parametric": inner.extended_rmse, "source_map": source_map_gain(fit, dt, dx, inner).rmse}
+    maps = {
+        name: source_map_gain(fit, dt, dx, inner, decay=decay, t_on=_T_ON * dt).rmse
+        for name, decay in SOURCE_MAPS.items()
+    }
+    return {"parametric": inner.extended_rmse, **maps}
 
 
 def _box_forecasts(frames: Tensor, dt: float, dx: float, split: int, horizon: int) -> dict[str, Tensor]:

@@ -20,6 +20,13 @@ scale:
    interior then gives ``a >= 0`` and ``b >= 0`` (the best non-negative pair), and ``q`` is the pixel's
    time mean of ``U - a Lap S + b S``.
 
+A source over a thick body heats its surface ever more slowly: under a constant flux into a half-space
+the surface rises like ``sqrt(t)``, its rate like ``t^(-1/2)``, and once heat spreads sideways as well the
+rate falls faster (towards ``t^(-3/2)`` near a steady state). With ``decay`` = ``p`` the map's input is
+``q(x, y) ((t - t_on) / (t_ref - t_on))^(-p)``: the fixed effect of step 3 is then each pixel's projection
+on that profile, and ``q`` is the input at ``t_ref``, the fit part's last rate. ``p = 0`` is the stationary
+map.
+
 The map has one value per pixel and needs at least two rates (four frames) per pixel; within ``margin`` px
 of the edges, where the filters do not reach, it repeats the nearest interior value (a zero there would pull
 those pixels towards 0 through ``- b T``). :meth:`SourceMapModel.forecast` simulates it with
@@ -60,6 +67,9 @@ class SourceMapModel:
         scale_px: the Gaussian sigma (px) the frames were smoothed by before the fit.
         margin: pixels left out at each edge.
         n_rates: time differences per pixel the fit used.
+        decay: the power ``p`` of the input's decay in time (0: stationary).
+        t_on: when the input started, s, on the clock of the fitted frames (frame ``k`` at ``k dt``).
+        t_ref: the time at which the input is ``forcing``, s (the fit part's last rate).
 
     Shape:
         ``forcing`` ``(H, W)``.
@@ -71,6 +81,15 @@ class SourceMapModel:
     scale_px: float
     margin: int
     n_rates: int
+    decay: float = 0.0
+    t_on: float = 0.0
+    t_ref: float = 1.0
+
+    def profile(self, t: float) -> float:
+        """The input's time profile at ``t`` (s, the fitted frames' clock): 1 at ``t_ref``."""
+        if self.decay == 0.0:
+            return 1.0
+        return ((max(t - self.t_on, 1e-9)) / (self.t_ref - self.t_on)) ** -self.decay
 
     @property
     def equilibrium(self) -> Tensor:
@@ -82,27 +101,47 @@ class SourceMapModel:
         return self.forcing / self.b if self.b > 0 else torch.full_like(self.forcing, math.nan)
 
     def forecast(
-        self, initial: Tensor, *, dt: float, dx: float, n_frames: int, edges: Tensor | None = None
+        self,
+        initial: Tensor,
+        *,
+        dt: float,
+        dx: float,
+        n_frames: int,
+        edges: Tensor | None = None,
+        start: float = 0.0,
     ) -> Tensor:
         """Simulate ``n_frames`` frames from ``initial`` (frame 0 included), float64.
 
         ``edges``: measured frames over the same span whose outermost pixel ring bounds the forecast
-        (:func:`anra_torch.effects.simulate_effects`); None: zero-flux edges.
+        (:func:`anra_torch.effects.simulate_effects`); None: zero-flux edges. ``start``: the time of
+        ``initial`` on the fitted frames' clock (s), for a decaying input (held over each frame interval at
+        its value mid-interval).
 
         Shape:
             ``initial`` ``(H, W)``; ``edges`` ``(n_frames, H, W)``; output ``(n_frames, H, W)``.
         """
         loss = (Effect("linear_loss", {"b": self.b, "T_ref": 0.0}),) if self.b > 0 else ()
-        return simulate_effects(
-            torch.as_tensor(initial).to(_F64),
-            a=self.a,
-            dx=dx,
-            dt=dt,
-            n_frames=n_frames,
-            effects=loss,
-            forcing=self.forcing,
-            edges=edges,
-        )
+        state = torch.as_tensor(initial).to(_F64)
+        if self.decay == 0.0:
+            return simulate_effects(
+                state,
+                a=self.a,
+                dx=dx,
+                dt=dt,
+                n_frames=n_frames,
+                effects=loss,
+                forcing=self.forcing,
+                edges=edges,
+            )
+        frames = [state]
+        for j in range(n_frames - 1):  # one interval at a time: the input changes between frames
+            forcing = self.forcing * self.profile(start + (j + 0.5) * dt)
+            span = None if edges is None else edges[j : j + 2]
+            step = simulate_effects(
+                frames[-1], a=self.a, dx=dx, dt=dt, n_frames=2, effects=loss, forcing=forcing, edges=span
+            )
+            frames.append(step[1])
+        return torch.stack(frames)
 
 
 def _nonnegative_pair(moments: Moments) -> tuple[float, float]:
@@ -128,9 +167,18 @@ def _nonnegative_pair(moments: Moments) -> tuple[float, float]:
 
 
 def fit_source_map(
-    frames: Tensor, dt: float, dx: float, *, scale_px: float = 1.0, margin: int = 3
+    frames: Tensor,
+    dt: float,
+    dx: float,
+    *,
+    scale_px: float = 1.0,
+    margin: int = 3,
+    decay: float = 0.0,
+    t_on: float = 0.0,
 ) -> SourceMapModel:
-    """Fit ``dT/dt = a Lap T - b T + q(x, y)`` by the fixed-effects regression of the module docstring.
+    """Fit ``dT/dt = a Lap T - b T + q(x, y) g(t)`` by the fixed-effects regression of the module docstring
+    (``g = 1``, or with ``decay`` = ``p > 0`` the profile ``((t - t_on) / (t_ref - t_on))^(-p)``, frame
+    ``k`` at ``k dt`` and ``t_on`` before the first rate's frame, ``k = 1``).
 
     Args:
         frames: temperatures (any linear unit), uniformly sampled in time.
@@ -138,6 +186,8 @@ def fit_source_map(
         dx: pixel size in mm.
         scale_px: Gaussian sigma (px) applied to every frame first (0: none).
         margin: pixels left out at each edge (at least 1: the Laplacian's reach).
+        decay: the power of the input's decay in time (0: a stationary map).
+        t_on: when the input started, s (frame 0 at 0), for ``decay > 0``.
 
     Returns:
         :class:`SourceMapModel`.
@@ -185,14 +235,19 @@ def fit_source_map(
         border="replicate",
         smoothing_border="reflect",
     )
+    if not (math.isfinite(decay) and decay >= 0) or (decay > 0 and not t_on < dt):
+        raise ValueError(f"decay must be >= 0 and t_on before frame 1 ({dt:g} s), got {decay!r} and {t_on!r}")
     inner = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
     terms = {k: v[inner] for k, v in filters.terms(video, dt, dx, ("U", "L", "T")).items()}
-    # Fixed effects: each pixel's time mean removed from every term removes q exactly.
-    within = {k: v - v.mean(0, keepdim=True) for k, v in terms.items()}
+    # Fixed effects: each pixel's projection on the input's profile (its time mean for a stationary map)
+    # removed from every term removes q g(t) exactly.
+    model = SourceMapModel(0.0, 0.0, video[0], scale_px, margin, n - 2, decay, t_on, (n - 2) * dt)
+    g = torch.tensor([model.profile(k * dt) for k in range(1, n - 1)], dtype=_F64).view(-1, 1, 1)
+    within = {k: v - g * (g * v).sum(0, keepdim=True) / (g * g).sum() for k, v in terms.items()}
     a, b = _nonnegative_pair(accumulate(within, ("U", "L", "T")))
-    interior = (terms["U"] - a * terms["L"] + b * terms["T"]).mean(0)
+    interior = (g * (terms["U"] - a * terms["L"] + b * terms["T"])).sum(0) / (g * g).sum()
     forcing = F.pad(interior[None, None], (margin,) * 4, mode="replicate")[0, 0]
-    return SourceMapModel(a=a, b=b, forcing=forcing, scale_px=scale_px, margin=margin, n_rates=n - 2)
+    return SourceMapModel(a, b, forcing, scale_px, margin, n - 2, decay, t_on, (n - 2) * dt)
 
 
 @dataclass(frozen=True)
@@ -215,8 +270,11 @@ class SourceMapGain:
     gain: float
 
 
-def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) -> SourceMapGain:
-    """Fit the source map on ``result``'s fit part and forecast its held-out frames like the plain model.
+def source_map_gain(
+    frames: Tensor, dt: float, dx: float, result: GainResult, *, decay: float = 0.0, t_on: float = 0.0
+) -> SourceMapGain:
+    """Fit the source map on ``result``'s fit part and forecast its held-out frames like the plain model
+    (``decay``, ``t_on``: a decaying input, see :func:`fit_source_map`).
 
     Same split, evaluation scale, assimilated frames, interior and measured frames as ``result``
     (:func:`anra_torch.forecast.assess_gain` on the same ``frames``), so ``gain`` compares like with like.
@@ -236,19 +294,24 @@ def source_map_gain(frames: Tensor, dt: float, dx: float, result: GainResult) ->
             f"got shape {tuple(video.shape)}"
         )
     scale, m = result.scale_px, result.margin
-    model = fit_source_map(video[: split + 1], dt, dx, scale_px=scale, margin=max(m, 1))
+    model = fit_source_map(
+        video[: split + 1], dt, dx, scale_px=scale, margin=max(m, 1), decay=decay, t_on=t_on
+    )
     # The map is fitted at the evaluation scale: its forecast starts from the smoothed fit frames,
     # assimilated like ``result``'s (the split frame itself when ``result.assimilated`` is 1).
     # Bounded by the measured (smoothed) frame edges, like the plain and extended forecasts.
     n = result.assimilated
     smoothed = at_scale(video[split + 1 - n :], scale)
 
+    first = split + 1 - n  # the first assimilated frame, on the fitted frames' clock
+
     def step(frame: int, state: Tensor) -> Tensor:
-        return model.forecast(state, dt=dt, dx=dx, n_frames=2, edges=smoothed[frame : frame + 2])[1]
+        edges = smoothed[frame : frame + 2]
+        return model.forecast(state, dt=dt, dx=dx, n_frames=2, edges=edges, start=(first + frame) * dt)[1]
 
     initial = assimilated_state(smoothed[:n], step, n)
     edges = smoothed[n - 1 :]
-    forecast = model.forecast(initial, dt=dt, dx=dx, n_frames=held_out + 1, edges=edges)[1:]
+    forecast = model.forecast(initial, dt=dt, dx=dx, n_frames=held_out + 1, edges=edges, start=split * dt)[1:]
     predicted = time_average(forecast, result.time_window)
     rmse = forecast_errors(predicted, result.measured, m, result.scored)[1]
     gain = 1.0 - rmse / result.base_rmse if result.base_rmse > 0 else 0.0
