@@ -216,16 +216,8 @@ def fit_source_map(
     video = video.to(_F64)
     dt = float(as_spacing(dt, name="dt", unit="s", batch=1, like=video)[0])
     dx = float(as_spacing(dx, name="dx", unit="mm", batch=1, like=video)[0])
-    if isinstance(margin, bool) or not isinstance(margin, int) or margin < 1 or min(h, w) - 2 * margin < 3:
-        raise ValueError(
-            f"margin must be an integer >= 1 that leaves at least 3 x 3 px inside {h} x {w} frames, "
-            f"got {margin!r}"
-        )
+    _check_fit(video, dt, margin, decay, t_on)
     scale_px = check_scale(scale_px)
-    if not bool(torch.isfinite(video).all()):
-        raise ValueError(
-            "frames must be finite to fit a source map; crop or fill the non-finite pixels first"
-        )
     filters = MatchedFilters(
         scale_px,
         time_family="centred",
@@ -235,8 +227,6 @@ def fit_source_map(
         border="replicate",
         smoothing_border="reflect",
     )
-    if not (math.isfinite(decay) and decay >= 0) or (decay > 0 and not t_on < dt):
-        raise ValueError(f"decay must be >= 0 and t_on before frame 1 ({dt:g} s), got {decay!r} and {t_on!r}")
     inner = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
     terms = {k: v[inner] for k, v in filters.terms(video, dt, dx, ("U", "L", "T")).items()}
     # Fixed effects: each pixel's projection on the input's profile (its time mean for a stationary map)
@@ -248,6 +238,22 @@ def fit_source_map(
     interior = (g * (terms["U"] - a * terms["L"] + b * terms["T"])).sum(0) / (g * g).sum()
     forcing = F.pad(interior[None, None], (margin,) * 4, mode="replicate")[0, 0]
     return SourceMapModel(a, b, forcing, scale_px, margin, n - 2, decay, t_on, (n - 2) * dt)
+
+
+def _check_fit(video: Tensor, dt: float, margin: object, decay: float, t_on: float) -> None:
+    """One-line errors for :func:`fit_source_map`'s margin, frames and input profile."""
+    h, w = video.shape[1:]
+    if isinstance(margin, bool) or not isinstance(margin, int) or margin < 1 or min(h, w) - 2 * margin < 3:
+        raise ValueError(
+            f"margin must be an integer >= 1 that leaves at least 3 x 3 px inside {h} x {w} frames, "
+            f"got {margin!r}"
+        )
+    if not bool(torch.isfinite(video).all()):
+        raise ValueError(
+            "frames must be finite to fit a source map; crop or fill the non-finite pixels first"
+        )
+    if not (math.isfinite(decay) and decay >= 0) or (decay > 0 and not t_on < dt):
+        raise ValueError(f"decay must be >= 0 and t_on before frame 1 ({dt:g} s), got {decay!r} and {t_on!r}")
 
 
 @dataclass(frozen=True)
