@@ -30,7 +30,7 @@ from anra_torch.video import (
     prepare_video,
 )
 from anra_torch.video.lazy import in_memory, lazy_video
-from anra_torch.video.phases import MIN_PHASE_FRAMES, SOURCE_FREE
+from anra_torch.video.phases import MIN_PHASE_FRAMES, phase_preference
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
 
@@ -68,33 +68,20 @@ def _load(path: str, options: BatchOptions) -> Video:
     )
 
 
-_PHASE_VALUES = 2**20
-"""Pixel values of the copy (strided in space) that a video's phases are found on."""
-
-
 def _phase_part(video: Video) -> tuple[Video, str | None]:
-    """For a recording with a heating and a cooling, the phase its diffusivity is measured on (the longest
-    source-free one with frames enough, else the longest one, as ``anra estimate`` prefers) and its kind;
-    the video itself and None for a recording of one phase."""
-    from anra_torch.forecast.recording import (
-        find_phases,
-    )  # the forecast stack only where phases are looked for
+    """For a recording with a heating and a cooling, the phase its diffusivity is measured on (the preferred
+    one with frames enough, :func:`~anra_torch.video.phases.phase_preference`, as ``anra estimate`` prefers)
+    and its kind; the video itself and None for a recording of one phase."""
+    # The forecast stack is imported only where phases are looked for.
+    from anra_torch.forecast.recording import find_phases
 
-    frames = video.frames
-    step = max(1, math.ceil(math.sqrt(math.prod(frames.shape) / _PHASE_VALUES)))
-    copy = torch.as_tensor(frames[:, ::step, ::step])
-    phases = find_phases(copy, video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
+    phases = find_phases(video.frames, video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
     usable = [p for p in phases if p.frames >= MIN_PHASE_FRAMES]
     if len(phases) < 2 or not usable:
         return video, None
-
-    def rank(phase: Any) -> tuple[bool, int, int]:
-        kind = SOURCE_FREE.index(phase.name) if phase.name in SOURCE_FREE else len(SOURCE_FREE)
-        return phase.name in SOURCE_FREE, -kind, phase.frames
-
-    phase = max(usable, key=rank)
+    phase = max(usable, key=phase_preference)
     span = slice(phase.start, phase.stop)
-    return replace(video, frames=frames[span], t=None if video.t is None else video.t[span]), phase.name
+    return replace(video, frames=video.frames[span], t=None if video.t is None else video.t[span]), phase.name
 
 
 def _preparation(video: Video) -> dict[str, Any]:

@@ -59,7 +59,7 @@ from anra_torch.report import format_pm
 from anra_torch.selection.depth_aware import depth_aware_diffusivity
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
 from anra_torch.video.lazy import LazyFrames, in_memory, lazy_video
-from anra_torch.video.phases import SOURCE_FREE
+from anra_torch.video.phases import SOURCE_FREE, phase_preference
 
 __all__ = ["add_parser", "phase_diffusivities", "run"]
 
@@ -318,26 +318,28 @@ def _phases(
             record["depth_aware"] = _depth_aware(part, result, phase.name, reading, heated=heated)
             record["warnings"] += depth_bias(record["diffusivity"], record["depth_aware"])
         records.append({"warnings": [], **head, **record})
-        rank = (
-            phase.name in SOURCE_FREE and bool(record["valid"]),
-            -SOURCE_FREE.index(phase.name) if phase.name in SOURCE_FREE else -9,
-            phase.frames,
-        )
+        source_free, *rest = phase_preference(phase)
+        rank = (source_free and bool(record["valid"]), *rest)
         if chosen is None or rank > chosen[0]:
             chosen = (rank, phase, (record if result is None else {}, result))
     return records, *((chosen[1], chosen[2]) if chosen else (None, None))
 
 
-def phase_diffusivities(video: Video) -> tuple[list[dict[str, Any]], Phase | None]:
+def _described(records: list[dict[str, Any]], phase: Phase | None) -> dict[str, Any] | None:
+    """The record of ``phase`` among ``records`` (None when every phase was too short)."""
+    return next((r for r in records if phase is not None and r["start_frame"] == phase.start), None)
+
+
+def phase_diffusivities(video: Video) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
     """The phases of a recording held in memory, each with its estimate as ``anra estimate`` gives it
-    (``kind``, frames, times, ``diffusivity``, ...), and the phase its top level would describe (the longest
-    valid source-free one); ``([], None)`` for a recording of one phase."""
+    (``kind``, frames, times, ``diffusivity``, ...), and the record of the phase its top level would
+    describe (the longest valid source-free one); ``([], None)`` for a recording of one phase."""
     est = ANRAEstimator(strict=False)
     phases = find_phases(video.frames, video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
     if len(phases) < 2:
         return [], None
     records, phase, _ = _phases(video, est, phases, _Reading(video, est, None))
-    return records, phase
+    return records, _described(records, phase)
 
 
 def _part(video: Video, phase: Phase) -> Video:
@@ -391,8 +393,7 @@ def run(args: argparse.Namespace) -> int:
         summary["warnings"] += depth_bias(summary["diffusivity"], summary["depth_aware"])
         records = [{**head, **{k: summary.get(k) for k in (*_PHASE_KEYS, "depth_aware")}}]
     else:  # the described phase's (none when every phase is too short)
-        described = [r for r in records if phase is not None and r["start_frame"] == phase.start]
-        summary["depth_aware"] = described[0].get("depth_aware") if described else None
+        summary["depth_aware"] = (_described(records, phase) or {}).get("depth_aware")
         summary["warnings"] += depth_bias(summary["diffusivity"], summary["depth_aware"])
     summary["chunked"] = reading.details
     summary["phase"] = phase.name if phase is not None else "recording"

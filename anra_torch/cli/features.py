@@ -65,12 +65,11 @@ def run(args: argparse.Namespace) -> int:
     if video.dx is not None and record.get("diffusivity_global") is not None:
         # A recording with a heating and a cooling: its diffusivity is the source-free phase's, as in estimate
         # (the dose and the maps stay the whole recording's).
-        phases, phase = phase_diffusivities(video)
+        phases, described = phase_diffusivities(video)
         if phases:
-            described = [p for p in phases if phase is not None and p["start_frame"] == phase.start]
             record["phases"] = phases
-            record["diffusivity_phase"] = phase.name if described else None
-            record["diffusivity_global"] = described[0]["diffusivity"] if described else None
+            record["diffusivity_phase"] = None if described is None else described["kind"]
+            record["diffusivity_global"] = None if described is None else described["diffusivity"]
     if any(input_record(video).values()):
         record["input"] = input_record(video)
     if args.out is not None:
@@ -89,8 +88,8 @@ def run(args: argparse.Namespace) -> int:
     ):
         value = record.get(key)
         shown = "n/a" if value is None else f"{value:.4g} {record['units'][key]}"
-        phase = f" (the {record['diffusivity_phase']} phase's)" if key == "diffusivity_global" else ""
-        print(f"  {key}: {shown}{phase if record['diffusivity_phase'] else ''}")
+        of_phase = key == "diffusivity_global" and record["diffusivity_phase"]
+        print(f"  {key}: {shown}" + (f" (the {record['diffusivity_phase']} phase's)" if of_phase else ""))
     if record["message"]:
         print(f"  note: {record['message']}")
     if record["out"]:

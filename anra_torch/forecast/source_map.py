@@ -87,9 +87,7 @@ class SourceMapModel:
 
     def profile(self, t: float) -> float:
         """The input's time profile at ``t`` (s, the fitted frames' clock): 1 at ``t_ref``."""
-        if self.decay == 0.0:
-            return 1.0
-        return ((max(t - self.t_on, 1e-9)) / (self.t_ref - self.t_on)) ** -self.decay
+        return _profile(t, self.decay, self.t_on, self.t_ref)
 
     @property
     def equilibrium(self) -> Tensor:
@@ -231,13 +229,21 @@ def fit_source_map(
     terms = {k: v[inner] for k, v in filters.terms(video, dt, dx, ("U", "L", "T")).items()}
     # Fixed effects: each pixel's projection on the input's profile (its time mean for a stationary map)
     # removed from every term removes q g(t) exactly.
-    model = SourceMapModel(0.0, 0.0, video[0], scale_px, margin, n - 2, decay, t_on, (n - 2) * dt)
-    g = torch.tensor([model.profile(k * dt) for k in range(1, n - 1)], dtype=_F64).view(-1, 1, 1)
+    t_ref = (n - 2) * dt
+    g = torch.tensor([_profile(k * dt, decay, t_on, t_ref) for k in range(1, n - 1)], dtype=_F64)
+    g = g.view(-1, 1, 1)
     within = {k: v - g * (g * v).sum(0, keepdim=True) / (g * g).sum() for k, v in terms.items()}
     a, b = _nonnegative_pair(accumulate(within, ("U", "L", "T")))
     interior = (g * (terms["U"] - a * terms["L"] + b * terms["T"])).sum(0) / (g * g).sum()
     forcing = F.pad(interior[None, None], (margin,) * 4, mode="replicate")[0, 0]
-    return SourceMapModel(a, b, forcing, scale_px, margin, n - 2, decay, t_on, (n - 2) * dt)
+    return SourceMapModel(a, b, forcing, scale_px, margin, n - 2, decay, t_on, t_ref)
+
+
+def _profile(t: float, decay: float, t_on: float, t_ref: float) -> float:
+    """``((t - t_on) / (t_ref - t_on))^(-decay)``: an input switched on at ``t_on``, 1 at ``t_ref`` (s)."""
+    if decay == 0.0:
+        return 1.0
+    return (max(t - t_on, 1e-9) / (t_ref - t_on)) ** -decay
 
 
 def _check_fit(video: Tensor, dt: float, margin: object, decay: float, t_on: float) -> None:

@@ -37,7 +37,7 @@ from torch import Tensor
 
 from anra_torch.balance.artefacts import find_artefacts
 from anra_torch.balance.noise import measure_noise
-from anra_torch.balance.system import BalanceSystem, NoiseSpec
+from anra_torch.balance.system import BalanceSystem, Fit, NoiseSpec
 from anra_torch.checks import positive
 from anra_torch.selection.diagnose import SMOOTHING, minimum_frame_size
 
@@ -155,22 +155,19 @@ def depth_aware_diffusivity(
         raise ValueError("frames are constant: no change to fit")
     noise = measure_noise(video, static_pattern=artefacts.fixed_pattern)
     within = tuple(dict.fromkeys(("frame", *artefacts.within)))
+    kept: tuple[float, BalanceSystem] | None = None  # the least noisy, in case no smoothing is quiet enough
     fits, plains, shares, blocks = {}, {}, {}, {}
     for sigma in sigmas:
         system = BalanceSystem(video, dt, dx, sigma, float(noise.sd), noise=noise, within=within)
-        plains[sigma] = float(system.fit(["L"]).beta[0])
         index = system.moments.names.index("L")
         shares[sigma] = float(system.moments.noise[index, index] / system.moments.raw[index, index])
-        rates = {}
-        blocks[sigma] = _blocks(system.u.shape[0], system.u.numel())
-        for b, block in enumerate(blocks[sigma]):  # r_b T in block b: T masked to its frames
-            mask = torch.zeros_like(system.u)
-            mask[block] = 1.0
-            rates[f"T@{b}"] = (system.detached["T"] * mask, NoiseSpec("T", mask))
-        system.add_terms(rates)
-        fits[sigma] = system.fit(["L", *rates])
-    quiet = [s for s in sigmas if shares[s] <= NOISE_SHARE] or [min(shares, key=shares.__getitem__)]
-    fits = {s: fits[s] for s in quiet}
+        if shares[sigma] <= NOISE_SHARE:  # the rates are fitted only where Lap T is mostly signal
+            fits[sigma], plains[sigma], blocks[sigma] = _fit_rates(system)
+        elif not fits and (kept is None or shares[sigma] < shares[kept[0]]):
+            kept = (sigma, system)
+    if not fits and kept is not None:  # every smoothing's Lap T is more than NOISE_SHARE noise
+        sigma, system = kept
+        fits[sigma], plains[sigma], blocks[sigma] = _fit_rates(system)
     best = min(fits, key=lambda s: float(fits[s].cov[0, 0]))
     fit = fits[best]
     return DepthAwareFit(
@@ -182,6 +179,20 @@ def depth_aware_diffusivity(
         by_smoothing={s: float(f.beta[0]) for s, f in fits.items()},
         plain_by_smoothing={s: plains[s] for s in fits},
     )
+
+
+def _fit_rates(system: BalanceSystem) -> tuple[Fit, float, list[slice]]:
+    """``a`` with a rate per block of frames (``r_b`` times ``T`` masked to the block), the plain ``a`` in
+    the same balance, and the blocks."""
+    plain = float(system.fit(["L"]).beta[0])
+    blocks = _blocks(system.u.shape[0], system.u.numel())
+    rates = {}
+    for b, block in enumerate(blocks):
+        mask = torch.zeros_like(system.u)
+        mask[block] = 1.0
+        rates[f"T@{b}"] = (system.detached["T"] * mask, NoiseSpec("T", mask))
+    system.add_terms(rates)
+    return system.fit(["L", *rates]), plain, blocks
 
 
 def _blocks(k: int, values: int) -> list[slice]:

@@ -22,6 +22,7 @@ __all__ = [
     "SOURCE_FREE",
     "Phase",
     "hot_spot_signal",
+    "phase_preference",
     "recording_phases",
     "segment_phases",
 ]
@@ -31,6 +32,7 @@ MIN_PHASE_FRAMES = 8
 
 SOURCE_FREE = ("cooling", "baseline", "steady")
 """Phase kinds without a heat source, in the order their diffusivity is preferred for a recording's."""
+
 
 _MATERIAL = 0.2  # a change of heat content counts when it is at least this share of its range ...
 _NOISE_MULTIPLE = 10.0  # ... and this many times the noise of the frame-mean signal
@@ -58,6 +60,13 @@ class Phase:
     def frames(self) -> int:
         """Number of frames in the phase."""
         return self.stop - self.start
+
+
+def phase_preference(phase: Phase) -> tuple[bool, int, int]:
+    """How ``phase`` ranks for a recording's diffusivity (larger first): source-free (in the order of
+    :data:`SOURCE_FREE`), then the longest."""
+    order = SOURCE_FREE.index(phase.name) if phase.name in SOURCE_FREE else len(SOURCE_FREE)
+    return phase.name in SOURCE_FREE, -order, phase.frames
 
 
 def hot_spot_signal(frames: Tensor) -> tuple[Tensor, tuple[int, int]]:
