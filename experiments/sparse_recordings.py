@@ -5,9 +5,10 @@ The kind of recording: a laser heats a spot on a silicone composite block for 2.
 cools; a hand-triggered camera takes a 96 x 128 px frame every 5-60 s (steps drawn from 5, 10, 15, 20,
 30, 45 and 60 s) for 10 minutes; each frame is saved as a CSV matrix whose file name states its time
 (``composite_0045.0s.csv``). The simulation shares no code with the package: explicit 3-D conduction
-(0.5 mm cells, 24 layers, zero-flux sides and bottom) with the beam's Gaussian flux into the top surface,
-convection (10 W/m^2/K) and radiation (emissivity 0.95) from it, diffusivity drawn in the PDMS range
-0.10-0.15 mm^2/s, beam power 0.3-0.8 W and sigma 1.5-3 mm, and 0.1 K white camera noise.
+(``depth_references.conduct``; 0.5 mm cells, 24 layers, zero-flux sides and bottom) with the beam's
+Gaussian flux into the top surface, convection (10 W/m^2/K) and radiation (emissivity 0.95) from it,
+diffusivity drawn in the PDMS range 0.10-0.15 mm^2/s, beam power 0.3-0.8 W and sigma 1.5-3 mm, and 0.1 K
+white camera noise.
 
 Each recording goes through the CLI exactly as a user would run it, with only the pixel size:
 ``anra diagnose FOLDER --dx 0.5 --json`` and ``anra estimate FOLDER --dx 0.5 --json``. The table says per
@@ -28,12 +29,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from depth_references import conduct  # the same explicit 3-D solver (experiments/ is on the path when run)
 
 from anra_torch.cli import main
 
 H, W, DEPTH = 96, 128, 24
 DX = 0.5  # mm, lateral and depth cells
-RHO_C = 1.5e-3  # J/(mm^3 K), silicone
 CONVECTION = 10e-6  # W/(mm^2 K)
 STEFAN = 5.67e-14  # W/(mm^2 K^4)
 STEPS = (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0)  # s between frames
@@ -50,20 +51,15 @@ def simulate(seed: int, folder: Path) -> dict[str, float]:
     flux = power / (2 * np.pi * width**2) * np.exp(-r2 / (2 * width**2))  # W/mm^2
     times = np.cumsum(np.concatenate([[0.0], rng.choice(STEPS, 60)]))
     times = times[times <= 600.0]
+
+    def surface(top: np.ndarray, t: float) -> np.ndarray:  # W/mm^2 into the block
+        radiated = 0.95 * STEFAN * ((top + 273.15) ** 4 - 295.15**4)
+        return (flux if t < off else 0.0) - CONVECTION * (top - 22.0) - radiated
+
     u, now = np.full((DEPTH, H, W), 22.0), 0.0
-    step = 0.9 * DX**2 / (6 * a)
     folder.mkdir(parents=True, exist_ok=True)
     for target in times:
-        while now < target - 1e-9:
-            k = min(step, target - now)
-            p = np.pad(u, 1, mode="edge")
-            lap = p[1:-1, 1:-1, 2:] + p[1:-1, 1:-1, :-2] + p[1:-1, 2:, 1:-1] + p[1:-1, :-2, 1:-1]
-            lap = (lap + p[2:, 1:-1, 1:-1] + p[:-2, 1:-1, 1:-1] - 6 * u) / DX**2
-            top = u[0] + 273.15
-            surface = (flux if now < off else 0.0) - CONVECTION * (u[0] - 22.0)
-            surface = surface - 0.95 * STEFAN * (top**4 - 295.15**4)
-            lap[0] += surface / (RHO_C * a * DX)
-            u, now = u + k * a * lap, now + k
+        u, now = conduct(u, now, target, a, DX, surface), target
         frame = u[0] + rng.normal(0.0, 0.1, (H, W))
         np.savetxt(folder / f"composite_{target:06.1f}s.csv", frame, delimiter=",", fmt="%.3f")
     return {"a": a, "off_s": off, "power_W": power, "width_mm": width, "frames": len(times)}
@@ -84,6 +80,7 @@ def case(seed: int, root: Path) -> dict:
     estimate = run_cli("estimate", str(folder), "--dx", str(DX), "--json")
     phases = []
     for p in diagnosis.get("phases", []):
+        candidates = p.get("candidates") or {}
         phases.append(
             {
                 "kind": p["kind"],
@@ -92,6 +89,7 @@ def case(seed: int, root: Path) -> dict:
                 "causes": [e["name"] for e in p.get("effects", [])],
                 "model": p.get("model"),
                 "gain": p.get("gain"),
+                "others": {k: c["gain"] for k, c in candidates.items() if k != p.get("model")},
             }
         )
     depth = estimate.get("depth_aware") or {}
@@ -113,9 +111,9 @@ def case(seed: int, root: Path) -> dict:
 
 def table(results: list[dict]) -> str:
     rows = [
-        "| case | a (mm^2/s) | phase | frames | causes named | model | held-out gain | estimate: plain a | "
-        "explained | depth-aware a |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| case | a (mm^2/s) | phase | frames | causes named | model | held-out gain | "
+        "other candidates' gains | estimate: plain a | explained | depth-aware a |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         e = r["estimate"]
@@ -127,10 +125,11 @@ def table(results: list[dict]) -> str:
             depth = ""
             if cooling and e["depth_aware"] is not None:
                 depth = f"{e['depth_aware']:.3g}" + ("" if e["consistent"] else " (inconsistent)")
+            others = ", ".join(f"{k} {g:+.2f}" for k, g in p["others"].items()) or "-"
             rows.append(
                 f"| {r['seed']} | {r['truth']['a']:.3f} | {p['kind']} | {p['frames']} | "
-                f"{', '.join(p['causes']) or '-'} | {p['model'] or '-'} | {gain} | {plain} | {explained} | "
-                f"{depth} |"
+                f"{', '.join(p['causes']) or '-'} | {p['model'] or '-'} | {gain} | {others} | {plain} | "
+                f"{explained} | {depth} |"
             )
     return "\n".join(rows) + "\n"
 

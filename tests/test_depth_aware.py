@@ -1,10 +1,11 @@
 """The depth-aware diffusivity against 3-D conduction it shares no code with: the exact surface of a
 Gaussian spreading in a half-space (a separable depth problem) and an explicit 3-D slab heated at its
-surface by a beam (not separable right after the switch-off)."""
+surface by a beam (not separable right after the switch-off), from experiments/depth_references.py."""
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,52 +17,13 @@ from anra_torch.estimator import ANRAEstimator
 from anra_torch.selection.depth_aware import MAX_RATES, depth_aware_diffusivity
 from anra_torch.video import save_npz
 
-A = 0.12  # mm^2/s
-
-
-def _half_space_gaussian(dx: float = 0.25, dt: float = 1.0, n: int = 30, size: int = 64, s0: float = 1.5):
-    """The surface ``z = 0`` of ``(s0^2 / s^2)^(3/2) exp(-r^2 / (2 s^2))``, ``s^2 = s0^2 + 2 a t``: exact 3-D
-    conduction in a half-space with an insulated surface, whose surface obeys
-    ``dT/dt = a Lap T - (a / s^2) (T - 20)`` exactly. Returns the frames and ``s^2(t)`` (mm^2)."""
-    t = np.arange(n) * dt
-    y, x = (np.mgrid[:size, :size] - (size - 1) / 2) * dx
-    s2 = s0**2 + 2 * A * t
-    shape = (s0**2 / s2[:, None, None]) ** 1.5 * np.exp(-(x**2 + y**2)[None] / (2 * s2[:, None, None]))
-    noise = np.random.default_rng(0).normal(0, 0.01, shape.shape)
-    return torch.as_tensor(20 + 50 * shape + noise), s2
-
-
-def _beam_heated_slab(
-    n: int = 30,
-    dt: float = 10.0,
-    on: float = 120.0,
-    dx: float = 0.5,
-    size: int = 48,
-    start: float | None = None,
-):
-    """Explicit 3-D conduction in an 8 mm slab (zero-flux sides and bottom) whose top surface takes a
-    Gaussian beam's flux for ``on`` s and loses by convection; the surface sampled every ``dt`` from
-    ``start`` s (default the switch-off) on, with 0.02 K noise."""
-    depth, rho_c, h = 16, 1.5e-3, 10e-6  # layers; J/(mm^3 K); W/(mm^2 K)
-    y, x = (np.mgrid[:size, :size] - (size - 1) / 2) * dx
-    flux = 0.5 / (2 * np.pi * 2.0**2) * np.exp(-(x**2 + y**2) / (2 * 2.0**2))  # W/mm^2
-    u, now, frames = np.full((depth, size, size), 20.0), 0.0, []
-    step = 0.9 * dx**2 / (6 * A)
-    for target in (on if start is None else start) + dt * np.arange(n):
-        while now < target - 1e-9:
-            k = min(step, target - now)
-            p = np.pad(u, 1, mode="edge")
-            lap = p[1:-1, 1:-1, 2:] + p[1:-1, 1:-1, :-2] + p[1:-1, 2:, 1:-1] + p[1:-1, :-2, 1:-1]
-            lap = (lap + p[2:, 1:-1, 1:-1] + p[:-2, 1:-1, 1:-1] - 6 * u) / dx**2
-            lap[0] += ((flux if now < on else 0.0) - h * (u[0] - 20.0)) / (rho_c * A * dx)
-            u, now = u + k * A * lap, now + k
-        frames.append(u[0].copy())
-    return torch.as_tensor(np.asarray(frames) + np.random.default_rng(1).normal(0, 0.02, (n, size, size)))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+from depth_references import A, beam_heated_slab, half_space_gaussian  # noqa: E402
 
 
 @pytest.mark.slow
 def test_exact_on_a_separable_depth_problem() -> None:
-    frames, s2 = _half_space_gaussian()
+    frames, s2 = half_space_gaussian()
     fit = depth_aware_diffusivity(frames, 1.0, 0.25)
     assert fit.diffusivity == pytest.approx(A, rel=0.03) and fit.consistent
     # The rates are the depth term's a / s^2 at the frames the 5-frame derivative is centred on (each one
@@ -77,7 +39,7 @@ def test_a_beam_heated_slab_once_the_heat_has_spread_in_depth() -> None:
     """Right after the switch-off the heat sits under the beam and the depth problem does not separate:
     the fit is then biased too (measured +59 %), but less than the plain estimate (+147 %). From 60 s on
     it is within 8 %."""
-    frames = _beam_heated_slab()
+    frames = beam_heated_slab()
     plain = float(ANRAEstimator()(frames, 10.0, 0.5).diffusivity)
     early = depth_aware_diffusivity(frames, 10.0, 0.5).diffusivity
     assert plain > 2 * A and abs(early - A) < 0.5 * abs(plain - A)
@@ -115,7 +77,7 @@ def test_errors_name_the_requirement() -> None:
 def test_estimate_reports_it_where_the_plain_fit_is_poor(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    frames, _ = _half_space_gaussian(s0=1.0)
+    frames, _ = half_space_gaussian(s0=1.0)
     path = save_npz(tmp_path / "cooling.npz", frames.numpy(), dt=1.0, dx=0.25)
     assert main(["estimate", str(path), "--json"]) == 0
     record = json.loads(capsys.readouterr().out)
@@ -140,7 +102,7 @@ def test_estimate_flags_the_plain_cooling_diffusivity_after_a_heating(
     """The slab recorded from the switch-on: the plain heat equation explains over 90 % of its cooling's
     dT/dt, yet its diffusivity is twice the slab's. After a heating the depth-aware fit is always made, and
     the plain value is flagged against it."""
-    frames = _beam_heated_slab(n=36, start=10.0)  # 11 frames heated, 25 cooling
+    frames = beam_heated_slab(n=36, start=10.0)  # 11 frames heated, 25 cooling
     path = save_npz(tmp_path / "slab.npz", frames.numpy(), dt=10.0, dx=0.5)
     assert main(["estimate", str(path), "--json"]) == 0
     record = json.loads(capsys.readouterr().out)

@@ -18,11 +18,12 @@ The model's own check is its consistency: smoothing both sides of a linear PDE k
 model describes the frames its ``a`` does not depend on the smoothing. :attr:`DepthAwareFit.consistent`
 compares ``a`` over the smoothing candidates.
 
-Checked against 3-D conduction it shares no code with (``tests/test_depth_aware.py``): on the exact surface
-of a Gaussian spreading in a half-space (a separable depth problem) ``a`` is 1.8 % high where the plain
-estimate is 74 % high; on an explicit 3-D slab heated by a beam for 120 s, 59 % high over the cooling's
-first frames (the heat still sits under the beam: the depth problem does not separate; plain: 147 %), and
-8 % high from 60 s after the switch-off on. Consistency over the smoothings does not reveal that bias.
+Checked against 3-D conduction it shares no code with (``experiments/depth_references.py``, asserted on in
+``tests/test_depth_aware.py``): on the exact surface of a Gaussian spreading in a half-space (a separable
+depth problem) ``a`` is 1.8 % high where the plain estimate is 74 % high; on an explicit 3-D slab heated by
+a beam for 120 s, 59 % high over the cooling's first frames (the heat still sits under the beam: the depth
+problem does not separate; plain: 147 %), and 8 % high from 60 s after the switch-off on. Consistency over
+the smoothings does not reveal that bias.
 """
 
 from __future__ import annotations
