@@ -92,6 +92,33 @@ def test_a_short_heating_keeps_seven_fit_frames_or_says_why_its_candidates_were_
     assert all(c["validation_rmse"] is not None for c in longer.to_record()["candidates"].values())
 
 
+def test_a_parametric_source_that_cannot_be_simulated_inside_the_fit_frames_loses_to_the_maps(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An inner parametric model that cannot be simulated (a sparse heating's conductivity turning negative
+    over the reachable temperatures) loses the comparison; before, it cancelled it and was kept."""
+    import anra_torch.forecast.recording as recording
+
+    real = recording.assess_gain
+    calls = []
+
+    def inner_unphysical(frames, dt, dx, **options):  # the inner split's diagnosis has effects to simulate
+        calls.append(options.get("diagnosis"))
+        if options.get("diagnosis") is not None and options["diagnosis"].effects:
+            raise ValueError("the diagnosed model cannot be simulated: a test's unphysical effect")
+        return real(frames, dt, dx, **options)
+
+    monkeypatch.setattr(recording, "assess_gain", inner_unphysical)
+    frames = torch.as_tensor(_heated_then_cooled(off=12, n=30))
+    heating = diagnose_recording(frames, DT, DX)[0]
+    assert heating.phase.name == "heating" and heating.model in recording.SOURCE_MAPS
+    candidates = heating.to_record()["candidates"]
+    assert candidates["parametric"]["validation_rmse"] == math.inf
+    assert all(math.isfinite(candidates[name]["validation_rmse"]) for name in recording.SOURCE_MAPS)
+    assert "the parametric source fitted inside the fit frames cannot be simulated" in heating.warnings
+    assert sum(d is not None and not d.effects for d in calls) == 1  # the maps were scored on the plain one
+
+
 def test_estimate_gives_phase_times_in_seconds(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A uniform video has no timestamps: the phases' times are frame numbers times dt, as in diagnose."""
     path = save_npz(tmp_path / "laser.npz", _heated_then_cooled(off=60), dt=DT, dx=DX)

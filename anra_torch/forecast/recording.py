@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import torch
@@ -33,7 +33,7 @@ from anra_torch.forecast.core import TIME_WINDOW, split_index
 from anra_torch.forecast.gain import GainResult, assess_gain
 from anra_torch.forecast.small_box import fit_small_box, forecast_small_box, unresolved_bound
 from anra_torch.forecast.source_map import source_map_gain
-from anra_torch.selection import minimum_frame_size
+from anra_torch.selection import diagnose_terms, minimum_frame_size
 from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, recording_phases
 from anra_torch.video.resample import measured_frames, measured_part
 
@@ -296,6 +296,8 @@ def _balance_phase(
         except ValueError as err:
             validation = {}
             diagnosis.warnings.append(f"the source map was not compared: {err}")
+    if validation.get("parametric") == math.inf:
+        diagnosis.warnings.append("the parametric source fitted inside the fit frames cannot be simulated")
     chosen = min(validation, key=validation.__getitem__) if validation else "parametric"
     diagnosis.model = chosen
     diagnosis.extended_rmse, diagnosis.gain = held[chosen]
@@ -367,17 +369,26 @@ _INNER_FRAMES = 7
 
 
 def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, options: dict) -> dict[str, float]:
-    """Validation RMSE of the parametric extension and the source map on a split inside the fit frames."""
+    """Validation RMSE of the parametric extension and the source maps on a split inside the fit frames; an
+    inner parametric model that cannot be simulated (e.g. a conductivity that turns negative over the
+    reachable temperatures) scores infinity instead of cancelling the comparison."""
     # At least 5 frames to diagnose (the time filter), the rest (at least 2) validates.
     inner_fraction = max(fit_fraction, 4 / (fit.shape[0] - 1))
     if options.get("scored") is not None:
         options = {**options, "scored": options["scored"][: fit.shape[0]]}
-    inner = assess_gain(fit, dt, dx, fit_fraction=inner_fraction, **options)
+    diagnosis = diagnose_terms(fit[: split_index(fit.shape[0], inner_fraction) + 1], dt, dx)
+    try:
+        inner = assess_gain(fit, dt, dx, fit_fraction=inner_fraction, diagnosis=diagnosis, **options)
+        parametric = inner.extended_rmse
+    except ValueError:  # its inner model cannot be simulated (unphysical there): it loses, the maps compete
+        plain = replace(diagnosis, effects=[])
+        inner = assess_gain(fit, dt, dx, fit_fraction=inner_fraction, diagnosis=plain, **options)
+        parametric = math.inf
     maps = {
         name: source_map_gain(fit, dt, dx, inner, decay=decay, t_on=_T_ON * dt).rmse
         for name, decay in SOURCE_MAPS.items()
     }
-    return {"parametric": inner.extended_rmse, **maps}
+    return {"parametric": parametric, **maps}
 
 
 def _box_forecasts(frames: Tensor, dt: float, dx: float, split: int, horizon: int) -> dict[str, Tensor]:
