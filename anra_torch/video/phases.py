@@ -126,13 +126,29 @@ def segment_phases(
     return [Phase(name, a, b, float(times[a]), float(times[b - 1])) for name, a, b in bounds if b - a >= 2]
 
 
+def _pixel_noise(frames: Tensor) -> float:
+    """The sensor noise of one pixel (:func:`~anra_torch.balance.noise.estimate_noise_sd` of at most 64
+    frames): an upper bound on the noise of a frame mean, whatever the noise's correlation.
+
+    The frame mean's noise is first measured from its steps, which is right for frames a fraction of a
+    second apart; for frames 30 s apart every step is signal (a 3-D heating of 11 frames measured 0.66 K
+    of 'noise' from its steps against 0.1 K per pixel), and a clear heating and cooling read as one
+    steady phase.
+    """
+    from anra_torch.balance.noise import estimate_noise_sd
+
+    stride = max(1, frames.shape[0] // 64)
+    return float(estimate_noise_sd(frames[::stride]))
+
+
 def recording_phases(frames: Tensor, t: Tensor | None = None) -> list[Phase]:
     """The phases of a recording that change what acts in it: baseline, heating, cooling, or one phase.
 
     :func:`segment_phases` places the source's switch-on and switch-off from the hot-spot signal; a
     boundary is kept only where the data say a source really switched: heating and cooling are separate
     phases only when the frame-mean temperature (the heat content) rises over the heating by at least a
-    fifth of its range and ten times its noise, and over the cooling the hot spot falls by at least a fifth
+    fifth of its range and ten times its noise (measured from its steps, at most one pixel's noise:
+    :func:`_pixel_noise`), and over the cooling the hot spot falls by at least a fifth
     of its rise while the heat content no longer rises materially (a hot spot passing by, as in a flow,
     moves heat without adding any); a baseline only when it is flat (its heat content changes under a tenth
     as fast as during the heating's fastest rise). Otherwise the recording
@@ -156,6 +172,8 @@ def recording_phases(frames: Tensor, t: Tensor | None = None) -> list[Phase]:
     steps = content[1:] - content[:-1]
     noise = float((steps - steps.median()).abs().median()) * 1.4826 / 2**0.5 if n > 2 else 0.0
     span = float(content.max() - content.min())
+    if n > 2 and span > 0:  # frames far apart: their steps are signal, not noise
+        noise = min(noise, _pixel_noise(frames))
 
     def material(change: float) -> bool:
         return abs(change) >= _MATERIAL * span and abs(change) >= _NOISE_MULTIPLE * noise and span > 0
