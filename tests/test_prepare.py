@@ -51,7 +51,8 @@ def test_steps_run_in_order_and_are_recorded(jittered: Path) -> None:
         "outside_fraction": expected.meta["calibration"]["outside_fraction"],
     }
     assert 0 < video.meta["calibration"]["outside_fraction"] < full.meta["calibration"]["outside_fraction"]
-    assert video.frames.shape == (10, 3, 4) and video.dt == pytest.approx(1.0) and video.dx == 0.25
+    # At the median step (1 s) the 5.5 s and 6 s samples would share a frame: every sample keeps one at 0.5 s.
+    assert video.frames.shape == (19, 3, 4) and video.dt == pytest.approx(0.5) and video.dx == 0.25
 
 
 def test_defaults_only_load_and_accept_tuples_and_paths(jittered: Path, tmp_path: Path) -> None:

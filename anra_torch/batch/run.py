@@ -373,7 +373,7 @@ def run_batch(
         dtype: ``"float32"`` (default, fast) or ``"float64"``.
         progress: show a tqdm progress bar on stderr.
         runner: how chunks are processed; default in this process (see :mod:`anra_torch.distributed`).
-        resample: resample non-uniform timestamps onto their median step instead of an error row.
+        resample: resample non-uniform timestamps onto a uniform step instead of an error row.
         roi: analyse only this region of every video: ``(x0, y0, width, height)`` px or ``"X0,Y0,W,H"``; a
             video it does not fit gets an error row.
         calibration: map apparent to true temperature in every video: a table or the path of a

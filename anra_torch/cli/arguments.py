@@ -34,7 +34,7 @@ def add_spacing_arguments(parser: argparse.ArgumentParser, source: str) -> None:
         "--resample",
         action="store_true",
         help="kept for compatibility: non-uniform timestamps (e.g. FLIR EXIF times) are always interpolated "
-        "linearly onto their median step, and the output states it",
+        "onto a uniform step (resample.default_step), and the output states it",
     )
 
 

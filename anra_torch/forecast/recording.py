@@ -63,7 +63,8 @@ class PhaseDiagnosis:
         diffusivity_bound: the lower bound on ``a`` (mm^2/s) an unresolved diffusivity implies.
         base_rmse: the plain model's held-out RMSE (data units).
         model: the extension chosen on the inner split (``parametric``, a name in :data:`SOURCE_MAPS`,
-            ``loss``, ``quasi_steady``).
+            ``loss``, ``quasi_steady``; ``plain`` when the diagnosed extension cannot be simulated and no
+            map could be compared).
         extended_rmse: the chosen extension's held-out RMSE.
         gain: ``1 - extended_rmse / base_rmse``.
         noise_floor: a perfect model's RMSE at the same scale.
@@ -233,6 +234,17 @@ def _short_phase_fraction(frames: int, fit_fraction: float) -> float:
     return fit_fraction if round(fit_fraction * frames) >= target else target / frames
 
 
+def _measured_split(fit_fraction: float, scored: Tensor) -> float:
+    """``fit_fraction`` moved back so that the fit part ends on a measured sample (``scored``, one bool per
+    frame of resampled irregular times): the forecast then starts from a measurement, not from a frame
+    interpolated towards the first held-out sample. Unchanged when no earlier sample leaves the diagnosis
+    its 5 frames."""
+    n = scored.shape[0]
+    split = round(fit_fraction * n) - 1
+    samples = [int(k) for k in torch.nonzero(scored[: split + 1]).flatten() if k >= _DIAGNOSED_FRAMES - 1]
+    return (samples[-1] + 1) / n if samples else fit_fraction
+
+
 def _gain(rmse: float, base: float) -> float:
     return 1.0 - rmse / base if base > 0 else 0.0
 
@@ -257,12 +269,9 @@ def _balance_phase(
     )
     if scored is not None:
         options.update(time_window=1, scored=scored)
-    result = assess_gain(part, dt, dx, fit_fraction=fit_fraction, **options)
-    names = [e["name"] for e in result.diagnosis.effects]
-    effects = [
-        {"name": e["name"], "params": {k: float(v) for k, v in e["params"].items()}, "gain": g}
-        for e, g in zip(result.diagnosis.effects, result.effect_gains, strict=True)
-    ]
+        fit_fraction = _measured_split(fit_fraction, scored)
+    result, effects, unsimulated = _assessed(part, dt, dx, fit_fraction, options)
+    names = [e["name"] for e in effects]
     diagnosis = PhaseDiagnosis(
         phase,
         "balance",
@@ -276,8 +285,10 @@ def _balance_phase(
         diagnosis.flags.append("negative")
     diagnosis.warnings = _implausible(effects, part.shape[1] * dx, part.shape[2] * dx)
     diagnosis.warnings.extend(_extended_conduction(result, effects))
+    if unsimulated:
+        diagnosis.warnings.append(f"the parametric extension was not forecast: {unsimulated}")
     _flag_implausible(diagnosis, dt, dx)
-    held = {"parametric": (result.extended_rmse, result.gain)}
+    held = {"parametric": (math.inf, -math.inf) if unsimulated else (result.extended_rmse, result.gain)}
     predicted = {"parametric": result.predicted_extended}
     validation: dict[str, float] = {}
     if any(n in _SOURCES for n in names) or phase.name == "heating":
@@ -299,6 +310,8 @@ def _balance_phase(
     if validation.get("parametric") == math.inf:
         diagnosis.warnings.append("the parametric source fitted inside the fit frames cannot be simulated")
     chosen = min(validation, key=validation.__getitem__) if validation else "parametric"
+    if unsimulated and chosen == "parametric":  # no extension could be forecast or chosen: the plain model
+        held["plain"], predicted["plain"], chosen = (result.base_rmse, 0.0), result.predicted_base, "plain"
     diagnosis.model = chosen
     diagnosis.extended_rmse, diagnosis.gain = held[chosen]
     diagnosis.forecasts = {
@@ -310,6 +323,31 @@ def _balance_phase(
         name: {"validation_rmse": validation.get(name), "gain": held[name][1]} for name in held
     }
     return diagnosis
+
+
+def _assessed(
+    part: Tensor, dt: float, dx: float, fit_fraction: float, options: dict[str, Any]
+) -> tuple[GainResult, list[dict[str, Any]], str | None]:
+    """:func:`~anra_torch.forecast.assess_gain` of the phase, its named effects ``{"name", "params",
+    "gain"}`` and None; or, when the diagnosed extension cannot be simulated over the held-out frames (a
+    conductivity that turns negative over the temperatures they reach), the plain model's assessment, the
+    effects named without a held-out gain (None), and why: the source maps still compete."""
+    found = diagnose_terms(part[: split_index(part.shape[0], fit_fraction) + 1], dt, dx)
+    unsimulated = None
+    try:
+        result = assess_gain(part, dt, dx, fit_fraction=fit_fraction, diagnosis=found, **options)
+        gains: list[float | None] = list(result.effect_gains)
+    except ValueError as err:
+        if not found.effects:
+            raise
+        plain = replace(found, effects=[])
+        result = assess_gain(part, dt, dx, fit_fraction=fit_fraction, diagnosis=plain, **options)
+        gains, unsimulated = [None] * len(found.effects), str(err)
+    effects = [
+        {"name": e["name"], "params": {k: float(v) for k, v in e["params"].items()}, "gain": g}
+        for e, g in zip(found.effects, gains, strict=True)
+    ]
+    return result, effects, unsimulated
 
 
 def _flag_implausible(diagnosis: PhaseDiagnosis, dt: float, dx: float) -> None:
@@ -342,7 +380,7 @@ def _implausible(effects: list[dict[str, Any]], height: float, width: float) -> 
     out = []
     for e in effects:
         name, params = e["name"], e["params"]
-        if not e["gain"] > 0:
+        if e["gain"] is not None and not e["gain"] > 0:
             out.append(
                 f"{name}: its own held-out gain is {e['gain']:.3g} (not positive): it fits the diagnosed "
                 "frames but does not forecast; a sign of a term the model is missing"
@@ -365,6 +403,7 @@ time (:func:`~anra_torch.forecast.source_map.fit_source_map`): stationary; a flu
 _T_ON = 0.5  # frame periods: a source switches on between a phase's first two frames
 
 _INNER_FRAMES = 7
+_DIAGNOSED_FRAMES = 5  # the time filter's length: the fewest frames a diagnosis needs
 """Fit frames the inner comparison of the source candidates needs: 5 to diagnose, 2 to validate."""
 
 
@@ -376,6 +415,7 @@ def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, optio
     inner_fraction = max(fit_fraction, 4 / (fit.shape[0] - 1))
     if options.get("scored") is not None:
         options = {**options, "scored": options["scored"][: fit.shape[0]]}
+        inner_fraction = _measured_split(inner_fraction, options["scored"])
     diagnosis = diagnose_terms(fit[: split_index(fit.shape[0], inner_fraction) + 1], dt, dx)
     try:
         inner = assess_gain(fit, dt, dx, fit_fraction=inner_fraction, diagnosis=diagnosis, **options)

@@ -174,8 +174,8 @@ def load_video(
         dx: pixel size in mm (optional: :attr:`Video.dx` is None without it).
         timestamps: what to do when the timestamps are not uniform (:data:`TIMESTAMPS`): ``"uniform"``
             refuses them, ``"keep"`` keeps them (``dt`` = median step, :attr:`Video.uniform` False),
-            ``"resample"`` interpolates linearly onto a uniform grid at the median step and states it in
-            ``meta["resampled"]``.
+            ``"resample"`` interpolates onto a uniform grid
+            (:func:`~anra_torch.video.resample.resample_uniform`) and states it in ``meta["resampled"]``.
         mask_values: mask the samples that cannot be measurements (:func:`~anra_torch.checks.in_range_values`)
             as read, before any resampling could blend them into their neighbours; counted in
             ``meta["masked_values"]`` when there are any.

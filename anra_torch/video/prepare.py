@@ -51,7 +51,8 @@ def prepare_video(
         dt: frame period in s (overrides the file).
         dx: pixel size in mm (overrides the file).
         timestamps: ``"uniform"`` (refuse non-uniform timestamps), ``"keep"`` or ``"resample"`` (interpolate
-            them linearly onto their median step); see :func:`~anra_torch.video.load_video`.
+            them onto a uniform step, :func:`~anra_torch.video.resample.default_step`); see
+            :func:`~anra_torch.video.load_video`.
         roi: region ``(x0, y0, width, height)`` in px, or its text ``"X0,Y0,W,H"``; None keeps the frame.
         calibration: a :class:`~anra_torch.video.CalibrationTable` or the path of a ``true,apparent`` CSV
             mapping apparent to true temperature; None keeps the values.

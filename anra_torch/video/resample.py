@@ -21,7 +21,14 @@ from torch import Tensor
 from anra_torch.video.core import Video
 from anra_torch.video.phases import Phase, hot_spot_signal, recording_phases
 
-__all__ = ["FOREIGN_WEIGHT", "measured_frames", "measured_part", "resample_uniform"]
+__all__ = [
+    "FOREIGN_WEIGHT",
+    "MAX_FRAMES_PER_SAMPLE",
+    "default_step",
+    "measured_frames",
+    "measured_part",
+    "resample_uniform",
+]
 
 FOREIGN_WEIGHT = 0.1
 """The most a phase's resampled frame may take from another phase's samples (a timing jitter's blend)."""
@@ -42,7 +49,8 @@ def resample_uniform(video: Video, dt: float | None = None, *, method: str = "cu
 
     Args:
         video: a video with timestamps ``t`` (strictly increasing, s).
-        dt: the new frame period in s; default the median measured step.
+        dt: the new frame period in s; default :func:`default_step`: the median measured step when every
+            sample keeps a frame of its own there, else a finer step.
         method: ``"cubic"`` or ``"linear"``.
 
     Returns:
@@ -62,7 +70,7 @@ def resample_uniform(video: Video, dt: float | None = None, *, method: str = "cu
         return video
     t = video.t.double()
     steps = torch.diff(t)
-    step = float(steps.median()) if dt is None else float(dt)
+    step = default_step(t) if dt is None else float(dt)
     if not step > 0:
         raise ValueError(f"dt must be a positive number in s, got {dt!r}")
     n = int((float(t[-1] - t[0]) + 1e-9 * step) // step) + 1
@@ -88,6 +96,34 @@ def resample_uniform(video: Video, dt: float | None = None, *, method: str = "cu
     meta["dt_source"] = "resampled"
     meta["measured_t"] = tuple(float(x) for x in t)  # for :func:`measured_part`, not for the JSON
     return video.map_frames(interpolate, dt=step, t=grid, meta=meta)
+
+
+MAX_FRAMES_PER_SAMPLE = 8
+"""The most frames per measured sample :func:`default_step` makes (a burst of close samples in a slow
+recording would otherwise make thousands)."""
+
+
+def default_step(t: Tensor) -> float:
+    """The resampling step (s) for timestamps ``t``: the median step, if every sample then falls nearest to
+    a frame of its own (a camera's jitter around one period); otherwise the smallest step, but no finer
+    than :data:`MAX_FRAMES_PER_SAMPLE` frames per sample.
+
+    A hand-triggered camera samples densely while the scene changes fast (0, 5, 15, 20, 30, 60, 90 s ...):
+    at the median step several early samples share a frame and only one is kept, and phases of 4-6 frames
+    are too short to analyse. At the smallest step every sample keeps its frame; the frames between
+    samples are interpolated and never scored (:func:`measured_frames`).
+
+    Shape:
+        ``t`` ``(T,)``, increasing, ``T >= 2``.
+    """
+    t = torch.as_tensor(t, dtype=torch.float64)
+    steps = torch.diff(t)
+    median = float(steps.median())
+    frames = ((t - t[0]) / median).round()
+    if bool((torch.diff(frames) > 0).all()):
+        return median
+    span = float(t[-1] - t[0])
+    return max(float(steps.min()), span / (MAX_FRAMES_PER_SAMPLE * t.numel()))
 
 
 _TINY = 1e-300  # s: a step that is never reached by increasing timestamps (guards a run of one sample)
