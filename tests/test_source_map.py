@@ -133,6 +133,17 @@ def _decaying_beam(n: int = 16, dt: float = 1.0, dx: float = 0.5, a: float = 0.1
     return torch.stack(frames)
 
 
+def test_a_decaying_map_assimilated_over_every_fit_frame_does_not_step_over_its_switch_on() -> None:
+    """A dense recording assimilates all its fit frames; frame 0's interval holds the switch-on, where the
+    input ``(t - t_on)^-p`` is unbounded (stepped there, the forecast erred 1e3 times the plain one)."""
+    frames = _decaying_beam(n=30)
+    result = assess_gain(frames, 1.0, 0.5)
+    assert result.assimilated == result.split + 1
+    decaying = source_map_gain(frames, 1.0, 0.5, result, decay=0.5, t_on=0.5)
+    stationary = source_map_gain(frames, 1.0, 0.5, result)
+    assert decaying.rmse < stationary.rmse < result.base_rmse
+
+
 def test_a_decaying_input_is_recovered_and_forecasts_where_a_stationary_map_overshoots() -> None:
     """Fitted on frames 3-12 (the clock starts at frame 3: the switch-on is at -2.5 s), away from the
     input's singular start, which no 3-frame difference resolves."""

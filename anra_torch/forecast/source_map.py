@@ -312,7 +312,9 @@ def source_map_gain(
     # The map is fitted at the evaluation scale: its forecast starts from the smoothed fit frames,
     # assimilated like ``result``'s (the split frame itself when ``result.assimilated`` is 1).
     # Bounded by the measured (smoothed) frame edges, like the plain and extended forecasts.
-    n = result.assimilated
+    # A decaying input is not stepped over frame 0's interval: it holds its switch-on, where the input
+    # ``(t - t_on)^-p`` is unbounded (all frames assimilated from frame 0 took it at 1e-9 s: gains of -1e7).
+    n = min(result.assimilated, split) if decay > 0 else result.assimilated
     smoothed = at_scale(video[split + 1 - n :], scale)
 
     first = split + 1 - n  # the first assimilated frame, on the fitted frames' clock
