@@ -121,6 +121,11 @@ def case(seed: int, root: Path, schedule: str = "random") -> dict:
     }
 
 
+def _signed(gain: float | None) -> str:
+    """A gain to 2 decimals; a candidate that could not be simulated has none (null in the JSON)."""
+    return "not simulable" if gain is None else f"{gain:+.2f}"
+
+
 def table(results: list[dict]) -> str:
     rows = [
         "| case | a (mm^2/s) | phase | frames (measured) | causes named | model | held-out gain | "
@@ -137,7 +142,7 @@ def table(results: list[dict]) -> str:
             depth = ""
             if cooling and e["depth_aware"] is not None:
                 depth = f"{e['depth_aware']:.3g}" + ("" if e["consistent"] else " (inconsistent)")
-            others = ", ".join(f"{k} {g:+.2f}" for k, g in p["others"].items()) or "-"
+            others = ", ".join(f"{k} {_signed(g)}" for k, g in p["others"].items()) or "-"
             rows.append(
                 f"| {r['seed']} | {r['truth']['a']:.3f} | {p['kind']} | {p['frames']} ({p['samples']}) | "
                 f"{', '.join(p['causes']) or '-'} | {p['model'] or '-'} | {gain} | {others} | {plain} | "
