@@ -324,6 +324,40 @@ def test_a_large_recording_is_read_in_chunks_and_a_bad_one_gets_its_row(
     assert rows["cut.npy"]["status"] == "error" and "truncated" in rows["cut.npy"]["error"]
 
 
+def test_a_recording_read_in_chunks_gets_the_row_of_its_cooling(tmp_path: Path, monkeypatch, capsys) -> None:
+    """A heating then cooling too large to hold (a .npy left on disk): its phases are found on a copy
+    strided in space, and the row is the cooling's, read chunk by chunk, as anra estimate reports it
+    (before, the whole recording was estimated: heating and cooling mixed)."""
+    from anra_torch.chunked import estimate_chunked
+    from anra_torch.cli import estimate as estimate_command
+    from anra_torch.effects import simulate_effects
+    from anra_torch.video.lazy import LazyFrames
+
+    y, x = torch.meshgrid(torch.arange(48.0), torch.arange(48.0), indexing="ij")
+    q = 4.0 * torch.exp(-((x - 24) ** 2 + (y - 24) ** 2) * 0.25**2 / 2).double()  # K/s, sigma 1 mm
+    heat = simulate_effects(
+        torch.full((48, 48), 20.0).double(), a=0.3, dx=0.25, dt=0.1, n_frames=40, forcing=q
+    )
+    cool = simulate_effects(heat[-1], a=0.3, dx=0.25, dt=0.1, n_frames=81)[1:]
+    noise = 0.01 * torch.randn(120, 48, 48, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    path = tmp_path / "laser.npy"
+    np.save(path, (torch.cat([heat, cool]) + noise).float().numpy())
+    monkeypatch.setattr(run_module, "CHUNKED_VALUES", 100_000)  # 120 x 48 x 48 = 276480 values
+    monkeypatch.setattr(estimate_command, "CHUNKED_VALUES", 100_000)
+    out = tmp_path / "r.csv"
+    run_batch([path], out, dt=0.1, dx=0.25, progress=False)
+    (row,) = read_table(out)
+    assert row["status"] == "ok" and row["phase"] == "cooling" and 75 <= row["frames"] <= 80
+    cooling = LazyFrames(path).window(120 - row["frames"], 120)
+    chunked = estimate_chunked(cooling, 0.1, 0.25, dtype=torch.float32).result
+    assert row["diffusivity"] == pytest.approx(float(chunked.diffusivity), rel=1e-12)
+    assert row["diffusivity"] == pytest.approx(0.3, rel=0.05)  # pure diffusion after the switch-off
+    assert main(["estimate", str(path), "--dt", "0.1", "--dx", "0.25", "--json"]) == 0
+    estimate = json.loads(capsys.readouterr().out)
+    assert estimate["chunked"] is not None and estimate["phase"] == "cooling"
+    assert estimate["diffusivity"] == pytest.approx(row["diffusivity"], rel=1e-4)  # float64 and float32
+
+
 def test_recordings_read_in_chunks_run_side_by_side_with_the_rows_of_one_at_a_time(
     videos: Path, tmp_path: Path, monkeypatch
 ) -> None:

@@ -29,7 +29,7 @@ from anra_torch.video import (
     parse_roi,
     prepare_video,
 )
-from anra_torch.video.lazy import in_memory, lazy_video
+from anra_torch.video.lazy import frame_span, in_memory, lazy_video
 from anra_torch.video.phases import MIN_PHASE_FRAMES, phase_preference
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
@@ -81,7 +81,8 @@ def _phase_part(video: Video) -> tuple[Video, str | None]:
         return video, None
     phase = max(usable, key=phase_preference)
     span = slice(phase.start, phase.stop)
-    return replace(video, frames=video.frames[span], t=None if video.t is None else video.t[span]), phase.name
+    frames = frame_span(video.frames, phase.start, phase.stop)  # a recording on disk stays unread
+    return replace(video, frames=frames, t=None if video.t is None else video.t[span]), phase.name
 
 
 def _preparation(video: Video) -> dict[str, Any]:
@@ -170,9 +171,11 @@ def _estimate_large(video: Video, options: BatchOptions) -> dict[str, Any]:
     """The row of a recording read in time chunks (:func:`~anra_torch.chunked.estimate_chunked`)."""
     start = time.perf_counter()
     dtype = getattr(torch, options.dtype)
-    done = estimate_chunked(video.frames, video.dt, video.dx, precision=options.precision, dtype=dtype)
-    row = _row(video, done.result, 0, time.perf_counter() - start)
-    row["frames_used"] = done.frames_used
+    # With a precision target the recording is one phase, as in anra estimate: phases would read all of it.
+    part, kind = (video, None) if options.precision else _phase_part(video)
+    done = estimate_chunked(part.frames, part.dt, part.dx, precision=options.precision, dtype=dtype)
+    row = _row(part, done.result, 0, time.perf_counter() - start)
+    row.update(frames_used=done.frames_used, phase=kind)
     if options.diagnose and row["status"] == "ok":
         _diagnose_row(row, video, options)
     return row

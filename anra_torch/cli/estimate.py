@@ -36,9 +36,6 @@ import time
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
-import torch
-
 from anra_torch.chunked import CHUNKED_VALUES, estimate_chunked
 from anra_torch.cli.arguments import (
     PROG,
@@ -58,12 +55,11 @@ from anra_torch.forecast.recording import find_phases
 from anra_torch.report import format_pm
 from anra_torch.selection.depth_aware import depth_aware_diffusivity
 from anra_torch.video import MIN_PHASE_FRAMES, Phase, Video, input_warnings
-from anra_torch.video.lazy import LazyFrames, in_memory, lazy_video
+from anra_torch.video.lazy import frame_span, in_memory, lazy_video
 from anra_torch.video.phases import SOURCE_FREE, phase_preference
 
 __all__ = ["add_parser", "phase_diffusivities", "run"]
 
-_DECIMATED_VALUES = 2**22  # pixel values of the copy that the phases of a chunked recording are found on
 
 _PHASE_KEYS = ("diffusivity", "std_error", "valid", "message", "warnings")
 """What each entry of ``phases`` takes from its estimate (a valid one's flags are in ``warnings``)."""
@@ -282,19 +278,6 @@ def _estimate(
         raise ValueError(f"{video.source}: {err}") from err
 
 
-def _decimated(frames: Any) -> Any:
-    """The frames, or for a recording read in chunks a copy decimated in space (for its phases)."""
-    if not isinstance(frames, LazyFrames) and math.prod(frames.shape) <= CHUNKED_VALUES:
-        return frames
-    step = max(1, math.ceil(math.sqrt(math.prod(frames.shape) / _DECIMATED_VALUES)))
-    chunk = max(1, CHUNKED_VALUES // (8 * math.prod(frames.shape[1:])))
-    parts = [
-        torch.as_tensor(np.ascontiguousarray(frames[i : i + chunk][:, ::step, ::step]))
-        for i in range(0, frames.shape[0], chunk)
-    ]
-    return torch.cat(parts)
-
-
 def _phases(
     video: Video, est: ANRAEstimator, phases: list[Phase], reading: _Reading
 ) -> tuple[list[dict[str, Any]], Phase | None, tuple[dict[str, Any], ANRAResult | None] | None]:
@@ -344,8 +327,7 @@ def phase_diffusivities(video: Video) -> tuple[list[dict[str, Any]], dict[str, A
 
 def _part(video: Video, phase: Phase) -> Video:
     span = slice(phase.start, phase.stop)
-    frames = video.frames
-    frames = frames.window(phase.start, phase.stop) if isinstance(frames, LazyFrames) else frames[span]
+    frames = frame_span(video.frames, phase.start, phase.stop)
     return replace(video, frames=frames, t=None if video.t is None else video.t[span])
 
 
@@ -367,7 +349,7 @@ def run(args: argparse.Namespace) -> int:
     reading = _Reading(video, est, args.precision)
     # With --precision the recording is one phase: finding phases would read all of it.
     phases = (
-        find_phases(_decimated(video.frames), video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
+        find_phases(video.frames, video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
         if args.precision is None
         else []
     )

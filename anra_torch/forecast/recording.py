@@ -29,15 +29,21 @@ import torch
 from torch import Tensor
 
 from anra_torch.balance.artefacts import find_artefacts
+from anra_torch.chunked import CHUNKED_VALUES
 from anra_torch.forecast.core import TIME_WINDOW, split_index
 from anra_torch.forecast.gain import GainResult, assess_gain
 from anra_torch.forecast.small_box import fit_small_box, forecast_small_box, unresolved_bound
 from anra_torch.forecast.source_map import source_map_gain
 from anra_torch.selection import diagnose_terms, minimum_frame_size
+from anra_torch.video.lazy import LazyFrames, decimated
 from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, recording_phases
 from anra_torch.video.resample import measured_frames, measured_part
 
-__all__ = ["PhaseDiagnosis", "diagnose_recording", "find_phases"]
+__all__ = ["PHASE_COPY_VALUES", "PhaseDiagnosis", "diagnose_recording", "find_phases"]
+
+PHASE_COPY_VALUES = 2**22
+"""Pixel values of the copy a recording read in chunks has its phases found on (every frame, strided in space:
+the phases depend on a 3 x 3 px hot spot and the frame mean)."""
 
 BOX_WINDOW = 100
 """Frames just before a split that a small-box model is fitted on (the most local of 100, 200 and 400)."""
@@ -142,7 +148,9 @@ def find_phases(
     (:func:`~anra_torch.balance.artefacts.find_artefacts`): a spike or a hot element is not a heat source.
 
     Args:
-        frames: the recording.
+        frames: the recording; one read in time chunks (a :class:`~anra_torch.video.lazy.LazyFrames`, or over
+            :data:`~anra_torch.chunked.CHUNKED_VALUES` values) is looked at through a copy strided in space
+            to :data:`PHASE_COPY_VALUES` values, every frame kept.
         t: frame times in s; default ``k dt`` (frame numbers without ``dt``).
         dt: frame period in s, for the phases' times when ``t`` is None.
         measured_t: for resampled frames, the measured samples' times in s: each phase keeps only the
@@ -151,6 +159,8 @@ def find_phases(
     Shape:
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
     """
+    if isinstance(frames, LazyFrames) or math.prod(frames.shape) > CHUNKED_VALUES:
+        frames = decimated(frames, PHASE_COPY_VALUES)  # a camera-sized recording is never held whole
     video = torch.as_tensor(frames)
     if t is None and dt is not None:
         t = torch.arange(video.shape[0], dtype=_F64) * dt

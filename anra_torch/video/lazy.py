@@ -10,6 +10,7 @@ their ``frames`` is read the same way; a compressed archive (``savez_compressed`
 
 from __future__ import annotations
 
+import math
 import os
 import zipfile
 from pathlib import Path
@@ -17,11 +18,12 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from anra_torch.checks import uniform_step
 from anra_torch.video.core import Truth, Video
 
-__all__ = ["LazyFrames", "in_memory", "lazy_npz_fields", "lazy_video"]
+__all__ = ["LazyFrames", "decimated", "frame_span", "in_memory", "lazy_npz_fields", "lazy_video"]
 
 
 class LazyFrames:
@@ -112,6 +114,32 @@ def in_memory(frames: Any) -> Any:
         ``(T, H, W)`` -> ``(T, H, W)``.
     """
     return torch.as_tensor(frames[0 : len(frames)]) if isinstance(frames, LazyFrames) else frames
+
+
+def frame_span(frames: Any, start: int, stop: int) -> Any:
+    """Frames ``start .. stop - 1``: a :class:`LazyFrames` view (still unread), else a slice.
+
+    Shape:
+        ``(T, H, W)`` -> ``(stop - start, H, W)``.
+    """
+    return frames.window(start, stop) if isinstance(frames, LazyFrames) else frames[start:stop]
+
+
+def decimated(frames: Any, values: int, *, chunk_values: int = 2**19) -> Tensor:
+    """An in-memory copy of every frame, strided in space to at most ``values`` pixel values, read
+    ``chunk_values`` at a time (a camera-sized recording's phases are found on it without holding it).
+
+    Shape:
+        ``(T, H, W)`` -> ``(T, ceil(H / k), ceil(W / k))``, ``k`` the stride.
+    """
+    t, h, w = frames.shape
+    step = max(1, math.ceil(math.sqrt(t * h * w / values)))
+    chunk = max(1, chunk_values // (h * w))
+    parts = [
+        torch.as_tensor(np.ascontiguousarray(frames[i : i + chunk][:, ::step, ::step]))
+        for i in range(0, t, chunk)
+    ]
+    return torch.cat(parts)
 
 
 def _is_zip(path: Path) -> bool:
