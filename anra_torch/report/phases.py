@@ -17,6 +17,7 @@ import numpy as np
 
 from anra_torch.report.figures import format_pm, import_matplotlib, save_figure
 from anra_torch.video import Video, hot_spot_signal
+from anra_torch.video.resample import measured_frames
 
 __all__ = ["forecast_figure", "timeline_figure", "write_phase_report"]
 
@@ -25,14 +26,21 @@ _COLOURS = {"baseline": "0.75", "heating": "tab:red", "cooling": "tab:blue", "st
 
 def timeline_figure(path: Path, title: str, video: Video, phases: list[Any]) -> None:
     """The hot-spot signal (mean of the 3 x 3 px around the pixel that rises most) with ``phases``
-    (:class:`~anra_torch.video.Phase`) shaded, against time in s."""
+    (:class:`~anra_torch.video.Phase`) shaded, against time in s; a video resampled from irregular times
+    marks the frames that stand for its measured samples, the rest being interpolated between them."""
     figure_cls, canvas = import_matplotlib()
     signal, _ = hot_spot_signal(video.frames)
     n = signal.numel()
     t = video.t.numpy() if video.t is not None else np.arange(n) * video.dt
     fig = figure_cls(figsize=(6.5, 3.0), layout="constrained")
     ax = fig.add_subplot()
-    ax.plot(t, signal.numpy(), "k.-", ms=3, lw=0.8)
+    measured_t = video.meta.get("measured_t")
+    if measured_t is None or video.t is None:
+        ax.plot(t, signal.numpy(), "k.-", ms=3, lw=0.8)
+    else:
+        sampled = measured_frames(video.t, measured_t).numpy()
+        ax.plot(t, signal.numpy(), "k-", lw=0.8, label="resampled")
+        ax.plot(t[sampled], signal.numpy()[sampled], "ko", ms=4, label="measured samples")
     for phase in phases:
         ax.axvspan(
             phase.t_start, phase.t_stop, color=_COLOURS.get(phase.name, "0.5"), alpha=0.2, label=phase.name
