@@ -11,7 +11,8 @@ diffusivity drawn in the PDMS range 0.10-0.15 mm^2/s, beam power 0.3-0.8 W and s
 white camera noise.
 
 Each recording goes through the CLI exactly as a user would run it, with only the pixel size:
-``anra diagnose FOLDER --dx 0.5 --json`` and ``anra estimate FOLDER --dx 0.5 --json``. The table says per
+``anra diagnose FOLDER --dx 0.5 --json --report OUT/report_caseN`` (its phase timeline and forecasts) and
+``anra estimate FOLDER --dx 0.5 --json``. The table says per
 phase: frames, causes named, held-out gain, and for the cooling the estimate's plain and depth-aware
 diffusivities against the simulation's.
 
@@ -83,11 +84,13 @@ def run_cli(*argv: str) -> dict:
     return json.loads(out.getvalue()) if code == 0 else {"error": code}
 
 
-def case(seed: int, root: Path, schedule: str = "random") -> dict:
+def case(seed: int, root: Path, schedule: str = "random", report: Path | None = None) -> dict:
+    """Simulate recording ``seed`` under ``root`` and run the CLI on it (its report into ``report``)."""
     folder = root / f"case{seed}"
     truth = simulate(seed, folder, schedule)
     start = time.perf_counter()
-    diagnosis = run_cli("diagnose", str(folder), "--dx", str(DX), "--json")
+    extra = ("--report", str(report)) if report is not None else ()
+    diagnosis = run_cli("diagnose", str(folder), "--dx", str(DX), "--json", *extra)
     estimate = run_cli("estimate", str(folder), "--dx", str(DX), "--json")
     phases = []
     for p in diagnosis.get("phases", []):
@@ -164,7 +167,7 @@ def main_experiment() -> None:
     results = []
     with tempfile.TemporaryDirectory() as root:
         for seed in range(args.cases):
-            results.append(case(seed, Path(root), args.schedule))
+            results.append(case(seed, Path(root), args.schedule, args.out / f"report_case{seed}"))
             print(json.dumps(results[-1]), flush=True)
     (args.out / "results.json").write_text(json.dumps(results, indent=1))
     (args.out / "table.md").write_text(table(results))
