@@ -5,7 +5,8 @@ baseline, heating, cooling, or one phase) and analyses every phase with enough f
 
 - **Frames that fit the balance's filters** (:func:`anra_torch.selection.minimum_frame_size`): the
   diagnosis and held-out forecast of :func:`~anra_torch.forecast.assess_gain`. When a source is named
-  (or the phase heats), the parametric source (a Gaussian on a path) and the measured source maps
+  (or the phase heats, or the diagnosed extension cannot be simulated over the held-out frames: it then
+  loses), the parametric source (a Gaussian on a path) and the measured source maps
   (:func:`~anra_torch.forecast.source_map_gain`; stationary, or decaying in time as a source over a thick
   body does: :data:`SOURCE_MAPS`) compete on a split INSIDE the fit frames; the held-out
   frames are scored only after the choice. Frames seconds apart (fewer held-out frames than one time
@@ -301,7 +302,7 @@ def _balance_phase(
     held = {"parametric": (math.inf, -math.inf) if unsimulated else (result.extended_rmse, result.gain)}
     predicted = {"parametric": result.predicted_extended}
     validation: dict[str, float] = {}
-    if any(n in _SOURCES for n in names) or phase.name == "heating":
+    if any(n in _SOURCES for n in names) or phase.name == "heating" or unsimulated:
         try:
             for name, decay in SOURCE_MAPS.items():
                 mapped = source_map_gain(clean, dt, dx, result, decay=decay, t_on=_T_ON * dt)
