@@ -414,8 +414,9 @@ time (:func:`~anra_torch.forecast.source_map.fit_source_map`): stationary; a flu
 _T_ON = 0.5  # frame periods: a source switches on between a phase's first two frames
 
 _INNER_FRAMES = 7
-_DIAGNOSED_FRAMES = 5  # the time filter's length: the fewest frames a diagnosis needs
 """Fit frames the inner comparison of the source candidates needs: 5 to diagnose, 2 to validate."""
+
+_DIAGNOSED_FRAMES = 5  # the time filter's length: the fewest frames a diagnosis needs
 
 
 def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, options: dict) -> dict[str, float]:
@@ -427,14 +428,8 @@ def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, optio
     if options.get("scored") is not None:
         options = {**options, "scored": options["scored"][: fit.shape[0]]}
         inner_fraction = _measured_split(inner_fraction, options["scored"])
-    diagnosis = diagnose_terms(fit[: split_index(fit.shape[0], inner_fraction) + 1], dt, dx)
-    try:
-        inner = assess_gain(fit, dt, dx, fit_fraction=inner_fraction, diagnosis=diagnosis, **options)
-        parametric = inner.extended_rmse
-    except ValueError:  # its inner model cannot be simulated (unphysical there): it loses, the maps compete
-        plain = replace(diagnosis, effects=[])
-        inner = assess_gain(fit, dt, dx, fit_fraction=inner_fraction, diagnosis=plain, **options)
-        parametric = math.inf
+    inner, _, unsimulated = _assessed(fit, dt, dx, inner_fraction, options)
+    parametric = math.inf if unsimulated else inner.extended_rmse  # unphysical there: it loses
     maps = {
         name: source_map_gain(fit, dt, dx, inner, decay=decay, t_on=_T_ON * dt).rmse
         for name, decay in SOURCE_MAPS.items()
