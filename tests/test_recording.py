@@ -124,6 +124,31 @@ def test_a_parametric_source_that_cannot_be_simulated_loses_to_the_maps(
     assert any(w.startswith("the parametric extension was not forecast: ") for w in heating.warnings)
 
 
+def test_the_candidates_are_compared_over_several_inner_splits(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fit part of 20 frames is validated at three inner splits (12, 14 and 16 frames diagnosed), one of
+    7 frames at the only one it has (5 diagnosed); the validation is each candidate's RMSE over the plain
+    model's on the same split, averaged."""
+    import anra_torch.forecast.recording as recording
+    from anra_torch.forecast.core import split_index
+
+    real = recording._assessed
+    splits: list[int] = []
+
+    def recorded(part, dt, dx, fit_fraction, options):
+        splits.append(split_index(part.shape[0], fit_fraction))
+        return real(part, dt, dx, fit_fraction, options)
+
+    monkeypatch.setattr(recording, "_assessed", recorded)
+    frames = torch.as_tensor(_heated_then_cooled(off=40, n=60))[:20]
+    validation = recording._inner_balance(frames, DT, DX, 0.6, {})
+    assert splits == [11, 13, 15]
+    assert set(validation) == {"parametric", *recording.SOURCE_MAPS}
+    assert all(0 < v < 10 for v in validation.values())  # ratios to the plain model's RMSE
+    splits.clear()
+    recording._inner_balance(frames[:7], DT, DX, 0.6, {})
+    assert splits == [4]
+
+
 def test_estimate_gives_phase_times_in_seconds(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A uniform video has no timestamps: the phases' times are frame numbers times dt, as in diagnose."""
     path = save_npz(tmp_path / "laser.npz", _heated_then_cooled(off=60), dt=DT, dx=DX)
