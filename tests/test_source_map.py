@@ -160,5 +160,7 @@ def test_a_decaying_input_is_recovered_and_forecasts_where_a_stationary_map_over
     constant = stationary.forecast(frames[12], dt=1.0, dx=0.5, n_frames=8)
     errors = [float((f[1:] - frames[13:])[(slice(None), *inner)].abs().max()) for f in (decaying, constant)]
     assert errors[0] < 0.2 * errors[1]
+    with pytest.raises(ValueError, match=r"start must put the first interval's middle after the input's"):
+        fit.forecast(frames[3], dt=1.0, dx=0.5, n_frames=2, start=-3.0)  # frame 3's interval holds t_on
     with pytest.raises(ValueError, match=r"decay must be >= 0 and t_on before frame 1"):
         fit_source_map(frames[:10], 1.0, 0.5, decay=0.5, t_on=1.5)

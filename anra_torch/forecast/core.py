@@ -58,6 +58,7 @@ from anra_torch.selection import Diagnosis
 
 __all__ = [
     "AT_FLOOR",
+    "DIAGNOSED_FRAMES",
     "TIME_WINDOW",
     "assimilated_state",
     "at_scale",
@@ -75,6 +76,9 @@ __all__ = [
 ]
 
 _F64 = torch.float64
+
+DIAGNOSED_FRAMES = TimeDerivative("smooth").length
+"""The fewest frames a diagnosis needs: the length of its time filter."""
 
 TIME_WINDOW = 9
 """Frames of the moving average in time at the evaluation scale (at most the held-out frames)."""
@@ -98,13 +102,12 @@ def split_index(n_frames: int, fit_fraction: float) -> int:
     """
     if not (isinstance(fit_fraction, int | float) and 0 < fit_fraction < 1):
         raise ValueError(f"fit_fraction must be a number in (0, 1), got {fit_fraction!r}")
-    need = TimeDerivative("smooth").length
     n_fit = round(fit_fraction * n_frames)
-    if n_fit < need or n_frames - n_fit < 2:
+    if n_fit < DIAGNOSED_FRAMES or n_frames - n_fit < 2:
         raise ValueError(
             f"video too short to split at fit_fraction={fit_fraction:g}: {n_frames} frames give {n_fit} to "
-            f"diagnose (need >= {need}) and {n_frames - n_fit} held out (need >= 2); use a longer video or "
-            "another fit_fraction"
+            f"diagnose (need >= {DIAGNOSED_FRAMES}) and {n_frames - n_fit} held out (need >= 2); use a "
+            "longer video or another fit_fraction"
         )
     return n_fit - 1
 

@@ -31,7 +31,7 @@ from torch import Tensor
 
 from anra_torch.balance.artefacts import find_artefacts
 from anra_torch.chunked import CHUNKED_VALUES
-from anra_torch.forecast.core import TIME_WINDOW, split_index
+from anra_torch.forecast.core import DIAGNOSED_FRAMES, TIME_WINDOW, split_index
 from anra_torch.forecast.gain import GainResult, assess_gain
 from anra_torch.forecast.small_box import fit_small_box, forecast_small_box, unresolved_bound
 from anra_torch.forecast.source_map import source_map_gain
@@ -253,7 +253,7 @@ def _measured_split(fit_fraction: float, scored: Tensor) -> float:
     its 5 frames."""
     n = scored.shape[0]
     split = round(fit_fraction * n) - 1
-    samples = [int(k) for k in torch.nonzero(scored[: split + 1]).flatten() if k >= _DIAGNOSED_FRAMES - 1]
+    samples = [int(k) for k in torch.nonzero(scored[: split + 1]).flatten() if k >= DIAGNOSED_FRAMES - 1]
     return (samples[-1] + 1) / n if samples else fit_fraction
 
 
@@ -414,10 +414,8 @@ time (:func:`~anra_torch.forecast.source_map.fit_source_map`): stationary; a flu
 
 _T_ON = 0.5  # frame periods: a source switches on between a phase's first two frames
 
-_INNER_FRAMES = 7
+_INNER_FRAMES = DIAGNOSED_FRAMES + 2
 """Fit frames the inner comparison of the source candidates needs: 5 to diagnose, 2 to validate."""
-
-_DIAGNOSED_FRAMES = 5  # the time filter's length: the fewest frames a diagnosis needs
 
 
 INNER_SPLITS = (0.0, 0.1, 0.2)
@@ -435,7 +433,7 @@ def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, optio
     n = fit.shape[0]
     if options.get("scored") is not None:
         options = {**options, "scored": options["scored"][:n]}
-    first = max(fit_fraction, 4 / (n - 1))  # at least 5 frames to diagnose (the time filter)
+    first = max(fit_fraction, (DIAGNOSED_FRAMES - 1) / (n - 1))  # frames enough to diagnose
     fractions = {}
     for extra in INNER_SPLITS:
         fraction = min(first + extra, (n - 2) / n)  # at least 2 frames validate

@@ -117,6 +117,10 @@ class SourceMapModel:
 
         Shape:
             ``initial`` ``(H, W)``; ``edges`` ``(n_frames, H, W)``; output ``(n_frames, H, W)``.
+
+        Raises:
+            ValueError: a decaying input stepped over its switch-on (``start + dt / 2 <= t_on``), where
+                ``(t - t_on)^-p`` is unbounded.
         """
         loss = (Effect("linear_loss", {"b": self.b, "T_ref": 0.0}),) if self.b > 0 else ()
         state = torch.as_tensor(initial).to(_F64)
@@ -130,6 +134,12 @@ class SourceMapModel:
                 effects=loss,
                 forcing=self.forcing,
                 edges=edges,
+            )
+        if n_frames > 1 and not start + 0.5 * dt > self.t_on:
+            raise ValueError(
+                f"start must put the first interval's middle after the input's switch-on at t_on = "
+                f"{self.t_on:g} s, got start = {start:g} s with dt = {dt:g} s: (t - t_on)^-{self.decay:g} is "
+                "unbounded there"
             )
         frames = [state]
         for j in range(n_frames - 1):  # one interval at a time: the input changes between frames
@@ -313,7 +323,7 @@ def source_map_gain(
     # assimilated like ``result``'s (the split frame itself when ``result.assimilated`` is 1).
     # Bounded by the measured (smoothed) frame edges, like the plain and extended forecasts.
     # A decaying input is not stepped over frame 0's interval: it holds its switch-on, where the input
-    # ``(t - t_on)^-p`` is unbounded (all frames assimilated from frame 0 took it at 1e-9 s: gains of -1e7).
+    # ``(t - t_on)^-p`` is unbounded (SourceMapModel.forecast refuses it).
     n = min(result.assimilated, split) if decay > 0 else result.assimilated
     smoothed = at_scale(video[split + 1 - n :], scale)
 

@@ -131,9 +131,8 @@ def _pixel_noise(frames: Tensor) -> float:
     frames): an upper bound on the noise of a frame mean, whatever the noise's correlation.
 
     The frame mean's noise is first measured from its steps, which is right for frames a fraction of a
-    second apart; for frames 30 s apart every step is signal (a 3-D heating of 11 frames measured 0.66 K
-    of 'noise' from its steps against 0.1 K per pixel), and a clear heating and cooling read as one
-    steady phase.
+    second apart; for frames 30 s apart every step is signal, and a clear heating and cooling read as one
+    steady phase (``tests/test_recording.py -k 30_s_apart``).
     """
     from anra_torch.balance.noise import estimate_noise_sd
 
