@@ -33,7 +33,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff format --check anra_torch tests experiments
 
 bench-paper: $(STAMP)
-	$(PY) experiments/paper_simulation.py --out results/paper_simulation
+	$(PY) -m experiments.paper_simulation --out results/paper_simulation
 
 clean:
 	rm -rf $(VENV) results .pytest_cache

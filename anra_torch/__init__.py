@@ -10,25 +10,24 @@ The names here are the everyday ones; everything else lives in its subpackage, b
 - :mod:`anra_torch.layers`: derivative, smoothing and attention layers on fixed kernels;
 - :mod:`anra_torch.balance`: the PDE-balance core (matched filters, term bank, noise model, moments
   with the errors-in-variables correction, the balance of one video);
-- :mod:`anra_torch.estimator`, :mod:`anra_torch.streaming`: the ANRA estimator, offline and frame by frame;
+- :mod:`anra_torch.estimation`: the ANRA estimator family (offline, frame by frame, in chunks, small boxes);
+- :mod:`anra_torch.recording`: what happens to one recording (read, phases, route, record), for every command;
 - :mod:`anra_torch.effects`: one module per effect, one registry; :mod:`anra_torch.simulation`: the one
   integrator, the heat equation and exact solutions;
 - :mod:`anra_torch.selection`: which effects act; :mod:`anra_torch.forecast` (forecasts, gain,
   the source map, Problem-1 refinement);
-- :mod:`anra_torch.video`: loading and preparing recordings; :mod:`anra_torch.features`,
-  :mod:`anra_torch.dose`, :mod:`anra_torch.tissue_model`: tissue features and damage;
+- :mod:`anra_torch.video`: loading and preparing recordings; :mod:`anra_torch.tissue.features`,
+  :mod:`anra_torch.tissue.dose`, :mod:`anra_torch.tissue.learned`: tissue features and damage;
 - :mod:`anra_torch.batch`, :mod:`anra_torch.report`, :mod:`anra_torch.cli`.
 """
 
 from anra_torch.batch import run_batch
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
-from anra_torch.estimator import ANRAEstimator, ANRAResult
-from anra_torch.features import TissueFeatures
+from anra_torch.estimation import ANRAEstimator, ANRAResult, StreamingEstimator
 from anra_torch.forecast import GainResult, assess_gain
 from anra_torch.selection import Diagnosis, diagnose_terms
-from anra_torch.simulation import simulate_heat
-from anra_torch.streaming import StreamingEstimator
-from anra_torch.synthetic import paper_video
+from anra_torch.simulation import paper_video, simulate_heat
+from anra_torch.tissue import TissueFeatures
 from anra_torch.video import Video, load_video
 
 __version__ = "0.1.0"

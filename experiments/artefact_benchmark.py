@@ -2,12 +2,12 @@
 artefacts real infrared cameras make.
 
 Cases: ``--cases`` (default 10) seeds per group (``--effects``, default pure and all six effects), each a
-video of :func:`anra_torch.simulation.independent.independent_effect_video` at the issue's setting: 128 x
+video of :func:`anra_torch.effects.independent_effect_video` at the issue's setting: 128 x
 128 px of 0.05 mm, 81 frames at 27-50 fps (``duration = 80 / fps``), white noise 0.5-3 % of the rise,
 a = 0.15 mm^2/s. Each video is diagnosed as it is (kind ``none``) and with each kind of
-:data:`anra_torch.camera.ARTEFACTS` planted at :func:`anra_torch.camera.default_levels` (fixed pattern 3
-noise sds, correlated noise 2 noise sds over 1.5 px and 3 frames, spikes of 30-300 K with dead and hot
-elements, offset steps of 0.05-0.3 K with a drift), its record kept with the result.
+:data:`anra_torch.simulation.ARTEFACTS` planted at :func:`anra_torch.simulation.camera.default_levels` (fixed
+pattern 3 noise sds, correlated noise 2 noise sds over 1.5 px and 3 frames, spikes of 30-300 K with dead and
+hot elements, offset steps of 0.05-0.3 K with a drift), its record kept with the result.
 
 Per artefact kind: the exact-set rate (the named set equals the true set, pure videos included), the
 top-effect rate (effect videos), false positives on pure videos, the diffusivity of pure videos by
@@ -18,9 +18,9 @@ videos (``benchmark_cases.sindy_case``). A refused or failed video counts agains
 is :func:`anra_torch.selection.diagnose_terms` as the library exposes it; its names, parameters and any new
 keys (``negligible``, ``artefacts``, ...) are recorded without being assumed.
 
-    python experiments/diagnosis_benchmark.py --artefacts                     # 10 seeds per group
-    python experiments/diagnosis_benchmark.py --artefacts --cases 1 --effects pure linear_loss
-    python experiments/diagnosis_benchmark.py --artefacts --kinds correlated_noise   # and none, the reference
+    python -m experiments.diagnosis_benchmark --artefacts                     # 10 seeds per group
+    python -m experiments.diagnosis_benchmark --artefacts --cases 1 --effects pure linear_loss
+    python -m experiments.diagnosis_benchmark --artefacts --kinds correlated_noise   # and none, the reference
 
 Acceptance (the issue's targets): without artefacts, the named set equals the true set in >= 90 % and no
 pure video names an effect; with each artefact kind, the named set equals the true set in >= 90 %, pure
@@ -36,15 +36,19 @@ import traceback
 from pathlib import Path
 
 import numpy as np
-from benchmark_cases import (
+
+from experiments.benchmark_cases import (
     GROUPS,
     PURE,
     classify_error,
     diagnosis_record,
+    gain_available,
     jsonable,
     make_video,
     measure_gain,
+    run_jobs,
     sindy_case,
+    write_results,
 )
 
 KINDS = ("none", "bad_elements", "fixed_pattern", "correlated_noise", "offset_steps")
@@ -111,7 +115,7 @@ def _diffusivity(frames: object, video: object) -> dict:
 def run_case(job: tuple) -> list[dict]:
     """One video of a group and seed, diagnosed without and with each artefact kind: one record per kind."""
     group, index, gi, options = job
-    from anra_torch.camera import plant
+    from anra_torch.simulation.camera import plant
 
     case = draw_case(gi, index)
     names = () if group == PURE else (group,)
@@ -298,8 +302,6 @@ def acceptance(summary: dict) -> tuple[str, bool]:
 # ------------------------------------------------------------------------------------------ main
 def run_artefact_benchmark(args: object) -> None:
     """Run the mode with the parsed arguments of ``diagnosis_benchmark.py``."""
-    from diagnosis_benchmark import gain_available, run_jobs, write_results
-
     cases = 10 if args.cases is None else args.cases
     out = Path("results/diagnosis_benchmark_artefacts") if args.out is None else args.out
     sindy_n = cases if args.sindy_cases is None else args.sindy_cases

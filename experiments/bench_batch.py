@@ -6,7 +6,7 @@ Writes ``--files`` videos of 224 x 224 px x 120 frames (float32 ``.npz``: the pa
 
 - A: ``anra batch DIR --out rows.csv --no-progress`` with default settings (automatic smoothing, standard
   error, camera-artefact search, measured noise model);
-- B: ``python experiments/bench_batch.py --plain DIR FILTERS``: the same estimator with one fixed smoothing
+- B: ``python -m experiments.bench_batch --plain DIR FILTERS``: the same estimator with one fixed smoothing
   (4 px) in NumPy/SciPy (``bench_scale.numpy_same_estimate``: no standard error, no artefact search), file
   by file; its filters are written beforehand, so it imports NumPy and SciPy only, not torch.
 
@@ -15,7 +15,7 @@ kernel's accounting of the finished child (``os.wait4``). The ratio B / A of wal
 least 1 means ``anra batch`` is at least as fast. Writes ``bench_batch.json`` and ``bench_batch.md`` to
 ``--out``. Usage::
 
-    .venv/bin/python experiments/bench_batch.py --out results/bench_batch        # ~4 min, 2 cores
+    .venv/bin/python -m experiments.bench_batch --out results/bench_batch        # ~4 min, 2 cores
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
+from experiments.bench_scale import numpy_same_estimate, same_estimate_taps
+
 A_TRUE, FPS, NOISE, FRAMES, SIDE = 0.2, 27.0, 0.01, 120, 224
 
 
@@ -57,9 +58,6 @@ def write_videos(folder: Path, files: int) -> None:
 def plain(folder: Path, filters: Path) -> None:
     """B: the plain NumPy/SciPy estimate of every file, one ``name,a`` line each; the filters come from the
     ``filters`` file, so this process imports NumPy and SciPy only (no torch)."""
-    sys.path.insert(0, str(HERE))
-    from bench_scale import numpy_same_estimate
-
     with np.load(filters) as z:
         taps = {k: z[k] for k in z.files}
     for path in sorted(folder.glob("*.npz")):
@@ -97,11 +95,9 @@ def measure(folder: Path, out: Path, runs: int) -> dict:
     anra = Path(sys.executable).with_name("anra")
     rows = out / "rows.csv"
     a_cmd = [str(anra), "batch", str(folder), "--out", str(rows), "--no-progress"]
-    sys.path.insert(0, str(HERE))
-    from bench_scale import same_estimate_taps
-
     np.savez(out / "filters.npz", **same_estimate_taps(4.0))
-    b_cmd = [sys.executable, str(Path(__file__).resolve()), "--plain", str(folder), str(out / "filters.npz")]
+    filters = str(out / "filters.npz")
+    b_cmd = [sys.executable, "-m", "experiments.bench_batch", "--plain", str(folder), filters]
     logs = {"anra": out / "anra.log", "plain": out / "plain.log"}
     for log in logs.values():
         log.unlink(missing_ok=True)

@@ -12,7 +12,7 @@ per frame against the chunked run's.
 
 Run::
 
-    .venv/bin/python experiments/bench_camera.py --out results/camera          # ~2 min (+ ~6 min with --long)
+    .venv/bin/python -m experiments.bench_camera --out results/camera          # ~2 min (+ ~6 min with --long)
 
 Writes ``camera.json`` and ``camera.md`` to ``--out``; the recordings go to a temporary folder (or
 ``--data``) and are deleted unless ``--keep``.
@@ -72,7 +72,7 @@ def run(argv: list[str]) -> dict:
 
 _WHOLE = """
 import sys, numpy as np, torch
-from anra_torch.estimator import ANRAEstimator
+from anra_torch.estimation.estimator import ANRAEstimator
 frames = torch.from_numpy(np.load(sys.argv[1], mmap_mode="r")[: int(sys.argv[2])].copy())
 result = ANRAEstimator()(frames, 1 / 30, 0.1)
 print(float(result.diffusivity), float(result.std_error))

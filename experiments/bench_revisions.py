@@ -10,7 +10,7 @@ time (user + system, from ``os.wait4``) and of its wall time, and the table show
 
 Usage::
 
-    python experiments/bench_revisions.py --before 8ca9d02 --after HEAD --runs 7 --out results/bench_revisions
+    python -m experiments.bench_revisions --before 8ca9d02 --after HEAD --runs 7 --out results/bench_revisions
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ float32, batches of 1, 8 and 32 videos:
 and on one video of each size: PySINDy's tuned weak form (``experiments/peers.weak_sindy_estimate``: time,
 its traced peak memory, its diffusivity) and the exact spectral Problem-1 fit (``spectral_fit``: time to its
 optimum and its error against ANRA's). Also: the streaming estimator's time per 382 x 288 frame on one
-thread, and the peak RSS of :func:`anra_torch.streaming.estimate_long` on a 1k- and a 10k-frame ``.npy``
+thread, and the peak RSS of :func:`anra_torch.estimation.estimate_long` on a 1k- and a 10k-frame ``.npy``
 video (128 x 128 px, float32, read chunk by chunk).
 
 Every measurement runs in its own subprocess: peak memory is the rise of the process's peak resident set
@@ -24,8 +24,8 @@ measured in the same run are what count, absolute numbers move with the load.
 
 Run::
 
-    .venv/bin/python experiments/bench_scale.py --out results/bench          # ~10-20 min, one thread
-    .venv/bin/python experiments/bench_scale.py --quick --out results/bench  # sizes 1, 8; no 10k video
+    .venv/bin/python -m experiments.bench_scale --out results/bench          # ~10-20 min, one thread
+    .venv/bin/python -m experiments.bench_scale --quick --out results/bench  # sizes 1, 8; no 10k video
 
 Writes ``bench.json`` (every measurement) and ``bench.md`` (tables and ratios) to ``--out``.
 """
@@ -44,7 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
+from experiments.peers import spectral_fit, weak_sindy_estimate
+
 FPS, FRAMES, NOISE, A_TRUE = 27.0, 28, 0.01, 0.2
 SIZES = {"224x224": (224, 224), "382x288": (288, 382)}
 
@@ -85,13 +86,13 @@ class _Peak:
 def make_videos(size: str, batch: int, seed: int = 0) -> tuple[np.ndarray, float, float]:
     """``batch`` noisy videos ``(B, 28, H, W)`` float32 of the paper's Gaussian (a = 0.2 mm^2/s, 27 Hz).
 
-    224 x 224: :func:`anra_torch.synthetic.paper_video`; 382 x 288: the same Gaussian (peak 3.8, FWHM 50 px,
+    224 x 224: :func:`anra_torch.simulation.paper_video`; 382 x 288: the same Gaussian (peak 3.8, FWHM 50 px,
     dx = 10/224 mm) at the centre of the wider frame, exact solution plus noise sd 0.01.
     """
     import torch
 
     from anra_torch.simulation import gaussian_blob
-    from anra_torch.synthetic import paper_video
+    from anra_torch.simulation.synthetic import paper_video
 
     h, w = SIZES[size]
     if size == "224x224":
@@ -195,7 +196,7 @@ def measure(spec: dict) -> dict:
     frames, dt, dx = make_videos(spec["size"], spec["batch"])
     record = dict(spec)
     if kind.startswith("anra"):
-        from anra_torch.estimator import ANRAEstimator
+        from anra_torch.estimation.estimator import ANRAEstimator
 
         est = ANRAEstimator(smoothing=4.0) if kind == "anra[sigma=4]" else ANRAEstimator()
         x = torch.from_numpy(frames)
@@ -205,7 +206,7 @@ def measure(spec: dict) -> dict:
         seconds, values, peak = _timed(
             lambda: np.array([numpy_same_estimate(f, dt, dx) for f in frames]), repeats
         )
-        from anra_torch.estimator import ANRAEstimator
+        from anra_torch.estimation.estimator import ANRAEstimator
 
         anra = ANRAEstimator(smoothing=4.0)(torch.from_numpy(frames), dt, dx).diffusivity.double().numpy()
         record["max_rel_diff_vs_anra"] = float(np.max(np.abs(values - anra) / np.abs(anra)))
@@ -214,9 +215,6 @@ def measure(spec: dict) -> dict:
         seconds, total, peak = _timed(lambda: x.sum(), max(repeats, 5))
         values = np.array([math.nan])
     elif kind in ("weak_sindy", "spectral"):
-        sys.path.insert(0, str(HERE))
-        from peers import spectral_fit, weak_sindy_estimate
-
         video = frames[0].astype(np.float64)
         fit = (
             (lambda: weak_sindy_estimate(video, dt, dx))
@@ -226,7 +224,7 @@ def measure(spec: dict) -> dict:
         result = fit()  # the peer times itself (fit only) and traces its own peak memory
         seconds, peak, values = result.seconds, result.peak_mb, np.array([result.diffusivity])
         record["note"] = result.note
-        from anra_torch.estimator import ANRAEstimator
+        from anra_torch.estimation.estimator import ANRAEstimator
 
         record["anra_diffusivity"] = float(ANRAEstimator()(torch.from_numpy(frames[0]), dt, dx).diffusivity)
     else:
@@ -247,7 +245,7 @@ def measure(spec: dict) -> dict:
 def _measure_stream(spec: dict) -> dict:
     import torch
 
-    from anra_torch.streaming import StreamingEstimator
+    from anra_torch.estimation.streaming import StreamingEstimator
 
     h, w = SIZES["382x288"]
     frames = torch.randn(spec["frames"], h, w, generator=torch.Generator().manual_seed(0))
@@ -286,7 +284,7 @@ def write_long_video(path: Path, n_frames: int, *, size: int = 128, chunk: int =
 
 
 def _measure_long(spec: dict) -> dict:
-    from anra_torch.streaming import NpyFrames, estimate_long
+    from anra_torch.estimation.streaming import NpyFrames, estimate_long
 
     frames = NpyFrames(spec["path"])
     baseline = _status("VmRSS")

@@ -6,18 +6,26 @@ form peer (:func:`sindy_case`, its term-to-effect rule in ``diagnosis_benchmark.
 keys the diagnosis may grow, e.g. ``negligible`` or ``artefacts``, read without assuming them), and
 whether an exception is a clean refusal of the input or an internal error.
 
-An experiment script: ``experiments/`` is on ``sys.path`` when a script there runs.
+Also how the benchmarks run their cases: spawned processes of one thread each (:func:`run_jobs`), records
+kept as they come, results written as ``table.md`` and ``results.json`` (:func:`write_results`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import multiprocessing as mp
+import os
 import re
+import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import numpy as np
+import torch
+from tqdm import tqdm
 
 EFFECT_NAMES = ("linear_loss", "source", "advection", "anisotropy", "heterogeneity", "nonlinear_diffusion")
 PURE = "pure"
@@ -27,12 +35,12 @@ SIMULATORS = ("library", "independent")
 
 def make_video(simulator: str, names: Sequence[str], **kwargs: object):
     """The hidden-effect video of a case from ``"library"`` (:func:`anra_torch.effects.hidden_effect_video`)
-    or ``"independent"`` (:func:`anra_torch.simulation.independent.independent_effect_video`): the same
+    or ``"independent"`` (:func:`anra_torch.effects.independent_effect_video`): the same
     scene and effect parameters for a seed."""
     if simulator == "library":
         from anra_torch.effects import hidden_effect_video as simulate
     elif simulator == "independent":
-        from anra_torch.simulation.independent import independent_effect_video as simulate
+        from anra_torch.effects import independent_effect_video as simulate
     else:
         raise ValueError(f"unknown simulator {simulator!r}; expected one of: {', '.join(SIMULATORS)}")
     return simulate(tuple(names), **kwargs)
@@ -273,3 +281,57 @@ def measure_gain(frames: object, dt: float, dx: float) -> dict:
         }
     except Exception as err:  # noqa: BLE001 - a failed gain is a result
         return {"gain_error": f"{type(err).__name__}: {err}"}
+
+
+# ---------------------------------------------------------------------------------- running cases
+def _setup_worker() -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    torch.set_num_threads(1)
+
+
+def gain_available(no_gain: bool) -> bool:
+    """Whether ``anra_torch.forecast.assess_gain`` imports (and is wanted)."""
+    if no_gain:
+        return False
+    try:
+        from anra_torch.forecast import assess_gain  # noqa: F401
+
+        return True
+    except Exception as err:  # noqa: BLE001
+        print(f"gain: not measured (anra_torch.forecast.assess_gain does not import: {err})", file=sys.stderr)
+        return False
+
+
+def run_jobs(
+    function: Callable[[tuple], dict | list[dict]], jobs: list[tuple], workers: int, out: Path
+) -> tuple[list[dict], float]:
+    """Run ``function`` on every job (``workers`` spawned processes of one thread each), keeping each
+    record in ``out/records.partial.jsonl`` as it comes; returns the records and the wall time (s)."""
+    start = time.perf_counter()
+    records: list[dict] = []
+    out.mkdir(parents=True, exist_ok=True)
+    with (out / "records.partial.jsonl").open("w") as partial:
+
+        def keep(result: dict | list[dict]) -> None:
+            for rec in result if isinstance(result, list) else [result]:
+                records.append(rec)
+                partial.write(json.dumps(rec, default=str) + "\n")
+            partial.flush()
+
+        if workers > 1:
+            ctx = mp.get_context("spawn")
+            with ctx.Pool(workers, initializer=_setup_worker) as pool:
+                for result in tqdm(pool.imap_unordered(function, jobs), total=len(jobs), desc="cases"):
+                    keep(result)
+        else:
+            _setup_worker()
+            for job in tqdm(jobs, desc="cases"):
+                keep(function(job))
+    return records, time.perf_counter() - start
+
+
+def write_results(out: Path, text: str, results: dict) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table.md").write_text(text)
+    (out / "results.json").write_text(json.dumps(results, indent=1, default=str))
+    print(text)

@@ -9,7 +9,7 @@
 ``tests/test_depth_aware.py`` asserts on them; this script prints the README's table: the plain ANRA
 estimate and the depth-aware fit against the true ``a``.
 
-    python experiments/depth_references.py      # about 10 s
+    python -m experiments.depth_references      # about 10 s
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ def beam_heated_slab(
 
 
 def main() -> None:
-    from anra_torch.estimator import ANRAEstimator
+    from anra_torch.estimation.estimator import ANRAEstimator
     from anra_torch.selection.depth_aware import depth_aware_diffusivity
 
     gaussian, s2 = half_space_gaussian()

@@ -42,17 +42,17 @@ only name them wrong or not at all: it is reported as it is. SINDy has no rankin
 effect"; we count it correct when the mapped set is exactly the truth, and also report when the truth
 is among the mapped set.
 
-    python experiments/diagnosis_benchmark.py                  # 20 cases per effect and pure
-    python experiments/diagnosis_benchmark.py --cases 2        # quick timing estimate
-    python experiments/diagnosis_benchmark.py --simulator independent   # the same scenes, independently
-    python experiments/diagnosis_benchmark.py --artefacts      # camera artefacts (artefact_benchmark.py)
+    python -m experiments.diagnosis_benchmark                  # 20 cases per effect and pure
+    python -m experiments.diagnosis_benchmark --cases 2        # quick timing estimate
+    python -m experiments.diagnosis_benchmark --simulator independent   # the same scenes, independently
+    python -m experiments.diagnosis_benchmark --artefacts      # camera artefacts (artefact_benchmark.py)
 
 ``--simulator independent`` simulates the same cases (same seeds, scenes and effect parameters) with
-:func:`anra_torch.simulation.independent.independent_effect_video` (exact Fourier modes or fine finite
+:func:`anra_torch.effects.independent_effect_video` (exact Fourier modes or fine finite
 volumes on an extended domain, pixel averages) instead of the library's 5-point RK4 simulator, whose
 operators the diagnosis shares; the default ``library`` gives today's results. ``--artefacts`` runs the
 camera-artefact mode of ``artefact_benchmark.py`` (its docs): independent videos at the issue's setting,
-diagnosed without and with each kind of :mod:`anra_torch.camera` artefact, with its own table and
+diagnosed without and with each kind of :mod:`anra_torch.simulation.camera` artefact, with its own table and
 acceptance block. ``--effects`` restricts either mode to some groups. Shared pieces (the SINDy peer, the
 parameter errors, the records) live in ``benchmark_cases.py``.
 
@@ -63,28 +63,27 @@ the table and an acceptance block.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import multiprocessing as mp
-import os
-import sys
 import time
 import traceback
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from artefact_benchmark import KINDS
-from benchmark_cases import (  # noqa: F401 - sindy_case is re-exported for other scripts
+
+from experiments.artefact_benchmark import KINDS, run_artefact_benchmark
+from experiments.benchmark_cases import (  # noqa: F401 - sindy_case is re-exported for other scripts
     EFFECT_NAMES,
     GROUPS,
     PURE,
     SIMULATORS,
+    gain_available,
     make_video,
     measure_gain,
     param_errors,
+    run_jobs,
     sindy_case,
     sindy_outcome,
+    write_results,
 )
 
 # Acceptance targets (from the brief).
@@ -104,13 +103,6 @@ PRIMARY = {
     "heterogeneity": ("ratio_in_out",),  # plus centre_over_radius <= 0.5
     "nonlinear_diffusion": ("a0", "beta"),
 }
-
-
-def _setup_worker() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    import torch
-
-    torch.set_num_threads(1)
 
 
 DX_RANGE = (0.1, 0.2)  # mm/px, drawn log-uniformly
@@ -437,61 +429,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def gain_available(no_gain: bool) -> bool:
-    """Whether ``anra_torch.forecast.assess_gain`` imports (and is wanted)."""
-    if no_gain:
-        return False
-    try:
-        from anra_torch.forecast import assess_gain  # noqa: F401
-
-        return True
-    except Exception as err:  # noqa: BLE001
-        print(f"gain: not measured (anra_torch.forecast.assess_gain does not import: {err})", file=sys.stderr)
-        return False
-
-
-def run_jobs(
-    function: Callable[[tuple], dict | list[dict]], jobs: list[tuple], workers: int, out: Path
-) -> tuple[list[dict], float]:
-    """Run ``function`` on every job (``workers`` spawned processes of one thread each), keeping each
-    record in ``out/records.partial.jsonl`` as it comes; returns the records and the wall time (s)."""
-    from tqdm import tqdm
-
-    start = time.perf_counter()
-    records: list[dict] = []
-    out.mkdir(parents=True, exist_ok=True)
-    with (out / "records.partial.jsonl").open("w") as partial:
-
-        def keep(result: dict | list[dict]) -> None:
-            for rec in result if isinstance(result, list) else [result]:
-                records.append(rec)
-                partial.write(json.dumps(rec, default=str) + "\n")
-            partial.flush()
-
-        if workers > 1:
-            ctx = mp.get_context("spawn")
-            with ctx.Pool(workers, initializer=_setup_worker) as pool:
-                for result in tqdm(pool.imap_unordered(function, jobs), total=len(jobs), desc="cases"):
-                    keep(result)
-        else:
-            _setup_worker()
-            for job in tqdm(jobs, desc="cases"):
-                keep(function(job))
-    return records, time.perf_counter() - start
-
-
-def write_results(out: Path, text: str, results: dict) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "table.md").write_text(text)
-    (out / "results.json").write_text(json.dumps(results, indent=1, default=str))
-    print(text)
-
-
 def main() -> None:
     args = build_parser().parse_args()
     if args.artefacts:
-        from artefact_benchmark import run_artefact_benchmark
-
         run_artefact_benchmark(args)
         return
     args.cases = 20 if args.cases is None else args.cases

@@ -7,7 +7,7 @@ drawn from the generator's ranges) at noise sd 1, 5, 10 and 20 % of the peak ris
 effect and noise level, plus pure heat-transfer videos for false positives, and writes
 ``results/diagnosis_noise_sweep/{table.md,results.json}``.
 
-    python experiments/diagnosis_noise_sweep.py              # 4 seeds, about 10 min on one core
+    python -m experiments.diagnosis_noise_sweep              # 4 seeds, about 10 min on one core
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """Flash thermography of composite plates: what ``anra estimate`` and ``anra diagnose`` say, by default.
 
-Each case is an independent 3-D simulation (:func:`anra_torch.simulation.plate.flash_plate_video`: lateral
+Each case is an independent 3-D simulation (:func:`anra_torch.simulation.flash_plate_video`: lateral
 heat flow exact per Fourier mode, finite volumes through the thickness, nothing shared with the diagnosis):
 an anisotropic plate (lateral 7.3 and 1.1 mm^2/s, through-thickness 0.45 mm^2/s, 3 mm thick), 100 x 100 px
 at 0.2 mm, 380 frames at 31 Hz, 20 mK noise; 3 mm and 2 mm thick, intact and with a delamination.
 Both CLI commands run in this process with default settings, as a user would run them on the files.
 
-Run: ``python experiments/flash_thermography.py [--out DIR]`` (about 10 minutes on 2 cores). It prints, per
+Run: ``python -m experiments.flash_thermography [--out DIR]`` (about 10 minutes on 2 cores). It prints, per
 case, the effects named in the phase with their own held-out gains and the parameters of
 ``depth_conduction``, and the estimate's diffusivity, its share of dT/dt explained and its flags; each
 case's ``anra diagnose --report`` goes to ``DIR/caseN_report`` (README's figure: case 1's ``maps.png``).

@@ -5,7 +5,7 @@ Scene (per seed): textured tissue (37-47 C), 32 x 32 px of 0.25 mm, a planted di
 ``b = 0.05 + 0.15 x / 8 mm`` 1/s towards 37 C, simulated with
 :func:`anra_torch.simulation.simulate_tissue` for 4 s at 10 Hz (41 frames), white noise 0.05 K.
 
-Model: :class:`anra_torch.tissue_model.LearnedTissueModel` (``log a``, ``log b`` on a 6 x 6 grid,
+Model: :class:`anra_torch.tissue.LearnedTissueModel` (``log a``, ``log b`` on a 6 x 6 grid,
 bilinear; ``T_body`` learned too), initialised from ANRA's direct estimate (windowed field for ``a``;
 ``b`` and ``T_body`` from the diagnosed ``linear_loss``), then ``--steps`` L-BFGS iterations on the
 frame misfit, gradients through RK4.
@@ -13,7 +13,7 @@ frame misfit, gradients through RK4.
 Reports per seed the median relative error of ``a`` and ``b`` over all pixels, before (direct estimate)
 and after training, the loss (K^2) against the noise variance, and the time.
 
-    python experiments/learned_tissue.py                 # 3 seeds, 80 L-BFGS iterations, ~2 min
+    python -m experiments.learned_tissue                 # 3 seeds, 80 L-BFGS iterations, ~2 min
 
 Writes ``table.md``, ``results.json`` and ``figure.png`` to ``--out`` (default results/learned_tissue)
 and copies the figure to ``docs/learned_tissue.png``.
@@ -32,7 +32,7 @@ import torch
 
 from anra_torch.layers.derivatives import GaussianSmoothing
 from anra_torch.simulation import simulate_tissue
-from anra_torch.tissue_model import LearnedTissueModel, relative_error
+from anra_torch.tissue.learned import LearnedTissueModel, relative_error
 
 F64 = torch.float64
 SIZE, DX, DT, FRAMES, NOISE = 32, 0.25, 0.1, 41, 0.05

@@ -4,7 +4,7 @@ The artefact benchmark (``diagnosis_benchmark.py --artefacts``) plants noise cor
 frames at twice the white level. There a heterogeneity and a temperature-dependent diffusivity are rarely
 named, and a pure video's diffusivity moves by several percent. Is that the measured noise model's fault
 or the data's? This experiment takes the same cases and diagnoses them with the PLANTED noise model
-(:class:`anra_torch.balance.noise.NoiseModel` with the camera's level, correlations and a white part, its
+(:class:`anra_torch.balance.NoiseModel` with the camera's level, correlations and a white part, its
 variance known exactly: ``variance_error=0``) at every smoothing in ``--smoothing``. What the balance cannot
 see then, no better noise model or choice of smoothing will make it see.
 
@@ -13,8 +13,8 @@ Wald score and Bonferroni threshold), whether the true set is named at some smoo
 score without artefacts (default settings), and for pure videos the smallest standard error of the plain
 ``a`` over the smoothings, relative to ``a``.
 
-    python experiments/noise_information.py --cases 5                 # heterogeneity, nonlinear, pure
-    python experiments/noise_information.py --cases 2 --effects nonlinear_diffusion
+    python -m experiments.noise_information --cases 5                 # heterogeneity, nonlinear, pure
+    python -m experiments.noise_information --cases 2 --effects nonlinear_diffusion
 
 Writes ``--out`` (default ``results/noise_information``): ``table.md`` and ``results.json``.
 """
@@ -28,8 +28,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from artefact_benchmark import draw_case
-from benchmark_cases import GROUPS, PURE, make_video
+
+from anra_torch.balance import NoiseModel
+from experiments.artefact_benchmark import draw_case
+from experiments.benchmark_cases import GROUPS, PURE, make_video
 
 SMOOTHING = (3.0, 4.0, 6.0, 8.0)
 KIND = "correlated_noise"
@@ -37,9 +39,9 @@ LAGS = 10
 
 
 def planted_model(record: dict, white_sd: float) -> object:
-    """The noise model of a planted correlated noise (``anra_torch.camera.correlated_noise``'s record)
-    beside the video's own white noise, its variance known exactly."""
-    from anra_torch.balance.noise import NoiseModel
+    """The noise model of a planted correlated noise (the record of
+    ``anra_torch.simulation.camera.correlated_noise``) beside the video's own white noise, its variance known
+    exactly."""
 
     frames = float(record["length_frames"])
     time_corr = tuple(math.exp(-(k**2) / (2 * frames**2)) for k in range(1, LAGS + 1)) if frames else ()
@@ -56,8 +58,8 @@ def run_case(job: tuple[str, int, tuple[float, ...]]) -> dict:
     """One case: the clean video at default settings, then the planted noise at each smoothing."""
     import torch
 
-    from anra_torch.camera import plant
     from anra_torch.selection import diagnose_terms
+    from anra_torch.simulation.camera import plant
 
     torch.set_num_threads(1)
     group, index, smoothing = job

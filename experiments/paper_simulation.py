@@ -5,8 +5,8 @@ The paper's case: a = 0.2 mm^2/s, a Gaussian of peak 3.8 and FWHM 50 px, 224 x 2
 videos (one batch per chunk of seeds); the peers (PDE-constrained spectral fit, PySINDy strong and weak
 form, a NumPy/SciPy direct estimator) run on the same videos.
 
-    python experiments/paper_simulation.py                      # 200 seeds, ~20 min on 2 cores
-    python experiments/paper_simulation.py --seeds 20 --sweep-seeds 8 --peer-seeds 1   # quick look
+    python -m experiments.paper_simulation                      # 200 seeds, ~20 min on 2 cores
+    python -m experiments.paper_simulation --seeds 20 --sweep-seeds 8 --peer-seeds 1   # quick look
 
 Writes ``results.json``, ``table.md``, ``kde.png`` and ``sweeps.png`` to ``--out``.
 """
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -24,14 +23,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from peers import numpy_direct_estimate, pde_find_estimate, spectral_fit, weak_sindy_estimate  # noqa: E402
-
-from anra_torch import ANRAEstimator  # noqa: E402
-from anra_torch.baselines import BASELINES  # noqa: E402
-from anra_torch.layers import RTCAttention  # noqa: E402
-from anra_torch.synthetic import blobs_video, paper_video  # noqa: E402
+from anra_torch import ANRAEstimator
+from anra_torch.estimation import BASELINES
+from anra_torch.layers import RTCAttention
+from anra_torch.simulation import blobs_video, paper_video
+from experiments.peers import numpy_direct_estimate, pde_find_estimate, spectral_fit, weak_sindy_estimate
 
 A_TRUE = 0.2
 CHUNK = 10  # videos per batch through the estimators

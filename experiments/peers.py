@@ -25,8 +25,8 @@ arrays are traced; scratch space of C/C++/Fortran internals that bypass Python's
 The PySINDy peers run with one BLAS thread by default (``blas_threads``): their thousands of tiny
 products only lose from threading, badly so on a busy machine (0.4 s -> 6 s measured).
 
-This module is an experiment script (``experiments/`` is never imported by the package): other
-scripts do ``from peers import spectral_fit, ...`` with ``experiments/`` on ``sys.path``. It needs
+This module is an experiment helper (``experiments/`` is never imported by the package): scripts and tests
+do ``from experiments.peers import spectral_fit, ...`` (run from the repository's folder). It needs
 SciPy and, for the SINDy peers, PySINDy (``pip install 'anra_torch[peers]'``).
 """
 
@@ -143,11 +143,12 @@ def _measured(name: str, fit: Callable[[], FitOutcome], memory: bool) -> PeerRes
 
 
 def paper_video(*, noise: float = 0.01, seed: int = 0, **options: object) -> tuple[np.ndarray, float, float]:
-    """One video of the paper's case as NumPy ``(frames (T, H, W), dt, dx)``, from anra_torch.synthetic.
+    """One video of the paper's case as NumPy ``(frames (T, H, W), dt, dx)``, from
+    :func:`anra_torch.simulation.paper_video`.
 
-    ``options`` go to :func:`anra_torch.synthetic.paper_video` (e.g. ``crop``, ``fps``, ``a``).
+    ``options`` go to :func:`anra_torch.simulation.paper_video` (e.g. ``crop``, ``fps``, ``a``).
     """
-    from anra_torch.synthetic import paper_video as make
+    from anra_torch.simulation.synthetic import paper_video as make
 
     video = make(n_videos=1, seed=seed, noise_sd=noise, **options)
     return video.frames[0].numpy(), video.dt, video.dx

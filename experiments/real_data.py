@@ -21,8 +21,8 @@ Outputs in --out (default results/real_data): table.md, results.json, one Fig.-3
 and phase (measured, plain forecast and its deviation, extended forecast and its deviation, at the last
 held-out frame) and the hot-spot signal with its phases per recording.
 
-    python experiments/real_data.py                      # all recordings (a few minutes on 2 cores)
-    python experiments/real_data.py --quick              # one laser run and one CSV file
+    python -m experiments.real_data                      # all recordings (a few minutes on 2 cores)
+    python -m experiments.real_data --quick              # one laser run and one CSV file
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ from typing import Any
 
 import torch
 
-from anra_torch.estimator import ANRAEstimator
-from anra_torch.forecast import PhaseDiagnosis, diagnose_recording
+from anra_torch.estimation.estimator import ANRAEstimator
+from anra_torch.recording import PhaseDiagnosis, diagnose_recording
 from anra_torch.report.phases import forecast_figure, timeline_figure
 from anra_torch.video import Video, prepare_video
 from anra_torch.video.calibration import PixelSize

@@ -16,8 +16,8 @@ Each recording goes through the CLI exactly as a user would run it, with only th
 phase: frames, causes named, held-out gain, and for the cooling the estimate's plain and depth-aware
 diffusivities against the simulation's.
 
-    python experiments/sparse_recordings.py --cases 8                     # about 7 minutes
-    python experiments/sparse_recordings.py --cases 8 --schedule issue    # the issue's times, about 3 minutes
+    python -m experiments.sparse_recordings --cases 8                     # about 7 minutes
+    python -m experiments.sparse_recordings --cases 8 --schedule issue    # the issue's times, about 3 minutes
 """
 
 from __future__ import annotations
@@ -31,9 +31,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from depth_references import conduct  # the same explicit 3-D solver (experiments/ is on the path when run)
 
 from anra_torch.cli import main
+from experiments.depth_references import conduct  # the same explicit 3-D solver
 
 H, W, DEPTH = 96, 128, 24
 DX = 0.5  # mm, lateral and depth cells

@@ -14,7 +14,7 @@ good camera to one disturbed by smoke and steam).
 Feature sets per pixel (from the camera video only):
 
 * raw temperature: peak, mean, last and standard deviation over time of the raw frames (4 features);
-* ANRA: every map of :class:`anra_torch.features.TissueFeatures` (13 features: dose, denoised peak,
+* ANRA: every map of :class:`anra_torch.tissue.TissueFeatures` (13 features: dose, denoised peak,
   times above 43/50/60 C, Holoborodko rates, RTC attention, local diffusivity and confidence, loss rate,
   source), the dose maps as ``log10(1e-6 + x)``.
 
@@ -24,8 +24,8 @@ maximises F1 on the training pixels; ROC AUC by the Mann-Whitney rank sum; the m
 from 200 bootstrap resamples of the held-out videos. A classifier-free baseline thresholds ANRA's Omega
 map at 1.
 
-    python experiments/tissue_damage.py                      # 24 training + 12 test videos, 3 noise levels
-    python experiments/tissue_damage.py --noise 1.0          # one noise level
+    python -m experiments.tissue_damage                      # 24 training + 12 test videos, 3 noise levels
+    python -m experiments.tissue_damage --noise 1.0          # one noise level
 
 Writes ``table.md``, ``results.json`` and ``figure.png`` to ``--out`` (default results/tissue_damage)
 and copies the figure to ``docs/tissue_damage.png``.
@@ -43,10 +43,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from anra_torch.dose import arrhenius_omega
-from anra_torch.features import TissueFeatures
 from anra_torch.layers.derivatives import GaussianSmoothing
 from anra_torch.simulation import MovingSource, simulate_tissue
+from anra_torch.tissue.dose import arrhenius_omega
+from anra_torch.tissue.features import TissueFeatures
 
 F64 = torch.float64
 SIZE, DX = 48, 0.2  # px, mm

@@ -1,9 +1,11 @@
-"""The package's structure, measured from its source: sizes, import cycles, one home per mechanism.
+"""The package's structure, measured from its source: sizes, layers, import cycles, one home per mechanism.
 
-These are the architecture's promises (README, "Architecture"): a module stays under 600 lines and a
-function under 80; no two modules import each other, directly or around a circle; the ODE solver is
-called in one place; an effect lives in its own module and nothing else branches on its name; the
-top-level surface stays small.
+These are the architecture's promises: a module stays under 600 lines and a function under 80; the top level
+holds only ``__init__``, ``__main__`` and subpackages, each with a face (``__init__``) that the others import
+from; the subpackages form layers and every import runs down them; no two modules import each other,
+directly or around a circle (the experiments' scripts included); no module hides an import of the package
+inside a function; the ODE solver is called in one place; an effect lives in its own module and nothing
+else branches on its name or keeps a table of names; the top-level surface stays small.
 """
 
 from __future__ import annotations
@@ -19,6 +21,31 @@ from anra_torch.effects import EFFECTS
 
 PACKAGE = Path(anra_torch.__file__).parent
 MODULES = sorted(PACKAGE.rglob("*.py"))
+EXPERIMENTS = PACKAGE.parent / "experiments"
+
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("checks",),
+    ("layers",),
+    ("balance",),
+    ("video",),
+    ("simulation",),
+    ("estimation", "effects"),
+    ("selection",),
+    ("forecast", "tissue", "flash"),
+    ("report", "recording"),
+    ("batch", "data"),
+    ("cli",),
+)
+"""The subpackages from the bottom up: a subpackage imports only from the layers below its own."""
+
+LAZY_IMPORTS = {
+    "distributed": "the dask extra",
+    "pyarrow": "the parquet extra",
+    "matplotlib": "the plot extra",
+    "flyr": "the formats extra",
+    "torchdiffeq": "loads scipy.integrate (0.4 s at every start of commands that integrate nothing)",
+}
+"""Third-party modules a function may import (optional extras; the one measured start-up cost)."""
 
 
 def module_name(path: Path) -> str:
@@ -113,3 +140,112 @@ def test_no_branch_on_an_effect_name_outside_its_module() -> None:
 def test_small_public_surface() -> None:
     assert len(anra_torch.__all__) <= 20
     assert all(hasattr(anra_torch, name) for name in anra_torch.__all__)
+
+
+def _layer(package: str) -> int:
+    return next(i for i, names in enumerate(LAYERS) if package in names)
+
+
+def _imports(path: Path) -> list[ast.ImportFrom | ast.Import]:
+    return [n for n in ast.walk(ast.parse(path.read_text())) if isinstance(n, ast.ImportFrom | ast.Import)]
+
+
+def test_the_top_level_holds_only_the_face_and_subpackages() -> None:
+    loose = sorted(p.name for p in PACKAGE.glob("*.py") if p.name not in ("__init__.py", "__main__.py"))
+    assert not loose
+    packages = sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name != "__pycache__")
+    assert all((PACKAGE / name / "__init__.py").exists() for name in packages)
+    assert sorted(packages) == sorted(name for names in LAYERS for name in names if (PACKAGE / name).exists())
+
+
+def test_every_import_runs_down_the_layers_through_a_face() -> None:
+    upward, past_face = [], []
+    for path in MODULES:
+        parts = path.relative_to(PACKAGE).parts
+        if len(parts) < 2:
+            continue
+        own = parts[0]
+        for node in _imports(path):
+            if not isinstance(node, ast.ImportFrom) or not (node.module or "").startswith("anra_torch."):
+                continue
+            target = node.module.split(".")
+            if target[1] == own:
+                continue
+            if _layer(target[1]) >= _layer(own):
+                upward.append(f"{module_name(path)} -> {node.module}")
+            if len(target) > 2:
+                past_face.append(f"{module_name(path)} -> {node.module}")
+    assert not upward
+    assert not past_face
+
+
+def test_no_import_hides_in_a_function() -> None:
+    hidden = []
+    for path in MODULES:
+        tree = ast.parse(path.read_text())
+        top = {id(n) for node in tree.body for n in ast.walk(node) if isinstance(node, ast.If)}
+        top |= {id(node) for node in tree.body}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import | ast.ImportFrom) and id(node) not in top:
+                names = [node.module] if isinstance(node, ast.ImportFrom) else [a.name for a in node.names]
+                hidden += [
+                    f"{module_name(path)}: {name}" for name in names if name.split(".")[0] not in LAZY_IMPORTS
+                ]
+    assert not hidden
+
+
+def test_no_table_of_effect_names_outside_effects() -> None:
+    """A tuple, list, set or dict naming two or more effects (or an ``in`` test against one) outside
+    ``effects/`` is a registry keyed by name: such a fact belongs to each effect's spec."""
+    names = set(EFFECTS)
+    tables = []
+    for path in MODULES:
+        if path.parent.name == "effects":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            items = []
+            if isinstance(node, ast.Tuple | ast.List | ast.Set):
+                items = node.elts
+            elif isinstance(node, ast.Dict):
+                items = [k for k in node.keys if k is not None]
+            named = [i.value for i in items if isinstance(i, ast.Constant) and i.value in names]
+            if len(named) >= 2:
+                tables.append(f"{module_name(path)}:{node.lineno}: {named}")
+    assert not tables
+
+
+def _experiment_imports(path: Path) -> set[str]:
+    found = set()
+    for node in _imports(path):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("experiments."):
+            found.add(node.module.split(".")[1])
+        elif isinstance(node, ast.Import):
+            found |= {a.name.split(".")[1] for a in node.names if a.name.startswith("experiments.")}
+    return found
+
+
+def test_the_experiments_import_each_other_without_a_circle_or_a_path_edit() -> None:
+    scripts = {p.stem: p for p in EXPERIMENTS.glob("*.py") if p.stem != "__init__"}
+    graph = {name: _experiment_imports(path) & set(scripts) for name, path in scripts.items()}
+    assert not [name for name, path in scripts.items() if "sys.path" in path.read_text()]
+    state: dict[str, int] = {}
+    cycles = []
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 1:
+                cycles.append([*path[path.index(nxt) :], nxt])
+            elif nxt not in state:
+                visit(nxt, [*path, nxt])
+        state[node] = 2
+
+    for name in sorted(graph):
+        if name not in state:
+            visit(name, [name])
+    assert not cycles
+
+
+def test_the_package_never_imports_the_experiments() -> None:
+    importing = [module_name(p) for p in MODULES if _experiment_imports(p)]
+    assert not importing

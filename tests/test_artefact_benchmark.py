@@ -5,16 +5,12 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-
-from artefact_benchmark import KINDS, acceptance, summarise  # noqa: E402
-from benchmark_cases import classify_error, diagnosis_record  # noqa: E402
+from experiments.artefact_benchmark import KINDS, acceptance, summarise
+from experiments.benchmark_cases import classify_error, diagnosis_record
 
 
 @dataclass

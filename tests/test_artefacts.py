@@ -1,5 +1,5 @@
-"""Camera artefacts: each kind planted by :mod:`anra_torch.camera` on a pure-diffusion video is found,
-masked or modelled as its record says, and the diagnosis names no effect; the measured noise model's
+"""Camera artefacts: each kind planted by :mod:`anra_torch.simulation.camera` on a pure-diffusion video is
+found, masked or modelled as its record says, and the diagnosis names no effect; the measured noise model's
 standard error matches the spread over noise seeds."""
 
 from __future__ import annotations
@@ -12,10 +12,9 @@ import torch
 from anra_torch import ANRAEstimator
 from anra_torch.balance.artefacts import find_artefacts
 from anra_torch.balance.noise import measure_noise
-from anra_torch.camera import correlated_noise, default_levels, plant
-from anra_torch.effects import hidden_effect_video
+from anra_torch.effects import hidden_effect_video, independent_effect_video
 from anra_torch.selection import diagnose_terms
-from anra_torch.simulation.independent import independent_effect_video
+from anra_torch.simulation.camera import correlated_noise, default_levels, plant
 
 F64 = torch.float64
 

@@ -1,4 +1,5 @@
-"""Tests for anra_torch.baselines: the paper's naive estimators (backward difference + LoG, +/- blur).
+"""Tests for anra_torch.estimation.baselines: the paper's naive estimators (backward difference + LoG,
++/- blur).
 
 They must be correct implementations (exact LoG, agreement with a slow NumPy/SciPy oracle, right units,
 near-exact on noiseless video) and must fail on noisy video as the paper reports, so ANRA's advantage is a
@@ -15,10 +16,10 @@ import reference as ref
 import torch
 from scipy import ndimage
 
-from anra_torch.baselines import BASELINES, backward_log_estimate, log_kernel
-from anra_torch.estimator import ANRAEstimator
+from anra_torch.estimation.baselines import BASELINES, backward_log_estimate, log_kernel
+from anra_torch.estimation.estimator import ANRAEstimator
 from anra_torch.simulation import gaussian_blob
-from anra_torch.synthetic import paper_video
+from anra_torch.simulation.synthetic import paper_video
 
 F64 = torch.float64
 A_PAPER = 0.2

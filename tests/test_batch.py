@@ -17,8 +17,10 @@ from anra_torch.batch import BATCH_COLUMNS, expand_inputs, read_table, run_batch
 from anra_torch.batch import run as run_module
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
-from anra_torch.estimator import ANRAEstimator
-from anra_torch.synthetic import paper_video
+from anra_torch.estimation.estimator import ANRAEstimator
+from anra_torch.recording import estimate as estimate_policy
+from anra_torch.recording import read as read_module
+from anra_torch.simulation.synthetic import paper_video
 from anra_torch.video import prepare_video, save_npz
 
 
@@ -98,8 +100,8 @@ def test_resume_skips_done_inputs_and_retries_errors(videos: Path, tmp_path: Pat
     first = run_batch([folder], out, progress=False)
     assert (first.ok, first.failed) == (2, 1)
     loaded: list[str] = []
-    load = run_module._load
-    monkeypatch.setattr(run_module, "_load", lambda path, options: loaded.append(path) or load(path, options))
+    load = run_module._open
+    monkeypatch.setattr(run_module, "_open", lambda path, options: loaded.append(path) or load(path, options))
     (folder / "broken.npz").write_bytes((videos / "p2.npz").read_bytes())  # a fixed one is retried
     second = run_batch([folder], out, progress=False)
     assert (second.skipped, second.ok, second.failed) == (2, 1, 0)
@@ -229,7 +231,7 @@ def test_roi_and_calibration_are_applied_and_recorded(
 @pytest.mark.slow
 def test_dask_two_worker_cluster_gives_the_local_rows(videos: Path, tmp_path: Path) -> None:
     pytest.importorskip("distributed", reason="the Dask engine needs the 'dask' extra")
-    from anra_torch.distributed import run_batch_dask
+    from anra_torch.batch.dask import run_batch_dask
 
     local, remote = tmp_path / "local.csv", tmp_path / "dask.csv"
     run_batch([videos], local, batch_size=2, progress=False)
@@ -244,7 +246,7 @@ def test_dask_two_worker_cluster_gives_the_local_rows(videos: Path, tmp_path: Pa
 
 
 def test_estimator_slices_of_a_big_batch_equal_the_whole(monkeypatch) -> None:
-    from anra_torch import estimator as estimator_module
+    from anra_torch.estimation import estimator as estimator_module
 
     video = paper_video(n_videos=5, seed=7, crop=48)
     frames = video.frames.clone()
@@ -305,10 +307,10 @@ def test_a_large_recording_is_read_in_chunks_and_a_bad_one_gets_its_row(
 ) -> None:
     """Over CHUNKED_VALUES a .npz stays on disk and gets estimate_chunked's row (both videos here); a file
     truncated on disk gets an error row and the others still run."""
-    from anra_torch.chunked import estimate_chunked
+    from anra_torch.estimation.chunked import estimate_chunked
     from anra_torch.video.lazy import LazyFrames
 
-    monkeypatch.setattr(run_module, "CHUNKED_VALUES", 100_000)  # p*.npz hold 28 x 64 x 64 = 114688 values
+    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 100_000)  # p*.npz: 28 x 64 x 64 = 114688 values
     truncated = tmp_path / "cut.npy"
     np.save(truncated, np.zeros((40, 64, 64), dtype=np.float32))
     truncated.write_bytes(truncated.read_bytes()[:-5000])
@@ -328,9 +330,8 @@ def test_a_recording_read_in_chunks_gets_the_row_of_its_cooling(tmp_path: Path, 
     """A heating then cooling too large to hold (a .npy left on disk): its phases are found on a copy
     strided in space, and the row is the cooling's, read chunk by chunk, as anra estimate reports it
     (before, the whole recording was estimated: heating and cooling mixed)."""
-    from anra_torch.chunked import estimate_chunked
-    from anra_torch.cli import estimate as estimate_command
     from anra_torch.effects import simulate_effects
+    from anra_torch.estimation.chunked import estimate_chunked
     from anra_torch.video.lazy import LazyFrames
 
     y, x = torch.meshgrid(torch.arange(48.0), torch.arange(48.0), indexing="ij")
@@ -342,8 +343,7 @@ def test_a_recording_read_in_chunks_gets_the_row_of_its_cooling(tmp_path: Path, 
     noise = 0.01 * torch.randn(120, 48, 48, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     path = tmp_path / "laser.npy"
     np.save(path, (torch.cat([heat, cool]) + noise).float().numpy())
-    monkeypatch.setattr(run_module, "CHUNKED_VALUES", 100_000)  # 120 x 48 x 48 = 276480 values
-    monkeypatch.setattr(estimate_command, "CHUNKED_VALUES", 100_000)
+    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 100_000)  # 120 x 48 x 48 = 276480 values
     out = tmp_path / "r.csv"
     run_batch([path], out, dt=0.1, dx=0.25, progress=False)
     (row,) = read_table(out)
@@ -363,7 +363,7 @@ def test_recordings_read_in_chunks_run_side_by_side_with_the_rows_of_one_at_a_ti
 ) -> None:
     """With two torch threads, two chunked recordings run at once, one thread each: the same rows in the
     same order as one at a time, the truncated file's error row among them, and the thread count restored."""
-    monkeypatch.setattr(run_module, "CHUNKED_VALUES", 100_000)
+    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 100_000)
     truncated = tmp_path / "cut.npy"
     np.save(truncated, np.zeros((40, 64, 64), dtype=np.float32))
     truncated.write_bytes(truncated.read_bytes()[:-5000])
@@ -424,13 +424,14 @@ def test_diagnose_of_a_large_recording_reads_it_in_chunks_and_diagnoses_its_copy
     """Over CHUNKED_VALUES the recording stays on disk (chunked estimate), over DIAGNOSE_VALUES it is
     diagnosed on its block-averaged copy (here 2 frames per block, the frame kept whole), and the row
     says so."""
-    from anra_torch.forecast import decimate
+    from anra_torch.recording import decimate
 
     path = hidden_effect_video(["advection"], seed=1, size=64, duration=6.0).to_npz(tmp_path / "adv.npz")
-    monkeypatch.setattr(run_module, "CHUNKED_VALUES", 100_000)  # 181 x 64 x 64 = 741376 values
+    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 100_000)  # 181 x 64 x 64 = 741376 values
     monkeypatch.setattr(decimate, "DIAGNOSE_VALUES", 400_000)
     loaded = []
-    monkeypatch.setattr(run_module, "_load", lambda *a: loaded.append(a) or None)  # never loaded whole
+    never = lambda *a, **k: loaded.append(a)  # noqa: E731 - the recording is never loaded whole
+    monkeypatch.setattr(read_module, "prepare_video", never)
     out = tmp_path / "r.csv"
     run_batch([path], out, diagnose=True, progress=False)
     (row,) = read_table(out)

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.camera import (
+from anra_torch.effects import hidden_effect_video
+from anra_torch.simulation.camera import (
     ARTEFACTS,
     bad_elements,
     correlated_noise,
@@ -18,7 +19,6 @@ from anra_torch.camera import (
     offset_steps,
     plant,
 )
-from anra_torch.effects import hidden_effect_video
 
 
 @pytest.fixture

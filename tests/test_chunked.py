@@ -8,8 +8,8 @@ import pytest
 import torch
 from tolerances import assert_rounding_close
 
-from anra_torch.chunked import estimate_chunked
-from anra_torch.estimator import ANRAEstimator
+from anra_torch.estimation.chunked import estimate_chunked
+from anra_torch.estimation.estimator import ANRAEstimator
 from anra_torch.simulation import gaussian_blob
 from anra_torch.video.lazy import LazyFrames as NpyFrames
 

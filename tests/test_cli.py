@@ -22,7 +22,7 @@ import torch
 import anra_torch.cli.demo as demo_command
 from anra_torch import ANRAEstimator
 from anra_torch.cli import main
-from anra_torch.synthetic import paper_video
+from anra_torch.simulation.synthetic import paper_video
 from anra_torch.video import load_video
 
 JSON_KEYS = {
@@ -483,7 +483,7 @@ def test_a_large_recording_is_read_in_chunks_with_the_same_estimate(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Above CHUNKED_VALUES an uncompressed .npz is read chunk by chunk: same diffusivity within its error."""
-    from anra_torch.cli import estimate as estimate_command
+    from anra_torch.recording import estimate as estimate_policy
     from anra_torch.simulation import gaussian_blob
     from anra_torch.video import save_npz
 
@@ -495,7 +495,7 @@ def test_a_large_recording_is_read_in_chunks_with_the_same_estimate(
     path = save_npz(tmp_path / "v.npz", noisy.float(), dt=1 / 27, dx=0.1)
     whole = estimate_json(capsys, path)
     assert whole["chunked"] is None
-    monkeypatch.setattr(estimate_command, "CHUNKED_VALUES", 10_000)  # the name the command reads
+    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 10_000)  # the name the recording policy reads
     chunked = estimate_json(capsys, path)
     assert set(chunked) == JSON_KEYS and chunked["frames"] == 90
     # The pilot reads at most a third of a recording: one block of 16 frames here, in its middle.

@@ -188,15 +188,15 @@ def test_a_recording_too_large_to_diagnose_gets_a_one_line_error(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Before any work: the memory the diagnosis would need against what is available, and what to do."""
-    from anra_torch.cli import diagnose as diagnose_command
+    from anra_torch.recording import diagnose as diagnose_policy
 
     path = save_npz(tmp_path / "v.npz", np.random.default_rng(0).random((20, 40, 48)), dt=0.1, dx=0.1)
-    monkeypatch.setattr(diagnose_command, "_available_bytes", lambda: 100 * 2**20)  # 100 MiB free
+    monkeypatch.setattr(diagnose_policy, "_available_bytes", lambda: 100 * 2**20)  # 100 MiB free
     code, out, err = run(capsys, "diagnose", path)
     assert code == 2 and out == "" and err.count("\n") == 1
     assert "diagnosing 20 frames of 40 x 48 px needs about 0.3 GB of memory, 0.1 GB are available" in err
     assert err.rstrip().endswith("diagnose a region (--roi X0,Y0,W,H) or fewer frames")
     code, out, err = run(capsys, "diagnose", path, "--full-resolution")
     assert code == 2 and err.rstrip().endswith("or fewer frames, or without --full-resolution")
-    monkeypatch.setattr(diagnose_command, "_available_bytes", lambda: None)  # unknown: no refusal
-    diagnose_command._check_memory(Video(frames=torch.zeros(20, 40, 48), dt=0.1, dx=0.1), False)
+    monkeypatch.setattr(diagnose_policy, "_available_bytes", lambda: None)  # unknown: no refusal
+    diagnose_policy.check_memory(Video(frames=torch.zeros(20, 40, 48), dt=0.1, dx=0.1))

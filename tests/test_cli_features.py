@@ -11,10 +11,10 @@ import pytest
 import torch
 
 from anra_torch.cli import main
-from anra_torch.dose import arrhenius_omega, cem43
-from anra_torch.features import TissueFeatures
 from anra_torch.layers.derivatives import GaussianSmoothing
 from anra_torch.simulation import MovingSource, simulate_tissue
+from anra_torch.tissue.dose import arrhenius_omega, cem43
+from anra_torch.tissue.features import TissueFeatures
 from anra_torch.video import save_npz
 
 DT, DX = 0.1, 0.2

@@ -10,10 +10,16 @@ import numpy as np
 import pytest
 import torch
 
-import anra_torch.forecast.decimate as decimate
+import anra_torch.recording.decimate as decimate
 from anra_torch.cli import main
-from anra_torch.estimator import ANRAEstimator
-from anra_torch.forecast.decimate import DIAGNOSE_VALUES, camera_copy, decimated_video, decimation, signal_box
+from anra_torch.estimation.estimator import ANRAEstimator
+from anra_torch.recording.decimate import (
+    DIAGNOSE_VALUES,
+    camera_copy,
+    decimated_video,
+    decimation,
+    signal_box,
+)
 from anra_torch.simulation import gaussian_blob
 from anra_torch.video import Video
 

@@ -5,7 +5,6 @@ surface by a beam (not separable right after the switch-off), from experiments/d
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,12 +12,10 @@ import pytest
 import torch
 
 from anra_torch.cli import main
-from anra_torch.estimator import ANRAEstimator
+from anra_torch.estimation.estimator import ANRAEstimator
 from anra_torch.selection.depth_aware import MAX_RATES, depth_aware_diffusivity
 from anra_torch.video import save_npz
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-from depth_references import A, beam_heated_slab, half_space_gaussian  # noqa: E402
+from experiments.depth_references import A, beam_heated_slab, half_space_gaussian
 
 
 @pytest.mark.slow

@@ -10,11 +10,10 @@ import pytest
 import torch
 
 from anra_torch.balance.system import BalanceSystem
-from anra_torch.effects import Effect, simulate_effects
+from anra_torch.effects import Effect, simulate_effects, simulate_independent
 from anra_torch.effects.depth_conduction import depth_rate
-from anra_torch.estimator import POOR_FIT, ANRAEstimator
+from anra_torch.estimation.estimator import POOR_FIT, ANRAEstimator
 from anra_torch.selection import diagnose_terms
-from anra_torch.simulation.independent import simulate_independent
 from anra_torch.simulation.plate import plate_factor
 
 F64 = torch.float64
@@ -124,7 +123,7 @@ def test_bad_parameters_and_partners_are_one_line_errors() -> None:
     with pytest.raises(ValueError, match=r"depth_conduction.t_heat must be before the first frame \(< 0 s\)"):
         Effect("depth_conduction", late)
     source = Effect("source", {"x0": 6.0, "y0": 6.0, "x1": 8.0, "y1": 6.0, "rate": 1.0, "width": 1.0})
-    with pytest.raises(ValueError, match="combines depth_conduction only with diffusion"):
+    with pytest.raises(ValueError, match="combines conduction into depth only with diffusion"):
         simulate_independent(
             _spot, shape=(16, 16), a=0.3, dx=0.5, dt=0.1, n_frames=3,
             effects=[Effect("depth_conduction", PARAMS), source],

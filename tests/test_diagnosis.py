@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from anra_torch.effects import EFFECTS, Effect, HiddenEffectVideo, hidden_effect_video
-from anra_torch.estimator import ANRAEstimator
+from anra_torch.estimation.estimator import ANRAEstimator
 from anra_torch.selection import Diagnosis, diagnose_terms
 
 SIZE = 64

@@ -9,7 +9,7 @@ import pytest
 import torch
 from scipy import integrate
 
-from anra_torch.dose import (
+from anra_torch.tissue.dose import (
     SKIN,
     ArrheniusConstants,
     arrhenius_omega,

@@ -1,4 +1,4 @@
-"""Tests for anra_torch.estimator: recovery of a known diffusivity from synthetic thermal video.
+"""Tests for anra_torch.estimation.estimator: recovery of a known diffusivity from synthetic thermal video.
 
 Tolerances come from measurements on these exact inputs (seeds fixed), each quoted next to its assert with
 the margin taken; a regression in bias, variance, calibration, alignment or validation breaks them.
@@ -15,10 +15,10 @@ import pytest
 import torch
 from torch import Tensor, nn
 
-from anra_torch.estimator import AUTO_SMOOTHING, ANRAEstimator, ANRAResult
+from anra_torch.estimation.estimator import AUTO_SMOOTHING, ANRAEstimator, ANRAResult
 from anra_torch.layers.attention import RTCAttention
 from anra_torch.simulation import gaussian_blob
-from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation.synthetic import SyntheticVideo, blobs_video, paper_video
 
 F64 = torch.float64
 A_PAPER = 0.2

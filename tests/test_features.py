@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
-from anra_torch.dose import arrhenius_omega, cem43, time_above
-from anra_torch.features import MAPS, TissueFeatures
 from anra_torch.simulation import MovingSource, gaussian_blob, simulate_tissue
+from anra_torch.tissue.dose import arrhenius_omega, cem43, time_above
+from anra_torch.tissue.features import MAPS, TissueFeatures
 
 DX, DT = 0.2, 0.1
 POWER, ON = 10.0, 2.0  # K/s at the spot centre, s

@@ -24,9 +24,9 @@ import torch
 
 from anra_torch import ANRAEstimator
 from anra_torch.checks import VALUE_LIMIT, in_range_values
+from anra_torch.checks.flags import PLAUSIBLE_DIFFUSIVITY, diffusivity_warnings, model_failure
 from anra_torch.cli import main
 from anra_torch.cli.arguments import json_line
-from anra_torch.flags import PLAUSIBLE_DIFFUSIVITY, diffusivity_warnings, model_failure
 from anra_torch.video import CalibrationTable, input_warnings, prepare_video
 
 

@@ -19,9 +19,9 @@ import torch
 
 from anra_torch.batch import BATCH_COLUMNS, read_table, run_batch, write_table
 from anra_torch.cli import main
-from anra_torch.estimator import ANRAResult
-from anra_torch.features import MAX_LOSS_ERROR, MIN_CONFIDENCE, TissueFeatures, feature_summary
-from anra_torch.synthetic import paper_video
+from anra_torch.estimation.estimator import ANRAResult
+from anra_torch.simulation.synthetic import paper_video
+from anra_torch.tissue.features import MAX_LOSS_ERROR, MIN_CONFIDENCE, TissueFeatures, feature_summary
 from anra_torch.video import save_npz
 
 A_SKIN, EA_SKIN = 3.1e98, 6.28e5  # 1/s, J/mol (Henriques & Moritz)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.synthetic import paper_video
+from anra_torch.simulation.synthetic import paper_video
 from anra_torch.video import REGISTRY, RawVideo, Video, load_video, save_npz
 
 DT, DX = 1 / 27, 0.05

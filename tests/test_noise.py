@@ -1,4 +1,4 @@
-"""Tests for anra_torch.balance.noise.estimate_noise_sd: accuracy on smooth fields, robustness, masks."""
+"""Tests for anra_torch.balance.estimate_noise_sd: accuracy on smooth fields, robustness, masks."""
 
 from __future__ import annotations
 

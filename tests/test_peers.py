@@ -1,15 +1,11 @@
 """Tests of the peer estimators in experiments/peers.py (an experiment script, not the package)."""
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-
-from peers import (  # noqa: E402
+from experiments.peers import (
     PEERS,
     PeerResult,
     numpy_direct_estimate,

@@ -4,25 +4,22 @@ the CLI) on the real files."""
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+import experiments.real_data as real_data
 from anra_torch.cli import main
-from anra_torch.forecast import diagnose_recording
-from anra_torch.forecast.small_box import (
+from anra_torch.estimation.small_box import (
     SmallBoxModel,
     edge_explained,
     fit_small_box,
     forecast_small_box,
     harmonic_interior,
 )
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-import real_data  # noqa: E402
+from anra_torch.recording import diagnose_recording
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"measured data folder {DATA} is absent")

@@ -19,8 +19,13 @@ import pytest
 import torch
 
 from anra_torch.cli import main
-from anra_torch.forecast import diagnose_recording
-from anra_torch.forecast.small_box import edge_explained, fit_small_box, forecast_small_box, harmonic_interior
+from anra_torch.estimation.small_box import (
+    edge_explained,
+    fit_small_box,
+    forecast_small_box,
+    harmonic_interior,
+)
+from anra_torch.recording import diagnose_recording
 from anra_torch.video import Phase, Video, load_video, recording_phases, resample_uniform, save_npz
 
 DT, DX, A = 0.1, 0.25, 0.3  # s, mm, mm^2/s
@@ -99,7 +104,7 @@ def test_a_parametric_source_that_cannot_be_simulated_loses_to_the_maps(
     the reachable temperatures) is not forecast, inside the fit frames or beyond: the maps compete on the
     plain model's split, and the phase is still analysed, its effects named without a held-out gain. Before,
     the inner failure cancelled the comparison and kept it; the outer one left the phase unanalysed."""
-    import anra_torch.forecast.recording as recording
+    import anra_torch.recording.phase_diagnosis as recording
 
     real = recording.assess_gain
 
@@ -128,7 +133,7 @@ def test_the_candidates_are_compared_over_several_inner_splits(monkeypatch: pyte
     """A fit part of 20 frames is validated at three inner splits (12, 14 and 16 frames diagnosed), one of
     7 frames at the only one it has (5 diagnosed); the validation is each candidate's RMSE over the plain
     model's on the same split, averaged."""
-    import anra_torch.forecast.recording as recording
+    import anra_torch.recording.phase_diagnosis as recording
     from anra_torch.forecast.core import split_index
 
     real = recording._assessed
@@ -327,10 +332,7 @@ def test_a_heating_and_cooling_30_s_apart_are_two_phases() -> None:
     """Frames 30 s apart of a beam on a thick body (independent explicit 3-D conduction): the frame mean's
     steps are all signal, so its noise is bounded by one pixel's (before, the steps' 'noise' hid the heating
     and the recording read as one steady phase)."""
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-    from depth_references import conduct
+    from experiments.depth_references import conduct
 
     y, x = np.mgrid[:96, :96] * 0.5
     flux = 0.5 / (2 * np.pi * 2.0**2) * np.exp(-((x - 20) ** 2 + (y - 24) ** 2) / (2 * 2.0**2))  # W/mm^2
@@ -471,7 +473,7 @@ def test_irregular_times_with_a_12x_step_range_need_no_flag(
 
 
 def test_effects_that_do_not_forecast_or_sit_outside_the_frame_are_flagged() -> None:
-    from anra_torch.forecast.recording import _implausible
+    from anra_torch.recording.phase_diagnosis import _implausible
 
     effects = [
         {"name": "source", "params": {"x0": 400.0, "y0": 5.0, "x1": 401.0, "y1": 5.0}, "gain": 0.3},

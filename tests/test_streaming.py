@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from anra_torch.balance.noise import estimate_noise_sd
-from anra_torch.estimator import ANRAEstimator
-from anra_torch.streaming import StreamingEstimator, estimate_long
-from anra_torch.synthetic import paper_video
+from anra_torch.estimation.estimator import ANRAEstimator
+from anra_torch.estimation.streaming import StreamingEstimator, estimate_long
+from anra_torch.simulation.synthetic import paper_video
 
 NOISE = 0.01
 
@@ -126,7 +126,7 @@ def test_bad_input_messages(video) -> None:
 
 
 def test_npy_frames_reads_slices_without_loading_the_file(video, tmp_path) -> None:
-    from anra_torch.streaming import NpyFrames
+    from anra_torch.estimation.streaming import NpyFrames
 
     array = video.frames[0].numpy().astype(np.float32)
     np.save(tmp_path / "v.npy", array)

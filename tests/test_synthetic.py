@@ -1,4 +1,4 @@
-"""Tests for anra_torch.synthetic: the paper's case, random blobs, npz export."""
+"""Tests for anra_torch.simulation.synthetic: the paper's case, random blobs, npz export."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.synthetic import FWHM_PER_SIGMA, SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation.synthetic import FWHM_PER_SIGMA, SyntheticVideo, blobs_video, paper_video
 
 
 @pytest.fixture(autouse=True)

@@ -9,7 +9,7 @@ import torch
 
 from anra_torch.layers.derivatives import GaussianSmoothing
 from anra_torch.simulation import MovingSource, simulate_tissue
-from anra_torch.tissue_model import LearnedTissueModel, relative_error
+from anra_torch.tissue.learned import LearnedTissueModel, relative_error
 
 F64 = torch.float64
 

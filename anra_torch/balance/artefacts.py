@@ -26,7 +26,7 @@ the whole video) is removed with it, so with a fixed pattern such a source is no
 still is). Measuring the pattern as a static part of the noise instead kept the source but not the
 balance: three noise sds of pattern make most of a small smoothing's Laplacian energy, and a 10 % error of
 its measured variance took ``a`` to near zero and named effects on pure videos. The pattern's parts (per
-pixel, column and row) are still measured (:func:`~anra_torch.balance.noise.measure_noise`) and stated,
+pixel, column and row) are still measured (:func:`~anra_torch.balance.measure_noise`) and stated,
 and they are the noise model's static part in a video too short for fixed effects
 (:data:`PIXEL_EFFECTS_FRAMES`).
 

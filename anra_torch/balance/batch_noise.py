@@ -1,9 +1,9 @@
 """The noise context of a batch of videos: artefacts repaired, noise measured, fixed effects chosen, per
 video; and what the estimator's errors-in-variables correction and standard error need of it.
 
-Each video of a batch gets :func:`~anra_torch.balance.artefacts.find_artefacts` and
-:func:`~anra_torch.balance.noise.measure_noise`. A clean video with white noise keeps exactly the white
-estimate :func:`~anra_torch.balance.noise.estimate_noise_sd` over its unmasked pixels, so its result does
+Each video of a batch gets :func:`~anra_torch.balance.find_artefacts` and
+:func:`~anra_torch.balance.measure_noise`. A clean video with white noise keeps exactly the white
+estimate :func:`~anra_torch.balance.estimate_noise_sd` over its unmasked pixels, so its result does
 not change; a video with correlated noise or fixed effects gets its own noise covariance per point and its
 own standard error.
 """
@@ -62,7 +62,7 @@ class BatchNoise:
     @property
     def variance_error(self) -> Tensor:
         """Relative error of each video's measured noise variance, ``(B,)`` float64
-        (:attr:`NoiseModel.variance_error <anra_torch.balance.noise.NoiseModel.variance_error>`)."""
+        (:attr:`NoiseModel.variance_error <anra_torch.balance.NoiseModel.variance_error>`)."""
         return torch.tensor([self.balanced(b).variance_error for b in range(len(self.models))], dtype=_F64)
 
     def fixed_effects(self, term: Tensor) -> Tensor:

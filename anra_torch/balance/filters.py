@@ -41,13 +41,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from anra_torch.balance.noise import NoiseModel
-from anra_torch.layers.derivatives import (
-    GaussianSmoothing,
-    Gradient,
-    Laplacian,
-    SecondDerivatives,
-    TimeDerivative,
-)
+from anra_torch.layers import GaussianSmoothing, Gradient, Laplacian, SecondDerivatives, TimeDerivative
 
 __all__ = ["TERMS", "MatchedFilters", "TermSpec"]
 

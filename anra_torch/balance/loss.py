@@ -1,4 +1,4 @@
-"""The windowed loss-rate fit of :class:`anra_torch.features.TissueFeatures`, with its standard error.
+"""The windowed loss-rate fit of :class:`anra_torch.tissue.TissueFeatures`, with its standard error.
 
 In a window around each pixel, on the frames after the pixel's peak (cooling: no source acts there in a
 heating-then-cooling history), ``U = a L - b R`` is fitted by least squares with the errors-in-variables

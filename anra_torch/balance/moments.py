@@ -5,7 +5,7 @@ points (all of them, each frame's pixels, a window around each pixel, a stream o
 statistics are the weighted sums of products ``sum w z_a z_b`` of the terms ``z = (U, X_1, ...)``
 (:class:`Moments`). Noise in the regressors biases plain least squares towards zero; the expected noise
 part of each sum, ``sum w w_a w_b`` times the noise covariance per point ``s_ab`` of the two terms, is
-known from the filters (:meth:`~anra_torch.balance.filters.MatchedFilters.noise_inner`) and the noise model,
+known from the filters (:meth:`~anra_torch.balance.MatchedFilters.noise_inner`) and the noise model,
 so it is subtracted (errors-in-variables). When the weights ``w`` are computed from the noisy ``U`` itself
 (RTC attention), Stein's identity ``E[w(U) n_U] = var(n_U) E[dw/dU]`` adds ``s_UU sum (dw/dU) X_b`` to the
 noise part of ``sum w U X_b``.
@@ -308,7 +308,7 @@ def sandwich(inverse: Tensor, backs: Tensor, noise: object) -> Tensor:
         inverse: ``G^-1``, ``(k, k)``.
         backs: the regressors pushed back onto the frames, ``A^T x_j``, ``(k, *frames)``.
         noise: a noise model with ``quadratic(backs) -> (k, k)``
-            (:class:`~anra_torch.balance.noise.NoiseModel`).
+            (:class:`~anra_torch.balance.NoiseModel`).
 
     Shape:
         Output ``(k, k)``.

@@ -2,9 +2,9 @@
 
 :class:`BalanceSystem` is what model selection works on (:mod:`anra_torch.selection`) and what an effect's
 shape fit (a source's path, a disc of other diffusivity: :mod:`anra_torch.effects`) is fitted against. It
-holds the video's terms through one set of :class:`~anra_torch.balance.filters.MatchedFilters` (the
+holds the video's terms through one set of :class:`~anra_torch.balance.MatchedFilters` (the
 5-point operators of a finite-difference heat model after a Gaussian, so simulated effects are fitted
-exactly), their :class:`~anra_torch.balance.moments.Moments` with the errors-in-variables noise parts, and
+exactly), their :class:`~anra_torch.balance.Moments` with the errors-in-variables noise parts, and
 fits by least squares with the sandwich covariance of the coefficients (exact for white noise).
 """
 
@@ -222,7 +222,7 @@ class BalanceSystem:
         """The coefficients' covariance from the error of the errors-in-variables correction, ``(k, k)``.
 
         A measured noise model's variance is known to a relative error ``e``
-        (:attr:`~anra_torch.balance.noise.NoiseModel.variance_error`; 0 for white noise), shared by every
+        (:attr:`~anra_torch.balance.NoiseModel.variance_error`; 0 for white noise), shared by every
         noise part: the correction ``N`` of the normal equations is off by ``e N``, which moves the
         coefficients by ``e G^-1 (N_XX beta - N_XU)`` (rank one). Where noise dominates a regressor's energy
         (little smoothing, strongly correlated noise) this is the larger error, and the smoothing and the

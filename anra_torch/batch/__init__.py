@@ -7,7 +7,7 @@ Modules: :mod:`~anra_torch.batch.inputs` (what to read), :mod:`~anra_torch.batch
 :func:`run_batch` reads every input (files, folders, glob patterns; any format in
 :data:`anra_torch.video.REGISTRY`) as :func:`anra_torch.video.prepare_video` does for every command (resample,
 region of interest, calibration), sends same-shaped videos through one
-:class:`~anra_torch.estimator.ANRAEstimator` call as a batch, optionally diagnoses each video
+:class:`~anra_torch.estimation.ANRAEstimator` call as a batch, optionally diagnoses each video
 (:func:`anra_torch.forecast.assess_gain`) and writes one row per input:
 
 - ``path``; ``status`` (``"ok"`` or ``"error"``); ``error`` (one line, empty when ok);
@@ -26,7 +26,7 @@ region of interest, calibration), sends same-shaped videos through one
 - ``explained``: the share of dT/dt the plain heat equation explains (below 0.9 the row's ``message``
   flags a poor fit);
 - ``frames_used``: frames read when the video was read in time chunks (over
-  :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values, or with ``precision``), else empty;
+  :data:`~anra_torch.estimation.CHUNKED_VALUES` pixel values, or with ``precision``), else empty;
 - ``phase``: for a recording with a heating and a cooling (found as ``anra estimate`` finds them), the
   phase the row measures: the longest source-free one with frames enough (``frames`` is its length); empty
   for a recording of one phase, and for one read in chunks (estimated whole).
@@ -43,6 +43,7 @@ calibration, ...) stops the run before any work with a one-line message naming t
 it would lose a result made on purpose; ``rerun=True`` (``--rerun``) recomputes and replaces such rows.
 """
 
+from anra_torch.batch.dask import run_batch_dask
 from anra_torch.batch.inputs import PathLike, expand_inputs
 from anra_torch.batch.options import BatchOptions
 from anra_torch.batch.run import BatchSummary, process_paths, run_batch
@@ -57,5 +58,6 @@ __all__ = [
     "process_paths",
     "read_table",
     "run_batch",
+    "run_batch_dask",
     "write_table",
 ]

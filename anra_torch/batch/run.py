@@ -1,49 +1,39 @@
-"""The batch run: load every input, estimate same-shaped videos together, diagnose, write rows as they go."""
+"""The batch run: read every input, estimate and diagnose each as the commands do, write rows as they go.
+
+What happens to each recording is the recording policy's (:mod:`anra_torch.recording`: the same phases,
+routes and described phase as ``anra estimate``, the same diagnosis as ``anra diagnose``); this module
+expands the inputs, shares estimator calls between recordings, and keeps the resumable table.
+"""
 
 from __future__ import annotations
 
 import json
-import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
+from tqdm.auto import tqdm
 
 from anra_torch.batch.inputs import PathLike, expand_inputs
 from anra_torch.batch.options import BatchOptions
 from anra_torch.batch.resume import plan
 from anra_torch.batch.table import check_format, parquet, read_table, row_key, write_table
 from anra_torch.checks import join_messages, one_line
-from anra_torch.chunked import CHUNKED_VALUES, estimate_chunked
-from anra_torch.estimator import ANRAEstimator, ANRAResult
-from anra_torch.video import (
-    ROI,
-    CalibrationTable,
-    Video,
-    input_warnings,
-    load_calibration,
-    parse_roi,
-    prepare_video,
+from anra_torch.recording import (
+    RecordingEstimate,
+    diagnose_video,
+    diagnosis_copy,
+    estimate_recordings,
+    on_disk_above,
+    open_recording,
 )
-from anra_torch.video.lazy import frame_span, in_memory, lazy_video
-from anra_torch.video.phases import MIN_PHASE_FRAMES, phase_preference
+from anra_torch.video import ROI, CalibrationTable, Video, load_calibration, parse_roi
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
 
-_RECORD_COLUMNS = (
-    "diffusivity",
-    "std_error",
-    "smoothing_px",
-    "noise_sd",
-    "reliability",
-    "n_masked",
-    "explained",
-)
-"""The columns taken as they are from :meth:`~anra_torch.estimator.ANRAResult.to_record`."""
 _DIAGNOSIS_COLUMNS = ("top_effect", "effects", "gain", "noise_floor", "base_rmse", "extended_rmse")
 
 
@@ -51,173 +41,28 @@ def _error_row(path: str, message: str) -> dict[str, Any]:
     return {"path": path, "status": "error", "error": message}
 
 
-def _message(record: dict[str, Any], video: Video) -> str:
-    """The ``message`` cell of an estimator record: what the input policy masked, the estimator's warnings,
-    then its own line (a warning on a valid result, or why nothing was measured)."""
-    return join_messages([*input_warnings(video), *(record.get("warnings") or []), record.get("message")])
-
-
-def _load(path: str, options: BatchOptions) -> Video:
-    return prepare_video(
+def _open(path: str, options: BatchOptions) -> Video:
+    """The recording as ``anra estimate`` reads it: left on disk above
+    :data:`~anra_torch.estimation.CHUNKED_VALUES` pixel values (any, with ``precision``), else prepared."""
+    return open_recording(
         path,
         dt=options.dt,
         dx=options.dx,
-        timestamps="resample",  # as every command: only non-uniform timestamps are resampled, and said so
         roi=options.roi,
         calibration=options.calibration,
+        on_disk_above=on_disk_above(options.precision),
     )
 
 
-def _phase_part(video: Video) -> tuple[Video, str | None]:
-    """For a recording with a heating and a cooling, the phase its diffusivity is measured on (the preferred
-    one with frames enough, :func:`~anra_torch.video.phases.phase_preference`, as ``anra estimate`` prefers)
-    and its kind; the video itself and None for a recording of one phase."""
-    # The forecast stack is imported only where phases are looked for.
-    from anra_torch.forecast.recording import find_phases
-
-    phases = find_phases(video.frames, video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
-    usable = [p for p in phases if p.frames >= MIN_PHASE_FRAMES]
-    if len(phases) < 2 or not usable:
-        return video, None
-    phase = max(usable, key=phase_preference)
-    span = slice(phase.start, phase.stop)
-    frames = frame_span(video.frames, phase.start, phase.stop)  # a recording on disk stays unread
-    return replace(video, frames=frames, t=None if video.t is None else video.t[span]), phase.name
-
-
-def _preparation(video: Video) -> dict[str, Any]:
-    """The ``roi`` and ``calibration`` cells: what :func:`prepare_video` did to this video."""
-    roi = video.meta.get("roi")
-    calibration = video.meta.get("calibration")
-    return {
-        "roi": ",".join(str(v) for v in roi) if roi else None,
-        "calibration": calibration["table"] if calibration else None,
-    }
-
-
-def _estimate_group(videos: list[Video], options: BatchOptions) -> list[dict[str, Any]]:
-    """Rows of same-shaped videos estimated in one estimator call."""
-    dtype = getattr(torch, options.dtype)
-    est = ANRAEstimator(strict=False)
-    start = time.perf_counter()
-    frames = torch.stack([v.frames.to(dtype) for v in videos])
-    dt = torch.tensor([v.dt for v in videos], dtype=torch.float64)
-    dx = torch.tensor([v.dx for v in videos], dtype=torch.float64)
-    result = est(frames, dt, dx)
-    share = (time.perf_counter() - start) / len(videos)
-    return [_row(video, result, i, share) for i, video in enumerate(videos)]
-
-
-def _row(video: Video, result: ANRAResult, index: int, seconds: float) -> dict[str, Any]:
-    """The row of video ``index`` of a (batched) result."""
-    record = result.to_record(index)
-    return _record_row(video, record, {key: record[key] for key in _RECORD_COLUMNS}, seconds)
-
-
-def _record_row(
-    video: Video, record: dict[str, Any], columns: dict[str, Any], seconds: float
-) -> dict[str, Any]:
-    """The row of one estimate ``record`` (``valid``, ``message``) with its result ``columns``: an error row
-    with the reason when it is not valid, its numbers kept."""
-    t, h, w = video.frames.shape
-    ok = record["valid"]
-    return {
-        "path": str(video.source),
-        "status": "ok" if ok else "error",
-        "error": "" if ok else f"{video.source}: {record['message']}",
-        **columns,
-        "frames": t,
-        "height": h,
-        "width": w,
-        "dt": video.dt,
-        "dx": video.dx,
-        "a_true": video.truth.a if video.truth is not None else None,
-        "seconds": seconds,
-        **_preparation(video),
-        "message": _message(record, video),
-    }
-
-
-def _small_box_row(video: Video) -> dict[str, Any]:
-    """The row of a region too small for the filters: the small-box estimate, as ``anra estimate`` gives
-    it (:func:`~anra_torch.forecast.small_box.small_box_estimate`)."""
-    from anra_torch.forecast.small_box import small_box_estimate
-
-    start = time.perf_counter()
-    record = small_box_estimate(in_memory(video.frames), video.dt, video.dx)
-    columns = {"diffusivity": record["diffusivity"], "std_error": record["std_error"]}
-    return _record_row(video, record, columns, time.perf_counter() - start)
-
-
-def _small(video: Video) -> bool:
-    """Whether ``video`` is a region too small for the estimator's filters (with frames enough for them)."""
-    est = ANRAEstimator(strict=False)
-    t, h, w = video.frames.shape
-    return min(h, w) < est.minimum_frame_size and t >= est.time.length
-
-
-def _large(path: str, options: BatchOptions) -> Video | None:
-    """A recording to read in time chunks: over :data:`~anra_torch.chunked.CHUNKED_VALUES` pixel values,
-    or any with ``precision``; left on disk when it is a ``.npy`` or an uncompressed ``.npz`` (no region or
-    calibration), else loaded. None for the others."""
-    if options.roi is None and options.calibration is None:
-        video = lazy_video(path, dt=options.dt, dx=options.dx)
-        if video is not None and (options.precision or math.prod(video.frames.shape) > CHUNKED_VALUES):
-            return video
-    return _load(path, options) if options.precision else None
-
-
-def _estimate_large(video: Video, options: BatchOptions) -> dict[str, Any]:
-    """The row of a recording read in time chunks (:func:`~anra_torch.chunked.estimate_chunked`)."""
-    start = time.perf_counter()
-    dtype = getattr(torch, options.dtype)
-    # With a precision target the recording is one phase, as in anra estimate: phases would read all of it.
-    part, kind = (video, None) if options.precision else _phase_part(video)
-    done = estimate_chunked(part.frames, part.dt, part.dx, precision=options.precision, dtype=dtype)
-    row = _row(part, done.result, 0, time.perf_counter() - start)
-    row.update(frames_used=done.frames_used, phase=kind)
-    if options.diagnose and row["status"] == "ok":
-        _diagnose_row(row, video, options)
-    return row
-
-
-def _estimate_large_all(
-    videos: list[tuple[int, Video]], options: BatchOptions
-) -> Iterator[tuple[int, dict[str, Any]]]:
-    """``(index, row)`` of each recording read in chunks. Several at once, one per torch thread, each on one
-    thread: their medians and memory-bound passes then use every core (``experiments/bench_batch.py``). A
-    recording that fails gets its error row; the others go on."""
-
-    def one(item: tuple[int, Video]) -> tuple[int, dict[str, Any]]:
-        i, video = item
-        try:
-            return i, _estimate_large(video, options)
-        except (ValueError, TypeError, OSError, RuntimeError) as err:
-            return i, _error_row(str(video.source), one_line(err))
-
-    threads = torch.get_num_threads()
-    workers = min(len(videos), threads)
-    if workers < 2:
-        yield from map(one, videos)
-        return
-    torch.set_num_threads(1)
-    try:
-        with ThreadPoolExecutor(workers) as pool:
-            yield from pool.map(one, videos)
-    finally:
-        torch.set_num_threads(threads)
-
-
 def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> None:
-    """The diagnosis columns of ``row``. A recording above
-    :data:`~anra_torch.forecast.decimate.DIAGNOSE_VALUES` pixel values is diagnosed on its block-averaged
-    copy (read chunk by chunk), and ``message`` says so."""
-    from anra_torch.forecast import assess_gain, decimate
-
+    """The diagnosis columns of ``row``, as ``anra diagnose`` reports the recording: above
+    :data:`~anra_torch.recording.DIAGNOSE_VALUES` pixel values on its block-averaged copy (read
+    chunk by chunk, and ``message`` says so), phase by phase, the longest analysed phase described."""
     start = time.perf_counter()
     try:
-        copy, decimated = decimate.camera_copy(video, decimate.DIAGNOSE_VALUES)
-        result = assess_gain(in_memory(copy.frames), copy.dt, copy.dx, fit_fraction=options.fit_fraction)
+        copy, decimated = diagnosis_copy(video)
+        diagnosed = diagnose_video(copy.loaded(), fit_fraction=options.fit_fraction, decimated=decimated)
+        record = diagnosed.to_record()
     except (ValueError, TypeError) as err:
         row.update(status="error", error=f"{video.source}: diagnose: {one_line(err)}")
         return
@@ -225,59 +70,43 @@ def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> N
         k, m = decimated["space_px"], decimated["time_frames"]
         said = f"diagnosed on a copy averaged over {k} x {k} px and {m} frames"
         row["message"] = join_messages([row.get("message"), said])
-    names = [e["name"] for e in result.diagnosis.effects]
+    names = [e["name"] for e in record["effects"]]
     row.update(
         top_effect=names[0] if names else "none",
         effects=";".join(names),
-        gain=result.gain,
-        noise_floor=result.noise_floor,
-        base_rmse=result.base_rmse,
-        extended_rmse=result.extended_rmse,
+        gain=record["gain"],
+        noise_floor=record["noise_floor"],
+        base_rmse=record["base"]["prediction_rmse"],
+        extended_rmse=record["extended"]["prediction_rmse"],
         seconds=row["seconds"] + time.perf_counter() - start,
     )
 
 
 def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str, Any]]:
-    """One row per path, in order: load, estimate same-shaped videos together, diagnose if asked.
+    """One row per path, in order: read, estimate (same-shaped phases of many recordings together), and
+    diagnose if asked, each recording as the commands treat it (:mod:`anra_torch.recording`).
 
     Never raises for a bad input: its row says ``status="error"`` with the one-line reason. Used as is by
     the local run and by each Dask task.
     """
     rows: dict[int, dict[str, Any]] = {}
-    phases: dict[int, str | None] = {}  # the phase a recording with several is estimated on
-    groups: dict[tuple[int, ...], list[tuple[int, Video]]] = {}
-    large: list[tuple[int, Video]] = []
+    videos: dict[int, Video] = {}
     for i, path in enumerate(paths):
         try:
-            found = _large(path, options)
-            if found is not None:
-                large.append((i, found))
-                continue
-            video, phases[i] = _phase_part(_load(path, options))
+            videos[i] = _open(path, options)
         except (ValueError, TypeError, OSError) as err:
             rows[i] = _error_row(path, one_line(err))
+    order = list(videos)
+    dtype = getattr(torch, options.dtype)
+    done = estimate_recordings([videos[i] for i in order], precision=options.precision, dtype=dtype)
+    for i, estimate in zip(order, done, strict=True):
+        if not isinstance(estimate, RecordingEstimate):
+            rows[i] = _error_row(paths[i], str(estimate))
             continue
-        groups.setdefault(tuple(video.frames.shape), []).append((i, video))
-    for i, row in _estimate_large_all(large, options):
-        rows[i] = {**row, "path": paths[i]}
-    for members in groups.values():
-        try:
-            found = _estimate_group([v for _, v in members], options)
-        except (ValueError, TypeError, RuntimeError):
-            # Something in the batch is wrong (e.g. frames too small): estimate one by one for exact rows.
-            found = []
-            for i, video in members:
-                try:
-                    found.append(
-                        _small_box_row(video) if _small(video) else _estimate_group([video], options)[0]
-                    )
-                except (ValueError, TypeError, RuntimeError) as err:
-                    found.append(_error_row(paths[i], f"{video.source}: {one_line(err)}"))
-        for (i, video), row in zip(members, found, strict=True):
-            row["path"], row["phase"] = paths[i], phases.get(i)
-            if options.diagnose and row["status"] == "ok":
-                _diagnose_row(row, video, options)
-            rows[i] = row
+        row = {**estimate.row(), "path": paths[i]}
+        if options.diagnose and row["status"] == "ok":
+            _diagnose_row(row, videos[i], options)
+        rows[i] = row
     return [rows[i] for i in range(len(paths))]
 
 
@@ -375,7 +204,7 @@ def run_batch(
             number of rows at risk if the run is interrupted.
         dtype: ``"float32"`` (default, fast) or ``"float64"``.
         progress: show a tqdm progress bar on stderr.
-        runner: how chunks are processed; default in this process (see :mod:`anra_torch.distributed`).
+        runner: how chunks are processed; default in this process (see :mod:`anra_torch.batch.dask`).
         resample: resample non-uniform timestamps onto a uniform step instead of an error row.
         roi: analyse only this region of every video: ``(x0, y0, width, height)`` px or ``"X0,Y0,W,H"``; a
             video it does not fit gets an error row.
@@ -383,7 +212,7 @@ def run_batch(
             ``true,apparent`` CSV (read once, here).
         rerun: recompute and replace ``ok`` rows made with other parameters (otherwise they stop the run).
         precision: read each video in time chunks until its relative standard error reaches it (e.g.
-            0.001; :func:`~anra_torch.chunked.estimate_chunked`); ``frames_used`` says how many were read.
+            0.001; :func:`~anra_torch.estimation.estimate_chunked`); ``frames_used`` says how many were read.
 
     Returns:
         :class:`BatchSummary`.
@@ -408,8 +237,6 @@ def run_batch(
     key = json.dumps(options.parameters(), sort_keys=True)
     skipped = len(paths) - len(todo)
     ok = failed = 0
-    from tqdm.auto import tqdm
-
     with tqdm(total=len(todo), unit="video", desc="anra batch", disable=not progress) as bar:
         for rows in (runner or _local_runner)(list(_chunks(todo, batch_size)), options):
             for row in rows:

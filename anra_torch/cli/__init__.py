@@ -20,6 +20,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+import torch
+
+from anra_torch import __version__
 from anra_torch.checks import one_line
 from anra_torch.cli import batch, demo, diagnose, estimate, features, simulate
 from anra_torch.cli.arguments import PROG, Parser, UsageError, integer
@@ -48,8 +51,6 @@ def free_cores(cores: int, loadavg: Path = Path("/proc/loadavg")) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``anra`` argument parser (usage errors raise instead of exiting; :func:`main` reports them)."""
-    from anra_torch import __version__
-
     parser = Parser(
         prog=PROG,
         description="Estimate the thermal diffusivity a of dT/dt = a (d11 + d22) T directly from thermal "
@@ -75,7 +76,6 @@ def build_parser() -> argparse.ArgumentParser:
 def _process_threads() -> int:
     """torch's thread count when this process first ran a command: the base of the free-core default, so a
     process that calls :func:`main` again and again does not shrink it call after call."""
-    import torch
 
     return torch.get_num_threads()
 
@@ -88,7 +88,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     try:
         args = build_parser().parse_args(argv)
-        import torch
 
         torch.set_num_threads(args.threads if args.threads is not None else free_cores(_process_threads()))
         return args.run(args)

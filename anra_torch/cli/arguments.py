@@ -1,7 +1,8 @@
 """What the ``anra`` commands share: the parser class, flag types, the video flags and the input preparation.
 
 Every command that reads a video adds its flags with :func:`add_video_arguments` (``batch``: the spacing and
-region flags without VIDEO) and reads it with :func:`load_input`, i.e. :func:`anra_torch.video.prepare_video`.
+region flags without VIDEO) and reads it with :func:`open_input`, i.e.
+:func:`anra_torch.recording.open_recording`.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ import math
 from collections.abc import Callable
 from typing import Any
 
-from anra_torch.video import REGISTRY, Video, prepare_video
+from anra_torch.recording import open_recording
+from anra_torch.video import REGISTRY, Video
 
 PROG = "anra"
 
@@ -65,31 +67,24 @@ def add_region_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def load_input(args: argparse.Namespace, *, need_dx: bool = True) -> Video:
-    """The video of VIDEO prepared by :func:`prepare_video` with --dt, --dx, --resample, --roi and
-    --calibration; ``meta`` says what was done. ``need_dx=False`` accepts a video without pixel size."""
+def open_input(args: argparse.Namespace, *, need_dx: bool = True, on_disk_above: int | None = None) -> Video:
+    """The recording of VIDEO with --dt, --dx, --roi and --calibration, as every command reads it
+    (:func:`~anra_torch.recording.open_recording`: left on disk above ``on_disk_above`` pixel values, else
+    prepared; ``meta`` says what was done). ``need_dx=False`` accepts a video without pixel size."""
     try:
-        return prepare_video(
+        return open_recording(
             args.video,
             dt=args.dt,
             dx=args.dx,
-            timestamps="resample",  # only non-uniform timestamps are resampled; the output says so
             roi=args.roi,
             calibration=args.calibration,
             need_dx=need_dx,
+            on_disk_above=on_disk_above,
         )
     except ValueError as err:  # the library's hint names its argument; here the flag is the fix
         raise ValueError(
             str(err).replace("(timestamps='resample' or 'keep' in load_video)", "(--resample)")
         ) from None
-
-
-def input_record(video: Video) -> dict[str, Any]:
-    """What the loading did: ``timestamps`` (where a folder of frame files recorded its times),
-    ``resampled`` (from what), ``roi`` (px), ``calibration``, ``masked_values`` (samples masked as not
-    finite or beyond +-1e6); null when not done."""
-    keys = ("timestamps", "resampled", "roi", "calibration", "masked_values")
-    return {key: video.meta.get(key) for key in keys}
 
 
 def print_input(video: Video) -> None:

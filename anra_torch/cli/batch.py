@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from anra_torch.batch import run_batch, run_batch_dask
 from anra_torch.cli.arguments import (
     PROG,
     add_region_arguments,
@@ -79,8 +80,6 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``anra batch`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
-    from anra_torch.batch import run_batch
-
     options = {
         "dt": args.dt,
         "dx": args.dx,
@@ -95,8 +94,6 @@ def run(args: argparse.Namespace) -> int:
         "precision": args.precision,
     }
     if args.dask or args.scheduler:
-        from anra_torch.distributed import run_batch_dask
-
         summary = run_batch_dask(
             args.inputs, args.out, scheduler=args.scheduler, workers=args.workers, **options
         )

@@ -7,9 +7,9 @@ import importlib.util
 import time
 from pathlib import Path
 
-from anra_torch.estimator import ANRAEstimator
+from anra_torch.estimation import ANRAEstimator
 from anra_torch.report import format_pm, write_estimate_report
-from anra_torch.synthetic import paper_video
+from anra_torch.simulation import paper_video
 from anra_torch.video import load_video, save_npz
 
 __all__ = ["add_parser", "run"]

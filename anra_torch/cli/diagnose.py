@@ -16,9 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
-from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 from anra_torch.checks import one_line
@@ -26,16 +23,14 @@ from anra_torch.cli.arguments import (
     add_video_arguments,
     clean_json,
     format_list,
-    input_record,
     integer,
     json_line,
-    load_input,
     number,
     print_input,
 )
-from anra_torch.effects import equation_text
-from anra_torch.video import Video, input_warnings
-from anra_torch.video.lazy import lazy_video
+from anra_torch.recording import diagnose_video, open_for_diagnosis
+from anra_torch.report import write_diagnosis_report, write_phase_report
+from anra_torch.video import Video
 
 __all__ = ["add_parser", "run"]
 
@@ -98,182 +93,6 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=run)
 
 
-def _phases(video: Video, args: argparse.Namespace) -> tuple[list[Any], Any]:
-    """Every phase's diagnosis (:func:`diagnose_recording`) and the longest analysed one."""
-    from anra_torch.forecast import diagnose_recording
-
-    try:
-        phases = diagnose_recording(
-            video.frames,
-            video.dt,
-            video.dx,
-            video.t,
-            fit_fraction=args.fit_fraction,
-            assimilate=args.assimilate,
-            measured_t=video.meta.get("measured_t"),
-        )
-    except (ValueError, TypeError) as err:
-        raise ValueError(f"{video.source}: {err}") from err
-    analysed = [p for p in phases if p.reason is None]
-    if not analysed and len(phases) == 1:  # one phase: its own reason is the error
-        raise ValueError(f"{video.source}: {phases[0].reason}")
-    if not analysed:
-        reasons = "; ".join(
-            f"{p.phase.name} (frames {p.phase.start}-{p.phase.stop - 1}): {p.reason}" for p in phases
-        )
-        raise ValueError(f"{video.source}: no phase could be analysed: {reasons}")
-    return phases, max(analysed, key=lambda p: p.phase.frames)
-
-
-def _small_box_summary(main: Any) -> dict[str, Any]:
-    """The top-level keys for a phase analysed by the small-box models (no balance filters fit)."""
-    record = main.to_record()
-    return {
-        "base": record["base"],
-        "effects": record["effects"],
-        "extended": {
-            "model": main.model,
-            "params": record["effects"][0]["params"],
-            "prediction_rmse": main.extended_rmse,
-        },
-        "gain": main.gain,
-        "noise_floor": main.noise_floor,
-    }
-
-
-def _summary(video: Video, args: argparse.Namespace) -> tuple[dict[str, Any], Any, Any, Video, list[Any]]:
-    """The ``diagnose --json`` object, the :class:`GainResult` of its longest analysed phase (None for a
-    small box), the :class:`SourceMapGain` with ``--source-map`` (else None), that phase's frames and every
-    phase's :class:`PhaseDiagnosis`."""
-    from anra_torch.forecast import extended_effects
-
-    phases, main = _phases(video, args)
-    span = slice(main.phase.start, main.phase.stop)
-    video = replace(video, frames=video.frames[span], t=None if video.t is None else video.t[span])
-    records = {"phase": main.phase.name, "phases": [p.to_record() for p in phases]}
-    result = main.result
-    if result is None:
-        summary = {**_small_box_summary(main), **records, "warnings": input_warnings(video)}
-        if any(input_record(video).values()):
-            summary["input"] = input_record(video)
-        return summary, None, None, video, phases
-    frames = video.frames
-    diagnosis = result.diagnosis
-    per_effect = [
-        {"name": record["name"], "params": dict(record["params"]), "gain": gain}
-        for record, gain in zip(diagnosis.effects, result.effect_gains, strict=True)
-    ]
-    diagnosed = extended_effects(diagnosis)  # timed from the first frame (result.effects: from the split)
-    params: dict[str, Any] = {"a": diagnosis.base}
-    params.update({e.name: dict(e.params) for e in diagnosed})
-    summary = {
-        "base": {"diffusivity": diagnosis.a_plain, "prediction_rmse": result.base_rmse},
-        "effects": per_effect,
-        "extended": {
-            "equation": equation_text(diagnosis.base, diagnosed),
-            "params": params,
-            "prediction_rmse": result.extended_rmse,
-        },
-        "gain": result.gain,
-        "noise_floor": result.noise_floor,
-        "scale_px": result.scale_px,
-        "time_window": result.time_window,
-        "assimilated": result.assimilated,
-        "gain_above_floor": result.gain_above_floor,
-        "raw": {
-            "base_rmse": result.base_rmse_raw,
-            "extended_rmse": result.extended_rmse_raw,
-            "gain": result.gain_raw,
-            "noise_floor": result.noise_floor_raw,
-        },
-    }
-    summary["negligible"] = diagnosis.negligible
-    if diagnosis.noise is not None:
-        summary["noise"] = diagnosis.noise.describe()
-    if diagnosis.artefacts is not None:
-        summary["artefacts"] = diagnosis.artefacts.to_record()
-    mapped = None
-    if args.source_map:
-        from anra_torch.forecast import source_map_gain
-
-        try:
-            mapped = source_map_gain(frames, video.dt, video.dx, result)
-        except ValueError as err:
-            raise ValueError(f"{video.source}: --source-map: {err}") from err
-        summary["source_map"] = {
-            "equation": "dT/dt = a Lap T - b T + q(x, y)",
-            "a": mapped.model.a,
-            "b": mapped.model.b,
-            "q_max": float(mapped.model.forcing.max()),
-            "q_min": float(mapped.model.forcing.min()),
-            "prediction_rmse": mapped.rmse,
-            "gain": mapped.gain,
-        }
-    if any(input_record(video).values()):
-        summary["input"] = input_record(video)
-    lines = input_warnings(video) + list(result.warnings) + list(main.warnings)
-    summary["warnings"] = list(dict.fromkeys(lines))  # the phase repeats some of the result's lines
-    return {**summary, **records}, result, mapped, video, phases
-
-
-DIAGNOSE_BYTES_PER_VALUE = 260
-"""Peak memory of ``anra diagnose`` per pixel value of the recording, bytes (measured: 81 frames of 128 and
-192 px peaked at 675 and 1106 MB, a slope of 260 B per value over a base of about 330 MB)."""
-
-_BASE_BYTES = 330 * 2**20
-
-
-def _available_bytes() -> int | None:
-    """``MemAvailable`` of ``/proc/meminfo`` in bytes (None where there is none)."""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
-
-
-def _check_memory(video: Video, full_resolution: bool) -> None:
-    """Refuse, in one line, a recording whose diagnosis would not fit in the memory available (the
-    diagnosis holds the recording and its term bank at once; the estimate reads any length in chunks)."""
-    t, h, w = video.frames.shape
-    need = _BASE_BYTES + DIAGNOSE_BYTES_PER_VALUE * t * h * w
-    available = _available_bytes()
-    if available is not None and need > available:
-        raise ValueError(
-            f"{video.source}: diagnosing {t} frames of {h} x {w} px needs about {need / 2**30:.1f} GB of "
-            f"memory, {available / 2**30:.1f} GB are available; diagnose a region (--roi X0,Y0,W,H) or "
-            f"fewer frames{', or without --full-resolution' if full_resolution else ''}"
-        )
-
-
-def _open(args: argparse.Namespace) -> tuple[Video, dict[str, Any] | None]:
-    """The recording to diagnose and, for one above :data:`DIAGNOSE_VALUES` pixel values (unless
-    --full-resolution), the record of the block-averaged copy it is replaced by
-    (:func:`~anra_torch.forecast.decimate.decimated_video`; a large ``.npy`` / uncompressed ``.npz`` is read
-    chunk by chunk, never whole)."""
-    from anra_torch.forecast.decimate import DIAGNOSE_VALUES, camera_copy
-
-    lazy = None
-    if args.roi is None and args.calibration is None and not args.full_resolution:
-        lazy = lazy_video(args.video, dt=args.dt, dx=args.dx)
-    large = lazy is not None and math.prod(lazy.frames.shape) > DIAGNOSE_VALUES
-    recording = lazy if large else load_input(args)
-    if args.full_resolution:
-        return recording, None
-    return camera_copy(recording, DIAGNOSE_VALUES)
-
-
-def _in_recording_frames(summary: dict[str, Any], decimated: dict[str, Any]) -> None:
-    """The phases' frames counted in the recording's frames (the copy's times are its blocks' means), and
-    the copy stated under ``input.decimated``."""
-    for phase in summary["phases"]:
-        phase["start_frame"] *= decimated["time_frames"]
-        phase["stop_frame"] *= decimated["time_frames"]
-    summary.setdefault("input", {})["decimated"] = decimated
-
-
 def _print_decimated(d: dict[str, Any]) -> None:
     frames, rows, cols = d["shape"]
     region = f" of the region x0, y0, width, height = {d['region']} px" if d["region"] else ""
@@ -290,15 +109,27 @@ def run(args: argparse.Namespace) -> int:
     try:
         if not 0 < args.fit_fraction < 1:
             raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
-        recording, decimated = _open(args)
-        _check_memory(recording, args.full_resolution)
-        summary, result, mapped, video, phases = _summary(recording, args)
-        if decimated is not None:
-            _in_recording_frames(summary, decimated)
+        recording, decimated = open_for_diagnosis(
+            args.video,
+            dt=args.dt,
+            dx=args.dx,
+            roi=args.roi,
+            calibration=args.calibration,
+            full_resolution=args.full_resolution,
+        )
+        done = diagnose_video(
+            recording,
+            fit_fraction=args.fit_fraction,
+            assimilate=args.assimilate,
+            source_map=args.source_map,
+            decimated=decimated,
+        )
+        summary = done.to_record()
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
             print(json.dumps({"path": str(args.video), "error": one_line(err)}))
         raise
+    video, result = done.video, done.result
     if args.json:
         print(json_line(summary))
     else:
@@ -313,12 +144,12 @@ def run(args: argparse.Namespace) -> int:
         for line in shown["warnings"]:
             print(f"  warning: {line}")
     if args.report is not None:
-        from anra_torch.report import write_diagnosis_report, write_phase_report
-
-        written = [write_phase_report(args.report, recording, phases)]
+        written = [write_phase_report(args.report, recording, done.phases)]
         if result is not None:  # the longest phase in detail, when the balance analysed it
             written.append(
-                write_diagnosis_report(args.report, video, result.diagnosis, result, source_map=mapped)
+                write_diagnosis_report(
+                    args.report, video, result.diagnosis, result, source_map=done.source_map
+                )
             )
         if not args.json:
             print(f"  report: {', '.join(str(p) for p in written)}")

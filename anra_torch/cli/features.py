@@ -4,15 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from anra_torch.cli.arguments import (
-    add_video_arguments,
-    format_list,
-    input_record,
-    json_line,
-    load_input,
-    print_input,
-)
-from anra_torch.dose import RULES
+from anra_torch.cli.arguments import add_video_arguments, format_list, json_line, open_input, print_input
+from anra_torch.recording import input_record, phase_diffusivities
+from anra_torch.tissue import RULES, feature_summary, save_feature_maps
 
 __all__ = ["add_parser", "run"]
 
@@ -53,10 +47,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``anra features`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
-    from anra_torch.cli.estimate import phase_diffusivities
-    from anra_torch.features import feature_summary, save_feature_maps
-
-    video = load_input(args, need_dx=False)
+    video = open_input(args, need_dx=False)
     try:
         record, maps = feature_summary(video.frames, video.dt, video.dx, units=args.units, rule=args.rule)
     except (ValueError, TypeError) as err:

@@ -16,7 +16,7 @@ from typing import Any
 
 from anra_torch.cli.arguments import integer, number
 from anra_torch.effects import EFFECTS, HiddenEffectVideo, hidden_effect_video
-from anra_torch.synthetic import SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation import SyntheticVideo, blobs_video, paper_video
 from anra_torch.video import save_npz
 
 __all__ = ["PRESETS", "Preset", "add_parser", "run"]

@@ -4,18 +4,27 @@ A model is ``dT/dt = D[T] + sum of effect terms``, where ``D[T]`` is ``a Lap T``
 one effect replaces it. Each effect module (``linear_loss``, ``source``, ``advection``, ``anisotropy``,
 ``heterogeneity``, ``nonlinear_diffusion``, ``periodic_source``, ``depth_conduction``, ``delamination``)
 holds one
-:class:`~anra_torch.effects.base.EffectSpec`: its forward term and parameters (units, checks, random
+:class:`~anra_torch.effects.EffectSpec`: its forward term and parameters (units, checks, random
 detectable draws), its regressors or shape fit for the diagnosis, and how it is written, re-timed and
 drawn. :data:`EFFECTS` lists them (registry order).
 
 Coordinates: x along columns, y along rows, pixel centres at ``(j + 0.5) dx``; mm, s, mm^2/s;
 temperatures in the data's unit (K for the rates).
 
+:mod:`~anra_torch.effects.independent` simulates the effects' continuous models with the independent solver
+of :mod:`anra_torch.simulation.independent` (a scene's video that shares none of the operators above).
+
 Adding an effect: a module with ``SPEC = EffectSpec(...)``, its test, and one line in
 :mod:`anra_torch.effects.registry`.
 """
 
-from anra_torch.effects.base import EffectSpec, Geometry, Grid
+from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Shape
+from anra_torch.effects.independent import (
+    continuum_of,
+    independent_effect_video,
+    simulate_independent,
+    simulate_scene,
+)
 from anra_torch.effects.model import (
     Effect,
     ExtendedHeatRHS,
@@ -31,6 +40,7 @@ from anra_torch.effects.registry import DIFFUSION_EFFECTS, EFFECTS
 from anra_torch.effects.scene import HiddenEffectVideo, hidden_effect_video
 
 __all__ = [
+    "Context",
     "DIFFUSION_EFFECTS",
     "EFFECTS",
     "Effect",
@@ -39,12 +49,17 @@ __all__ = [
     "Geometry",
     "Grid",
     "HiddenEffectVideo",
+    "Shape",
     "check_effects",
+    "continuum_of",
     "effect_rhs",
     "effects_from_json",
     "effects_to_json",
     "equation_text",
     "hidden_effect_video",
+    "independent_effect_video",
     "simulate_effects",
+    "simulate_independent",
+    "simulate_scene",
     "step_rates",
 ]

@@ -12,6 +12,7 @@ import numpy as np
 from torch import Tensor
 
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Term, signed
+from anra_torch.simulation import Continuum
 
 __all__ = ["SPEC"]
 
@@ -43,6 +44,10 @@ def _equation(p: dict[str, float]) -> str:
     return f"- ({p['vx']:.2f} dT/dx {signed(p['vy'], '.2f')} dT/dy)"
 
 
+def _continuum(p: dict[str, float], m: Continuum, grid: Grid) -> None:
+    m.velocity = (p["vx"], p["vy"])
+
+
 SPEC = EffectSpec(
     name="advection",
     params={"vx": "mm/s", "vy": "mm/s"},
@@ -53,4 +58,5 @@ SPEC = EffectSpec(
     regressors=("T_x", "T_y"),
     from_coefficients=_advection_params,
     equation=_equation,
+    continuum=_continuum,
 )

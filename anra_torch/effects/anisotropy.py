@@ -15,6 +15,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Term, signed
+from anra_torch.simulation import Continuum
 
 __all__ = ["SPEC"]
 
@@ -105,6 +106,10 @@ def _equation(p: dict[str, float]) -> str:
     return f"{p['a_x']:.3f} T_xx + {p['a_y']:.3f} T_yy {signed(2 * p['a_xy'], '.3f')} T_xy"
 
 
+def _continuum(p: dict[str, float], m: Continuum, grid: Grid) -> None:
+    m.tensor = (p["a_x"], p["a_y"], p["a_xy"])
+
+
 SPEC = EffectSpec(
     name="anisotropy",
     params={"a_x": "mm^2/s", "a_y": "mm^2/s", "a_xy": "mm^2/s"},
@@ -122,4 +127,5 @@ SPEC = EffectSpec(
     valid=lambda p: math.isfinite(p["ratio"]),
     equation=_equation,
     positive=frozenset({"a_x", "a_y"}),
+    continuum=_continuum,
 )

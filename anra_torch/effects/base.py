@@ -17,10 +17,10 @@ import torch
 from torch import Tensor
 
 from anra_torch.checks import check_choice, number
-from anra_torch.simulation import BOUNDARIES
+from anra_torch.simulation import BOUNDARIES, Continuum
 
 if TYPE_CHECKING:
-    from anra_torch.balance.system import BalanceSystem, Fit, NoiseSpec
+    from anra_torch.balance import BalanceSystem, Fit, NoiseSpec
 
 __all__ = [
     "Context",
@@ -221,6 +221,12 @@ class EffectSpec:
             None when the effect states no physical size.
         min_size: the smallest ``size`` that materially changes the model: below it a significant effect is
             reported as negligible (with its size), not named.
+        heat_input: whether the effect puts heat in (a source): a phase that names one also tries the
+            measured source maps (:mod:`anra_torch.recording.phase_diagnosis`).
+        continuum: ``(params, continuum, grid) -> None``: fills in the effect's part of the continuous PDE
+            that the independent simulator solves (:class:`~anra_torch.simulation.Continuum`:
+            coefficients, fields and heat inputs, none of this module's operators); None when the
+            independent simulator has no model of it.
     """
 
     name: str
@@ -250,6 +256,8 @@ class EffectSpec:
     requires: tuple[str, ...] = ()
     size: Callable[[dict[str, float], tuple[float, float]], float] | None = None
     min_size: float = 0.0
+    heat_input: bool = False
+    continuum: Callable[[dict[str, float], Continuum, Grid], None] | None = None
 
 
 def require(condition: bool, name: str, key: str, need: str, params: dict[str, float]) -> None:

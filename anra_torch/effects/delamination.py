@@ -18,7 +18,7 @@ last three are the plate's, copied from its ``depth_conduction`` fit. Derived: `
 Diagnosis: tried once ``depth_conduction`` is in the model (:attr:`EffectSpec.requires`); a fitted shape
 ``Y`` (the disc's term through the balance's filters), its centre, radius and depth time fitted by the
 errors-in-variables profile loss from the strongest positive structure left in the residual. Validated
-on the independent 3-D plates of :func:`anra_torch.simulation.plate.flash_plate_video` (the lateral and
+on the independent 3-D plates of :func:`anra_torch.simulation.flash_plate_video` (the lateral and
 the depth problems do not separate over a defect, so the 2-D independent simulator has no model of it).
 Random draw: under the first hot spot (radius 1-2 of its sigmas), ``d / L`` in 0.2-0.5, ``strength``
 0.7-1.
@@ -33,13 +33,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from anra_torch.balance.system import NoiseSpec
+from anra_torch.balance import NoiseSpec
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Shape, Term, require
 from anra_torch.effects.depth_conduction import depth_rate
 from anra_torch.effects.shapes import draw_circle, edge_disc, optimise, peak, pixel_grid
 
 if TYPE_CHECKING:
-    from anra_torch.balance.system import BalanceSystem, Fit
+    from anra_torch.balance import BalanceSystem, Fit
 
 __all__ = ["SPEC"]
 

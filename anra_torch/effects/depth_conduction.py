@@ -38,12 +38,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from anra_torch.balance.system import NoiseSpec
+from anra_torch.balance import NoiseSpec
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Shape, Term, require, signed
 from anra_torch.effects.shapes import optimise
+from anra_torch.simulation import Continuum
 
 if TYPE_CHECKING:
-    from anra_torch.balance.system import BalanceSystem, Fit
+    from anra_torch.balance import BalanceSystem, Fit
 
 __all__ = ["SPEC", "depth_rate"]
 
@@ -208,6 +209,10 @@ def _equation(p: dict[str, float]) -> str:
     )
 
 
+def _continuum(p: dict[str, float], m: Continuum, grid: Grid) -> None:
+    m.depth = (p["strength"], p["t_heat"], p["depth_time"], p["T_ref"])
+
+
 SPEC = EffectSpec(
     name="depth_conduction",
     params={"strength": "1", "t_heat": "s", "depth_time": "s", "T_ref": "data units"},
@@ -226,4 +231,5 @@ SPEC = EffectSpec(
     equation=_equation,
     retime=_retime,
     positive=frozenset({"depth_time"}),
+    continuum=_continuum,
 )

@@ -22,11 +22,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from anra_torch.balance.moments import accumulate
-from anra_torch.balance.system import BalanceSystem, Fit, NoiseSpec
+from anra_torch.balance import BalanceSystem, Fit, NoiseSpec, accumulate
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Shape, Term, require
 from anra_torch.effects.shapes import draw_circle, edge_disc, optimise, pixel_grid
-from anra_torch.simulation import HeatRHS
+from anra_torch.simulation import Continuum, HeatRHS
 
 __all__ = ["SPEC"]
 
@@ -197,6 +196,16 @@ def _draw(ax: Any, p: dict[str, float]) -> str:
     return f"heterogeneity disc r = {p['radius']:.2f} mm at ({p['x']:.2f}, {p['y']:.2f}) mm"
 
 
+def _continuum(p: dict[str, float], m: Continuum, grid: Grid) -> None:
+    """A disc of other diffusivity with a tanh edge one camera pixel wide, at any point in mm."""
+
+    def a(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        disc = 0.5 * (1.0 + np.tanh((p["radius"] - np.hypot(x - p["x"], y - p["y"])) / grid.dx))
+        return p["a_outside"] + (p["a_inside"] - p["a_outside"]) * disc
+
+    m.diffusivity = a
+
+
 SPEC = EffectSpec(
     name="heterogeneity",
     params={"x": "mm", "y": "mm", "radius": "mm", "a_inside": "mm^2/s", "a_outside": "mm^2/s"},
@@ -219,4 +228,5 @@ SPEC = EffectSpec(
     draw=_draw,
     size=lambda p, span: abs(p["a_inside"] / p["a_outside"] - 1.0),
     min_size=0.05,  # a disc within 5 % of its surroundings' diffusivity: negligible
+    continuum=_continuum,
 )

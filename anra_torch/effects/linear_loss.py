@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Term, require, signed
+from anra_torch.simulation import Continuum
 
 __all__ = ["SPEC"]
 
@@ -45,6 +46,10 @@ def _equation(p: dict[str, float]) -> str:
     return f"{signed(-p['b'], '.2f')} (T - {p['T_ref']:.1f})"
 
 
+def _continuum(p: dict[str, float], m: Continuum, grid: Grid) -> None:
+    m.loss, m.ambient = p["b"], p["T_ref"]
+
+
 SPEC = EffectSpec(
     name="linear_loss",
     params={"b": "1/s", "T_ref": "data units"},
@@ -58,4 +63,5 @@ SPEC = EffectSpec(
     from_coefficients=_loss_params,
     valid=lambda p: p["b"] > 0,
     equation=_equation,
+    continuum=_continuum,
 )

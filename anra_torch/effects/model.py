@@ -1,6 +1,6 @@
 """A model of heat transfer with effects: validated effects, their right-hand side and its simulation.
 
-:class:`Effect` is a (name, parameters) pair checked against :data:`~anra_torch.effects.registry.EFFECTS`;
+:class:`Effect` is a (name, parameters) pair checked against :data:`~anra_torch.effects.EFFECTS`;
 :func:`effect_rhs` assembles ``dT/dt = D[T] + sum of effect terms`` (``D[T]`` is ``a`` times the 5-point
 Laplacian unless an effect replaces it); :func:`simulate_effects` integrates it (method of lines, fixed-step
 RK4 with stable substeps, :func:`anra_torch.simulation.integrate`); :func:`equation_text` writes it.

@@ -15,7 +15,7 @@ import numpy as np
 from torch import Tensor
 
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Term, require
-from anra_torch.simulation import HeatRHS
+from anra_torch.simulation import Continuum, HeatRHS
 
 __all__ = ["SPEC"]
 
@@ -64,6 +64,10 @@ def _equation(p: dict[str, float]) -> str:
     return f"div({p['a0']:.3f} (1 + {p['beta']:.3g} (T - {p['T_ref']:.1f})) grad T)"
 
 
+def _continuum(p: dict[str, float], m: Continuum, grid: Grid) -> None:
+    m.conductivity = (p["a0"], p["beta"], p["T_ref"])
+
+
 SPEC = EffectSpec(
     name="nonlinear_diffusion",
     params={"a0": "mm^2/s", "beta": "1/K", "T_ref": "data units"},
@@ -81,4 +85,5 @@ SPEC = EffectSpec(
     positive=frozenset({"a0"}),
     size=lambda p, span: abs(p["beta"]) * (span[1] - span[0]),
     min_size=0.02,  # the diffusivity changes by less than 2 % over the video's temperatures: negligible
+    continuum=_continuum,
 )

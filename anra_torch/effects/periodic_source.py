@@ -23,9 +23,10 @@ from torch import Tensor
 
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Shape, Term, require
 from anra_torch.effects.shapes import draw_circle, optimise, pixel_grid
+from anra_torch.simulation import Continuum, gaussian_cells
 
 if TYPE_CHECKING:
-    from anra_torch.balance.system import BalanceSystem, Fit
+    from anra_torch.balance import BalanceSystem, Fit
 
 __all__ = ["SPEC", "periodic_term"]
 
@@ -161,6 +162,18 @@ def _draw(ax: Any, p: dict[str, float]) -> str:
     return f"periodic source at ({p['x']:.2f}, {p['y']:.2f}) mm, {p['frequency']:.3g} Hz"
 
 
+def _continuum(p: dict[str, float], m: Continuum, grid: Grid) -> None:
+    """The Gaussian spot switched on and off sinusoidally, averaged over each cell exactly."""
+
+    def q(t: float, xe: np.ndarray, ye: np.ndarray) -> np.ndarray:
+        level = 0.5 * p["rate"] * (1.0 + math.sin(2.0 * math.pi * p["frequency"] * t + p["phase"]))
+        return level * np.outer(
+            gaussian_cells(ye, p["y"], p["width"]), gaussian_cells(xe, p["x"], p["width"])
+        )
+
+    m.forcings.append(q)
+
+
 SPEC = EffectSpec(
     name="periodic_source",
     params={"x": "mm", "y": "mm", "width": "mm", "rate": "K/s", "frequency": "Hz", "phase": "rad"},
@@ -180,4 +193,6 @@ SPEC = EffectSpec(
     retime=_retime,
     positive=frozenset({"width", "frequency"}),
     draw=_draw,
+    heat_input=True,
+    continuum=_continuum,
 )

@@ -1,7 +1,7 @@
 """The registry of effects: one line per effect module.
 
 A new effect is one module in :mod:`anra_torch.effects` holding its
-:class:`~anra_torch.effects.base.EffectSpec` as ``SPEC``, plus its test, plus one line here.
+:class:`~anra_torch.effects.EffectSpec` as ``SPEC``, plus its test, plus one line here.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ effects recorded for every output (:class:`HiddenEffectVideo`, ``anra simulate -
 
 A scene draws from ``numpy.random.default_rng(seed)``, in this order: one or two Gaussian hot spots on
 the uniform background (rise 5-20, sigma 3-8 px, centres at least ``2.5 sigma + 10`` px inside the frame),
-then each effect's parameters from its :attr:`~anra_torch.effects.base.EffectSpec.sample` in the order
+then each effect's parameters from its :attr:`~anra_torch.effects.EffectSpec.sample` in the order
 given (ranges in each effect's module). The noise is white, sd ``noise_sd`` or else ``noise_frac`` times
 the peak initial rise, from ``torch.Generator().manual_seed(seed)``.
 """
@@ -205,7 +205,7 @@ class Scene:
     """A drawn scene before simulation: its first frame, hot spots, geometry and effects.
 
     The one draw behind :func:`hidden_effect_video` and the independent simulator
-    (:func:`anra_torch.simulation.independent.independent_effect_video`): same seed, same scene and
+    (:func:`anra_torch.effects.independent_effect_video`): same seed, same scene and
     effect parameters.
 
     Attributes:

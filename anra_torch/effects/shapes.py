@@ -10,7 +10,7 @@ import torch
 from torch import Tensor
 
 if TYPE_CHECKING:
-    from anra_torch.balance.system import BalanceSystem
+    from anra_torch.balance import BalanceSystem
 
 __all__ = ["draw_circle", "edge_disc", "optimise", "peak", "pixel_grid"]
 

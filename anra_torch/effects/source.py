@@ -17,9 +17,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from anra_torch.balance.system import BalanceSystem, Fit
+from anra_torch.balance import BalanceSystem, Fit
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Shape, Term, require
 from anra_torch.effects.shapes import optimise, peak, pixel_grid
+from anra_torch.simulation import Continuum, gaussian_cells
 
 __all__ = ["SPEC", "source_term"]
 
@@ -160,6 +161,18 @@ def _draw(ax: Any, p: dict[str, float]) -> str:
     return f"source path ({p['x0']:.2f}, {p['y0']:.2f}) -> ({p['x1']:.2f}, {p['y1']:.2f}) mm"
 
 
+def _continuum(p: dict[str, float], m: Continuum, grid: Grid) -> None:
+    """The Gaussian on its straight path, averaged over each cell exactly."""
+    speed = 1.0 / grid.duration if grid.duration > 0 else 0.0
+
+    def q(t: float, xe: np.ndarray, ye: np.ndarray) -> np.ndarray:
+        s = t * speed  # fraction of the straight path travelled
+        cx, cy = p["x0"] + (p["x1"] - p["x0"]) * s, p["y0"] + (p["y1"] - p["y0"]) * s
+        return p["rate"] * np.outer(gaussian_cells(ye, cy, p["width"]), gaussian_cells(xe, cx, p["width"]))
+
+    m.forcings.append(q)
+
+
 SPEC = EffectSpec(
     name="source",
     params={"x0": "mm", "y0": "mm", "x1": "mm", "y1": "mm", "rate": "K/s", "width": "mm"},
@@ -178,4 +191,6 @@ SPEC = EffectSpec(
     retime=_retime_source,
     positive=frozenset({"width"}),
     draw=_draw,
+    heat_input=True,
+    continuum=_continuum,
 )

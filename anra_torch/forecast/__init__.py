@@ -6,17 +6,14 @@
 - :mod:`~anra_torch.forecast.source_map`: :func:`fit_source_map` (``dT/dt = a Lap T - b T + q(x, y)``, a
   measured beam) and :func:`source_map_gain`, its forecast of the same held-out frames;
 - :mod:`~anra_torch.forecast.refine`: :func:`refine_model`, Problem-1 refinement of a diagnosed model;
-- :mod:`~anra_torch.forecast.small_box`: models for regions too small for the filters;
-- :mod:`~anra_torch.forecast.recording`: :func:`diagnose_recording`, a recording phase by phase;
-- :mod:`~anra_torch.forecast.decimate`: the block-averaged copy a camera-sized recording is diagnosed on
-  (``anra diagnose`` makes it before the phases).
 
-Source map, refinement and the small boxes call :mod:`~anra_torch.forecast.core`, not each other
+Source map and refinement call :mod:`~anra_torch.forecast.core`, not each other
 (:func:`source_map_gain` reads the split and scale of a :class:`GainResult`).
 """
 
 from anra_torch.forecast.core import (
     AT_FLOOR,
+    DIAGNOSED_FRAMES,
     TIME_WINDOW,
     assimilated_state,
     extended_effects,
@@ -24,21 +21,19 @@ from anra_torch.forecast.core import (
     split_index,
 )
 from anra_torch.forecast.gain import GainResult, assess_gain
-from anra_torch.forecast.recording import PhaseDiagnosis, diagnose_recording
 from anra_torch.forecast.refine import Refinement, refine_model
 from anra_torch.forecast.source_map import SourceMapGain, SourceMapModel, fit_source_map, source_map_gain
 
 __all__ = [
     "AT_FLOOR",
-    "TIME_WINDOW",
+    "DIAGNOSED_FRAMES",
     "GainResult",
-    "PhaseDiagnosis",
     "Refinement",
     "SourceMapGain",
     "SourceMapModel",
+    "TIME_WINDOW",
     "assess_gain",
     "assimilated_state",
-    "diagnose_recording",
     "extended_effects",
     "fit_source_map",
     "refine_model",

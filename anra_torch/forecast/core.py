@@ -52,8 +52,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.effects import EFFECTS, Effect, simulate_effects
-from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
-from anra_torch.layers.stencils import gaussian_taps
+from anra_torch.layers import GaussianSmoothing, TimeDerivative, gaussian_taps
 from anra_torch.selection import Diagnosis
 
 __all__ = [

@@ -8,7 +8,7 @@ and compare both forecasts with frames the diagnosis never saw. The split, the a
 the evaluation scale and the noise floor are those of :mod:`anra_torch.forecast.core`; the same quantities
 against the raw frames (the same forecasts unsmoothed, noise floor = sensor sd) are kept as ``*_raw``.
 
-Measured with ``python experiments/diagnosis_benchmark.py`` (README): see its table.
+Measured with ``python -m experiments.diagnosis_benchmark`` (README): see its table.
 About 1-5 s per video on one core.
 """
 
@@ -21,10 +21,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from anra_torch.balance.artefacts import find_artefacts
-from anra_torch.checks import mostly_finite
+from anra_torch.balance import find_artefacts
+from anra_torch.checks import diffusivity_warnings, extended_diffusivity_warning, model_failure, mostly_finite
 from anra_torch.effects import Effect
-from anra_torch.flags import diffusivity_warnings, extended_diffusivity_warning, model_failure
 from anra_torch.forecast.core import (
     TIME_WINDOW,
     assimilated_state,
@@ -83,15 +82,15 @@ class GainResult:
         gain_above_floor: the fraction of the plain model's error above the noise floor that the
             extension removes, ``1 - e_extended / e_base`` with ``e = sqrt(max(rmse^2 - floor^2, 0))``
             (evaluation scale); 0 when no effect was found or when the plain forecast is within
-            :data:`~anra_torch.forecast.core.AT_FLOOR` of the floor (nothing measurable to gain).
+            :data:`~anra_torch.forecast.AT_FLOOR` of the floor (nothing measurable to gain).
         elapsed: seconds spent (diagnosis and both simulations).
         time_window: frames of the moving average in time at the evaluation scale (1: none).
         assimilated: the fit part's last frames assimilated into both forecasts' starting states (1: the
             measured split frame).
-        warnings: lines for the user (:mod:`anra_torch.flags`), empty when all is well: the final model's
-            diffusivity (``extended_a`` when effects were found, else ``base_a``) negative or outside every
-            known material, and the final model's forecast RMSE above
-            :data:`~anra_torch.flags.MODEL_FAILURE_RATIO` noise floors ("the model does not explain the
+        warnings: lines for the user (:mod:`anra_torch.checks.flags`), empty when all is well: the final
+            model's diffusivity (``extended_a`` when effects were found, else ``base_a``) negative or outside
+            every known material, and the final model's forecast RMSE above
+            :data:`~anra_torch.checks.MODEL_FAILURE_RATIO` noise floors ("the model does not explain the
             data", with the ratio).
         scored: for a recording resampled from irregular times, which held-out frames are measured
             samples: the RMSEs, sums and gains are taken on those only (``rmse_base`` and
@@ -215,7 +214,7 @@ def assess_gain(
         scale_px: evaluation scale, a Gaussian sigma in px (0 compares raw frames); default the
             diagnosis' smoothing.
         time_window: frames of the moving average in time at the evaluation scale (1: none); default
-            :data:`~anra_torch.forecast.core.TIME_WINDOW`, at most half the held-out frames. Use 1 for
+            :data:`~anra_torch.forecast.TIME_WINDOW`, at most half the held-out frames. Use 1 for
             videos whose frames are seconds apart, where a few frames already span the dynamics.
         assimilate: the fit part's last frames assimilated into each model's starting state
             (:mod:`anra_torch.forecast.core`); 1 starts from the measured split frame; default all the
@@ -228,7 +227,7 @@ def assess_gain(
         :class:`GainResult`.
 
     Raises:
-        ValueError: too short a video for the split (see :func:`~anra_torch.forecast.core.split_index`),
+        ValueError: too short a video for the split (see :func:`~anra_torch.forecast.split_index`),
             bad frames or spacing, or no thermal activity (from :func:`anra_torch.selection.diagnose_terms`);
             a diagnosis whose residual map does not fit the frame size; a negative or non-finite
             ``scale_px``; a ``time_window`` that is not an integer from 1 to the number of held-out frames,

@@ -43,8 +43,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from anra_torch.balance.filters import MatchedFilters
-from anra_torch.balance.moments import Moments, accumulate
+from anra_torch.balance import MatchedFilters, Moments, accumulate
 from anra_torch.checks import as_spacing
 from anra_torch.effects import Effect, simulate_effects
 from anra_torch.forecast.core import assimilated_state, at_scale, check_scale, forecast_errors, time_average

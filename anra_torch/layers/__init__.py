@@ -1,9 +1,9 @@
 """nn.Modules on fixed convolution kernels: Holoborodko derivatives, Gaussian smoothing, RTC attention.
 
-The ANRA estimator built on them is :mod:`anra_torch.estimator` (through the balance core).
+The ANRA estimator built on them is :mod:`anra_torch.estimation.estimator` (through the balance core).
 """
 
-from anra_torch.layers.attention import RTCAttention, confidence_mask, rtc_attention
+from anra_torch.layers.attention import RTCAttention, UniformAttention, confidence_mask, rtc_attention
 from anra_torch.layers.derivatives import (
     GaussianSmoothing,
     Gradient,
@@ -16,6 +16,7 @@ from anra_torch.layers.derivatives import (
     second_derivatives,
     time_derivative,
 )
+from anra_torch.layers.stencils import gaussian_taps
 
 __all__ = [
     "GaussianSmoothing",
@@ -24,8 +25,10 @@ __all__ = [
     "RTCAttention",
     "SecondDerivatives",
     "TimeDerivative",
+    "UniformAttention",
     "confidence_mask",
     "gaussian_smooth",
+    "gaussian_taps",
     "gradient",
     "laplacian",
     "rtc_attention",

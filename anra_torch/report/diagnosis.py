@@ -19,6 +19,7 @@ from torch import Tensor
 
 from anra_torch.effects import EFFECTS
 from anra_torch.report.figures import colormap, import_matplotlib, mm_extent, save_figure
+from anra_torch.selection import diagnose_terms
 from anra_torch.video import Video
 
 __all__ = ["DIAGNOSIS_FIGURES", "write_diagnosis_report"]
@@ -82,7 +83,6 @@ def _residual_panel(fig: Any, ax: Any, residual: Tensor, video: Video, margin: i
 def _maps_figure(video: Video, diagnosis: Any, gain: Any, path: Path, mpl: tuple[Any, Any]) -> list[str]:
     """Time-mean PDE residual of the plain model and of the selected one, with the effects' shapes."""
     Figure, canvas = mpl
-    from anra_torch.selection import diagnose_terms
 
     h, w = video.frames.shape[-2:]
     try:  # the plain model's residual on the same frames, smoothing and noise level

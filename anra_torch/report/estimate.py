@@ -7,7 +7,7 @@ Figures (PNG, next to ``report.md``):
 - ``field.png``: the windowed diffusivity field a(x, y) and its confidence (when the result has one);
 - ``per_frame.png``: a[k] against time with the global estimate, its +-2 standard-error band and the truth.
 
-The numbers in the table are the result's :meth:`~anra_torch.estimator.ANRAResult.to_record`, the
+The numbers in the table are the result's :meth:`~anra_torch.estimation.ANRAResult.to_record`, the
 same as ``anra estimate --json`` prints.
 """
 
@@ -23,9 +23,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from anra_torch.balance.filters import MatchedFilters
-from anra_torch.estimator import ANRAEstimator, ANRAResult
-from anra_torch.layers.attention import RTCAttention
+from anra_torch.balance import MatchedFilters
+from anra_torch.estimation import ANRAEstimator, ANRAResult
+from anra_torch.layers import RTCAttention
 from anra_torch.report.figures import colormap, format_pm, import_matplotlib, mm_extent, save_figure
 from anra_torch.video import Video
 

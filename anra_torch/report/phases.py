@@ -16,8 +16,7 @@ from typing import Any
 import numpy as np
 
 from anra_torch.report.figures import format_pm, import_matplotlib, save_figure
-from anra_torch.video import Video, hot_spot_signal
-from anra_torch.video.resample import measured_frames
+from anra_torch.video import Video, hot_spot_signal, measured_frames
 
 __all__ = ["forecast_figure", "timeline_figure", "write_phase_report"]
 

@@ -6,6 +6,15 @@ standard errors (:mod:`~anra_torch.selection.statistics`) and selects them stepw
 (:mod:`~anra_torch.selection.stepwise`).
 """
 
+from anra_torch.selection.depth_aware import DepthAwareFit, depth_aware_diffusivity
 from anra_torch.selection.diagnose import ALPHA, SMOOTHING, Diagnosis, diagnose_terms, minimum_frame_size
 
-__all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms", "minimum_frame_size"]
+__all__ = [
+    "ALPHA",
+    "SMOOTHING",
+    "DepthAwareFit",
+    "Diagnosis",
+    "depth_aware_diffusivity",
+    "diagnose_terms",
+    "minimum_frame_size",
+]

@@ -11,7 +11,7 @@ falling as the body evens out; any convective or radiative loss adds to it). The
 ``dT/dt = a Lap T``, then reads the hot spot's faster cooling as lateral spreading.
 :func:`depth_aware_diffusivity` fits ``a`` with a free rate and level in every frame
 (``r_k`` times that frame's ``T``, and per-frame fixed effects for ``r_k T_ref``), through the same
-balance core as the diagnosis (:class:`~anra_torch.balance.system.BalanceSystem`: matched filters, the
+balance core as the diagnosis (:class:`~anra_torch.balance.BalanceSystem`: matched filters, the
 measured noise model, errors-in-variables moments and the sandwich standard error).
 
 The model's own check is its consistency: smoothing both sides of a linear PDE keeps it exact, so where the
@@ -36,9 +36,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from anra_torch.balance.artefacts import find_artefacts
-from anra_torch.balance.noise import measure_noise
-from anra_torch.balance.system import BalanceSystem, Fit, NoiseSpec
+from anra_torch.balance import BalanceSystem, Fit, NoiseSpec, find_artefacts, measure_noise
 from anra_torch.checks import positive
 from anra_torch.selection.diagnose import SMOOTHING, minimum_frame_size
 

@@ -44,7 +44,7 @@ prefers a disc that keeps the noisy ``L`` where its signal is strong (there it i
 zero) over the disc that explains ``U``, which named a slow disc under a hot spot as loss + advection +
 source.
 
-Measured by ``python experiments/diagnosis_benchmark.py`` (README): the top effect, parameter errors and
+Measured by ``python -m experiments.diagnosis_benchmark`` (README): the top effect, parameter errors and
 false positives over 20 random cases per effect and 20 pure videos.
 
 Limits: white noise is assumed (the standard errors and thresholds come from it); the noise parts of
@@ -61,12 +61,10 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from anra_torch.balance.artefacts import Artefacts, find_artefacts
-from anra_torch.balance.noise import NoiseModel, measure_noise
-from anra_torch.balance.system import BalanceSystem, Fit
+from anra_torch.balance import Artefacts, BalanceSystem, Fit, NoiseModel, find_artefacts, measure_noise
 from anra_torch.checks import as_video, mostly_finite, positive
 from anra_torch.effects import EFFECTS
-from anra_torch.layers.derivatives import GaussianSmoothing, TimeDerivative
+from anra_torch.layers import GaussianSmoothing, TimeDerivative
 from anra_torch.selection.statistics import wald_score
 from anra_torch.selection.stepwise import Selection
 
@@ -113,7 +111,7 @@ class Diagnosis:
             standard errors, the errors-in-variables corrections and the tests come from.
         artefacts: the camera artefacts found and what was done (:mod:`anra_torch.balance.artefacts`).
         negligible: effects that were significant but below their physical size
-            (:attr:`~anra_torch.effects.base.EffectSpec.min_size`), not named: ``{"name", "params", "size",
+            (:attr:`~anra_torch.effects.EffectSpec.min_size`), not named: ``{"name", "params", "size",
             "min_size"}`` each.
     """
 
@@ -185,8 +183,8 @@ def diagnose_terms(
         smoothing: Gaussian sigma (px) or candidates; default :data:`SMOOTHING`, taking the one with
             the smallest standard error of ``a``.
         noise_sd: the noise when it is known: a white-noise sd (data units), or a whole
-            :class:`~anra_torch.balance.noise.NoiseModel` (e.g. the one a camera's noise was planted with);
-            default measured from the video (:func:`~anra_torch.balance.noise.measure_noise`).
+            :class:`~anra_torch.balance.NoiseModel` (e.g. the one a camera's noise was planted with);
+            default measured from the video (:func:`~anra_torch.balance.measure_noise`).
         effects: names in :data:`anra_torch.effects.EFFECTS` to look for; default those searched by
             default (every effect but ``periodic_source``).
         time_family: Holoborodko time family of ``dT/dt`` (:data:`anra_torch.layers.stencils.TIME_FAMILIES`).

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import torch
 
-from anra_torch.balance.system import Fit
+from anra_torch.balance import Fit
 
 __all__ = ["chi2_of_score", "log10_pvalue", "search_discount", "wald_score"]
 

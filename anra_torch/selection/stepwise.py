@@ -1,7 +1,7 @@
 """Stepwise selection of effects (forward, then backward elimination) with Wald tests.
 
 An effect enters when its p-value beats ``alpha / (effects left)`` (Bonferroni) plus its look-elsewhere
-penalty (:attr:`~anra_torch.effects.base.EffectSpec.look_elsewhere`, for a fitted shape). Among the
+penalty (:attr:`~anra_torch.effects.EffectSpec.look_elsewhere`, for a fitted shape). Among the
 significant candidates, the one that lowers the residual above its expected noise part most enters, a
 fitted shape's drop discounted by the share of its statistic that its penalty stands for (Wald statistics
 of non-nested models measure significance, not fit).
@@ -12,9 +12,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from anra_torch.balance.system import BalanceSystem, Fit
-from anra_torch.effects import EFFECTS
-from anra_torch.effects.base import Context, Shape
+from anra_torch.balance import BalanceSystem, Fit
+from anra_torch.effects import EFFECTS, Context, Shape
 from anra_torch.selection.statistics import search_discount, wald_score
 
 __all__ = ["Selection"]

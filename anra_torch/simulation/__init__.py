@@ -8,13 +8,21 @@
   and :func:`heat_spectral` (the frame's rectangle), exact solutions the simulators are tested against.
 - :mod:`~anra_torch.simulation.tissue`: :class:`TissueRHS` (the Pennes-like tissue model with a
   :class:`MovingSource`) and :func:`simulate_tissue`.
+- :mod:`~anra_torch.simulation.synthetic`: :func:`paper_video` (the paper's case) and :func:`blobs_video`,
+  videos of known diffusivity from the exact solutions.
+- :mod:`~anra_torch.simulation.camera`: what real infrared cameras add (:data:`ARTEFACTS`, :func:`plant`).
+- Independent references, sharing none of the operators above: :mod:`~anra_torch.simulation.independent`
+  (:func:`simulate_continuum`, the continuous PDE by spectral and finite-volume methods, pixel averages) and
+  :mod:`~anra_torch.simulation.plate` (conduction into a plate below the surface, exact).
 
 :func:`anra_torch.effects.simulate_effects` and :func:`anra_torch.forecast.refine_model` integrate their
 right-hand sides with the same :func:`integrate`. Units: mm, s, mm^2/s.
 """
 
 from anra_torch.simulation.analytic import SPECTRAL_BOUNDARIES, gaussian_blob, gaussian_blobs, heat_spectral
+from anra_torch.simulation.camera import ARTEFACTS, plant
 from anra_torch.simulation.heat import BOUNDARIES, HeatRHS, simulate_heat
+from anra_torch.simulation.independent import METHODS, Continuum, gaussian_cells, simulate_continuum
 from anra_torch.simulation.integrator import (
     ADAPTIVE_METHODS,
     FIXED_STEP_METHODS,
@@ -26,11 +34,25 @@ from anra_torch.simulation.integrator import (
     integrate,
     stable_substeps,
 )
+from anra_torch.simulation.plate import flash_plate_video, plate_factor, with_depth
+from anra_torch.simulation.synthetic import SyntheticVideo, blobs_video, paper_video
 from anra_torch.simulation.tissue import MovingSource, TissueRHS, simulate_tissue
 
 __all__ = [
     "ADAPTIVE_METHODS",
+    "ARTEFACTS",
     "BOUNDARIES",
+    "METHODS",
+    "Continuum",
+    "SyntheticVideo",
+    "blobs_video",
+    "flash_plate_video",
+    "gaussian_cells",
+    "paper_video",
+    "plant",
+    "plate_factor",
+    "simulate_continuum",
+    "with_depth",
     "FIXED_STEP_METHODS",
     "POLICIES",
     "SAFETY",

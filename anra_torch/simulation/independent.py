@@ -1,10 +1,13 @@
-"""An independent simulator of the hidden-effect scenes: none of the library's operators or integrator.
+"""An independent solver of the continuous heat equation with its effects: none of the library's operators.
 
 The library simulates its scenes (:func:`anra_torch.effects.hidden_effect_video`) with 5-point operators,
 fixed-step RK4, zero-flux frame edges and every field sampled at the pixel centres: the same operators the
 diagnosis fits, so a test on those videos cannot see an error they share. This module solves the
-continuous PDE of the SAME scene (:func:`anra_torch.effects.scene.draw_scene`: same hot spots and effect
-parameters for a seed) another way, and images it as a camera does, as pixel averages:
+continuous PDE :class:`Continuum` (constant or varying diffusivity, advection, loss, heat inputs, conduction
+into a plate below) another way, and images it as a camera does, as pixel averages. It knows coefficients,
+not effects: each effect module says what its parameters mean for the continuum
+(:attr:`anra_torch.effects.EffectSpec.continuum`), and :func:`anra_torch.effects.simulate_independent`
+solves a scene's effects here:
 
 - the frame sits in a larger periodic domain padded with the scene's continuation (``pad`` px on each
   side, default half the frame), so heat leaves the frame as it does on an extended body; the frame is
@@ -20,34 +23,26 @@ parameters for a seed) another way, and images it as a camera does, as pixel ave
   stage solves its constant-coefficient part exactly by FFT and the variable part (the disc, ``a(T)``) by
   Newton-GMRES preconditioned with it; then block averages over each camera pixel.
 
-The continuous model of each effect is one entry of :data:`CONTINUOUS_TERMS`. Units: mm, s, mm^2/s.
+Units: mm, s, mm^2/s.
 Computed in float64 NumPy (single-threaded FFTs: transforms this small gain nothing from a thread pool).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from anra_torch.checks import check_choice, check_dtype, check_int, check_shape, number
-from anra_torch.effects.model import Effect, check_effects
-from anra_torch.effects.scene import HiddenEffectVideo, Scene, draw_scene
+from anra_torch.checks import check_choice, check_int, check_shape, number
 from anra_torch.simulation.krylov import gmres
 from anra_torch.simulation.plate import with_depth
 
-__all__ = [
-    "CONTINUOUS_TERMS",
-    "METHODS",
-    "Continuum",
-    "independent_effect_video",
-    "simulate_independent",
-    "simulate_scene",
-]
+__all__ = ["METHODS", "Continuum", "Forcing", "gaussian_cells", "simulate_continuum"]
 
 _F64 = torch.float64
 METHODS = ("auto", "spectral", "finite_volume")
@@ -105,88 +100,18 @@ class Continuum:
         return not self.forcings and self.diffusivity is None and self.conductivity is None
 
 
-@dataclass(frozen=True)
-class _Context:
-    dx: float  # camera pixel (mm): the disc's edge is one of them wide
-    duration: float  # time of the last frame (s): a source's path ends there
-
-
 _erf = np.vectorize(math.erf, otypes=[np.float64])
 
 
-def _gauss_cells(edges: np.ndarray, centre: float, width: float) -> np.ndarray:
-    """``exp(-(x - centre)^2 / (2 width^2))`` averaged over each cell between ``edges`` (exact, erf)."""
+def gaussian_cells(edges: np.ndarray, centre: float, width: float) -> np.ndarray:
+    """``exp(-(x - centre)^2 / (2 width^2))`` averaged over each cell between ``edges`` (exact, by erf).
+
+    Shape:
+        ``edges`` ``(N + 1,)`` in mm -> ``(N,)``.
+    """
     s = math.sqrt(2.0) * width
     integral = _erf((edges[1:] - centre) / s) - _erf((edges[:-1] - centre) / s)
     return integral * (0.5 * math.sqrt(math.pi) * s) / np.diff(edges)
-
-
-def _source(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
-    speed = 1.0 / ctx.duration if ctx.duration > 0 else 0.0
-
-    def q(t: float, xe: np.ndarray, ye: np.ndarray) -> np.ndarray:
-        s = t * speed  # fraction of the straight path travelled
-        cx, cy = p["x0"] + (p["x1"] - p["x0"]) * s, p["y0"] + (p["y1"] - p["y0"]) * s
-        return p["rate"] * np.outer(_gauss_cells(ye, cy, p["width"]), _gauss_cells(xe, cx, p["width"]))
-
-    m.forcings.append(q)
-
-
-def _periodic_source(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
-    def q(t: float, xe: np.ndarray, ye: np.ndarray) -> np.ndarray:
-        level = 0.5 * p["rate"] * (1.0 + math.sin(2.0 * math.pi * p["frequency"] * t + p["phase"]))
-        return level * np.outer(_gauss_cells(ye, p["y"], p["width"]), _gauss_cells(xe, p["x"], p["width"]))
-
-    m.forcings.append(q)
-
-
-def _depth(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
-    m.depth = (p["strength"], p["t_heat"], p["depth_time"], p["T_ref"])
-
-
-def _heterogeneity(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
-    def a(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        disc = 0.5 * (1.0 + np.tanh((p["radius"] - np.hypot(x - p["x"], y - p["y"])) / ctx.dx))
-        return p["a_outside"] + (p["a_inside"] - p["a_outside"]) * disc
-
-    m.diffusivity = a
-
-
-Term = Callable[[dict[str, float], Continuum, _Context], None]
-
-
-def _set(**values: Callable[[dict[str, float]], object]) -> Term:
-    def term(p: dict[str, float], m: Continuum, ctx: _Context) -> None:
-        for key, value in values.items():
-            setattr(m, key, value(p))
-
-    return term
-
-
-CONTINUOUS_TERMS: dict[str, Term] = {
-    "linear_loss": _set(loss=lambda p: p["b"], ambient=lambda p: p["T_ref"]),
-    "advection": _set(velocity=lambda p: (p["vx"], p["vy"])),
-    "anisotropy": _set(tensor=lambda p: (p["a_x"], p["a_y"], p["a_xy"])),
-    "nonlinear_diffusion": _set(conductivity=lambda p: (p["a0"], p["beta"], p["T_ref"])),
-    "heterogeneity": _heterogeneity,
-    "source": _source,
-    "periodic_source": _periodic_source,
-    "depth_conduction": _depth,
-}
-"""Each effect's continuous model: ``(params, continuum, context)`` fills in its part of :class:`Continuum`
-(the parameters of :data:`anra_torch.effects.EFFECTS`, none of its operators)."""
-
-
-def _continuum(effects: Sequence[Effect], a: float, dx: float, duration: float) -> Continuum:
-    model = Continuum(tensor=(a, a, 0.0))
-    for effect in effects:
-        if effect.name not in CONTINUOUS_TERMS:
-            raise ValueError(
-                f"the independent simulator has no continuous model of effect {effect.name!r}; "
-                f"expected one of: {', '.join(CONTINUOUS_TERMS)}"
-            )
-        CONTINUOUS_TERMS[effect.name](effect.params, model, _Context(dx, duration))
-    return model
 
 
 # -------------------------------------------------------------------------------------- domain
@@ -409,35 +334,34 @@ def _finite_volume(
 
 
 # ------------------------------------------------------------------------------------------ API
-def simulate_independent(
+def simulate_continuum(
     initial: Callable[[Tensor, Tensor], Tensor],
+    model: Continuum,
     *,
     shape: tuple[int, int],
-    a: float,
     dx: float,
     dt: float,
     n_frames: int,
-    effects: Sequence[Effect] = (),
     pad: int | None = None,
     refine: int = 2,
     substeps: int | None = None,
     method: str = "auto",
 ) -> Tensor:
-    """Simulate ``dT/dt = a Lap T + effects`` from a continuous initial field, as a camera sees it.
+    """Simulate the continuous PDE ``model`` from a continuous initial field, as a camera sees it.
 
     The frame (pixel ``(i, j)`` covers ``[j dx, (j + 1) dx]`` in x, ``[i dx, (i + 1) dx]`` in y) lies in a
     periodic domain ``pad`` px wider on each side, where ``initial`` should reach the edges smoothly (hot
     spots on a uniform background, or a field periodic over the frame with ``pad=0``). Frame ``k`` is the
-    solution at ``k dt`` averaged over each pixel (methods: module docs; ``depth_conduction``: exact factor).
+    solution at ``k dt`` averaged over each pixel (methods: module docs; ``depth``: the plate's exact
+    factor times the rest of the solution).
 
     Args:
         initial: ``T0(x, y)`` at points in mm (float64 tensors that broadcast).
+        model: the continuous PDE (:class:`Continuum`).
         shape: frame size ``(H, W)`` in px.
-        a: base diffusivity in mm^2/s (>= 0; unused when an effect replaces the diffusion term).
         dx: pixel size in mm.
         dt: frame period in s.
         n_frames: number of frames (>= 1).
-        effects: distinct :class:`~anra_torch.effects.Effect` s, at most one replacing diffusion.
         pad: camera px of padding on each side (>= 0); default half the larger frame side.
         refine: finite-volume cells per camera pixel along each axis (>= 1).
         substeps: TR-BDF2 steps per frame (finite volumes); default 2 (see the module docs).
@@ -446,23 +370,25 @@ def simulate_independent(
     Returns:
         The video, float64, ``(n_frames, H, W)``.
 
+    Shape:
+        Output ``(n_frames, H, W)``.
+
     Raises:
-        ValueError: bad sizes or spacings, effects without a continuous model, ``method="spectral"`` for
-            a model with a source or a varying diffusivity.
+        ValueError: bad sizes or spacings, ``method="spectral"`` for a model with a heat input or a varying
+            diffusivity, conduction into depth beside a heat input, a nonlinear diffusion or another ambient.
         RuntimeError: a stage equation that did not converge (more ``substeps`` help).
 
     Example:
         >>> import math
         >>> k = 2 * math.pi / 16  # one period over a 16 px frame of 1 mm pixels, periodic with pad=0
-        >>> video = simulate_independent(
-        ...     lambda x, y: 30 + torch.cos(k * x) + 0 * y, shape=(8, 16), a=0.2, dx=1.0, dt=1.0,
-        ...     n_frames=3, pad=0)
+        >>> video = simulate_continuum(
+        ...     lambda x, y: 30 + torch.cos(k * x) + 0 * y, Continuum(tensor=(0.2, 0.2, 0.0)), shape=(8, 16),
+        ...     dx=1.0, dt=1.0, n_frames=3, pad=0)
         >>> ratio = float(video[2, 0].max() - 30) / float(video[0, 0].max() - 30)
         >>> round(ratio, 6) == round(math.exp(-0.2 * k * k * 2.0), 6)
         True
     """
     height, width = check_shape(shape)
-    a = number(a, "a", "mm^2/s", minimum=0.0)
     dx, dt = number(dx, "dx", "mm", positive=True), number(dt, "dt", "s", positive=True)
     n_frames = check_int(n_frames, "n_frames", 1)
     pad = (max(height, width) + 1) // 2 if pad is None else check_int(pad, "pad", 0)
@@ -471,16 +397,14 @@ def simulate_independent(
     check_choice(method, "method", METHODS)
     if not callable(initial):
         raise TypeError(f"initial must be a function T0(x, y) of points in mm, got {type(initial).__name__}")
-    model = _continuum(check_effects(effects), a, dx, (n_frames - 1) * dt)
     if method == "spectral" and not model.spectral:
         raise ValueError(
-            "method='spectral' needs constant coefficients and no heat input, got effects "
-            f"{', '.join(e.name for e in effects)}; use method='finite_volume' or 'auto'"
+            "method='spectral' needs constant coefficients and no heat input, got a model with "
+            f"{_varying(model)}; use method='finite_volume' or 'auto'"
         )
     if model.depth is not None:  # exact: the rest of the model times the plate's depth factor
-        settings = {"shape": shape, "a": a, "dx": dx, "dt": dt, "n_frames": n_frames, "pad": pad}
-        settings |= {"refine": refine, "substeps": substeps, "method": method}
-        return _with_plate(initial, effects, model.depth, settings)
+        settings = {"shape": shape, "dx": dx, "dt": dt, "n_frames": n_frames, "pad": pad, "refine": refine}
+        return _with_plate(initial, model, {**settings, "substeps": substeps, "method": method})
     if method == "finite_volume" or not model.spectral:
         domain = _Domain((height, width), dx, pad, refine)
         return torch.from_numpy(_finite_volume(model, initial, domain, dt, n_frames, substeps))
@@ -489,105 +413,25 @@ def simulate_independent(
     return torch.from_numpy(_spectral(model, start, dx, pad, np.arange(n_frames) * dt))
 
 
-def _with_plate(
-    initial: Callable[[Tensor, Tensor], Tensor], effects: Sequence[Effect], depth: tuple, common: dict
-) -> Tensor:
-    """:func:`simulate_independent` of the effects but ``depth_conduction``, times the plate's exact depth
-    factor (:mod:`anra_torch.simulation.plate`): exact for ``T - T_ref`` only when the rest is linear and
-    keeps ``T_ref`` where it is."""
-    rest = [e for e in check_effects(effects) if e.name != "depth_conduction"]
-    model = _continuum(rest, common["a"], common["dx"], (common["n_frames"] - 1) * common["dt"])
+def _with_plate(initial: Callable[[Tensor, Tensor], Tensor], model: Continuum, settings: dict) -> Tensor:
+    """:func:`simulate_continuum` of ``model`` without its conduction into depth, times the plate's exact
+    depth factor (:mod:`anra_torch.simulation.plate`): exact for ``T - T_ref`` only when the rest is linear
+    and keeps ``T_ref`` where it is."""
+    depth = model.depth
+    assert depth is not None
     if model.forcings or model.conductivity is not None or (model.loss > 0 and model.ambient != depth[3]):
         raise ValueError(
-            "the independent simulator combines depth_conduction only with diffusion, anisotropy, advection, "
-            "a heterogeneity or a linear_loss to the same T_ref, got a heat input, a nonlinear diffusion or "
-            "another ambient"
+            "the independent simulator combines conduction into depth only with diffusion, anisotropy, "
+            "advection, a heterogeneity or a linear loss to the same T_ref, got a heat input, a nonlinear "
+            "diffusion or another ambient"
         )
-    clean = simulate_independent(initial, effects=rest, **common)
-    return with_depth(clean, np.arange(common["n_frames"]) * common["dt"], depth)
+    clean = simulate_continuum(initial, dataclasses.replace(model, depth=None), **settings)
+    return with_depth(clean, np.arange(settings["n_frames"]) * settings["dt"], depth)
 
 
-def simulate_scene(
-    scene: Scene, *, pad: int | None = None, refine: int = 2, substeps: int | None = None
-) -> Tensor:
-    """The clean video of a drawn :class:`~anra_torch.effects.scene.Scene`, simulated independently.
-
-    :func:`simulate_independent` from the scene's continuous first field (its hot spots on the background),
-    with its effects, pixel size and frames; ``pad``, ``refine``, ``substeps`` as there.
-
-    Shape:
-        Output ``(n_frames, H, W)`` float64, the scene's frame size.
-    """
-    if not isinstance(scene, Scene):
-        raise TypeError(
-            f"scene must be a Scene (anra_torch.effects.scene.draw_scene), got {type(scene).__name__}"
-        )
-    height, width = scene.initial.shape
-    return simulate_independent(
-        scene.temperature,
-        shape=(height, width),
-        a=scene.a,
-        dx=scene.dx,
-        dt=scene.dt,
-        n_frames=scene.n_frames,
-        effects=scene.effects,
-        pad=pad,
-        refine=refine,
-        substeps=substeps,
-    )
-
-
-def independent_effect_video(
-    effect_names: Sequence[str] | str = (),
-    *,
-    seed: int,
-    size: int = 96,
-    dx: float = 0.5,
-    fps: float = 30.0,
-    duration: float = 3.0,
-    a: float = 0.15,
-    noise_frac: float = 0.01,
-    noise_sd: float | None = None,
-    params: Mapping[str, Mapping[str, float]] | None = None,
-    background: float = 30.0,
-    dtype: torch.dtype = torch.float64,
-    pad: int | None = None,
-    refine: int = 2,
-    substeps: int | None = None,
-) -> HiddenEffectVideo:
-    """The scene of :func:`anra_torch.effects.hidden_effect_video` for ``seed``, simulated independently.
-
-    Same hot spots, effect parameters and noise draw as the library's video (both come from
-    :func:`anra_torch.effects.scene.draw_scene`), solved by :func:`simulate_scene` and imaged as pixel
-    averages. The truth (``effects``, ``a``, ``a_map``) is the library's record of the same scene.
-
-    Args:
-        effect_names, seed, size, dx, fps, duration, a, noise_frac, noise_sd, params, background, dtype:
-            as :func:`anra_torch.effects.hidden_effect_video` (``noise_frac``: white-noise sd as a fraction
-            of the peak initial rise; ``duration`` in s gives ``round(duration * fps) + 1`` frames).
-        pad: padding in px on each side of the frame (default half the frame).
-        refine: finite-volume cells per pixel along each axis.
-        substeps: TR-BDF2 steps per frame (default 2).
-
-    Returns:
-        A :class:`~anra_torch.effects.HiddenEffectVideo`.
-
-    Shape:
-        ``frames`` ``(T, size, size)``.
-
-    Raises:
-        ValueError: as :func:`anra_torch.effects.hidden_effect_video` and :func:`simulate_independent`.
-
-    Example:
-        >>> video = independent_effect_video(["advection"], seed=1, size=32, duration=0.5)
-        >>> tuple(video.frames.shape), [e.name for e in video.effects]
-        ((16, 32, 32), ['advection'])
-    """
-    number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)  # before the simulation
-    if noise_sd is not None:
-        number(noise_sd, "noise_sd", "data units", minimum=0.0)
-    check_dtype(dtype)
-    drawn = {"seed": seed, "size": size, "dx": dx, "fps": fps, "duration": duration, "a": a}
-    scene = draw_scene(effect_names, **drawn, params=params, background=background)
-    clean = simulate_scene(scene, pad=pad, refine=refine, substeps=substeps)
-    return scene.video(clean, noise_frac=noise_frac, noise_sd=noise_sd, dtype=dtype)
+def _varying(model: Continuum) -> str:
+    """What keeps ``model`` from the spectral solution, for a message."""
+    parts = ["a heat input"] if model.forcings else []
+    parts += ["a diffusivity field"] if model.diffusivity is not None else []
+    parts += ["a temperature-dependent diffusivity"] if model.conductivity is not None else []
+    return ", ".join(parts)

@@ -12,7 +12,7 @@ The model (per unit heat capacity)::
 
 :func:`simulate_tissue` integrates it with fixed-step RK4 (:func:`anra_torch.simulation.integrate`), every
 step inside RK4's stability limit (the ``"stable"`` policy of :func:`anra_torch.simulation.stable_substeps`);
-gradients flow to tensor fields that require them. :class:`anra_torch.tissue_model.LearnedTissueModel`
+gradients flow to tensor fields that require them. :class:`anra_torch.tissue.LearnedTissueModel`
 learns ``a`` and ``b`` through it.
 """
 

@@ -25,16 +25,17 @@ from anra_torch.video.calibration import (
 from anra_torch.video.core import PathLike, RawVideo, Truth, Video
 from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
 from anra_torch.video.formats.numpy_formats import save_npz
+from anra_torch.video.lazy import LazyFrames, decimated, lazy_video
 from anra_torch.video.load import TIMESTAMPS, load_video
-from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, hot_spot_signal, recording_phases, segment_phases
+from anra_torch.video.phases import Phase, hot_spot_signal, recording_phases, segment_phases
 from anra_torch.video.prepare import STEPS, input_warnings, prepare_video
-from anra_torch.video.resample import resample_uniform
+from anra_torch.video.resample import measured_frames, measured_part, resample_uniform
 from anra_torch.video.roi import ROI, apply_mask, crop, dead_pixel_mask, parse_roi, reflection_mask
 
 __all__ = [
     "CalibrationTable",
     "FOLDER_REGISTRY",
-    "MIN_PHASE_FRAMES",
+    "LazyFrames",
     "PathLike",
     "Phase",
     "PixelSize",
@@ -49,10 +50,14 @@ __all__ = [
     "apply_mask",
     "crop",
     "dead_pixel_mask",
+    "decimated",
     "hot_spot_signal",
     "input_warnings",
+    "lazy_video",
     "load_calibration",
     "load_video",
+    "measured_frames",
+    "measured_part",
     "parse_roi",
     "prepare_video",
     "recording_phases",

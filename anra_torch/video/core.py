@@ -133,6 +133,27 @@ class Video:
         steps = torch.diff(self.t.double())
         return bool((steps - steps.mean()).abs().max() <= UNIFORM_RTOL * steps.mean())
 
+    @property
+    def on_disk(self) -> bool:
+        """Whether the frames are left on disk to be read in chunks (a frame source with a ``window``, such
+        as :class:`~anra_torch.video.LazyFrames`), not held in memory."""
+        return not isinstance(self.frames, Tensor) and hasattr(self.frames, "window")
+
+    def span(self, start: int, stop: int) -> Video:
+        """Frames ``start .. stop - 1`` with their timestamps; frames on disk stay unread.
+
+        Shape:
+            ``frames`` ``(T, H, W)`` -> ``(stop - start, H, W)``.
+        """
+        frames = self.frames.window(start, stop) if self.on_disk else self.frames[start:stop]
+        return replace(self, frames=frames, t=None if self.t is None else self.t[start:stop])
+
+    def loaded(self) -> Video:
+        """The video with its frames in memory: frames on disk read whole, others as they are."""
+        if not self.on_disk:
+            return self
+        return replace(self, frames=torch.as_tensor(self.frames[0 : len(self.frames)]))
+
     def map_frames(self, change: Callable[[Tensor], Tensor], **changes: Any) -> Video:
         """The video with ``change`` applied to its frames and to the truth's clean frames, and the other
         fields in ``changes`` replaced (a step such as a crop keeps the truth in step with the frames)."""

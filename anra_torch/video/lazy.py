@@ -1,11 +1,11 @@
 """Frames read on demand: a ``.npy`` file, or the ``frames`` of an uncompressed ``.npz``, one slice at a time.
 
 A camera recording (640 x 512 px, 900 frames: 1.2 GB in float32) need not sit in memory to be analysed:
-:func:`anra_torch.chunked.estimate_chunked` reads it in chunks of frames. ``numpy.load(..., mmap_mode="r")``
-would do the reading, but its mapped pages stay resident and count towards the process's memory as the
-file is read; :class:`LazyFrames` reads each slice with plain file reads, so only the requested frames
-are ever in memory. ``numpy.savez`` (and :func:`~anra_torch.video.save_npz`) store arrays uncompressed, so
-their ``frames`` is read the same way; a compressed archive (``savez_compressed``) is not lazily readable.
+:func:`anra_torch.estimation.estimate_chunked` reads it in chunks of frames. ``numpy.load(...,
+mmap_mode="r")`` would do the reading, but its mapped pages stay resident and count towards the process's
+memory as the file is read; :class:`LazyFrames` reads each slice with plain file reads, so only the requested
+frames are ever in memory. ``numpy.savez`` (and :func:`~anra_torch.video.save_npz`) store arrays uncompressed,
+so their ``frames`` is read the same way; a compressed archive (``savez_compressed``) is not lazily readable.
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """Thermal videos from files and folders: one loader per format, chosen by suffix from a registry.
 
-A loader reads what the file holds into a :class:`~anra_torch.video.core.RawVideo` (frames as stored, and
+A loader reads what the file holds into a :class:`~anra_torch.video.RawVideo` (frames as stored, and
 whatever spacing, timestamps and truth the file records); :func:`load_video` then applies the caller's
 explicit ``dt`` / ``dx`` (they win over the file), checks everything once and returns a
-:class:`~anra_torch.video.core.Video`. A new format is one function and one registry entry in
+:class:`~anra_torch.video.Video`. A new format is one function and one registry entry in
 :mod:`anra_torch.video.formats`: ``REGISTRY`` maps a file suffix to a loader, ``FOLDER_REGISTRY`` maps the
 suffix of the frame files inside a folder (one file per frame, e.g. FLIR radiometric JPEGs) to a folder
 loader.
@@ -12,7 +12,7 @@ Measured timestamps are often not uniform (a FLIR camera triggered by hand). :fu
 true timestamps in :attr:`Video.t`; with ``timestamps="uniform"`` (default) it refuses non-uniform ones,
 ``"keep"`` returns them as they are (``dt`` is then their median step and :attr:`Video.uniform` is False),
 ``"resample"`` interpolates the frames linearly onto a uniform grid
-(:func:`anra_torch.video.resample.resample_uniform`) and records what it did in ``meta["resampled"]``.
+(:func:`anra_torch.video.resample_uniform`) and records what it did in ``meta["resampled"]``.
 
 Every error is a one-line ``ValueError`` that names the file, the requirement and what was found.
 """
@@ -175,7 +175,7 @@ def load_video(
         timestamps: what to do when the timestamps are not uniform (:data:`TIMESTAMPS`): ``"uniform"``
             refuses them, ``"keep"`` keeps them (``dt`` = median step, :attr:`Video.uniform` False),
             ``"resample"`` interpolates onto a uniform grid
-            (:func:`~anra_torch.video.resample.resample_uniform`) and states it in ``meta["resampled"]``.
+            (:func:`~anra_torch.video.resample_uniform`) and states it in ``meta["resampled"]``.
         mask_values: mask the samples that cannot be measurements (:func:`~anra_torch.checks.in_range_values`)
             as read, before any resampling could blend them into their neighbours; counted in
             ``meta["masked_values"]`` when there are any.

@@ -17,21 +17,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-__all__ = [
-    "MIN_PHASE_FRAMES",
-    "SOURCE_FREE",
-    "Phase",
-    "hot_spot_signal",
-    "phase_preference",
-    "recording_phases",
-    "segment_phases",
-]
+from anra_torch.balance import estimate_noise_sd
 
-MIN_PHASE_FRAMES = 8
-"""Frames a phase needs to be analysed on its own (a fit part of at least 5 and held-out frames)."""
-
-SOURCE_FREE = ("cooling", "baseline", "steady")
-"""Phase kinds without a heat source, in the order their diffusivity is preferred for a recording's."""
+__all__ = ["Phase", "hot_spot_signal", "recording_phases", "segment_phases"]
 
 
 _MATERIAL = 0.2  # a change of heat content counts when it is at least this share of its range ...
@@ -60,13 +48,6 @@ class Phase:
     def frames(self) -> int:
         """Number of frames in the phase."""
         return self.stop - self.start
-
-
-def phase_preference(phase: Phase) -> tuple[bool, int, int]:
-    """How ``phase`` ranks for a recording's diffusivity (larger first): source-free (in the order of
-    :data:`SOURCE_FREE`), then the longest."""
-    order = SOURCE_FREE.index(phase.name) if phase.name in SOURCE_FREE else len(SOURCE_FREE)
-    return phase.name in SOURCE_FREE, -order, phase.frames
 
 
 def hot_spot_signal(frames: Tensor) -> tuple[Tensor, tuple[int, int]]:
@@ -127,15 +108,13 @@ def segment_phases(
 
 
 def _pixel_noise(frames: Tensor) -> float:
-    """The sensor noise of one pixel (:func:`~anra_torch.balance.noise.estimate_noise_sd` of at most 64
+    """The sensor noise of one pixel (:func:`~anra_torch.balance.estimate_noise_sd` of at most 64
     frames): an upper bound on the noise of a frame mean, whatever the noise's correlation.
 
     The frame mean's noise is first measured from its steps, which is right for frames a fraction of a
     second apart; for frames 30 s apart every step is signal, and a clear heating and cooling read as one
     steady phase (``tests/test_recording.py -k 30_s_apart``).
     """
-    from anra_torch.balance.noise import estimate_noise_sd
-
     stride = max(1, frames.shape[0] // 64)
     return float(estimate_noise_sd(frames[::stride]))
 

@@ -37,7 +37,7 @@ FOREIGN_WEIGHT = 0.1
 def resample_uniform(video: Video, dt: float | None = None, *, method: str = "cubic") -> Video:
     """Interpolate ``video`` in time onto a uniform grid of step ``dt`` (s).
 
-    ``"cubic"`` (default): within each phase (:func:`~anra_torch.video.phases.recording_phases` of the
+    ``"cubic"`` (default): within each phase (:func:`~anra_torch.video.recording_phases` of the
     linear interpolant), a cubic Hermite curve through the samples whose slope at each sample is the
     derivative of the parabola through it and its neighbours at their real times (non-uniform three-point
     weights; one-sided at a phase's ends). Between two samples seconds apart a diffusing field is convex

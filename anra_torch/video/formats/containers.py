@@ -8,6 +8,7 @@ ImageJ ``finterval`` (s) is taken as ``dt``. Every reader needs the ``formats`` 
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +23,6 @@ _SPACING = ("dt", "dx", "t")
 
 
 def _require(module: str, what: str) -> Any:
-    import importlib
-
     try:
         return importlib.import_module(module)
     except ImportError as err:

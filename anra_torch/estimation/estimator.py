@@ -27,13 +27,17 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from anra_torch.balance.artefacts import stuck_pixels
-from anra_torch.balance.batch_noise import BatchNoise, batch_noise
-from anra_torch.balance.filters import MatchedFilters
-from anra_torch.balance.moments import TermNoise, accumulate
-from anra_torch.checks import as_spacing, as_video
-from anra_torch.flags import MIN_RELIABILITY, MIN_SIGNIFICANCE, POOR_FIT, poor_fit, verdicts
-from anra_torch.layers.attention import RTCAttention, UniformAttention
+from anra_torch.balance import BatchNoise, MatchedFilters, TermNoise, accumulate, batch_noise, stuck_pixels
+from anra_torch.checks import (
+    MIN_RELIABILITY,
+    MIN_SIGNIFICANCE,
+    POOR_FIT,
+    as_spacing,
+    as_video,
+    poor_fit,
+    verdicts,
+)
+from anra_torch.layers import RTCAttention, UniformAttention
 
 __all__ = ["ANRAEstimator", "ANRAResult", "MODES", "AUTO_SMOOTHING", "POOR_FIT"]
 
@@ -93,13 +97,13 @@ class ANRAResult:
         messages: one line per video: the reason when not valid, else empty (a valid video's flags are in
             ``warnings``; the value is kept).
         warnings: per video, the plausibility flags of a valid estimate
-            (:func:`anra_torch.flags.diffusivity_warnings`): significantly negative (a source dominates),
+            (:func:`anra_torch.checks.diffusivity_warnings`): significantly negative (a source dominates),
             or outside every known material (with the likely unit mix-up of dt or dx); empty when none.
         noise: per video, the measured noise model as a record (``"sd"``, ``"time_correlation"``,
             ``"space_length_px"``, ``"white"``; :meth:`NoiseModel.describe
-            <anra_torch.balance.noise.NoiseModel.describe>`).
+            <anra_torch.balance.NoiseModel.describe>`).
         artefacts: per video, the camera artefacts found and what was done
-            (:meth:`Artefacts.to_record <anra_torch.balance.artefacts.Artefacts.to_record>`).
+            (:meth:`Artefacts.to_record <anra_torch.balance.Artefacts.to_record>`).
     """
 
     diffusivity: Tensor
@@ -362,7 +366,7 @@ class ANRAEstimator(nn.Module):
 
         Without ``with_error`` the standard error is NaN (no adjoint pass); with ``back_at`` (``a`` per
         video, ``(B,)``) the noise lever pushed back onto the frames at that ``a`` is returned in ``back``
-        instead (:mod:`anra_torch.chunked` adds it up over chunks)."""
+        instead (:mod:`anra_torch.estimation.chunked` adds it up over chunks)."""
         filters = self.filters[index]
         stage = filters.smoothed_stage(video, dt)  # one Gaussian pass per candidate
         terms = filters.terms(None, dt, dx, _NAMES, time_stage=stage, smoothed=True)

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.checks import as_spacing, as_video
-from anra_torch.layers.attention import rtc_attention
+from anra_torch.layers import rtc_attention
 
 __all__ = ["log_kernel", "backward_log_estimate", "BASELINES"]
 

@@ -1,6 +1,6 @@
 """ANRA on recordings larger than memory: a pilot chooses, then time chunks accumulate the balance.
 
-:class:`~anra_torch.estimator.ANRAEstimator` holds a whole video and its filtered terms at once; a camera
+:class:`~anra_torch.estimation.ANRAEstimator` holds a whole video and its filtered terms at once; a camera
 recording (640 x 512 px at 30 Hz for 30 s: 1.2 GB in float32) needs several times that. Its estimate is a
 ratio of sums over output frames, ``a = sum_k num_k / sum_k den_k``, and frame ``k``'s sums depend only on
 input frames ``k .. k + L - 1``. So the recording is read in chunks of frames that overlap by the time
@@ -37,13 +37,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+from tqdm.auto import tqdm
 
-from anra_torch.balance.artefacts import find_artefacts, stuck_pixels
-from anra_torch.balance.batch_noise import BatchNoise, batch_noise
-from anra_torch.checks import as_spacing
-from anra_torch.estimator import ANRAEstimator, ANRAResult
-from anra_torch.flags import MIN_RELIABILITY, MIN_SIGNIFICANCE, poor_fit, verdicts
-from anra_torch.layers.attention import UniformAttention
+from anra_torch.balance import BatchNoise, batch_noise, find_artefacts, stuck_pixels
+from anra_torch.checks import MIN_RELIABILITY, MIN_SIGNIFICANCE, as_spacing, poor_fit, verdicts
+from anra_torch.estimation.estimator import ANRAEstimator, ANRAResult
+from anra_torch.layers import UniformAttention
 
 __all__ = ["CHUNKED_VALUES", "CHUNK_BYTES", "ChunkedEstimate", "estimate_chunked"]
 
@@ -65,7 +64,7 @@ class ChunkedEstimate:
     """The estimate of a recording read in chunks.
 
     Attributes:
-        result: the estimate, as :class:`~anra_torch.estimator.ANRAEstimator` returns it for one video
+        result: the estimate, as :class:`~anra_torch.estimation.ANRAEstimator` returns it for one video
             (``per_frame`` and ``frame_times`` over the frames used).
         frames_used: frames read for the estimate (fewer than ``frames_total`` when ``precision`` was
             reached early).
@@ -100,7 +99,7 @@ _CONTEXT = 2  # frames on each side a spike search needs (its second difference 
 
 def _repaired(frames: Any, raw: Tensor, start: int, pilot: _Pilot, new: slice) -> tuple[Tensor, Any, int]:
     """The chunk ``raw`` (input frames from ``start``) centred and repaired
-    (:func:`~anra_torch.balance.artefacts.find_artefacts`), searched with :data:`_CONTEXT` frames more on
+    (:func:`~anra_torch.balance.find_artefacts`), searched with :data:`_CONTEXT` frames more on
     each side, so a spike in a chunk's first or last frame is found as anywhere else; with what was found
     and the spikes repaired in the ``new`` frames (the overlap's were counted with the chunk before):
     finite samples the repair changed, outside dead and hot elements."""
@@ -289,7 +288,7 @@ def estimate_chunked(
 
     Args:
         frames: anything with ``shape`` ``(T, H, W)`` that slices along T into arrays or tensors: a
-            :class:`~anra_torch.video.lazy.LazyFrames` file, a memory map, an HDF5 dataset, a tensor.
+            :class:`~anra_torch.video.LazyFrames` file, a memory map, an HDF5 dataset, a tensor.
         dt: frame period in s.
         dx: pixel size in mm.
         estimator: the configuration (``mode="lsq"``, uniform weights, no window); default
@@ -361,7 +360,6 @@ def _accumulate(
 ) -> tuple[dict[str, Tensor], dict[str, Any]]:
     """Per-frame sums over the chunks (``rate_energy``, ``num``, ``den``, ``energy``, each ``(K,)``) and
     what was seen (frames read, masked samples, value range, the standard error's sums)."""
-    from tqdm.auto import tqdm
 
     chunk, every, precision, progress = plan
     total, length = frames.shape[0], est.time.length

@@ -10,8 +10,8 @@ with fixed-step RK4, and gradients flow to the fields.
 
 :class:`LearnedTissueModel` holds ``log a`` and ``log b`` on a coarse grid (bilinear up-sampling to the
 frame: a smooth, positive field with few parameters), initialised from ANRA's direct estimate
-(:class:`anra_torch.estimator.ANRAEstimator` windowed field for ``a``, the loss-rate map of
-:class:`anra_torch.features.TissueFeatures` for ``b``), and :meth:`LearnedTissueModel.fit` trains them by
+(:class:`anra_torch.estimation.ANRAEstimator` windowed field for ``a``, the loss-rate map of
+:class:`anra_torch.tissue.TissueFeatures` for ``b``), and :meth:`LearnedTissueModel.fit` trains them by
 back-propagating the frame misfit through the ODE solver.
 """
 
@@ -25,7 +25,8 @@ from torch import Tensor, nn
 from tqdm.auto import tqdm
 
 from anra_torch.checks import as_video
-from anra_torch.estimator import ANRAEstimator
+from anra_torch.estimation import ANRAEstimator
+from anra_torch.selection import diagnose_terms
 from anra_torch.simulation import simulate_tissue
 
 __all__ = ["LearnedTissueModel", "relative_error"]
@@ -114,8 +115,6 @@ class LearnedTissueModel(nn.Module):
         Raises:
             ValueError: bad shape, or no measurable thermal activity.
         """
-        from anra_torch.selection import diagnose_terms
-
         video, batched = as_video(frames, name="frames")
         if batched:
             raise ValueError(f"frames must have shape (T, H, W), got {tuple(video.shape)}")

@@ -28,6 +28,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from anra_torch.checks import diffusivity_warnings
+
 __all__ = [
     "MODELS",
     "SmallBoxModel",
@@ -294,7 +296,7 @@ def small_box_estimate(frames: Tensor, dt: float, dx: float) -> dict[str, Any]:
     Not valid, with the reason in ``message``: fewer than 3 x 3 px or 3 frames; conduction crossing the
     region within a frame (``a`` None, and ``diffusivity_lower_bound``, :func:`unresolved_bound`); ``a``
     within 3 standard errors of 0 (the region hardly changes: a baseline); ``a`` significantly negative or
-    outside every known material (:func:`~anra_torch.flags.diffusivity_warnings`).
+    outside every known material (:func:`~anra_torch.checks.diffusivity_warnings`).
 
     Returns:
         ``{"diffusivity", "std_error"}`` in mm^2/s (None where not measured), ``"valid"``, ``"message"``.
@@ -302,8 +304,6 @@ def small_box_estimate(frames: Tensor, dt: float, dx: float) -> dict[str, Any]:
     Shape:
         ``frames`` ``(T, H, W)``.
     """
-    from anra_torch.flags import diffusivity_warnings
-
     video = torch.as_tensor(frames).to(_F64)
     h, w = video.shape[1:]
     if min(h, w) < 3 or video.shape[0] < 3:

@@ -1,6 +1,6 @@
 """Frame-by-frame ANRA: a ring buffer of filtered frames, causal time filters, an estimate after every frame.
 
-The offline estimator (:class:`~anra_torch.estimator.ANRAEstimator`, ``mode="lsq"``, uniform weights)
+The offline estimator (:class:`~anra_torch.estimation.ANRAEstimator`, ``mode="lsq"``, uniform weights)
 computes, for every window of ``L`` frames ``k .. k + L - 1``,
 
 * ``U_k = P G (sum_i taps_i T_{k+i}) / dt`` and ``Lap_k = Lap G (sum_i pair_i T_{k+i})``;
@@ -36,11 +36,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+from tqdm.auto import tqdm
 
-from anra_torch.balance.filters import MatchedFilters
-from anra_torch.balance.moments import Moments, accumulate
-from anra_torch.balance.noise import estimate_noise_sd
-from anra_torch.video.lazy import LazyFrames
+from anra_torch.balance import MatchedFilters, Moments, accumulate, estimate_noise_sd
+from anra_torch.video import LazyFrames
 
 __all__ = ["NpyFrames", "StreamingEstimate", "StreamingEstimator", "estimate_long"]
 
@@ -90,7 +89,7 @@ class StreamingEstimator:
         laplacian_family: ``"central"`` (offline lsq default) or ``"holoborodko"``.
         eiv_correction: subtract the noise variance/covariance (as offline).
         noise_sd: known noise sd (data units); None estimates it once from the first ``noise_frames``
-            frames with :func:`anra_torch.balance.noise.estimate_noise_sd`.
+            frames with :func:`anra_torch.balance.estimate_noise_sd`.
         noise_frames: frames used for that estimate (>= 5).
         dtype: computation dtype (float32 is ~2x faster; float64 reproduces the offline float64 result).
 
@@ -334,7 +333,7 @@ def estimate_long(
 
     Args:
         frames: anything with ``shape`` ``(T, H, W)`` that slices along T into arrays or tensors, e.g.
-            :class:`~anra_torch.video.lazy.LazyFrames` (a ``.npy`` file read chunk by chunk), an HDF5
+            :class:`~anra_torch.video.LazyFrames` (a ``.npy`` file read chunk by chunk), an HDF5
             dataset, a tensor; only one chunk at a time is converted and filtered.
         dt: frame period in s.
         dx: pixel size in mm.
@@ -357,7 +356,6 @@ def estimate_long(
     if not (isinstance(chunk, int) and chunk >= 1):
         raise ValueError(f"chunk must be an integer >= 1 (frames), got {chunk!r}")
     stream = StreamingEstimator(dt=dt, dx=dx, **options)
-    from tqdm.auto import tqdm
 
     with tqdm(total=shape[0], unit="frame", desc="anra long video", disable=not progress) as bar:
         for block in _chunks(frames, chunk):

@@ -14,7 +14,11 @@ import contextlib
 from collections.abc import Iterable, Iterator
 from typing import Any
 
-from anra_torch.batch import BatchOptions, BatchSummary, PathLike, process_paths, run_batch
+import torch
+
+from anra_torch.batch.inputs import PathLike
+from anra_torch.batch.options import BatchOptions
+from anra_torch.batch.run import BatchSummary, process_paths, run_batch
 
 __all__ = ["run_batch_dask"]
 
@@ -28,7 +32,6 @@ def _import_distributed():
 
 
 def _work(chunk: list[str], options: BatchOptions) -> list[dict[str, Any]]:
-    import torch
 
     torch.set_num_threads(1)  # one thread per Dask worker thread: workers, not torch, share the cores
     return process_paths(chunk, options)

@@ -2,7 +2,7 @@
 
 A number can be valid and still wrong: a diffusivity no material has (a pixel size in metres where mm were
 meant reads 1e6 times too small), a negative one (heat gathering instead of spreading), or a model whose
-forecast stays far above the noise floor. :class:`~anra_torch.estimator.ANRAResult` and
+forecast stays far above the noise floor. :class:`~anra_torch.estimation.ANRAResult` and
 :class:`~anra_torch.forecast.GainResult` keep these lines in their ``warnings``; ``anra estimate``,
 ``diagnose`` and ``batch`` print them.
 """
@@ -193,7 +193,7 @@ def model_failure(rmse: float, floor: float, *, what: str = "forecast") -> str |
 
 POOR_FIT = 0.9
 """Share of ``dT/dt`` that ``a Lap T`` must explain (:attr:`ANRAResult.explained
-<anra_torch.estimator.ANRAResult.explained>`) not to be flagged."""
+<anra_torch.estimation.ANRAResult.explained>`) not to be flagged."""
 
 MIN_RELIABILITY = 0.05
 """Below this fraction of signal in the regressor energy, nothing is measurable."""
@@ -209,7 +209,7 @@ DEPTH_BIAS = 1.25
 def depth_bias(plain: float | None, depth_aware: dict | None) -> list[str]:
     """The warning of a plain diffusivity more than :data:`DEPTH_BIAS` times (or under 1 / DEPTH_BIAS of)
     the depth-aware one (a ``depth_aware`` record of
-    :meth:`~anra_torch.selection.depth_aware.DepthAwareFit.to_record` that is consistent); none otherwise.
+    :meth:`~anra_torch.selection.DepthAwareFit.to_record` that is consistent); none otherwise.
 
     Shape:
         No tensors.
@@ -254,7 +254,7 @@ def verdicts(
     dx: Tensor,
 ) -> tuple[tuple[str, ...], tuple[tuple[str, ...], ...]]:
     """Per video, the result's line (why it is not valid, else "") and its warnings
-    (:func:`anra_torch.flags.diffusivity_warnings`; none for an invalid video)."""
+    (:func:`anra_torch.checks.diffusivity_warnings`; none for an invalid video)."""
     messages, warnings = [], []
     z = estimate / std_error
     rows = zip(*(v.tolist() for v in (valid, moving, reliability, z, estimate, dt, dx)), strict=True)

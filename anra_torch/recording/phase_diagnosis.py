@@ -11,7 +11,7 @@ baseline, heating, cooling, or one phase) and analyses every phase with enough f
   body does: :data:`SOURCE_MAPS`) compete on a split INSIDE the fit frames; the held-out
   frames are scored only after the choice. Frames seconds apart (fewer held-out frames than one time
   window) get no time average and start from the measured split frame.
-- **Smaller regions** (down to 3 x 3 px): the small-box models of :mod:`~anra_torch.forecast.small_box`;
+- **Smaller regions** (down to 3 x 3 px): the small-box models of :mod:`~anra_torch.estimation.small_box`;
   ``loss`` and ``quasi_steady`` compete on the same inner split. When the steady state for the measured
   edges explains most of the interior's change, conduction crosses the region within a frame: the
   diffusivity is reported as unresolved, with the lower bound that implies.
@@ -29,22 +29,22 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from anra_torch.balance.artefacts import find_artefacts
-from anra_torch.chunked import CHUNKED_VALUES
-from anra_torch.forecast.core import DIAGNOSED_FRAMES, TIME_WINDOW, split_index
-from anra_torch.forecast.gain import GainResult, assess_gain
-from anra_torch.forecast.small_box import fit_small_box, forecast_small_box, unresolved_bound
-from anra_torch.forecast.source_map import source_map_gain
+from anra_torch.checks import extended_diffusivity_warning, implausible_diffusivity
+from anra_torch.effects import EFFECTS
+from anra_torch.estimation import fit_small_box, forecast_small_box, unresolved_bound
+from anra_torch.forecast import (
+    DIAGNOSED_FRAMES,
+    TIME_WINDOW,
+    GainResult,
+    assess_gain,
+    source_map_gain,
+    split_index,
+)
+from anra_torch.recording.phases import MIN_PHASE_FRAMES, recording_phases_of, repaired
 from anra_torch.selection import diagnose_terms, minimum_frame_size
-from anra_torch.video.lazy import LazyFrames, decimated
-from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, recording_phases
-from anra_torch.video.resample import measured_frames, measured_part
+from anra_torch.video import Phase, measured_frames
 
-__all__ = ["INNER_SPLITS", "PHASE_COPY_VALUES", "PhaseDiagnosis", "diagnose_recording", "find_phases"]
-
-PHASE_COPY_VALUES = 2**22
-"""Pixel values of the copy a recording read in chunks has its phases found on (every frame, strided in space:
-the phases depend on a 3 x 3 px hot spot and the frame mean)."""
+__all__ = ["INNER_SPLITS", "PhaseDiagnosis", "diagnose_recording"]
 
 BOX_WINDOW = 100
 """Frames just before a split that a small-box model is fitted on (the most local of 100, 200 and 400)."""
@@ -52,7 +52,6 @@ BOX_WINDOW = 100
 BOX_HORIZON = 200
 """Held-out frames forecast at most by a small-box model."""
 
-_SOURCES = ("source", "periodic_source")
 _F64 = torch.float64
 
 
@@ -139,50 +138,6 @@ class PhaseDiagnosis:
         return record
 
 
-def find_phases(
-    frames: Tensor,
-    t: Tensor | None = None,
-    *,
-    dt: float | None = None,
-    measured_t: Sequence[float] | Tensor | None = None,
-) -> list[Phase]:
-    """:func:`~anra_torch.video.recording_phases` of the frames with their camera artefacts repaired
-    (:func:`~anra_torch.balance.artefacts.find_artefacts`): a spike or a hot element is not a heat source.
-
-    Args:
-        frames: the recording; one read in time chunks (a :class:`~anra_torch.video.lazy.LazyFrames`, or over
-            :data:`~anra_torch.chunked.CHUNKED_VALUES` values) is looked at through a copy strided in space
-            to :data:`PHASE_COPY_VALUES` values, every frame kept.
-        t: frame times in s; default ``k dt`` (frame numbers without ``dt``).
-        dt: frame period in s, for the phases' times when ``t`` is None.
-        measured_t: for resampled frames, the measured samples' times in s: each phase keeps only the
-            frames interpolated from its own samples (:func:`~anra_torch.video.resample.measured_part`).
-
-    Shape:
-        ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
-    """
-    if isinstance(frames, LazyFrames) or math.prod(frames.shape) > CHUNKED_VALUES:
-        frames = decimated(frames, PHASE_COPY_VALUES)  # a camera-sized recording is never held whole
-    video = torch.as_tensor(frames)
-    if t is None and dt is not None:
-        t = torch.arange(video.shape[0], dtype=_F64) * dt
-    return _phases(_repaired(video), t, measured_t)
-
-
-def _phases(repaired: Tensor, t: Tensor | None, measured_t: Sequence[float] | Tensor | None) -> list[Phase]:
-    """The phases of the repaired frames; of resampled frames, each without frames blended from another
-    phase's samples (:func:`~anra_torch.video.resample.measured_part`)."""
-    phases = recording_phases(repaired, t)
-    if measured_t is None or t is None:
-        return phases
-    return [measured_part(phase, t, measured_t) for phase in phases]
-
-
-def _repaired(video: Tensor) -> Tensor:
-    """The frames with their camera artefacts repaired and no sample left non-finite (as they are)."""
-    return find_artefacts(video)[0] if video.ndim == 3 and video.shape[0] >= 3 else video
-
-
 def diagnose_recording(
     frames: Tensor,
     dt: float,
@@ -214,10 +169,10 @@ def diagnose_recording(
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
     """
     video = torch.as_tensor(frames).to(_F64)
-    repaired = _repaired(video)  # once: the phases, the small boxes and the source map need finite frames
+    clean_video = repaired(video)  # once: the phases, the small boxes and the source map need finite frames
     times = torch.arange(video.shape[0], dtype=_F64) * dt if t is None else torch.as_tensor(t)
     if phases is None:
-        phases = _phases(repaired, times, measured_t)
+        phases = recording_phases_of(clean_video, times, measured_t)
     sampled = None if measured_t is None else measured_frames(times, measured_t)
     out = []
     for phase in phases:
@@ -225,7 +180,7 @@ def diagnose_recording(
             reason = f"too short: {phase.frames} frames, need {MIN_PHASE_FRAMES}"
             out.append(PhaseDiagnosis(phase, "none", reason=reason))
             continue
-        part, clean = video[phase.start : phase.stop], repaired[phase.start : phase.stop]
+        part, clean = video[phase.start : phase.stop], clean_video[phase.start : phase.stop]
         scored = None if sampled is None else sampled[phase.start : phase.stop]
         scored = None if scored is None or bool(scored.all()) else scored
         try:
@@ -303,7 +258,7 @@ def _balance_phase(
     held = {"parametric": (math.inf, -math.inf) if unsimulated else (result.extended_rmse, result.gain)}
     predicted = {"parametric": result.predicted_extended}
     validation: dict[str, float] = {}
-    if any(n in _SOURCES for n in names) or phase.name == "heating" or unsimulated:
+    if any(EFFECTS[n].heat_input for n in names) or phase.name == "heating" or unsimulated:
         try:
             for name, decay in SOURCE_MAPS.items():
                 mapped = source_map_gain(clean, dt, dx, result, decay=decay, t_on=_T_ON * dt)
@@ -364,10 +319,8 @@ def _assessed(
 
 def _flag_implausible(diagnosis: PhaseDiagnosis, dt: float, dx: float) -> None:
     """Flag (``"implausible"``, with a warning line) a diffusivity outside every known material
-    (:data:`~anra_torch.flags.PLAUSIBLE_DIFFUSIVITY`) that no other flag already qualifies: a small box whose
+    (:data:`~anra_torch.checks.PLAUSIBLE_DIFFUSIVITY`) that no other flag already qualifies: a small box whose
     significant ``a`` of 4e-4 mm^2/s describes the fit, not the material."""
-    from anra_torch.flags import implausible_diffusivity
-
     a = diagnosis.diffusivity
     outside = None if a is None else implausible_diffusivity(a, dt=dt, dx=dx)
     if outside and not {"unresolved", "not_significant"} & set(diagnosis.flags):
@@ -376,9 +329,7 @@ def _flag_implausible(diagnosis: PhaseDiagnosis, dt: float, dx: float) -> None:
 
 
 def _extended_conduction(result: GainResult, effects: list[dict[str, Any]]) -> list[str]:
-    """:func:`~anra_torch.flags.extended_diffusivity_warning` of the phase's extended model."""
-    from anra_torch.flags import extended_diffusivity_warning
-
+    """:func:`~anra_torch.checks.extended_diffusivity_warning` of the phase's extended model."""
     names = [e["name"] for e in effects]
     found = extended_diffusivity_warning(result.diagnosis.base, result.diagnosis.a_plain, names)
     return [found] if found else []
@@ -387,8 +338,6 @@ def _extended_conduction(result: GainResult, effects: list[dict[str, Any]]) -> l
 def _implausible(effects: list[dict[str, Any]], height: float, width: float) -> list[str]:
     """Signs of a missing term among the named ``effects`` of a ``height`` x ``width`` mm frame: an own
     held-out gain of zero or below, or a position (the effect's ``positions``, mm) outside the frame."""
-    from anra_torch.effects import EFFECTS
-
     out = []
     for e in effects:
         name, params = e["name"], e["params"]
@@ -409,7 +358,7 @@ def _implausible(effects: list[dict[str, Any]], height: float, width: float) -> 
 
 SOURCE_MAPS = {"source_map": 0.0, "source_map_t^-0.5": 0.5, "source_map_t^-1": 1.0, "source_map_t^-1.5": 1.5}
 """The measured source maps that compete with the parametric source, by the power of their input's decay in
-time (:func:`~anra_torch.forecast.source_map.fit_source_map`): stationary; a flux into a half-space
+time (:func:`~anra_torch.forecast.fit_source_map`): stationary; a flux into a half-space
 (``t^(-1/2)``); and faster, as heat also spreads sideways towards a steady state (``t^(-3/2)``)."""
 
 _T_ON = 0.5  # frame periods: a source switches on between a phase's first two frames

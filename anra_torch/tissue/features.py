@@ -6,11 +6,11 @@
 map                    unit         how
 =====================  ===========  =====================================================================
 ``peak_temperature``   C            maximum over time of the denoised history (below)
-``time_above_43``      s            :func:`anra_torch.dose.time_above` (one map per threshold)
+``time_above_43``      s            :func:`anra_torch.tissue.time_above` (one map per threshold)
 ``time_above_50``      s
 ``time_above_60``      s
-``cem43_minutes``      min          :func:`anra_torch.dose.cem43` (Sapareto-Dewey)
-``omega``              1            :func:`anra_torch.dose.arrhenius_omega` (skin constants by default)
+``cem43_minutes``      min          :func:`anra_torch.tissue.cem43` (Sapareto-Dewey)
+``omega``              1            :func:`anra_torch.tissue.arrhenius_omega` (skin constants by default)
 ``heating_rate``       K/s          largest Holoborodko ``dT/dt`` over time
 ``cooling_rate``       K/s          largest ``-dT/dt`` over time
 ``rtc_attention``      1            mean over frames of the RTC attention on ``|dT/dt|``, times ``H W``
@@ -51,11 +51,11 @@ Denoised history: the doses, the peak and the times above are taken from frames 
 a Gaussian of ``smoothing`` px (reflected border; frames smaller than its radius are used raw, and the
 messages say so): raw noise would inflate the peak and the doses, which grow exponentially with
 temperature. Temperatures are converted to Celsius (``units``; checked by
-:func:`anra_torch.dose.to_celsius`). The doses integrate the frames by ``rule`` (default ``"linear"``: the
+:func:`anra_torch.tissue.to_celsius`). The doses integrate the frames by ``rule`` (default ``"linear"``: the
 piecewise-linear history over the recorded span ``(T - 1) dt``; ``"hold"``: each frame held for ``dt``,
-``T dt``; see :mod:`anra_torch.dose`).
+``T dt``; see :mod:`anra_torch.tissue.dose`).
 
-Non-finite samples are masked: they add nothing to the doses (see :mod:`anra_torch.dose`), are filled
+Non-finite samples are masked: they add nothing to the doses (see :mod:`anra_torch.tissue.dose`), are filled
 with the pixel's mean over its finite frames for the filters, and are counted in ``masked``.
 Everything is computed in float64 without gradient tracking.
 """
@@ -65,14 +65,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
-from anra_torch.balance.filters import MatchedFilters
-from anra_torch.balance.loss import LOSS_REPLICATES, fit_loss_windows
-from anra_torch.balance.noise import estimate_noise_sd
+from anra_torch.balance import LOSS_REPLICATES, MatchedFilters, estimate_noise_sd, fit_loss_windows
 from anra_torch.checks import as_spacing, as_video, join_messages, one_line
-from anra_torch.dose import (
+from anra_torch.estimation import ANRAEstimator
+from anra_torch.layers import GaussianSmoothing, rtc_attention
+from anra_torch.tissue.dose import (
     CEM43_R,
     GAS_CONSTANT,
     RULES,
@@ -84,9 +85,6 @@ from anra_torch.dose import (
     time_above,
     to_celsius,
 )
-from anra_torch.estimator import ANRAEstimator
-from anra_torch.layers.attention import rtc_attention
-from anra_torch.layers.derivatives import GaussianSmoothing
 
 __all__ = [
     "DOSE_MAPS",
@@ -220,8 +218,8 @@ class TissueFeatures(nn.Module):
     Args:
         units: temperature unit of the frames, ``"C"`` or ``"K"``.
         thresholds: Celsius thresholds of the ``time_above_<C>`` maps.
-        constants: Arrhenius constants (default :data:`anra_torch.dose.SKIN`).
-        rule: how the dose integrates the frame history (:data:`anra_torch.dose.RULES`): ``"linear"``
+        constants: Arrhenius constants (default :data:`anra_torch.tissue.SKIN`).
+        rule: how the dose integrates the frame history (:data:`anra_torch.tissue.RULES`): ``"linear"``
             (default; the recorded span ``(T - 1) dt``) or ``"hold"`` (each frame held for ``dt``).
         smoothing: Gaussian sigma (px) of the denoised history the doses, peak and times above are taken
             from (0: the raw frames).
@@ -494,7 +492,7 @@ def feature_summary(
         dt: frame period in s.
         dx: pixel size in mm; None gives only the dose maps.
         units: ``"C"`` or ``"K"``.
-        rule: dose integration, ``"linear"`` or ``"hold"`` (:data:`anra_torch.dose.RULES`).
+        rule: dose integration, ``"linear"`` or ``"hold"`` (:data:`anra_torch.tissue.RULES`).
         constants: Arrhenius constants.
 
     Shape:
@@ -534,7 +532,6 @@ def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: floa
     Raises:
         OSError: the file cannot be written.
     """
-    import numpy as np
 
     target = str(path) if str(path).endswith(".npz") else f"{path}.npz"
     arrays = {name: m.detach().cpu().numpy() for name, m in maps.maps.items()}

@@ -19,7 +19,8 @@ import torch
 from torch import Tensor
 
 from anra_torch.checks import check_dtype, check_int, number, positive
-from anra_torch.simulation import gaussian_blob, gaussian_blobs
+from anra_torch.simulation.analytic import gaussian_blob, gaussian_blobs
+from anra_torch.video import save_npz
 
 __all__ = ["SyntheticVideo", "blobs_video", "paper_video"]
 
@@ -58,8 +59,6 @@ class SyntheticVideo:
 
         ``numpy.savez`` appends ``.npz`` to a path without that suffix.
         """
-        from anra_torch.video import save_npz  # the one .npz writer (atomic, same keys as anra simulate)
-
         frames = self.frames[0] if self.frames.shape[0] == 1 else self.frames
         save_npz(path, frames, dt=self.dt, dx=self.dx, t=self.times, batch=True, a_true=np.float64(self.a))
 

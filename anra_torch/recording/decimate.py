@@ -6,7 +6,7 @@ so a 640 x 512 px, 900-frame recording (295 million values) cannot be diagnosed 
 frames, built while the recording is read a chunk of frames at a time:
 
 - **Camera artefacts first, at full resolution.** Each chunk's spikes and dead or hot elements are
-  repaired (:func:`~anra_torch.balance.artefacts.find_artefacts`) before it is averaged: averaged first,
+  repaired (:func:`~anra_torch.balance.find_artefacts`) before it is averaged: averaged first,
   a 300 K spike or a stuck element would spread over a block and look like heat. What the copy's own
   search then finds (fixed pattern, offset steps) is handled by the diagnosis as usual.
 - **The physics survives the averaging.** A block average is a box filter followed by subsampling. A box
@@ -36,7 +36,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from anra_torch.balance.artefacts import find_artefacts
+from anra_torch.balance import find_artefacts
 from anra_torch.video import ROI, Video
 
 __all__ = ["DIAGNOSE_VALUES", "MIN_FRAMES", "camera_copy", "decimated_video", "decimation", "signal_box"]
@@ -100,7 +100,7 @@ def decimated_video(video: Video, k: int, m: int, region: ROI | None = None) -> 
     """The recording averaged over blocks of ``k x k`` pixels and ``m`` frames, its camera artefacts
     repaired at full resolution first, and what was done.
 
-    The frames are read a chunk at a time (a :class:`~anra_torch.video.lazy.LazyFrames` is never read
+    The frames are read a chunk at a time (a :class:`~anra_torch.video.LazyFrames` is never read
     whole), so memory holds one chunk and the copy.
 
     Args:

@@ -1,0 +1,44 @@
+"""The PDE balance: the heat equation balanced on the measured frames, with its noise, never solved.
+
+- :mod:`~anra_torch.balance.filters`: :class:`MatchedFilters`, the same smoothing on both sides of the PDE
+  and the bank of filtered terms (``U = dT/dt``, ``L = Lap T``, gradients, ...);
+- :mod:`~anra_torch.balance.noise`: the sensor-noise model measured from the video (:func:`measure_noise`,
+  :class:`NoiseModel`) and how it passes the filters;
+- :mod:`~anra_torch.balance.moments`: the normal equations, with the errors-in-variables correction
+  (:func:`accumulate`, the one place they are assembled);
+- :mod:`~anra_torch.balance.system`: :class:`BalanceSystem`, the balance of one video and its fits;
+- :mod:`~anra_torch.balance.artefacts`: camera artefacts found in the video and repaired first;
+- :mod:`~anra_torch.balance.batch_noise`: the noise context of a batch of videos;
+- :mod:`~anra_torch.balance.loss`: the windowed loss-rate fit of the tissue features.
+
+Shape:
+    Videos ``(B, T, H, W)``; a single video ``(T, H, W)``.
+"""
+
+from anra_torch.balance.artefacts import Artefacts, find_artefacts, stuck_pixels
+from anra_torch.balance.batch_noise import BatchNoise, batch_noise
+from anra_torch.balance.filters import MatchedFilters
+from anra_torch.balance.loss import LOSS_REPLICATES, fit_loss_windows
+from anra_torch.balance.moments import Moments, TermNoise, accumulate
+from anra_torch.balance.noise import NoiseModel, estimate_noise_sd, measure_noise
+from anra_torch.balance.system import BalanceSystem, Fit, NoiseSpec
+
+__all__ = [
+    "Artefacts",
+    "BalanceSystem",
+    "BatchNoise",
+    "Fit",
+    "LOSS_REPLICATES",
+    "MatchedFilters",
+    "Moments",
+    "NoiseModel",
+    "NoiseSpec",
+    "TermNoise",
+    "accumulate",
+    "batch_noise",
+    "estimate_noise_sd",
+    "find_artefacts",
+    "fit_loss_windows",
+    "measure_noise",
+    "stuck_pixels",
+]

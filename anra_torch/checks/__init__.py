@@ -1,0 +1,77 @@
+"""Checks shared by every public entry point, and the flags every result carries.
+
+- :mod:`~anra_torch.checks.inputs`: one place for each kind of input check and its one-line message
+  (``ValueError`` for a bad value or shape, ``TypeError`` for a wrong type);
+- :mod:`~anra_torch.checks.flags`: plausibility and model-failure flags, the warnings a result carries,
+  worded once for every command.
+"""
+
+from anra_torch.checks.flags import (
+    DEPTH_BIAS,
+    MIN_RELIABILITY,
+    MIN_SIGNIFICANCE,
+    MODEL_FAILURE_RATIO,
+    PLAUSIBLE_DIFFUSIVITY,
+    POOR_FIT,
+    depth_bias,
+    diffusivity_warnings,
+    extended_diffusivity_warning,
+    implausible_diffusivity,
+    model_failure,
+    poor_fit,
+    verdicts,
+)
+from anra_torch.checks.inputs import (
+    MAX_NON_FINITE,
+    SPACING_RANGE,
+    VALUE_LIMIT,
+    as_fields,
+    as_spacing,
+    as_video,
+    check_choice,
+    check_dtype,
+    check_int,
+    check_shape,
+    in_range_values,
+    join_messages,
+    mostly_finite,
+    number,
+    one_line,
+    positive,
+    spacing_in_range,
+    uniform_step,
+)
+
+__all__ = [
+    "DEPTH_BIAS",
+    "MAX_NON_FINITE",
+    "MIN_RELIABILITY",
+    "MIN_SIGNIFICANCE",
+    "MODEL_FAILURE_RATIO",
+    "PLAUSIBLE_DIFFUSIVITY",
+    "POOR_FIT",
+    "SPACING_RANGE",
+    "VALUE_LIMIT",
+    "as_fields",
+    "as_spacing",
+    "as_video",
+    "check_choice",
+    "check_dtype",
+    "check_int",
+    "check_shape",
+    "depth_bias",
+    "diffusivity_warnings",
+    "extended_diffusivity_warning",
+    "implausible_diffusivity",
+    "in_range_values",
+    "join_messages",
+    "model_failure",
+    "mostly_finite",
+    "number",
+    "one_line",
+    "poor_fit",
+    "positive",
+    "spacing_in_range",
+    "uniform_step",
+    "verdicts",
+]
