@@ -438,3 +438,30 @@ def test_diagnose_of_a_large_recording_reads_it_in_chunks_and_diagnoses_its_copy
     assert loaded == [] and row["status"] == "ok" and row["top_effect"] == "advection"
     assert "diagnosed on a copy averaged over 1 x 1 px and 2 frames" in row["message"]
     assert row["gain"] > 0.3 and int(float(row["frames_used"])) == 181
+
+
+@pytest.mark.slow
+def test_batch_and_estimate_agree_on_every_shared_recording(tmp_path: Path, capsys) -> None:
+    """One recording policy: ``anra batch`` and ``anra estimate`` give the same diffusivity, status and phase
+    for every recording in ../shared/data (the FLIR JPEG folders at 0.55 mm/px, the CSV box exports at an
+    assumed 10 frames/s and 0.25 mm/px)."""
+    data = Path(__file__).resolve().parents[2] / "shared" / "data"
+    cases = [(data / "laser_silicone" / name, {"dx": 0.55}) for name in ("Nov19", "Nov19_2")]
+    cases += [(path, {"dt": 0.1, "dx": 0.25}) for path in sorted((data / "flir_csv").glob("* M1.csv"))]
+    cases += [(data / "flir_csv" / "Q 100 Silver 1.csv", {"dt": 0.1, "dx": 0.25})]
+    for path, spacing in cases:
+        flags = [x for key, value in spacing.items() for x in (f"--{key}", str(value))]
+        capsys.readouterr()
+        code = main(["estimate", str(path), *flags, "--json"])
+        estimate = json.loads(capsys.readouterr().out)
+        out = tmp_path / f"{path.stem}.csv"
+        run_batch([path], out, dtype="float64", progress=False, **spacing)
+        (row,) = read_table(out)
+        several = len(estimate["phases"]) > 1
+        assert row["phase"] == (estimate["phase"] if several else None), path.name
+        assert (row["status"] == "ok") == (code == 0) == estimate["valid"], path.name
+        if estimate["diffusivity"] is None:
+            assert row["diffusivity"] is None, path.name
+        else:
+            assert row["diffusivity"] == pytest.approx(estimate["diffusivity"], rel=1e-9), path.name
+            assert int(row["frames"]) == estimate["frames"], path.name
