@@ -36,7 +36,7 @@ from anra_torch.forecast.gain import GainResult, assess_gain
 from anra_torch.forecast.small_box import fit_small_box, forecast_small_box, unresolved_bound
 from anra_torch.forecast.source_map import source_map_gain
 from anra_torch.selection import diagnose_terms, minimum_frame_size
-from anra_torch.video.lazy import LazyFrames, decimated
+from anra_torch.video.lazy import FrameSource, decimated
 from anra_torch.video.phases import MIN_PHASE_FRAMES, Phase, recording_phases
 from anra_torch.video.resample import measured_frames, measured_part
 
@@ -150,7 +150,7 @@ def find_phases(
     (:func:`~anra_torch.balance.artefacts.find_artefacts`): a spike or a hot element is not a heat source.
 
     Args:
-        frames: the recording; one read in time chunks (a :class:`~anra_torch.video.lazy.LazyFrames`, or over
+        frames: the recording; one read in time chunks (a :class:`~anra_torch.video.lazy.FrameSource`, or over
             :data:`~anra_torch.chunked.CHUNKED_VALUES` values) is looked at through a copy strided in space
             to :data:`PHASE_COPY_VALUES` values, every frame kept.
         t: frame times in s; default ``k dt`` (frame numbers without ``dt``).
@@ -161,7 +161,7 @@ def find_phases(
     Shape:
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
     """
-    if isinstance(frames, LazyFrames) or math.prod(frames.shape) > CHUNKED_VALUES:
+    if isinstance(frames, FrameSource) or math.prod(frames.shape) > CHUNKED_VALUES:
         frames = decimated(frames, PHASE_COPY_VALUES)  # a camera-sized recording is never held whole
     video = torch.as_tensor(frames)
     if t is None and dt is not None:
