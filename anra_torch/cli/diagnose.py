@@ -31,6 +31,7 @@ from anra_torch.cli.arguments import (
     json_line,
     load_input,
     number,
+    object_parameters,
     print_input,
 )
 from anra_torch.effects import equation_text
@@ -257,7 +258,7 @@ def _open(args: argparse.Namespace) -> tuple[Video, dict[str, Any] | None]:
 
     lazy = None
     if args.roi is None and args.calibration is None and not args.full_resolution:
-        lazy = lazy_video(args.video, dt=args.dt, dx=args.dx)
+        lazy = lazy_video(args.video, dt=args.dt, dx=args.dx, **object_parameters(args))
     large = lazy is not None and math.prod(lazy.frames.shape) > DIAGNOSE_VALUES
     recording = lazy if large else load_input(args)
     if args.full_resolution:

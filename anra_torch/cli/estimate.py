@@ -46,6 +46,7 @@ from anra_torch.cli.arguments import (
     integer,
     json_line,
     load_input,
+    object_parameters,
     print_input,
     relative,
 )
@@ -332,10 +333,11 @@ def _part(video: Video, phase: Phase) -> Video:
 
 
 def _open(args: argparse.Namespace) -> Video:
-    """The recording: a large ``.npy`` / uncompressed ``.npz`` left on disk to be read in chunks, else
+    """The recording: a large ``.npy`` / uncompressed ``.npz`` / FLIR sequence left on disk to be read in
+    chunks, else
     loaded and prepared (:func:`~anra_torch.cli.arguments.load_input`)."""
     if args.roi is None and args.calibration is None:
-        lazy = lazy_video(args.video, dt=args.dt, dx=args.dx)
+        lazy = lazy_video(args.video, dt=args.dt, dx=args.dx, **object_parameters(args))
         if lazy is not None and (args.precision is not None or math.prod(lazy.frames.shape) > CHUNKED_VALUES):
             return lazy
     return load_input(args)
