@@ -112,7 +112,7 @@ class CameraInfo:
             ``ir_window_transmission``, ``relative_humidity`` (a fraction), the camera's calibration
             ``planck_r1``, ``planck_b``, ``planck_f``, ``planck_o``, ``planck_r2`` and the atmosphere's
             transmission constants ``alpha1``, ``alpha2``, ``beta1``, ``beta2``, ``x``.
-        capture_time: Unix time of the capture in s, to the millisecond.
+        capture_ms: Unix time of the capture in ms (an integer: exact differences between frames).
         utc_offset_min: the camera's time zone, minutes east of UTC.
         camera: the other fields (model, serial number, lens, temperature range in degC, ...).
 
@@ -121,9 +121,14 @@ class CameraInfo:
     """
 
     planck: dict[str, float]
-    capture_time: float
+    capture_ms: int
     utc_offset_min: int
     camera: dict[str, Any]
+
+    @property
+    def capture_time(self) -> float:
+        """Unix time of the capture in s."""
+        return self.capture_ms / 1000.0
 
     def vector(self) -> np.ndarray:
         """The :data:`PLANCK_KEYS` values as one float64 vector (a row of a sequence's table).
@@ -357,7 +362,7 @@ def _camera_info(data: bytes, frame_order: str, where: str, start: int) -> Camer
         values["relative_humidity"] /= 100
     seconds, sub, zone = struct.unpack_from(order + "IIh", data, _TIME)
     camera = {name: _tag(data, order, at, kind) for name, (at, kind) in _CAMERA_TAGS.items()}
-    return CameraInfo(values, seconds + (sub & 0xFFFF) / 1000.0, -zone, camera)
+    return CameraInfo(values, 1000 * seconds + (sub & 0xFFFF), -zone, camera)
 
 
 # ------------------------------------------------------------------------------------------- counts
@@ -582,7 +587,8 @@ def object_record(
     """
     record = {}
     for name, (field, unit, scale) in _OBJECT_FIELDS.items():
-        stored = float(f"{camera.planck[field] / scale:.6g}")
+        value = camera.planck[field] / scale  # float32 in the file: K to 3e-5, so degC to 4 decimals
+        stored = round(value, 4) if unit == "degC" else float(f"{value:.6g}")
         given = getattr(objects, name) if objects is not None else None
         entry: dict[str, Any] = {"value": stored if given is None else given, "unit": unit or None}
         if given is None:

@@ -69,22 +69,31 @@ class SequenceIndex:
         path: the file.
         raws: each frame's raw image (offset and length of its counts, encoding, byte order).
         planck: each frame's :data:`~anra_torch.video.formats.flir_fff.PLANCK_KEYS` values.
-        times: each frame's capture time, Unix s.
+        ms: each frame's capture time, Unix ms.
         first: the first frame (its CameraInfo and header, for the metadata).
         warnings: what was left out (a trailing partial frame, trailing bytes), one line each.
         swapped: the layouts read byte-swapped against the documented order (``"uint16 <"``, ...).
 
     Shape:
-        ``planck`` ``(T, len(PLANCK_KEYS))``; ``times`` ``(T,)``.
+        ``planck`` ``(T, len(PLANCK_KEYS))``; ``ms`` ``(T,)``.
     """
 
     path: Path
     raws: list[RawImage]
     planck: np.ndarray
-    times: np.ndarray
+    ms: np.ndarray
     first: Frame
     warnings: list[str] = field(default_factory=list)
     swapped: list[str] = field(default_factory=list)
+
+    @property
+    def t(self) -> np.ndarray:
+        """Each frame's time in s from the first frame's (exact: from integer milliseconds).
+
+        Shape:
+            ``(T,)``.
+        """
+        return (self.ms - self.ms[0]) / 1000.0
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -177,8 +186,8 @@ def index_sequence(path: str | os.PathLike[str]) -> SequenceIndex:
     except OSError as err:
         raise ValueError(f"{path}: cannot read ({' '.join(str(err).split())})") from err
     planck = np.stack([f.camera.vector() for f in frames])
-    times = np.array([f.camera.capture_time for f in frames], dtype=np.float64)
-    return SequenceIndex(path, raws, planck, times, first, warnings, swapped)
+    ms = np.array([f.camera.capture_ms for f in frames], dtype=np.int64)
+    return SequenceIndex(path, raws, planck, ms, first, warnings, swapped)
 
 
 def _checked_order(path: Path, handle: BinaryIO, raws: list[RawImage]) -> tuple[list[RawImage], list[str]]:
@@ -310,7 +319,7 @@ def _meta(index: SequenceIndex, objects: ObjectParameters | None) -> dict[str, A
     varies = frozenset(
         k for j, k in enumerate(PLANCK_KEYS) if (index.planck[:, j] != index.planck[0, j]).any()
     )
-    t0 = index.times[0]
+    t0 = index.ms[0] / 1000.0
     zone = timedelta(minutes=first.camera.utc_offset_min)
     layouts = sorted({_layout(r) for r in index.raws})
     camera = {
@@ -354,9 +363,7 @@ def open_flir_sequence(path: Path, objects: ObjectParameters | None = None) -> R
         ValueError: see :func:`index_sequence`.
     """
     index = index_sequence(path)
-    return RawVideo(
-        frames=FLIRFrames(index, objects), t=index.times - index.times[0], meta=_meta(index, objects)
-    )
+    return RawVideo(frames=FLIRFrames(index, objects), t=index.t, meta=_meta(index, objects))
 
 
 def load_flir_sequence(path: Path, objects: ObjectParameters | None = None) -> RawVideo:
