@@ -151,6 +151,20 @@ def test_a_cut_off_last_frame_is_left_out_and_flagged(tmp_path: Path) -> None:
         load_video(path)
 
 
+def test_a_frame_without_counts_is_left_out_and_flagged(tmp_path: Path) -> None:
+    counts = counts_for(gaussian(3, 8, 8), BLACKBODY)
+    metadata_only = frame([(0x20, camera_record(BLACKBODY, "<")), (0x22, bytes(64))], "<")
+    blobs = [simple_frame(c, stamps(BLACKBODY, 0.1 * k)) for k, c in enumerate(counts)]
+    path = tmp_path / "meta.seq"
+    path.write_bytes(blobs[0] + metadata_only + blobs[1] + blobs[2])
+    video = load_video(path)
+    assert video.frames.shape == (3, 8, 8) and video.dt == pytest.approx(0.1)
+    (line,) = video.meta["input_warnings"]
+    assert line.startswith("input: the FFF frame at byte ") and line.endswith(
+        "has no RawData record: left out"
+    )
+
+
 def test_times_that_repeat_or_go_backwards_are_one_line_errors(tmp_path: Path) -> None:
     counts = counts_for(gaussian(6, 12, 12), BLACKBODY)
     for name, times, kind in [

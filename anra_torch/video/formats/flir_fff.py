@@ -75,6 +75,14 @@ class TruncatedFrame(ValueError):
     """An FFF frame whose header, directory or records run past the end of the data."""
 
 
+class IncompleteFrame(ValueError):
+    """A whole FFF frame without a RawData or CameraInfo record (``end``: where the next frame begins)."""
+
+    def __init__(self, message: str, end: int) -> None:
+        super().__init__(message)
+        self.end = end
+
+
 # ------------------------------------------------------------------------------------------ records
 @dataclass(frozen=True)
 class RawImage:
@@ -235,8 +243,9 @@ def read_frame(read: Reader, start: int = 0, *, where: str = "FFF") -> Frame:
 
     Raises:
         TruncatedFrame: the header, the directory or a record runs past the end of the data.
-        ValueError: no FFF header at ``start``, an unknown format version, no RawData or CameraInfo record,
-            or a record too short for its fields.
+        IncompleteFrame: a whole frame without a RawData or CameraInfo record.
+        ValueError: no FFF header at ``start``, an unknown format version, or a record too short for its
+            fields.
     """
     order, entries, directory_end, header = _directory(read, start, where)
     end = start + directory_end
@@ -247,12 +256,13 @@ def read_frame(read: Reader, start: int = 0, *, where: str = "FFF") -> Frame:
     missing = [
         name for kind, name in ((RAW_DATA, "RawData"), (CAMERA_INFO, "CameraInfo")) if kind not in found
     ]
-    if missing:
-        raise ValueError(f"{where}: the FFF frame at byte {start} has no {' or '.join(missing)} record")
     if len(read(end - 1, 1)) < 1:
         raise TruncatedFrame(
             f"{where}: truncated: the FFF frame at byte {start} runs past the end of the data"
         )
+    if missing:
+        text = f"{where}: the FFF frame at byte {start} has no {' or '.join(missing)} record"
+        raise IncompleteFrame(text, end)
     camera = _camera_info(read(*found[CAMERA_INFO]), order, where, start)
     creator = header[4:20].split(b"\x00", 1)[0].decode("latin-1")
     version = struct.unpack_from(order + "I", header, 0x14)[0]

@@ -13,11 +13,12 @@ with the frame's own constants, so a 6 GB recording is never held whole
 
 Every frame may have its own record layout (records in any order, several record types, big- or
 little-endian header, uint16 / PNG / JPEG-LS counts); all must have the same width and height (from
-their RawData records). A trailing partial frame (its records run past the end of the file) and trailing
-bytes that hold no frame are left out and flagged in ``meta["input_warnings"]``; bytes that hold no
-frame header but could hold a frame are a one-line error. A frame whose counts are far smoother read in
-the other byte order than documented (:func:`~anra_torch.video.formats.flir_fff.swapped_rougher`, judged
-on the first frame of each layout) is read that way, and ``meta["camera"]["counts_byteswapped"]`` says so.
+their RawData records). A trailing partial frame (its records run past the end of the file), trailing
+bytes that hold no frame, and frames without a RawData or CameraInfo record are left out and flagged in
+``meta["input_warnings"]``; bytes that hold no frame header but could hold a frame are a one-line error.
+A frame whose counts are far smoother read in the other byte order than documented
+(:func:`~anra_torch.video.formats.flir_fff.swapped_rougher`, judged on the first frame of each layout) is
+read that way, and ``meta["camera"]["counts_byteswapped"]`` says so.
 Times are each frame's capture time (s, to the millisecond) from the first frame's; ``meta["t_resolution"]``
 (0.001 s) lets :func:`~anra_torch.video.load_video` take steps that differ by that clock resolution as
 uniform.
@@ -43,6 +44,7 @@ from anra_torch.video.formats.flir_fff import (
     MAGIC,
     PLANCK_KEYS,
     Frame,
+    IncompleteFrame,
     ObjectParameters,
     RawImage,
     TruncatedFrame,
@@ -142,6 +144,10 @@ def _walk(path: Path, read: Any, size: int) -> tuple[list[Frame], list[str]]:
             break
         try:
             frame = read_frame(read, pos, where=str(path))
+        except IncompleteFrame as err:  # e.g. a frame of metadata only: no counts to read
+            warnings.append(f"input: {str(err).removeprefix(f'{path}: ')}: left out")
+            pos = _skip_zeros(read, err.end, size)
+            continue
         except TruncatedFrame:
             warnings.append(
                 f"input: frame {len(frames)} (from byte {pos}) is cut off at the end of the file "
