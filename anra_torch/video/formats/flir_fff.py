@@ -1,32 +1,28 @@
 """FLIR FFF frames: the record directory, the camera record, the raw counts and the Planck formula.
 
 An FFF frame is the container of every radiometric FLIR format: a ``.fff`` file is one, a ``.seq`` is
-several one after another, a ``.csq`` the same with JPEG-LS counts, and a radiometric JPEG carries one in
-its APP1 segments. The layout followed here is ExifTool's (``Image::ExifTool::FLIR``: ``ProcessFLIR`` and
-the ``FFF``, ``RawData`` and ``CameraInfo`` tables), checked against flirpy's ``io/fff.py`` and flyr's
-``thermal.py``:
+several one after another, a ``.csq`` the same with JPEG-LS counts, a radiometric JPEG carries one in its
+APP1 segments. The layout is ExifTool's (``Image::ExifTool::FLIR``: ``ProcessFLIR`` and the ``FFF``,
+``RawData``, ``CameraInfo`` tables), checked against flirpy's ``io/fff.py`` and flyr's ``thermal.py``:
 
 - header, 0x40 bytes: ``"FFF\\0"`` (or ``"AFF\\0"``), creator ``string[16]`` at 0x04, format version
-  ``int32u`` at 0x14 (100-199: the byte order is the one in which it reads so), record directory offset
-  ``int32u`` at 0x18 and entry count at 0x1c, offsets counted from the frame's first byte;
-- directory entry, 0x20 bytes: record type ``int16u`` (0: empty), subtype ``int16u``, version, index id,
-  record offset ``int32u`` (from the frame's first byte), record length ``int32u``, parent, object, checksum;
-- each record's own byte order is the frame's, toggled when its first ``int16u`` reads 0x100 or more
-  (it holds 2 in its own order): a big-endian frame often holds little-endian records;
-- RawData (type 0x01): width ``int16u`` at 0x02, height at 0x04, the image from 0x20: a PNG, a JPEG-LS
-  stream (``.csq``), or ``width * height`` ``uint16`` counts in the record's byte order, row 0 the top row
-  as the camera shows it. FLIR's PNGs hold their counts byte-swapped (ExifTool's note; flyr and Thermimage
-  swap them);
-- CameraInfo (type 0x20): the float and string fields of :class:`CameraInfo` at ExifTool's offsets;
-  temperatures in K, relative humidity as a fraction (a value above 2 is a percentage), the capture time
-  at 0x384 as ``int32u`` Unix seconds, ``int32u`` whose low 16 bits are milliseconds, ``int16s`` minutes
-  west of UTC.
+  ``int32u`` at 0x14 (100-199 in the frame's byte order), record directory offset ``int32u`` at 0x18 and
+  entry count at 0x1c, offsets counted from the frame's first byte;
+- directory entry, 0x20 bytes: record type ``int16u`` (0: empty), subtype, version, index id, record
+  offset ``int32u`` (from the frame's first byte), record length ``int32u``, parent, object, checksum;
+- a record's byte order is the frame's, toggled when its first ``int16u`` reads 0x100 or more (it holds 2
+  in its own order): a big-endian frame often holds little-endian records;
+- RawData (0x01): width ``int16u`` at 0x02, height at 0x04, the image from 0x20: a PNG, a JPEG-LS stream
+  (``.csq``) or ``width * height`` ``uint16`` in the record's byte order, row 0 the camera's top row.
+  FLIR's PNGs hold their counts byte-swapped (ExifTool's note; flyr and Thermimage swap them);
+- CameraInfo (0x20): the fields of :class:`CameraInfo` at ExifTool's offsets, temperatures in K, relative
+  humidity a fraction (above 2: a percentage), the capture time at 0x384: ``int32u`` Unix s, ``int32u``
+  whose low 16 bits are ms, ``int16s`` minutes west of UTC.
 
 Counts become temperatures by the Planck formula with the atmosphere's and the IR window's transmission
-as Thermimage's ``raw2temp`` and flyr compute it (the atmosphere split into two layers of half the object
-distance on either side of the window; :func:`celsius`). Emissivity, reflected apparent temperature,
-object distance, atmospheric temperature and relative humidity can be replaced after capture
-(:class:`ObjectParameters`); :func:`object_record` states which values were used and where each came from.
+as Thermimage's ``raw2temp``, flirpy and flyr compute it (:func:`celsius`). Emissivity, reflected apparent
+temperature, object distance, atmospheric temperature and relative humidity can be replaced after capture
+(:class:`ObjectParameters`); :func:`object_record` states the values used and where each came from.
 """
 
 from __future__ import annotations
@@ -152,12 +148,9 @@ class Frame:
     """One FFF frame as found: its extent, its raw image and its camera record.
 
     Attributes:
-        start: byte offset of its header.
-        end: byte after its last record (where the next frame of a sequence begins).
-        raw: the raw image (offsets from the start of the file or buffer).
-        camera: the CameraInfo record.
-        creator: the header's creator software.
-        version: the header's format version.
+        start: byte offset of its header; end: the byte after its last record (a sequence's next frame).
+        raw: the raw image (offsets from the start of the file or buffer); camera: the CameraInfo record.
+        creator: the header's creator software; version: its format version.
 
     Shape:
         No tensors.
@@ -424,12 +417,10 @@ def decode_counts(raw: RawImage, data: bytes, *, where: str = "FFF") -> np.ndarr
 
 
 def swapped_rougher(counts: np.ndarray) -> bool:
-    """Whether ``counts`` read byte-swapped would be far smoother than as given: a frame whose counts are
-    stored in the other byte order than documented (a natural scene varies by a few counts between
-    neighbours; swapped, the noisy low byte becomes the high one, steps of hundreds of counts).
-
-    True only on overwhelming evidence (mean step along rows at least 16x smaller swapped, and of at least
-    one count); a flat frame keeps the documented order.
+    """Whether ``counts`` read byte-swapped would be far smoother than as given (stored in the other byte
+    order than documented: a scene varies by a few counts between neighbours, swapped its noisy low byte
+    steps by hundreds). Only on overwhelming evidence (a mean step along rows 16x smaller swapped, and of
+    at least one count); a flat frame keeps the documented order.
 
     Shape:
         ``(..., H, W)`` ``uint16``.
@@ -459,11 +450,8 @@ def celsius(counts: np.ndarray, planck: Mapping[str, Any]) -> np.ndarray:
         ``(H, W)`` or ``(T, H, W)`` -> the same.
 
     Example:
-        >>> p = dict(emissivity=1.0, object_distance=0.0, reflected_temp=20.0, atmospheric_temp=20.0,
-        ...          ir_window_temp=20.0, ir_window_transmission=1.0, relative_humidity=0.5,
-        ...          planck_r1=21106.77, planck_b=1501.0, planck_f=1.0, planck_o=-7340.0,
-        ...          planck_r2=0.012545258, alpha1=0.006569, alpha2=0.01262, beta1=-0.002276,
-        ...          beta2=-0.00667, x=1.9)
+        >>> values = [1, 0, 20, 20, 20, 1, 0.5, 21106.77, 1501, 1, -7340, 0.012545258, 0.006569, 0.01262]
+        >>> p = dict(zip(PLANCK_KEYS, values + [-0.002276, -0.00667, 1.9]))  # Thermimage's defaults
         >>> round(float(celsius(np.array([[18109]]), p)[0, 0]), 2)
         23.62
     """
