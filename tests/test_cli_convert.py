@@ -158,3 +158,12 @@ def test_bad_requests_are_one_line_errors(tmp_path: Path, recording, capsys) -> 
         assert err.count("\n") == 1 and err.startswith("anra: error: ")
         assert re.search(pattern, err), err
     assert not list(tmp_path.glob("x.*"))  # nothing half-written
+
+
+def test_help_names_the_outputs_and_units(capsys) -> None:
+    assert main(["convert", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert all(
+        word in out
+        for word in (".npz", ".h5", ".tif", "START:STOP", "X0,Y0,W,H", "degC", "relative humidity in %")
+    )

@@ -56,7 +56,7 @@ OBJECT_FLAGS = {
     "reflected_temp": ("--reflected-temp", "DEGC", "reflected apparent temperature in degC"),
     "distance": ("--distance", "M", "object distance in m"),
     "atmospheric_temp": ("--atmospheric-temp", "DEGC", "atmospheric temperature in degC"),
-    "humidity": ("--humidity", "PERCENT", "relative humidity in %"),
+    "humidity": ("--humidity", "PERCENT", "relative humidity in %%"),
 }
 """The object parameters of a FLIR radiometric recording a user may set: keyword -> (flag, metavar, help)."""
 
