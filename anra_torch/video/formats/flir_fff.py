@@ -477,16 +477,16 @@ def celsius(counts: np.ndarray, planck: Mapping[str, Any]) -> np.ndarray:
         + (1 - wtr) / e / tau / wtr * radiance(wt)  # the window's own emission
         + (1 - tau) / e / tau / wtr / tau * atmosphere  # the atmosphere between window and camera
     )
-    signal = np.asarray(counts, dtype=np.float64) * (1 / (e * tau * wtr * tau))
-    signal -= stray - o
-    with np.errstate(divide="ignore", invalid="ignore"):
-        signal *= r2
+    # r2 (S + O) with S = counts / (e tau wtr tau) - stray, in one multiply and one subtraction
+    signal = np.multiply(counts, r2 / (e * tau * wtr * tau), dtype=np.float64)
+    signal -= (stray - o) * r2
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         np.divide(r1, signal, out=signal)
         signal += f
         np.log(signal, out=signal)
         np.divide(b, signal, out=signal)
     signal -= _KELVIN
-    signal[~np.isfinite(signal) | (signal < -_KELVIN)] = np.nan
+    signal[~((signal >= -_KELVIN) & (signal < np.inf))] = np.nan  # NaN, infinities, below 0 K
     return signal
 
 
