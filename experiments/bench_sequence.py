@@ -14,11 +14,17 @@ resident memory taken from the kernel's accounting of that child (``os.wait4``: 
 Python included), and decodes the ``.csq`` to temperatures in this process (``FLIRFrames[0:100]``, wall and
 CPU time, best of ``--repeats``). Prints one JSON object and writes it to ``--out`` when given.
 
-Usage (about 10 minutes on 2 shared cores, 6 GB of free disk)::
+Usage (6 GB of free disk; the 9000-frame estimate is about 15 CPU minutes)::
 
     OMP_NUM_THREADS=1 .venv/bin/python experiments/bench_sequence.py --out results/bench_sequence.json
 
-Measured (2 shared cores, one torch thread, commit of this script): see the report of issue 39.
+Measured with that command on 05158f3 plus this script (committed in 9afb637; 2 cores shared with 3-4
+other sessions, load average 6-16, one torch thread): ``anra estimate`` peaked at 1316.6 MiB on the
+900-frame ``.seq`` (0.59 GB, 109 s) and at 1316.6 MiB on the 9000-frame one (5.91 GB, 2748 s under that
+load): ratio 1.00 (acceptance: at most 1.5); a = 0.2001 and 0.2000 mm^2/s (true 0.2). The 100-frame
+``.csq`` decoded to temperatures in 1.09 s of CPU (2.25 s wall under load average ~10); after the Planck
+pass reduction of 255364d, 1.23 s of CPU best of 3 at load average 16 (the JPEG-LS counts alone:
+0.80-0.85 s).
 """
 
 from __future__ import annotations
