@@ -43,6 +43,9 @@ LAZY_IMPORTS = {
     "pyarrow": "the parquet extra",
     "matplotlib": "the plot extra",
     "flyr": "the formats extra",
+    "h5py": "the formats extra",
+    "tifffile": "the formats extra",
+    "imagecodecs": "the formats extra",
     "torchdiffeq": "loads scipy.integrate (0.4 s at every start of commands that integrate nothing)",
 }
 """Third-party modules a function may import (optional extras; the one measured start-up cost)."""

@@ -12,7 +12,6 @@ import math
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -426,10 +425,10 @@ def test_demo_writes_report_and_figures(
 
 
 @pytest.mark.slow
-def test_demo_full_size_is_accurate_and_quick(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    start = time.perf_counter()
+def test_demo_full_size_is_accurate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The demo's default, the paper's full frame (its speed is measured by the benchmarks, not here)."""
     code, out, err = run(capsys, "demo", "--out", tmp_path)
-    assert (code, err) == (0, "") and time.perf_counter() - start < 60
+    assert (code, err) == (0, "")
     assert "224 x 224 px" in out
     error = float(re.search(r"error ([-+][\d.e-]+) %", out).group(1))
     assert abs(error) < 1.0

@@ -236,8 +236,10 @@ def as_spacing(value: object, *, name: str, unit: str, batch: int, like: Tensor)
     return spacing.to(like.device)
 
 
-def uniform_step(times: object, *, name: str = "t", rtol: float = 1e-3) -> float:
-    """Return the constant step of increasing, uniform timestamps (s).
+def uniform_step(times: object, *, name: str = "t", rtol: float = 1e-3, atol: float = 0.0) -> float:
+    """Return the constant step of increasing, uniform timestamps (s): every step within ``rtol`` of their
+    mean, or within ``atol`` s (the clock's resolution: times kept to the millisecond step by 33 and 34 ms
+    at 30 Hz).
 
     Raises:
         ValueError: fewer than two stamps, non-finite, not strictly increasing, or non-uniform.
@@ -256,7 +258,7 @@ def uniform_step(times: object, *, name: str = "t", rtol: float = 1e-3) -> float
         )
     mean = float(steps.mean())
     spread = float((steps - mean).abs().max())
-    if spread > rtol * mean:
+    if spread > max(rtol * mean, atol):
         raise ValueError(
             f"{name} must be uniformly spaced, got steps from {float(steps.min()):g} "
             f"to {float(steps.max()):g} s; resample the video first"

@@ -1,5 +1,5 @@
-"""Command line: ``anra estimate``, ``simulate``, ``diagnose``, ``batch``, ``demo``, ``features`` (also
-``python -m anra_torch``).
+"""Command line: ``anra estimate``, ``simulate``, ``diagnose``, ``batch``, ``demo``, ``features``,
+``convert`` (also ``python -m anra_torch``).
 
 One module per command (:mod:`~anra_torch.cli.estimate`, :mod:`~anra_torch.cli.simulate`, ...), each adding
 its own subparser (``add_parser``) and running it (``run``); the flags and helpers they share are in
@@ -24,13 +24,13 @@ import torch
 
 from anra_torch import __version__
 from anra_torch.checks import one_line
-from anra_torch.cli import batch, demo, diagnose, estimate, features, simulate
+from anra_torch.cli import batch, convert, demo, diagnose, estimate, features, simulate
 from anra_torch.cli.arguments import PROG, Parser, UsageError, integer
 from anra_torch.cli.simulate import PRESETS
 
 __all__ = ["COMMANDS", "PRESETS", "build_parser", "free_cores", "main"]
 
-COMMANDS = (estimate, simulate, diagnose, batch, demo, features)
+COMMANDS = (estimate, simulate, diagnose, batch, demo, features, convert)
 """The command modules, in the order ``anra --help`` lists them."""
 
 

@@ -50,6 +50,36 @@ def add_video_arguments(parser: argparse.ArgumentParser, formats: str) -> None:
     )
     add_spacing_arguments(parser, "the file")
     add_region_arguments(parser)
+    add_object_arguments(parser)
+
+
+OBJECT_FLAGS = {
+    "emissivity": ("--emissivity", "E", "object emissivity in (0, 1]"),
+    "reflected_temp": ("--reflected-temp", "DEGC", "reflected apparent temperature in degC"),
+    "distance": ("--distance", "M", "object distance in m"),
+    "atmospheric_temp": ("--atmospheric-temp", "DEGC", "atmospheric temperature in degC"),
+    "humidity": ("--humidity", "PERCENT", "relative humidity in %%"),
+}
+"""The object parameters of a FLIR radiometric recording a user may set: keyword -> (flag, metavar, help)."""
+
+
+def add_object_arguments(parser: argparse.ArgumentParser) -> None:
+    """--emissivity, --reflected-temp, --distance, --atmospheric-temp, --humidity: the object parameters of a
+    FLIR recording (.jpg, .fff, .seq, .csq) that replace those stored in the file."""
+    for key, (flag, metavar, text) in OBJECT_FLAGS.items():
+        parser.add_argument(
+            flag,
+            dest=key,
+            type=float,
+            metavar=metavar,
+            help=f"{text} (FLIR .jpg, .fff, .seq, .csq: replaces the file's value; the output says which)",
+        )
+
+
+def object_parameters(args: argparse.Namespace) -> dict[str, float]:
+    """The object parameters given on the command line, as keywords of
+    :func:`~anra_torch.video.load_video` (none for a command without the flags)."""
+    return {key: getattr(args, key) for key in OBJECT_FLAGS if getattr(args, key, None) is not None}
 
 
 def add_region_arguments(parser: argparse.ArgumentParser) -> None:
@@ -80,6 +110,7 @@ def open_input(args: argparse.Namespace, *, need_dx: bool = True, on_disk_above:
             calibration=args.calibration,
             need_dx=need_dx,
             on_disk_above=on_disk_above,
+            **object_parameters(args),
         )
     except ValueError as err:  # the library's hint names its argument; here the flag is the fix
         raise ValueError(
@@ -88,7 +119,7 @@ def open_input(args: argparse.Namespace, *, need_dx: bool = True, on_disk_above:
 
 
 def print_input(video: Video) -> None:
-    """The human lines saying what :func:`load_input` did (resampling, region, calibration)."""
+    """The human lines saying what :func:`open_input` did (resampling, region, calibration)."""
     if video.meta.get("timestamps"):
         print(f"  timestamps: read from the folder's {video.meta['timestamps']}")
     r = video.meta.get("resampled")
@@ -100,6 +131,14 @@ def print_input(video: Video) -> None:
         )
     if video.meta.get("roi"):
         print(f"  roi (x0, y0, width, height px): {video.meta['roi']}")
+    given = {
+        k: v for k, v in (video.meta.get("object_parameters") or {}).items() if v["source"] == "argument"
+    }
+    if given:
+        shown = ", ".join(
+            f"{k} {v['value']:g}{' ' + v['unit'] if v['unit'] else ''}" for k, v in given.items()
+        )
+        print(f"  object parameters set: {shown} (the others as stored in the file)")
     c = video.meta.get("calibration")
     if c:
         print(f"  calibrated with {c['table']} ({100 * c['outside_fraction']:.1f} % of values extrapolated)")

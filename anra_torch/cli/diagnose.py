@@ -26,6 +26,7 @@ from anra_torch.cli.arguments import (
     integer,
     json_line,
     number,
+    object_parameters,
     print_input,
 )
 from anra_torch.recording import diagnose_video, open_for_diagnosis
@@ -116,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
             roi=args.roi,
             calibration=args.calibration,
             full_resolution=args.full_resolution,
+            **object_parameters(args),
         )
         done = diagnose_video(
             recording,

@@ -80,12 +80,17 @@ def open_for_diagnosis(
     roi: ROI | str | None = None,
     calibration: CalibrationTable | PathLike | None = None,
     full_resolution: bool = False,
+    **objects: float,
 ) -> tuple[Video, dict[str, Any] | None]:
     """The recording as it is diagnosed, and the record of its block-averaged copy (None when whole).
 
     Above :data:`DIAGNOSE_VALUES` pixel values (unless ``full_resolution``) the recording is replaced by
     :func:`~anra_torch.recording.camera_copy` (a large ``.npy`` / uncompressed ``.npz`` is read chunk
     by chunk, never whole); then :func:`check_memory`.
+
+    Args:
+        path, dt, dx, roi, calibration, objects: as :func:`~anra_torch.recording.open_recording`.
+        full_resolution: diagnose every pixel value, never a block-averaged copy.
 
     Shape:
         ``frames`` ``(T, H, W)`` (the copy's when decimated).

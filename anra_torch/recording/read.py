@@ -27,6 +27,7 @@ def open_recording(
     calibration: CalibrationTable | PathLike | None = None,
     need_dx: bool = True,
     on_disk_above: int | None = None,
+    **objects: float,
 ) -> Video:
     """The recording at ``path``, as every command reads it.
 
@@ -37,8 +38,11 @@ def open_recording(
         roi: analyse only this region ``(x0, y0, width, height)`` px (or ``"X0,Y0,W,H"``).
         calibration: map apparent to true temperatures (a table or a ``true,apparent`` CSV).
         need_dx: require a pixel size (False: the dose features need none).
-        on_disk_above: leave a ``.npy`` / uncompressed ``.npz`` of more pixel values than this on disk (0:
-            always; None: never). A region or a calibration always loads the recording.
+        on_disk_above: leave a ``.npy`` / uncompressed ``.npz`` / FLIR sequence of more pixel values than
+            this on disk (0: always; None: never). A region or a calibration always loads the recording.
+        **objects: a FLIR recording's object parameters replacing the file's (``emissivity``,
+            ``reflected_temp``, ``distance``, ``atmospheric_temp``, ``humidity``; see
+            :func:`~anra_torch.video.load_video`).
 
     Returns:
         A :class:`~anra_torch.video.Video`; its frames unread when left on disk.
@@ -50,7 +54,7 @@ def open_recording(
         ValueError: an unreadable file, missing spacing, a bad region or calibration (one line).
     """
     if on_disk_above is not None and roi is None and calibration is None:
-        lazy = lazy_video(path, dt=dt, dx=dx)
+        lazy = lazy_video(path, dt=dt, dx=dx, **objects)
         if lazy is not None and math.prod(lazy.frames.shape) > on_disk_above:
             return lazy
     return prepare_video(
@@ -61,12 +65,15 @@ def open_recording(
         roi=roi,
         calibration=calibration,
         need_dx=need_dx,
+        **objects,
     )
 
 
 def input_record(video: Video) -> dict[str, Any]:
     """What the reading did: ``timestamps`` (where a folder of frame files recorded its times),
     ``resampled`` (from what), ``roi`` (px), ``calibration``, ``masked_values`` (samples masked as not
-    finite or beyond +-1e6); null when not done."""
-    keys = ("timestamps", "resampled", "roi", "calibration", "masked_values")
+    finite or beyond +-1e6), ``object_parameters`` (a FLIR recording's emissivity, reflected_temp,
+    distance, atmospheric_temp, humidity: each ``value``, ``unit`` and ``source``, ``"file"`` or
+    ``"argument"``); null when not done."""
+    keys = ("timestamps", "resampled", "roi", "calibration", "masked_values", "object_parameters")
     return {key: video.meta.get(key) for key in keys}

@@ -3,7 +3,10 @@
 - :class:`Video` (frames, ``dt`` s, ``dx`` mm, timestamps, ``meta``) and its optional :class:`Truth` (what a
   simulation made it with), in :mod:`~anra_torch.video.core`;
 - :func:`load_video` (:mod:`~anra_torch.video.load`) with one module per format and the suffix registries in
-  :mod:`~anra_torch.video.formats`; :func:`save_npz`, the one ``.npz`` writer;
+  :mod:`~anra_torch.video.formats` (FLIR radiometric JPEGs, FFF frames and ``.seq`` / ``.csq`` sequences
+  through :mod:`~anra_torch.video.formats.flir_fff`, with :class:`ObjectParameters` overrides);
+  :func:`save_npz`, the one ``.npz`` writer;
+- frames left on disk (:class:`FrameSource`: :class:`LazyFrames`, :class:`FLIRFrames`), read in chunks;
 - the steps: :func:`resample_uniform` (non-uniform timestamps, :mod:`~anra_torch.video.resample`),
   :func:`crop` and pixel masks (:mod:`~anra_torch.video.roi`), calibration tables, units and pixel-size
   intervals (:mod:`~anra_torch.video.calibration`);
@@ -23,9 +26,11 @@ from anra_torch.video.calibration import (
     to_unit,
 )
 from anra_torch.video.core import PathLike, RawVideo, Truth, Video
-from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
+from anra_torch.video.formats import FOLDER_REGISTRY, LAZY_REGISTRY, RADIOMETRIC, REGISTRY
+from anra_torch.video.formats.flir_fff import ObjectParameters
+from anra_torch.video.formats.flir_seq import FLIRFrames, SequenceIndex, index_sequence
 from anra_torch.video.formats.numpy_formats import save_npz
-from anra_torch.video.lazy import LazyFrames, decimated, lazy_video
+from anra_torch.video.lazy import FrameSource, LazyFrames, decimated, lazy_npz_fields, lazy_video
 from anra_torch.video.load import TIMESTAMPS, load_video
 from anra_torch.video.phases import Phase, hot_spot_signal, recording_phases, segment_phases
 from anra_torch.video.prepare import STEPS, input_warnings, prepare_video
@@ -34,15 +39,21 @@ from anra_torch.video.roi import ROI, apply_mask, crop, dead_pixel_mask, parse_r
 
 __all__ = [
     "CalibrationTable",
+    "FLIRFrames",
     "FOLDER_REGISTRY",
+    "FrameSource",
+    "LAZY_REGISTRY",
     "LazyFrames",
+    "ObjectParameters",
     "PathLike",
     "Phase",
     "PixelSize",
+    "RADIOMETRIC",
     "REGISTRY",
     "ROI",
     "RawVideo",
     "STEPS",
+    "SequenceIndex",
     "TIMESTAMPS",
     "Truth",
     "Video",
@@ -52,7 +63,9 @@ __all__ = [
     "dead_pixel_mask",
     "decimated",
     "hot_spot_signal",
+    "index_sequence",
     "input_warnings",
+    "lazy_npz_fields",
     "lazy_video",
     "load_calibration",
     "load_video",

@@ -1,4 +1,5 @@
-"""Frames read on demand: a ``.npy`` file, or the ``frames`` of an uncompressed ``.npz``, one slice at a time.
+"""Frames read on demand: a ``.npy`` file, the ``frames`` of an uncompressed ``.npz``, or a FLIR sequence
+(``.seq``, ``.csq``, ``.fff``), one slice at a time.
 
 A camera recording (640 x 512 px, 900 frames: 1.2 GB in float32) need not sit in memory to be analysed:
 :func:`anra_torch.estimation.estimate_chunked` reads it in chunks of frames. ``numpy.load(...,
@@ -6,6 +7,10 @@ mmap_mode="r")`` would do the reading, but its mapped pages stay resident and co
 memory as the file is read; :class:`LazyFrames` reads each slice with plain file reads, so only the requested
 frames are ever in memory. ``numpy.savez`` (and :func:`~anra_torch.video.save_npz`) store arrays uncompressed,
 so their ``frames`` is read the same way; a compressed archive (``savez_compressed``) is not lazily readable.
+A FLIR sequence is indexed once and its frames decoded on demand
+(:class:`~anra_torch.video.formats.flir_seq.FLIRFrames`). Both are a :class:`FrameSource`, the one protocol
+:func:`in_memory`, :func:`frame_span`, :attr:`Video.span <anra_torch.video.Video.span>` and the chunked
+readers rely on.
 """
 
 from __future__ import annotations
@@ -14,16 +19,47 @@ import math
 import os
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from anra_torch.checks import uniform_step
-from anra_torch.video.core import Truth, Video
+from anra_torch.video.core import UNIFORM_RTOL, Truth, Video
+from anra_torch.video.formats import LAZY_REGISTRY
+from anra_torch.video.formats.flir_fff import ObjectParameters
 
-__all__ = ["LazyFrames", "decimated", "frame_span", "in_memory", "lazy_npz_fields", "lazy_video"]
+__all__ = [
+    "FrameSource",
+    "LazyFrames",
+    "decimated",
+    "frame_span",
+    "in_memory",
+    "lazy_npz_fields",
+    "lazy_video",
+]
+
+
+@runtime_checkable
+class FrameSource(Protocol):
+    """Frames ``(T, H, W)`` left on disk and read a contiguous slice at a time (:class:`LazyFrames`,
+    :class:`~anra_torch.video.formats.flir_seq.FLIRFrames`).
+
+    Shape:
+        ``shape`` ``(T, H, W)``; ``frames[a:b]`` -> ``numpy.ndarray`` ``(b - a, H, W)``.
+    """
+
+    shape: tuple[int, ...]
+    dtype: np.dtype
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, index: slice) -> np.ndarray: ...
+
+    def window(self, start: int, stop: int) -> FrameSource:
+        """Frames ``start .. stop - 1``, still unread."""
+        ...
 
 
 class LazyFrames:
@@ -108,21 +144,21 @@ class LazyFrames:
 
 
 def in_memory(frames: Any) -> Any:
-    """``frames`` in memory: a :class:`LazyFrames` read whole into a tensor, anything else as it is.
+    """``frames`` in memory: a :class:`FrameSource` read whole into a tensor, anything else as it is.
 
     Shape:
         ``(T, H, W)`` -> ``(T, H, W)``.
     """
-    return torch.as_tensor(frames[0 : len(frames)]) if isinstance(frames, LazyFrames) else frames
+    return torch.as_tensor(frames[0 : len(frames)]) if isinstance(frames, FrameSource) else frames
 
 
 def frame_span(frames: Any, start: int, stop: int) -> Any:
-    """Frames ``start .. stop - 1``: a :class:`LazyFrames` view (still unread), else a slice.
+    """Frames ``start .. stop - 1``: a :class:`FrameSource` view (still unread), else a slice.
 
     Shape:
         ``(T, H, W)`` -> ``(stop - start, H, W)``.
     """
-    return frames.window(start, stop) if isinstance(frames, LazyFrames) else frames[start:stop]
+    return frames.window(start, stop) if isinstance(frames, FrameSource) else frames[start:stop]
 
 
 def decimated(frames: Any, values: int, *, chunk_values: int = 2**19) -> Tensor:
@@ -181,10 +217,11 @@ def lazy_npz_fields(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
 
 
 def lazy_video(
-    path: str | os.PathLike[str], *, dt: float | None = None, dx: float | None = None
+    path: str | os.PathLike[str], *, dt: float | None = None, dx: float | None = None, **objects: float | None
 ) -> Video | None:
-    """The video of a ``.npy`` file or an uncompressed ``.npz`` archive with its frames left unread
-    (:class:`LazyFrames` in :attr:`Video.frames <anra_torch.video.Video.frames>`), or None when the file is
+    """The video of a ``.npy`` file, an uncompressed ``.npz`` archive or a FLIR sequence (``.seq``,
+    ``.csq``, ``.fff``: :data:`~anra_torch.video.formats.LAZY_REGISTRY`) with its frames left unread (a
+    :class:`FrameSource` in :attr:`Video.frames <anra_torch.video.Video.frames>`), or None when the file is
     not read that way: another format, a compressed archive, non-uniform timestamps, or no spacing (the
     whole-file loader then says what is wrong).
 
@@ -192,12 +229,23 @@ def lazy_video(
         path: the file.
         dt: frame period in s (overrides the file).
         dx: pixel size in mm (overrides the file).
+        **objects: a FLIR recording's object parameters that replace the file's (``emissivity``,
+            ``reflected_temp``, ``distance``, ``atmospheric_temp``, ``humidity``, as in
+            :func:`~anra_torch.video.load_video`); a file of another format is then left to the loader.
 
     Shape:
         ``frames`` ``(T, H, W)``, unread.
+
+    Raises:
+        ValueError: a FLIR sequence that cannot be indexed, or whose times repeat or go backwards; an object
+            parameter out of range.
+        TypeError: an object parameter that is not a number.
     """
     path = Path(path)
-    if path.suffix.lower() not in (".npy", ".npz") or not path.is_file():
+    params = ObjectParameters(**objects)
+    if path.suffix.lower() in LAZY_REGISTRY and path.is_file():
+        return _lazy_recording(path, dt, dx, params)
+    if path.suffix.lower() not in (".npy", ".npz") or not path.is_file() or params.given:
         return None
     try:
         frames = LazyFrames(path)
@@ -221,3 +269,33 @@ def lazy_video(
     except ValueError:
         truth = None
     return Video(frames=frames, dt=float(dt), dx=float(dx), source=path, meta=meta, truth=truth)  # type: ignore[arg-type]
+
+
+def _lazy_recording(
+    path: Path, dt: float | None, dx: float | None, objects: ObjectParameters
+) -> Video | None:
+    """A FLIR recording indexed and left unread, timed by its capture times (uniform within the clock's
+    resolution) or ``dt``; None without ``dx`` or with times that must be resampled."""
+    raw = LAZY_REGISTRY[path.suffix.lower()](path, objects=objects if objects.given else None)
+    t = np.asarray(raw.t, dtype=np.float64)
+    steps = np.diff(t)
+    if (steps <= 0).any():  # as load_video: the frames' times are checked even when dt replaces them
+        k = int(np.flatnonzero(steps <= 0)[0])
+        kind = "duplicate" if steps[k] == 0 else "unsorted"
+        raise ValueError(
+            f"{path}: {kind} timestamps: frame {k + 1} was captured at t = {t[k + 1]:.3f} s, not after frame "
+            f"{k} at {t[k]:.3f} s"
+        )
+    if dx is None or not dx > 0 or (dt is not None and not dt > 0):
+        return None
+    meta = {**raw.meta, "read": "in chunks", "dx_source": "argument"}
+    if dt is None:
+        try:
+            dt = uniform_step(t, rtol=UNIFORM_RTOL, atol=float(raw.meta.get("t_resolution", 0.0)))
+        except ValueError:
+            return None  # a single frame, or non-uniform times: the loader says so or resamples them
+        meta["dt_source"] = "t"
+        times = torch.from_numpy(t)
+    else:
+        meta["dt_source"], times = "argument", None
+    return Video(frames=raw.frames, dt=float(dt), dx=float(dx), t=times, source=path, meta=meta)

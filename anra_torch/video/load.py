@@ -27,8 +27,9 @@ import torch
 from torch import Tensor
 
 from anra_torch.checks import in_range_values, uniform_step
-from anra_torch.video.core import UNIFORM_RTOL, Loader, PathLike, Video, positive_spacing
-from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
+from anra_torch.video.core import UNIFORM_RTOL, Loader, PathLike, RawVideo, Video, positive_spacing
+from anra_torch.video.formats import FOLDER_REGISTRY, RADIOMETRIC, REGISTRY
+from anra_torch.video.formats.flir_fff import ObjectParameters
 from anra_torch.video.resample import resample_uniform
 
 __all__ = ["TIMESTAMPS", "load_video"]
@@ -110,14 +111,14 @@ def _frames(array: Any, path: Path) -> Tensor:
     return torch.from_numpy(np.ascontiguousarray(array))
 
 
-def _step_of(t: Tensor, stored: Any, path: Path, timestamps: str) -> tuple[float, bool]:
-    """The frame period (s) of timestamps ``t`` and whether to resample them; a ``dt`` stored next to
-    uniform timestamps must agree with their step."""
+def _step_of(t: Tensor, stored: Any, path: Path, timestamps: str, resolution: float) -> tuple[float, bool]:
+    """The frame period (s) of timestamps ``t`` (uniform within ``resolution`` s, the clock's) and whether
+    to resample them; a ``dt`` stored next to uniform timestamps must agree with their step."""
     if t.numel() < 2:
         raise ValueError(f"{path}: a single frame has no frame period; pass dt in s (--dt)")
     resample = False
     try:
-        step = uniform_step(t, rtol=UNIFORM_RTOL)
+        step = uniform_step(t, rtol=UNIFORM_RTOL, atol=resolution)
     except ValueError as err:
         if timestamps == "uniform":
             raise ValueError(f"{path}: {err} (timestamps='resample' or 'keep' in load_video)") from err
@@ -153,6 +154,39 @@ def _pixel_size(dx: float | None, stored: Any, path: Path, meta: dict[str, Any])
     return positive_spacing(dx if dx is not None else stored, path, "dx", "mm", where)
 
 
+def _timing(
+    raw: RawVideo, n: int, dt: float | None, path: Path, timestamps: str, meta: dict[str, Any]
+) -> tuple[Tensor | None, float, bool]:
+    """The checked timestamps (None when ``dt`` replaces them), the frame period in s and whether to
+    resample; ``meta["dt_source"]`` says where the period came from."""
+    t = _timestamps(raw.t, path, n) if raw.t is not None else None
+    if dt is not None:
+        meta["dt_source"] = "argument"
+        return None, positive_spacing(dt, path, "dt", "s", "(argument)"), False
+    if t is not None:
+        meta["dt_source"] = "t"
+        return t, *_step_of(t, raw.dt, path, timestamps, float(raw.meta.get("t_resolution", 0.0)))
+    if raw.dt is not None:
+        meta["dt_source"] = "file"
+        return None, positive_spacing(raw.dt, path, "dt", "s", "in the file"), False
+    raise ValueError(
+        f"{path}: no frame period: the file has neither 'dt' nor 't'; pass dt in s (--dt on the command line)"
+    )
+
+
+def _read(path: Path, objects: ObjectParameters) -> RawVideo:
+    """What the file's loader finds, a radiometric one given the object parameters."""
+    loader = _folder_loader_for(path) if path.is_dir() else _loader_for(path)
+    if loader in RADIOMETRIC:
+        return loader(path, objects=objects if objects.given else None)  # type: ignore[call-arg]
+    if objects.given:
+        raise ValueError(
+            f"{path}: emissivity, reflected_temp, distance, atmospheric_temp and humidity apply to FLIR "
+            "radiometric recordings (.jpg, .fff, .seq, .csq) only; this file holds temperatures or counts"
+        )
+    return loader(path)
+
+
 def load_video(
     path: PathLike,
     *,
@@ -160,6 +194,7 @@ def load_video(
     dx: float | None = None,
     timestamps: str = "uniform",
     mask_values: bool = False,
+    **objects: float | None,
 ) -> Video:
     """Read a thermal video (a file, or a folder of one file per frame); explicit ``dt`` / ``dx`` win.
 
@@ -179,6 +214,9 @@ def load_video(
         mask_values: mask the samples that cannot be measurements (:func:`~anra_torch.checks.in_range_values`)
             as read, before any resampling could blend them into their neighbours; counted in
             ``meta["masked_values"]`` when there are any.
+        **objects: ``emissivity`` (0, 1], ``reflected_temp`` (degC), ``distance`` (m), ``atmospheric_temp``
+            (degC), ``humidity`` (%): a FLIR radiometric recording's (``.jpg``, ``.fff``, ``.seq``, ``.csq``)
+            object parameters replacing the file's; ``meta["object_parameters"]`` says what was used.
 
     Returns:
         A :class:`Video` with ``frames`` as stored (integer counts stay integers; resampled frames are
@@ -191,7 +229,8 @@ def load_video(
         ValueError: missing file, unknown suffix, unreadable, truncated or corrupt file, no ``frames``, wrong
             shape or dtype, mixed frame sizes in a folder, no frame period, non-positive spacing, unsorted or
             duplicate timestamps, timestamps that are not uniform (with ``"uniform"``) or disagree with
-            ``dt``.
+            ``dt``, an object parameter out of range or given for a file that is not radiometric.
+        TypeError: an unknown object parameter, or one that is not a number.
 
     Example:
         >>> import tempfile, numpy as np
@@ -207,25 +246,10 @@ def load_video(
     path = Path(path)
     if not path.exists():
         raise ValueError(f"{path}: no such file")
-    raw = (_folder_loader_for(path) if path.is_dir() else _loader_for(path))(path)
+    raw = _read(path, ObjectParameters(**objects))
     frames = _frames(raw.frames, path)
     meta = dict(raw.meta)
-    t = _timestamps(raw.t, path, frames.shape[0]) if raw.t is not None else None
-    resample = False
-    if dt is not None:
-        step = positive_spacing(dt, path, "dt", "s", "(argument)")
-        meta["dt_source"], t = "argument", None
-    elif t is not None:
-        step, resample = _step_of(t, raw.dt, path, timestamps)
-        meta["dt_source"] = "t"
-    elif raw.dt is not None:
-        step = positive_spacing(raw.dt, path, "dt", "s", "in the file")
-        meta["dt_source"] = "file"
-    else:
-        raise ValueError(
-            f"{path}: no frame period: the file has neither 'dt' nor 't'; "
-            "pass dt in s (--dt on the command line)"
-        )
+    t, step, resample = _timing(raw, frames.shape[0], dt, path, timestamps, meta)
     spacing = _pixel_size(dx, raw.dx, path, meta)
     if mask_values:
         frames = _masked(frames, path, meta)

@@ -43,6 +43,7 @@ def prepare_video(
     roi: ROI | str | None = None,
     calibration: CalibrationTable | PathLike | None = None,
     need_dx: bool = True,
+    **objects: float | None,
 ) -> Video:
     """Read a video and prepare it for analysis: load, resample, crop to ``roi``, calibrate.
 
@@ -57,6 +58,9 @@ def prepare_video(
         calibration: a :class:`~anra_torch.video.CalibrationTable` or the path of a ``true,apparent`` CSV
             mapping apparent to true temperature; None keeps the values.
         need_dx: require a pixel size (every analysis does; False only to inspect a file).
+        **objects: the object parameters of a FLIR radiometric recording that replace the file's:
+            ``emissivity``, ``reflected_temp`` (degC), ``distance`` (m), ``atmospheric_temp`` (degC),
+            ``humidity`` (%), as in :func:`~anra_torch.video.load_video`.
 
     Returns:
         The prepared :class:`~anra_torch.video.Video`. Its ``meta`` says what was done: ``"steps"`` (the names
@@ -81,7 +85,9 @@ def prepare_video(
         >>> tuple(video.frames.shape), video.meta["steps"], video.meta["roi"]
         ((6, 3, 4), ['load', 'roi'], [2, 1, 4, 3])
     """
-    video = _spacing_checked(load_video(path, dt=dt, dx=dx, timestamps=timestamps, mask_values=True))
+    video = _spacing_checked(
+        load_video(path, dt=dt, dx=dx, timestamps=timestamps, mask_values=True, **objects)
+    )
     steps = ["load", "resample"] if "resampled" in video.meta else ["load"]
     if roi is not None:
         video = crop(video, parse_roi(roi) if isinstance(roi, str) else roi)
@@ -133,7 +139,7 @@ def input_warnings(video: Video) -> list[str]:
     """
     found: dict[str, Any] | None = video.meta.get("masked_values")
     if not found:
-        return []
+        return list(video.meta.get("input_warnings", []))  # what a loader left out (a cut-off frame)
     parts = []
     if found["non_finite"]:
         parts.append(f"{found['non_finite']} non-finite")
@@ -143,4 +149,5 @@ def input_warnings(video: Video) -> list[str]:
             f"{found['largest']:.3g}: not a measurement"
         )
     masked = found["non_finite"] + found["beyond_limit"]
-    return [f"input: {masked} of {found['samples']} samples masked ({'; '.join(parts)})"]
+    lines = [f"input: {masked} of {found['samples']} samples masked ({'; '.join(parts)})"]
+    return lines + list(video.meta.get("input_warnings", []))

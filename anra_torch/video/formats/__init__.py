@@ -4,15 +4,18 @@ Formats (suffix -> module of this package): ``.npz`` / ``.npy`` (``numpy_formats
 writer); ``.csv`` FLIR CSV exports with ``Frame N,`` blocks (``flir_csv``); ``.jpg`` FLIR radiometric JPEG, a
 folder of them is one video (``flir_jpeg``); a folder of per-frame ``.csv`` / ``.txt`` matrices
 (``matrices``); MATLAB ``.mat``, HDF5 ``.h5`` / ``.hdf5``, multi-page TIFF ``.tif`` / ``.tiff``
-(``containers``).
+(``containers``); FLIR ``.fff`` frames and ``.seq`` / ``.csq`` sequences (``flir_seq``, on ``flir_fff``).
 
-A new format is one module with a loader ``(Path) -> RawVideo`` and one entry below.
+A new format is one module with a loader ``(Path) -> RawVideo`` and one entry below. A loader in
+:data:`RADIOMETRIC` also takes ``objects`` (:class:`~anra_torch.video.formats.flir_fff.ObjectParameters`);
+one in :data:`LAZY_REGISTRY` opens a recording with its frames left unread (a frame source,
+:class:`~anra_torch.video.lazy.FrameSource`).
 """
 
 from anra_torch.video.core import Loader
-from anra_torch.video.formats import containers, flir_csv, flir_jpeg, matrices, numpy_formats
+from anra_torch.video.formats import containers, flir_csv, flir_jpeg, flir_seq, matrices, numpy_formats
 
-__all__ = ["FOLDER_REGISTRY", "REGISTRY"]
+__all__ = ["FOLDER_REGISTRY", "LAZY_REGISTRY", "RADIOMETRIC", "REGISTRY"]
 
 REGISTRY: dict[str, Loader] = {
     ".npz": numpy_formats.load_npz,
@@ -25,6 +28,9 @@ REGISTRY: dict[str, Loader] = {
     ".hdf5": containers.load_hdf5,
     ".tif": containers.load_tiff,
     ".tiff": containers.load_tiff,
+    ".fff": flir_seq.load_flir_sequence,
+    ".seq": flir_seq.load_flir_sequence,
+    ".csq": flir_seq.load_flir_sequence,
 }
 """File suffix (lower case, with the dot; may be compound such as ``.csv.gz``) -> loader."""
 
@@ -35,3 +41,17 @@ FOLDER_REGISTRY: dict[str, Loader] = {
     ".txt": matrices.load_matrix_folder,
 }
 """Suffix of the frame files inside a folder (one file per frame) -> loader of the whole folder."""
+
+RADIOMETRIC: frozenset[Loader] = frozenset(
+    {flir_jpeg.load_flir_jpeg, flir_jpeg.load_flir_jpeg_folder, flir_seq.load_flir_sequence}
+)
+"""The loaders of FLIR radiometric recordings: they take ``objects``, the object parameters that replace the
+file's (emissivity, reflected temperature, distance, atmospheric temperature, humidity)."""
+
+LAZY_REGISTRY = {
+    ".fff": flir_seq.open_flir_sequence,
+    ".seq": flir_seq.open_flir_sequence,
+    ".csq": flir_seq.open_flir_sequence,
+}
+"""Suffix -> ``(Path, objects) -> RawVideo`` whose ``frames`` are left unread (read in chunks by
+:func:`anra_torch.video.lazy.lazy_video`'s users)."""

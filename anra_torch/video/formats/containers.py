@@ -88,12 +88,14 @@ def load_hdf5(path: Path) -> RawVideo:
 
 
 def load_tiff(path: Path) -> RawVideo:
-    """Multi-page TIFF, one page per frame (ImageJ ``finterval`` in s becomes ``dt``)."""
+    """Multi-page TIFF, one page per frame (ImageJ ``finterval`` in s becomes ``dt``; the ``t``, ``dx`` and
+    ``unit`` of a JSON description, as ``anra convert`` writes them, are read too)."""
     tifffile = _require("tifffile", "TIFF files")
     try:
         with tifffile.TiffFile(path) as tif:
             frames = tif.asarray()
             imagej = tif.imagej_metadata or {}
+            shaped = {k: v for k, v in (tif.shaped_metadata or ({},))[0].items() if v is not None}
     except Exception as err:  # tifffile raises TiffFileError, ValueError, OSError... on a damaged file
         raise ValueError(
             f"{path}: cannot read as TIFF ({one_line(err, kind=True)}); the file may be truncated or corrupt"
@@ -105,4 +107,11 @@ def load_tiff(path: Path) -> RawVideo:
         raw.dt = float(imagej["finterval"])
     if "unit" in imagej and imagej["unit"] not in ("micron", "pixel", "\\u00B5m"):
         raw.meta["unit"] = str(imagej["unit"])
+    for key in ("dt", "dx", "t"):
+        if key in shaped:
+            setattr(raw, key, np.asarray(shaped[key], dtype=np.float64))
+    if "t_resolution" in shaped:
+        raw.meta["t_resolution"] = float(shaped["t_resolution"])
+    if "unit" in shaped:
+        raw.meta["unit"] = str(shaped["unit"])
     return raw
