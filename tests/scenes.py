@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from anra_torch.effects import HiddenEffectVideo, hidden_effect_video
+from anra_torch.recording import PhaseDiagnosis, diagnose_recording
 from anra_torch.simulation import gaussian_blob
 from anra_torch.simulation.camera import correlated_noise, plant
 from anra_torch.video import Video
@@ -46,6 +47,13 @@ def heated_then_cooled(
             lap = (p[1:-1, 2:] + p[1:-1, :-2] + p[2:, 1:-1] + p[:-2, 1:-1] - 4 * u) / DX**2
             u = u + h * (A * lap + (q if k < off else 0.0))
     return np.asarray(frames) + rng.normal(0, noise, (n, size, size))
+
+
+@functools.cache
+def short_heating_phases(off: int) -> tuple[PhaseDiagnosis, ...]:
+    """:func:`~anra_torch.recording.diagnose_recording` of ``heated_then_cooled(off, n=30)``: a heating of
+    ``off + 1`` frames and its cooling, analysed once per process (read only)."""
+    return tuple(diagnose_recording(torch.as_tensor(heated_then_cooled(off=off, n=30)), DT, DX))
 
 
 def quasi_steady_box(n: int = 300, size: int = 8, seed: int = 1, noise: float = 0.01) -> np.ndarray:

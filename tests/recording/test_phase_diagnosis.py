@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from scenes import DT, DX, A, heated_then_cooled, quasi_steady_box
+from scenes import DT, DX, A, heated_then_cooled, quasi_steady_box, short_heating_phases
 from shared_data import DATA, needs_data
 
 import experiments.real_data as real_data
@@ -43,15 +43,14 @@ def test_a_short_heating_keeps_seven_fit_frames_or_says_why_its_candidates_were_
     """8 heating frames leave 6 to fit (a short phase keeps 2 held out, and up to 7 to fit): too few to
     compare the source candidates inside them. Both are forecast; the parametric source is kept, and the
     warning says why (not an internal argument error). 10 frames keep 7: the comparison is made."""
-    frames = torch.as_tensor(heated_then_cooled(off=7, n=30))
-    heating = diagnose_recording(frames, DT, DX)[0]
+    heating = short_heating_phases(7)[0]
     assert (heating.phase.name, heating.phase.frames, heating.model) == ("heating", 8, "parametric")
     assert heating.result.split + 1 == 6
     (line,) = [w for w in heating.warnings if w.startswith("the source map was not compared")]
     assert "its 6 fit frames are fewer than the 7 a comparison inside them needs" in line
     mapped = heating.to_record()["candidates"]["source_map"]
     assert mapped["validation_rmse"] is None and math.isfinite(mapped["gain"])
-    longer = diagnose_recording(torch.as_tensor(heated_then_cooled(off=9, n=30)), DT, DX)[0]
+    longer = short_heating_phases(9)[0]
     assert (longer.phase.frames, longer.result.split + 1) == (10, 7)
     assert all(c["validation_rmse"] is not None for c in longer.to_record()["candidates"].values())
 

@@ -131,18 +131,3 @@ def test_report_leaves_the_pyplot_backend_alone(tmp_path: Path, case: tuple) -> 
     before = matplotlib.rcParams["backend"]
     write_estimate_report(tmp_path, video, result)
     assert matplotlib.rcParams["backend"] == before
-
-
-@pytest.mark.parametrize(
-    ("value", "error", "unit", "expected"),
-    [
-        (0.2000312, 6.13e-5, "mm^2/s", "0.200031 ± 0.000061 mm^2/s"),
-        (0.18, 0.082, "", "0.180 ± 0.082"),
-        (12.345, 1.5, "s", "12.3 ± 1.5 s"),
-        (0.2, math.nan, "", "0.2"),
-        (0.2, 0.0, "mm", "0.2 mm"),
-        (math.nan, 0.1, "mm^2/s", "n/a mm^2/s"),
-    ],
-)
-def test_format_pm(value: float, error: float, unit: str, expected: str) -> None:
-    assert format_pm(value, error, unit) == expected
