@@ -1,12 +1,18 @@
-"""Shared fixtures: a fixed seed for every test, and the two floating dtypes with their tolerances."""
+"""Shared fixtures: a fixed seed for every test, the two floating dtypes with their tolerances, and the video
+files that tests in several folders read (written once per test process where no test changes them)."""
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+
+from anra_torch.cli import main
+from anra_torch.simulation.synthetic import paper_video
+from anra_torch.video import save_npz
 
 if "PYTEST_XDIST_WORKER_COUNT" in os.environ:
     # Under `pytest -n N` each worker gets its share of the cores: torch's default (all cores per worker)
@@ -34,6 +40,38 @@ def dtype(request: pytest.FixtureRequest) -> torch.dtype:
 def tol(dtype: torch.dtype) -> float:
     """Relative tolerance for an exact-up-to-rounding comparison in ``dtype``."""
     return TOLERANCES[dtype]
+
+
+@pytest.fixture(scope="session")
+def paper96(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The paper's case cropped to its central 96 x 96 px, written by ``anra simulate`` (read only)."""
+    path = tmp_path_factory.mktemp("cli") / "paper96.npz"
+    assert main(["simulate", "--crop", "96", "-o", str(path)]) == 0
+    return path
+
+
+@pytest.fixture(scope="session")
+def video_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Folder of batch inputs (read only): 3 paper videos 64 px, one 72 px in ``sub/``, a corrupt file, a
+    .npy without dt, a text file."""
+    root = tmp_path_factory.mktemp("videos")
+    small = paper_video(n_videos=3, seed=5, crop=64)
+    for i in range(3):
+        save_npz(root / f"p{i}.npz", small.frames[i], dt=small.dt, dx=small.dx, a_true=0.2)
+    other = paper_video(n_videos=1, seed=6, crop=72)
+    (root / "sub").mkdir()
+    save_npz(root / "sub" / "q.npz", other.frames[0], dt=other.dt, dx=other.dx)
+    (root / "broken.npz").write_bytes(b"not a zip archive")
+    np.save(root / "nodt.npy", np.zeros((6, 40, 40)))
+    (root / "notes.txt").write_text("not a video")
+    return root
+
+
+@pytest.fixture
+def one_video(tmp_path: Path) -> Path:
+    """One paper video cropped to 40 px (seed 5) in the test's own folder (tests may rewrite it)."""
+    video = paper_video(n_videos=1, seed=5, crop=40)
+    return save_npz(tmp_path / "v.npz", video.frames[0], dt=video.dt, dx=video.dx)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -7,6 +7,7 @@ rounding); filters are explicit loops, ``np.correlate``, ``scipy.signal.correlat
 
 from __future__ import annotations
 
+import math
 from fractions import Fraction
 
 import numpy as np
@@ -193,3 +194,22 @@ def rtc(rate: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
         values = values / values.sum()
         result[k][ok] = values
     return out
+
+
+# ---------------------------------------------------------------------------------------- thermal dose
+A_SKIN, EA_SKIN = 3.1e98, 6.28e5
+"""Arrhenius constants of skin, 1/s and J/mol (Henriques & Moritz)."""
+
+R_GAS = 8.314462618
+"""The gas constant in J/(mol K), the SI value."""
+
+
+def cem43_constant(celsius: float, seconds: float) -> float:
+    """CEM43 (min) of ``seconds`` at a constant ``celsius``: ``R^(43 - T) t / 60``, R = 0.5 at or above
+    43 C, 0.25 below."""
+    return (0.5 if celsius >= 43.0 else 0.25) ** (43.0 - celsius) * seconds / 60.0
+
+
+def omega_constant(celsius: float, seconds: float) -> float:
+    """Arrhenius Omega (skin constants) of ``seconds`` at a constant ``celsius``: ``A exp(-Ea / R T_K) t``."""
+    return A_SKIN * math.exp(-EA_SKIN / (R_GAS * (celsius + 273.15))) * seconds

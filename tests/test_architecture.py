@@ -5,7 +5,8 @@ holds only ``__init__``, ``__main__`` and subpackages, each with a face (``__ini
 from; the subpackages form layers and every import runs down them; no two modules import each other,
 directly or around a circle (the experiments' scripts included); no module hides an import of the package
 inside a function; the ODE solver is called in one place; an effect lives in its own module and nothing
-else branches on its name or keeps a table of names; the top-level surface stays small.
+else branches on its name or keeps a table of names; the top-level surface stays small; the tests mirror
+the package, every module with its test file.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from anra_torch.effects import EFFECTS
 PACKAGE = Path(anra_torch.__file__).parent
 MODULES = sorted(PACKAGE.rglob("*.py"))
 EXPERIMENTS = PACKAGE.parent / "experiments"
+TESTS = Path(__file__).resolve().parent
 
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("checks",),
@@ -252,3 +254,39 @@ def test_the_experiments_import_each_other_without_a_circle_or_a_path_edit() -> 
 def test_the_package_never_imports_the_experiments() -> None:
     importing = [module_name(p) for p in MODULES if _experiment_imports(p)]
     assert not importing
+
+
+def mirrored_test(path: Path) -> Path | None:
+    """Where a module's tests live: ``tests/<subpackage>/test_<module>.py`` (``__main__``: ``test_main.py``).
+
+    A package's ``__init__`` that defines functions or classes (more than a face) keeps its tests in
+    ``test_<package>.py`` beside its modules'; a face that only re-exports needs none.
+    """
+    relative = path.relative_to(PACKAGE)
+    if path.name != "__init__.py":
+        return TESTS / relative.parent / f"test_{path.stem.strip('_')}.py"
+    body = ast.parse(path.read_text()).body
+    if relative.parent == Path(".") or not any(isinstance(n, ast.FunctionDef | ast.ClassDef) for n in body):
+        return None
+    return TESTS / relative.parent / f"test_{relative.parent.name}.py"
+
+
+def test_every_module_has_its_test_file_at_the_mirrored_path() -> None:
+    expected = {module_name(p): mirrored_test(p) for p in MODULES}
+    missing = sorted(f"{name}: {test.relative_to(TESTS.parent)}" for name, test in expected.items()
+                     if test is not None and not test.is_file())  # fmt: skip
+    assert not missing
+
+
+def test_every_test_file_in_a_folder_mirrors_a_module() -> None:
+    """``tests/<path>/test_<name>.py`` tests ``anra_torch/<path>/<name>.py`` (or the package ``<path>``
+    itself), ``tests/experiments/test_<name>.py`` the script ``experiments/<name>.py``; package-wide
+    tests stay at the top of ``tests/``."""
+    mirrored = {test for p in MODULES if (test := mirrored_test(p)) is not None}
+    scripts = {TESTS / "experiments" / f"test_{p.stem}.py" for p in EXPERIMENTS.glob("*.py")}
+    stray = sorted(
+        str(p.relative_to(TESTS.parent))
+        for p in TESTS.rglob("test_*.py")
+        if p.parent != TESTS and p not in mirrored | scripts
+    )
+    assert not stray

@@ -13,37 +13,18 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
-import json
-import math
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from commands import run, strict_json
 
 from anra_torch import ANRAEstimator
-from anra_torch.checks import VALUE_LIMIT, in_range_values
-from anra_torch.checks.flags import PLAUSIBLE_DIFFUSIVITY, diffusivity_warnings, model_failure
+from anra_torch.checks import VALUE_LIMIT
 from anra_torch.cli import main
-from anra_torch.cli.arguments import json_line
 from anra_torch.video import CalibrationTable, input_warnings, prepare_video
-
-
-def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def strict_json(text: str) -> dict:
-    """Parse one JSON line, refusing NaN and infinities (what ``allow_nan=False`` forbids)."""
-
-    def refuse(name: str) -> None:
-        raise AssertionError(f"non-finite number {name} in JSON")
-
-    assert text.count("\n") == 1, text
-    return json.loads(text, parse_constant=refuse)
 
 
 def one_line_error(code: int, out: str, err: str, match: str) -> None:
@@ -328,75 +309,6 @@ def test_batch_row_for_random_bytes_says_not_a_valid_zip(
     with table.open() as handle:
         (row,) = list(csv.DictReader(handle))
     assert code == 2 and "not a valid .npz (zip) file" in row["error"]
-
-
-# --------------------------------------------------------------------------------- the pieces alone
-def test_in_range_values_masks_and_counts_like_numpy() -> None:
-    rng = np.random.default_rng(0)
-    values = 30 + rng.standard_normal((5, 6, 7))
-    values[0, 0, :3] = [np.nan, np.inf, -np.inf]
-    values[1, 2, 3], values[4, 5, 6] = 2e6, -1e300
-    masked, found = in_range_values(torch.from_numpy(values))
-    bad = ~np.isfinite(values) | (np.abs(np.nan_to_num(values, posinf=0, neginf=0)) > 1e6)
-    np.testing.assert_array_equal(np.isnan(masked.numpy()), bad)
-    np.testing.assert_array_equal(masked.numpy()[~bad], values[~bad])
-    assert found == {"non_finite": 3, "beyond_limit": 2, "samples": 210, "limit": 1e6, "largest": 1e300}
-    # integer counts: kept as they are unless one is beyond the limit
-    counts = torch.tensor([[[20000, 65535]]], dtype=torch.int32)
-    assert in_range_values(counts)[0] is counts
-    big = in_range_values(torch.tensor([[[20000, 2**31 - 1]]], dtype=torch.int32))[0]
-    assert big.dtype == torch.float64 and math.isnan(big[0, 0, 1]) and big[0, 0, 0] == 20000
-    with pytest.raises(ValueError, match=r"got none: 0 non-finite and 0 beyond the limit of 0 samples"):
-        in_range_values(torch.zeros(0, 4, 4))
-
-
-def test_diffusivity_warnings_name_the_unit_mix_up() -> None:
-    low, high = PLAUSIBLE_DIFFUSIVITY
-    assert diffusivity_warnings(0.15, dt=0.04, dx=0.1) == []
-    assert (
-        diffusivity_warnings(low, dt=0.04, dx=0.1) == [] and diffusivity_warnings(high, dt=0.04, dx=0.1) == []
-    )
-    # dt in ms: a reads 1000 times too small
-    (warning,) = diffusivity_warnings(1.5e-4, dt=40.0, dx=0.1)
-    assert "likely cause: dt = 40 given in ms instead of s (dt = 0.04 s would give 0.15 mm^2/s)" in warning
-    assert warning.endswith("hardly change by lateral conduction (a flat baseline, a drift, a loss)")
-    # dx in um: a reads 1e6 times too large
-    (warning,) = diffusivity_warnings(1.5e5, dt=0.04, dx=100.0)
-    assert "likely cause: dx = 100 given in um instead of mm (dx = 0.1 mm would give 0.15 mm^2/s)" in warning
-    assert "lateral conduction" not in warning  # too large is never the data's stillness
-    # nothing explains 1e30: the generic advice
-    (warning,) = diffusivity_warnings(1e30, dt=0.04, dx=0.1)
-    assert warning.endswith("check that dt is in s, dx in mm and the frames are temperatures")
-    # negative: significant with a z-score, any with none; no warning for a non-finite value
-    assert diffusivity_warnings(-0.15, dt=0.04, dx=0.1, z=-2.0) == []
-    assert (
-        "significantly negative (-5.0 standard errors"
-        in diffusivity_warnings(-0.15, dt=0.04, dx=0.1, z=-5.0)[0]
-    )
-    assert diffusivity_warnings(-0.15, dt=0.04, dx=0.1)[0].startswith("the diffusivity is negative")
-    assert (
-        "(noise-free: a zero standard error)" in diffusivity_warnings(-0.15, dt=0.04, dx=0.1, z=-math.inf)[0]
-    )
-    assert diffusivity_warnings(math.nan, dt=0.04, dx=0.1) == []
-
-
-def test_model_failure_states_the_ratio_to_the_floor() -> None:
-    assert model_failure(0.003, 0.001) is None  # exactly 3 floors: still explained
-    assert "RMSE 0.0031 is 3.1 times the noise floor 0.001" in model_failure(0.0031, 0.001)
-    assert "is infinitely above the noise floor 0" in model_failure(0.1, 0.0)
-    assert "not finite" in model_failure(math.nan, 0.001)
-
-
-def test_json_line_never_writes_nan() -> None:
-    record = {"a": 1.0, "b": math.nan, "c": {"d": [1.0, math.inf]}, "warnings": ["x"]}
-    line = json_line(record)
-    parsed = strict_json(line + "\n")
-    assert parsed == {
-        "a": 1.0,
-        "b": None,
-        "c": {"d": [1.0, None]},
-        "warnings": ["x", "not finite, reported as null: b, c.d[1]"],
-    }
 
 
 def test_an_internal_error_is_one_line_with_exit_1(

@@ -1,0 +1,241 @@
+"""Tests for ``anra features``: the JSON object against the dose functions, --out, units and masking."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from commands import run
+from reference import A_SKIN, EA_SKIN, R_GAS, cem43_constant, omega_constant
+from shared_data import DATA
+
+from anra_torch.cli import main
+from anra_torch.layers.derivatives import GaussianSmoothing
+from anra_torch.simulation import MovingSource, simulate_tissue
+from anra_torch.tissue.dose import arrhenius_omega, cem43
+from anra_torch.tissue.features import TissueFeatures
+from anra_torch.video import save_npz
+
+DT, DX = 0.1, 0.2
+
+
+@pytest.fixture(scope="module")
+def burn() -> torch.Tensor:
+    """A source sweeping 2 mm in 2 s over tissue at 37 C, then 2 s of cooling; noise 0.02 K."""
+    u0 = torch.full((40, 40), 37.0, dtype=torch.float64)
+    source = MovingSource(start=(3.0, 4.0), end=(5.0, 4.0), width=0.6, power=40.0, t_off=2.0)
+    clean = simulate_tissue(u0, 0.1, 0.3, dx=DX, dt=DT, n_frames=41, source=source)
+    generator = torch.Generator().manual_seed(2)
+    return clean + 0.02 * torch.randn(clean.shape, generator=generator, dtype=torch.float64)
+
+
+@pytest.fixture(scope="module")
+def files(burn: torch.Tensor, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("features")
+    holed = burn.clone()
+    holed[5, 10, 10] = math.nan
+    holed[6:9, 0, 0] = math.inf
+    return {
+        "celsius": save_npz(folder / "burn.npz", burn.numpy(), dt=DT, dx=DX),
+        "kelvin": save_npz(folder / "burn_k.npz", (burn + 273.15).numpy(), dt=DT, dx=DX),
+        "holed": save_npz(folder / "holed.npz", holed.numpy(), dt=DT, dx=DX),
+        "no_dx": save_npz(folder / "no_dx.npz", burn.numpy(), dt=DT, dx=None),
+    }
+
+
+def test_json_values_match_the_dose_of_the_denoised_history(
+    files: dict[str, Path], burn: torch.Tensor, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run(capsys, "features", files["celsius"], "--json")
+    assert (code, err) == (0, "")
+    assert out.count("\n") == 1
+    record = json.loads(out)
+    assert {"cem43_minutes_max", "omega_max", "peak_temperature_max", "damaged_fraction"} <= set(record)
+    assert record["units"]["cem43_minutes_max"] == "min" and record["units"]["peak_temperature_max"] == "C"
+    assert record["units"]["omega_max"] == "1" and record["temperature_unit"] == "C"
+    assert (record["frames"], record["height"], record["width"]) == (41, 40, 40)
+    assert record["n_masked"] == 0 and record["valid"] is True and record["out"] is None
+    # Independent of the feature module: smooth with the same 1 px Gaussian, then the dose functions
+    # over the recorded span (the default rule, "linear").
+    history = GaussianSmoothing(1.0, border="reflect")(burn)
+    expected_cem = float(cem43(history, DT, rule="linear").max())
+    assert record["cem43_minutes_max"] == pytest.approx(expected_cem, rel=1e-9)
+    expected_omega = float(arrhenius_omega(history, DT, rule="linear").max())
+    assert record["omega_max"] == pytest.approx(expected_omega, rel=1e-9)
+    assert record["dose"]["rule"] == "linear" and record["dose"]["span_s"] == pytest.approx(40 * DT)
+    assert record["peak_temperature_max"] == pytest.approx(float(history.max()), rel=1e-12)
+    assert record["omega_max"] > 1 and 0 < record["damaged_fraction"] < 0.2
+
+
+def test_kelvin_needs_units_k(files: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "features", files["kelvin"], "--json")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("anra: error: ")
+    assert "--units C" in err and "--units K" in err and "310" in err
+    code, out, err = run(capsys, "features", files["kelvin"], "--json", "--units", "K")
+    assert (code, err) == (0, "")
+    kelvin = json.loads(out)
+    _, out, _ = run(capsys, "features", files["celsius"], "--json")
+    celsius = json.loads(out)
+    for key in ("cem43_minutes_max", "omega_max", "peak_temperature_max"):
+        assert kelvin[key] == pytest.approx(celsius[key], rel=1e-6)
+
+
+def test_non_finite_values_are_masked_and_reported(
+    files: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run(capsys, "features", files["holed"], "--json")
+    assert (code, err) == (0, "")
+    record = json.loads(out)
+    assert record["n_masked"] == 4 and record["masked_fraction"] == pytest.approx(4 / (41 * 40 * 40))
+    assert "4 non-finite samples masked" in record["message"]
+    assert all(v is not None for k, v in record.items() if k.endswith("_max"))
+    code, out, err = run(capsys, "features", files["holed"])
+    assert code == 0 and "note: 4 non-finite samples masked" in out
+
+
+def test_out_saves_every_map(
+    files: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    target = tmp_path / "maps"
+    code, out, err = run(capsys, "features", files["celsius"], "--out", target)
+    assert (code, err) == (0, "")
+    assert "cem43_minutes_max" in out and f"maps: {target}.npz" in out
+    saved = np.load(f"{target}.npz")
+    expected = TissueFeatures()(torch.from_numpy(np.load(files["celsius"])["frames"]), DT, DX)
+    for name, m in expected.maps.items():
+        np.testing.assert_allclose(saved[name], m.numpy(), rtol=1e-12, atol=0)
+        assert str(saved[f"units_{name}"]) == expected.units[name]
+    assert float(saved["dt"]) == DT and float(saved["dx"]) == DX
+
+
+def test_bad_input_is_one_line(
+    files: dict[str, Path], capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    # No pixel size: the dose maps only, the others absent with the reason (a trace needs no dx).
+    code, out, err = run(capsys, "features", files["no_dx"], "--json")
+    record = json.loads(out)
+    assert (code, err) == (0, "") and record["dx"] is None and record["cem43_minutes_max"] > 0
+    assert "diffusivity_max" not in record and "pass dx, --dx in mm" in record["absent"]["diffusivity"]
+    code, out, err = run(capsys, "features", tmp_path / "missing.npz")
+    assert code == 2 and "no such file" in err
+    code, out, err = run(capsys, "features", files["celsius"], "--units", "F")
+    assert code == 2 and "--units" in err and "invalid choice" in err
+
+
+@pytest.mark.skipif(
+    not (DATA / "laser_silicone").is_dir(),
+    reason="../shared/data/laser_silicone is absent",
+)
+def test_features_read_a_flir_folder_with_resampling(capsys: pytest.CaptureFixture[str]) -> None:
+    folder = DATA / "laser_silicone" / "Nov19_2"
+    # Non-uniform EXIF times are resampled by default (--resample is kept, and changes nothing).
+    assert main(["features", str(folder), "--dx", "0.55", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["input"]["resampled"]["from_frames"] == 25
+    assert main(["features", str(folder), "--dx", "0.55", "--resample", "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["frames"] == 24 and record["input"]["resampled"]["from_frames"] == 25
+    assert 200 < record["peak_temperature_max"] < 220  # the ~210 C peak of this run (data README)
+
+
+def test_a_recording_with_a_heating_and_a_cooling_reports_the_cooling_diffusivity(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The dose is the whole recording's; the global diffusivity is the source-free phase's, the same as
+    ``anra estimate`` gives, and the phases are listed."""
+    u0 = torch.full((40, 40), 37.0, dtype=torch.float64)
+    source = MovingSource(start=(4.0, 4.0), end=(4.0, 4.0), width=0.8, power=30.0, t_off=3.0)
+    clean = simulate_tissue(u0, 0.15, 0.0, dx=DX, dt=DT, n_frames=80, source=source)
+    noisy = clean + 0.01 * torch.randn(
+        clean.shape, generator=torch.Generator().manual_seed(3), dtype=clean.dtype
+    )
+    path = save_npz(tmp_path / "spot.npz", noisy.numpy(), dt=DT, dx=DX)
+    code, out, _ = run(capsys, "features", path, "--json")
+    record = json.loads(out)
+    assert code == 0 and [p["kind"] for p in record["phases"]] == ["heating", "cooling"]
+    assert record["diffusivity_phase"] == "cooling"
+    code, out, _ = run(capsys, "estimate", path, "--json")
+    estimate = json.loads(out)
+    assert estimate["phase"] == "cooling" and record["diffusivity_global"] == pytest.approx(
+        estimate["diffusivity"]
+    )
+    assert record["diffusivity_global"] == pytest.approx(0.15, rel=0.1)  # the simulation's, without perfusion
+    assert "(the cooling phase's)" in run(capsys, "features", path)[1]
+
+
+# ------------------------------------------------------------------ dose features on any frame size
+@pytest.mark.parametrize(
+    ("shape", "celsius", "minutes", "dx"),
+    [((16, 16), 43.0, 10.0, 0.5), ((3, 5), 44.0, 5.0, 0.5), ((1, 1), 42.0, 20.0, None)],
+    ids=["16x16", "3x5", "1x1-no-dx"],
+)
+def test_features_dose_works_on_any_frame_size(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    shape: tuple[int, int],
+    celsius: float,
+    minutes: float,
+    dx,
+) -> None:
+    seconds = minutes * 60.0
+    frames = np.full((round(seconds) + 1, *shape), celsius)  # 1 s apart: the record spans `seconds`
+    path = save_npz(tmp_path / "v.npz", frames, dt=1.0, dx=dx)
+    code, out, err = run(capsys, "features", path, "--json")
+    assert (code, err) == (0, "")
+    record = json.loads(out)
+    assert record["cem43_minutes_max"] == pytest.approx(cem43_constant(celsius, seconds), rel=1e-12)
+    assert record["omega_max"] == pytest.approx(omega_constant(celsius, seconds), rel=1e-12)
+    assert record["peak_temperature_max"] == pytest.approx(celsius, rel=1e-14)
+    above = seconds if celsius >= 43.0 else 0.0
+    assert record["time_above_43_max"] == pytest.approx(above) and record["time_above_50_max"] == 0.0
+    # The ANRA maps do not fit: absent, with the reason, and so said in the message.
+    assert "diffusivity_max" not in record and "loss_rate_max" not in record and record["valid"] is False
+    reason = "no pixel size" if dx is None else "frames must be at least 20 x 20 px"
+    assert set(record["absent"]) == {
+        "heating_rate",
+        "cooling_rate",
+        "rtc_attention",
+        "diffusivity",
+        "confidence",
+        "loss_rate",
+        "source",
+    }
+    assert all(reason in why for why in record["absent"].values()) and reason in record["message"]
+    code, out, err = run(capsys, "features", path, "--out", tmp_path / "maps.npz")
+    assert code == 0 and "cem43_minutes_max: " in out and "diffusivity_global: n/a" in out
+    saved = np.load(tmp_path / "maps.npz")
+    assert saved["cem43_minutes"].shape == shape and "diffusivity" not in saved.files
+
+
+# --------------------------------------------------------------- the recorded span, the constants named
+def test_features_integrate_the_recorded_span_and_name_the_constants(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = save_npz(tmp_path / "hot.npz", np.full((11, 64, 64), 60.0), dt=1.0, dx=0.5)  # 11 frames: 10 s
+    code, out, err = run(capsys, "features", path, "--json")
+    assert (code, err) == (0, "")
+    record = json.loads(out)
+    assert record["omega_max"] == pytest.approx(omega_constant(60.0, 10.0), rel=1e-12)  # 10.69
+    assert record["cem43_minutes_max"] == pytest.approx(cem43_constant(60.0, 10.0), rel=1e-12)
+    assert record["time_above_60_max"] == pytest.approx(10.0)
+    dose = record["dose"]
+    assert (dose["rule"], dose["span_s"]) == ("linear", 10.0)
+    assert (dose["arrhenius"]["A_per_s"], dose["arrhenius"]["Ea_J_per_mol"]) == (A_SKIN, EA_SKIN)
+    assert dose["arrhenius"]["R_gas_J_per_mol_K"] == R_GAS
+    assert (dose["cem43"]["R_at_or_above_43C"], dose["cem43"]["R_below_43C"]) == (0.5, 0.25)
+    assert dose["thresholds_C"] == [43.0, 50.0, 60.0] and dose["smoothing_px"] == 1.0
+    # Each frame held for dt, as an option: 11 s.
+    code, out, err = run(capsys, "features", path, "--json", "--rule", "hold")
+    held = json.loads(out)
+    assert held["omega_max"] == pytest.approx(omega_constant(60.0, 11.0), rel=1e-12)  # 11.76
+    assert (held["dose"]["rule"], held["dose"]["span_s"]) == ("hold", 11.0)
+    # One frame has no span: the message says what to do.
+    one = save_npz(tmp_path / "one.npz", np.full((1, 64, 64), 60.0), dt=1.0, dx=0.5)
+    code, out, err = run(capsys, "features", one, "--json")
+    assert code == 2 and err.count("\n") == 1 and "needs at least 2, got 1" in err and "--rule hold" in err
+    code, out, err = run(capsys, "features", one, "--json", "--rule", "hold")
+    assert code == 0 and json.loads(out)["omega_max"] == pytest.approx(omega_constant(60.0, 1.0), rel=1e-12)

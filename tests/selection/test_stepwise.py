@@ -1,0 +1,81 @@
+"""Stepwise selection (:mod:`anra_torch.selection.stepwise`) on exact solutions with white noise: the one
+effect a video holds enters, the rest do not; backward elimination drops what the others explain; the
+rules of which effects may enter together.
+
+``T = 25 + (c(x, y, t) + 3) e^(-b t)`` with ``c = 0.01 (x^3 + y^3 + 6 a t (x + y))`` solves
+``dT/dt = a Lap T - b (T - 25)``: a linear loss and nothing else.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from anra_torch.balance import BalanceSystem
+from anra_torch.selection.stepwise import Selection
+
+F64 = torch.float64
+DT, DX, A = 0.1, 0.5, 0.3  # s, mm, mm^2/s
+NAMES = ["linear_loss", "advection", "anisotropy", "nonlinear_diffusion"]
+
+
+def loss_video(b: float, seed: int = 0, size: int = 24) -> torch.Tensor:
+    t = (torch.arange(24, dtype=F64) * DT)[:, None, None]
+    y = (torch.arange(size, dtype=F64) * DX)[None, :, None] - 5.0
+    x = (torch.arange(size, dtype=F64) * DX)[None, None, :] - 6.0
+    heat = 0.01 * (x**3 + y**3 + 6 * A * t * (x + y))
+    noise = 0.01 * torch.randn(24, size, size, generator=torch.Generator().manual_seed(seed), dtype=F64)
+    return 25.0 + (heat + 3.0) * torch.exp(-b * t) + noise
+
+
+def selection(b: float) -> Selection:
+    system = BalanceSystem(loss_video(b), DT, DX, sigma=1.0, noise_sd=0.01)
+    return Selection(system, 0.01, NAMES, background=25.0)
+
+
+def test_the_loss_enters_alone_and_stays() -> None:
+    chosen = selection(0.5)
+    chosen.forward()
+    assert chosen.selected == ["linear_loss"]
+    assert chosen.scores["linear_loss"] > 1e3  # measured 2e6
+    assert all(chosen.scores[n] < chosen.thresholds[n] for n in NAMES[1:])  # measured <= 0.5
+    fit = chosen.backward()
+    assert chosen.selected == ["linear_loss"]
+    coefficients = fit.coefficients()
+    assert coefficients["T"] == pytest.approx(-0.5, rel=0.01) and coefficients["L"] == pytest.approx(
+        A, rel=0.05
+    )
+
+
+def test_pure_diffusion_selects_nothing_at_bonferroni_thresholds() -> None:
+    chosen = selection(0.0)
+    chosen.forward()
+    assert chosen.selected == []
+    assert chosen.thresholds == {n: pytest.approx(-math.log10(0.01 / 4)) for n in NAMES}  # 4 candidates
+    assert chosen.backward().columns == ("L",)
+
+
+def test_backward_elimination_drops_what_the_others_explain() -> None:
+    chosen = selection(0.5)
+    chosen.selected = ["advection", "linear_loss"]
+    fit = chosen.backward()
+    assert chosen.selected == ["linear_loss"] and fit.columns == ("L", "T", "1")
+    assert chosen.thresholds["advection"] == pytest.approx(-math.log10(0.01 / 4))
+
+
+def test_which_effects_may_enter_together() -> None:
+    chosen = selection(0.0)
+    assert chosen.allowed("anisotropy", ["linear_loss"])
+    assert not chosen.allowed("linear_loss", ["linear_loss"])
+    assert not chosen.allowed("nonlinear_diffusion", ["anisotropy"])  # both replace a Lap T
+    assert not chosen.allowed("delamination", ["linear_loss"])  # needs depth_conduction in the model
+    assert chosen.allowed("delamination", ["depth_conduction"])
+    assert chosen.columns(["linear_loss", "advection"]) == ["L", "T", "1", "T_x", "T_y"]
+    # A localised effect's positions must lie in the 12 x 12 mm frame or within a quarter of it around.
+    disc = {"x": 6.0, "y": 6.0, "radius": 2.0, "a_inside": 0.2, "a_outside": 0.3}
+    assert chosen.in_view("heterogeneity", disc)
+    assert chosen.in_view("heterogeneity", {**disc, "x": -2.9})
+    assert not chosen.in_view("heterogeneity", {**disc, "x": -3.1})
+    assert not chosen.physical("heterogeneity", {**disc, "y": 40.0})

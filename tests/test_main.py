@@ -1,0 +1,31 @@
+"""``python -m anra_torch`` and the ``anra`` script (:mod:`anra_torch.__main__`), run in a new process."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+
+@pytest.mark.slow
+def test_entry_points_run_outside_the_process(tmp_path: Path) -> None:
+    helped = subprocess.run(
+        [sys.executable, "-m", "anra_torch", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert helped.returncode == 0 and helped.stdout.startswith("usage: anra ")
+    script = Path(sys.executable).with_name("anra")
+    failed = subprocess.run(
+        [str(script), "estimate", str(tmp_path / "none.npz")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert failed.returncode == 2 and failed.stdout == ""
+    assert failed.stderr == f"anra: error: {tmp_path / 'none.npz'}: no such file\n"
