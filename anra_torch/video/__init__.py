@@ -24,6 +24,7 @@ from anra_torch.video.calibration import (
 )
 from anra_torch.video.core import PathLike, RawVideo, Truth, Video
 from anra_torch.video.formats import FOLDER_REGISTRY, REGISTRY
+from anra_torch.video.formats.flir_csv import is_flir_csv
 from anra_torch.video.formats.numpy_formats import save_npz
 from anra_torch.video.lazy import LazyFrames, decimated, lazy_video
 from anra_torch.video.load import TIMESTAMPS, load_video
@@ -53,6 +54,7 @@ __all__ = [
     "decimated",
     "hot_spot_signal",
     "input_warnings",
+    "is_flir_csv",
     "lazy_video",
     "load_calibration",
     "load_video",
