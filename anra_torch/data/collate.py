@@ -83,17 +83,18 @@ class VideoBatch:
     def mask(self) -> Tensor:
         """True on each video's own samples, False on padding, ``(B, T, H, W)`` (on the frames' device)."""
         b, t, h, w = self.frames.shape
-        sizes = self.sizes.to(self.frames.device)
-
-        def inside(n: int, axis: int) -> Tensor:
-            return torch.arange(n, device=sizes.device).unsqueeze(0) < sizes[:, axis : axis + 1]
-
-        return inside(t, 0).view(b, t, 1, 1) & inside(h, 1).view(b, 1, h, 1) & inside(w, 2).view(b, 1, 1, w)
+        return self._inside(t, 0).view(b, t, 1, 1) & self.pixel_mask.unsqueeze(1)
 
     @property
     def pixel_mask(self) -> Tensor:
         """True on each video's own pixels, ``(B, H, W)``."""
-        return self.mask[:, 0]
+        b, _, h, w = self.frames.shape
+        return self._inside(h, 1).view(b, h, 1) & self._inside(w, 2).view(b, 1, w)
+
+    def _inside(self, n: int, axis: int) -> Tensor:
+        """``(B, n)``: whether each index below ``n`` lies in each video's own size along ``axis``."""
+        sizes = self.sizes.to(self.frames.device)
+        return torch.arange(n, device=sizes.device).unsqueeze(0) < sizes[:, axis : axis + 1]
 
     @property
     def padding(self) -> Tensor:
@@ -135,8 +136,8 @@ class VideoBatch:
         """``layer(frames, dt, dx)`` with each video seeing only its own samples.
 
         One call per distinct video size (one in all when every video has the batch's size); each call gets
-        its videos cut to their own frames. The results (a tensor, a dict, a tuple of per-video values or a
-        dataclass of them, as :class:`~anra_torch.estimation.ANRAResult` and
+        its videos cut to their own frames. The results (a tensor, a tuple or dict of tensors, a tuple of
+        one value per video, or a dataclass of them, as :class:`~anra_torch.estimation.ANRAResult` and
         :class:`~anra_torch.tissue.TissueFeatureMaps`) are put back in batch order: tensors padded to the
         batch's size outside each video's own frame (NaN; False for booleans, 0 for integers), a map only
         some calls return filled likewise for the others' videos.
@@ -154,20 +155,29 @@ class VideoBatch:
         Raises:
             ValueError: what the layer raises, with the videos it was given.
         """
-        groups, which = torch.unique(self.sizes.cpu(), dim=0, return_inverse=True)
+        sizes = [tuple(row) for row in self.sizes.tolist()]
+        groups = sorted(set(sizes))
+        if groups == [tuple(self.frames.shape[1:])]:
+            return self._call(layer, list(range(len(sizes))))
         parts = []
-        for g, size in enumerate(groups.tolist()):
-            index = torch.nonzero(which == g).flatten()
-            frames = self.frames[index.to(self.frames.device)][:, : size[0], : size[1], : size[2]]
-            dx = None if self.dx is None else self.dx[index.to(self.dx.device)]
-            try:
-                parts.append((index, layer(frames, self.dt[index.to(self.dt.device)], dx)))
-            except ValueError as err:
-                names = ", ".join(str(self.sources[i].name if self.sources[i] else "<memory>") for i in index)
-                raise ValueError(f"{names}: {err}") from None
-        if len(parts) == 1 and tuple(groups[0].tolist()) == tuple(self.frames.shape[1:]):
-            return parts[0][1]
+        for t, h, w in groups:
+            members = [i for i, size in enumerate(sizes) if size == (t, h, w)]
+            parts.append((members, self._call(layer, members, (t, h, w))))
         return _merge([r for _, r in parts], [i for i, _ in parts], len(self))
+
+    def _call(
+        self, layer: Callable[..., Any], members: list[int], size: tuple[int, ...] | None = None
+    ) -> Any:
+        """``layer`` on the videos ``members`` cut to ``size``; its ValueError names them."""
+        index = torch.tensor(members, device=self.frames.device)
+        frames = self.frames if size is None else self.frames[index][:, : size[0], : size[1], : size[2]]
+        dt = self.dt if size is None else self.dt[index.to(self.dt.device)]
+        dx = self.dx if size is None or self.dx is None else self.dx[index.to(self.dx.device)]
+        try:
+            return layer(frames, dt, dx)
+        except ValueError as err:
+            names = ", ".join(self.sources[i].name if self.sources[i] else "<memory>" for i in members)
+            raise ValueError(f"{names}: {err}") from None
 
 
 # -------------------------------------------------------------------------------------------- collate
@@ -206,7 +216,7 @@ def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | 
         )
     if dtype is not None and not dtype.is_floating_point:
         raise TypeError(f"dtype must be a floating dtype, got {dtype}")
-    videos = [v.loaded() for v in videos]
+    videos = [replace(v, frames=_tensor(v.loaded().frames)) for v in videos]
     shapes = [tuple(v.frames.shape) for v in videos]
     if len(set(shapes)) > 1 and mode == "same":
         raise ValueError(
@@ -214,6 +224,7 @@ def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | 
             "mode='pad' or 'crop' batches them"
         )
     dtype = dtype or _common_dtype(videos)
+    device = videos[0].frames.device  # every tensor of the batch is made there
     mode = "same" if len(set(shapes)) == 1 else mode
     if mode == "crop":
         target = tuple(min(s[k] for s in shapes) for k in range(3))
@@ -222,14 +233,14 @@ def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | 
     else:
         target = tuple(max(s[k] for s in shapes) for k in range(3))
         offsets = [(0, 0)] * len(videos)
-    frames = torch.stack([_padded(torch.as_tensor(v.frames).to(dtype), target) for v in videos])
-    times = torch.stack([_padded(_times(v), target[:1]) for v in videos])
-    sizes = torch.tensor([tuple(v.frames.shape) for v in videos], dtype=torch.int64)
-    labels = _labels(videos, shapes, offsets, target)
+    frames = torch.stack([_padded(v.frames.to(device, dtype), target) for v in videos])
+    times = torch.stack([_padded(_times(v, device), target[:1]) for v in videos])
+    sizes = torch.tensor([tuple(v.frames.shape) for v in videos], dtype=torch.int64, device=device)
+    labels = _labels(videos, shapes, offsets, target, device)
     return VideoBatch(
         frames=frames,
-        dt=torch.tensor([v.dt for v in videos], dtype=_F64),
-        dx=_pixel_sizes(videos),
+        dt=torch.tensor([v.dt for v in videos], dtype=_F64, device=device),
+        dx=_pixel_sizes(videos, device),
         t=times,
         sizes=sizes,
         labels=labels,
@@ -239,10 +250,16 @@ def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | 
     )
 
 
+def _tensor(frames: Any) -> Tensor:
+    """Frames as a tensor: a tensor as it is (``torch.as_tensor`` would move it to the default device),
+    an array on the CPU."""
+    return frames if isinstance(frames, Tensor) else torch.as_tensor(frames, device="cpu")
+
+
 def _common_dtype(videos: Sequence[Video]) -> torch.dtype:
-    dtype = torch.as_tensor(videos[0].frames).dtype
+    dtype = videos[0].frames.dtype
     for video in videos[1:]:
-        dtype = torch.promote_types(dtype, torch.as_tensor(video.frames).dtype)
+        dtype = torch.promote_types(dtype, video.frames.dtype)
     if not dtype.is_floating_point:
         return torch.get_default_dtype()
     return dtype if dtype in (torch.float32, _F64) else torch.float32
@@ -269,13 +286,13 @@ def _padded(x: Tensor, target: Sequence[int]) -> Tensor:
     return F.pad(x, pad, value=float("nan") if x.is_floating_point() else 0)
 
 
-def _times(video: Video) -> Tensor:
+def _times(video: Video, device: torch.device) -> Tensor:
     if video.t is not None:
-        return video.t.to(_F64)
-    return torch.arange(video.frames.shape[0], dtype=_F64) * video.dt
+        return video.t.to(device, _F64)
+    return torch.arange(video.frames.shape[0], dtype=_F64, device=device) * video.dt
 
 
-def _pixel_sizes(videos: Sequence[Video]) -> Tensor | None:
+def _pixel_sizes(videos: Sequence[Video], device: torch.device) -> Tensor | None:
     known = [v.dx is not None for v in videos]
     if not any(known):
         return None
@@ -285,7 +302,7 @@ def _pixel_sizes(videos: Sequence[Video]) -> Tensor | None:
             f"dx: {without} have no pixel size while the other videos have one; give dx "
             "(ThermalVideoDataset(dx=...) or a manifest's dx column)"
         )
-    return torch.tensor([v.dx for v in videos], dtype=_F64)
+    return torch.tensor([v.dx for v in videos], dtype=_F64, device=device)
 
 
 def _labels(
@@ -293,6 +310,7 @@ def _labels(
     shapes: Sequence[tuple[int, ...]],
     offsets: Sequence[tuple[int, int]],
     target: tuple,
+    device: torch.device,
 ) -> dict[str, Any]:
     """Each label over the batch: numbers -> ``(B,)``, tensors stacked (per-pixel maps cropped or padded
     with their video), anything else a tuple."""
@@ -305,7 +323,8 @@ def _labels(
         if all(isinstance(x, bool | int | float) or x is None for x in values) and any(
             x is not None for x in values
         ):
-            out[name] = torch.tensor([math.nan if x is None else float(x) for x in values], dtype=_F64)
+            numbers = [math.nan if x is None else float(x) for x in values]
+            out[name] = torch.tensor(numbers, dtype=_F64, device=device)
         elif all(isinstance(x, Tensor) for x in values):
             out[name] = _tensor_label(name, values, shapes, offsets, target)
         else:
@@ -330,7 +349,7 @@ def _tensor_label(
 
 
 # ---------------------------------------------------------------------------------------------- merge
-def _merge(values: list[Any], indices: list[Tensor], batch: int) -> Any:
+def _merge(values: list[Any], indices: list[list[int]], batch: int) -> Any:
     """Per-group results of :meth:`VideoBatch.apply` back in batch order (see there)."""
     present = [v for v in values if v is not None]
     if not present:
@@ -346,24 +365,26 @@ def _merge(values: list[Any], indices: list[Tensor], batch: int) -> Any:
         for value in present:
             keys |= dict.fromkeys(value)
         return {k: _merge([None if v is None else v.get(k) for v in values], indices, batch) for k in keys}
+    if isinstance(first, tuple | list) and first and all(isinstance(x, Tensor) for x in first):  # (a, b)
+        return type(first)(_merge([v[k] for v in values], indices, batch) for k in range(len(first)))
     if isinstance(first, tuple | list) and all(
         v is not None and len(v) == len(i) for v, i in zip(values, indices, strict=True)
-    ):
+    ):  # one value per video (messages, records)
         out: list[Any] = [None] * batch
         for value, index in zip(values, indices, strict=True):
-            for item, i in zip(value, index.tolist(), strict=True):
+            for item, i in zip(value, index, strict=True):
                 out[i] = item
         return type(first)(out)
     return first
 
 
-def _merge_tensors(values: list[Tensor | None], indices: list[Tensor], batch: int) -> Tensor:
+def _merge_tensors(values: list[Tensor | None], indices: list[list[int]], batch: int) -> Tensor:
     first = next(v for v in values if v is not None)
     shape = [max(v.shape[k] for v in values if v is not None) for k in range(1, first.ndim)]
     fill = False if first.dtype == torch.bool else (math.nan if first.is_floating_point() else 0)
     out = torch.full((batch, *shape), fill, dtype=first.dtype, device=first.device)
     for value, index in zip(values, indices, strict=True):
         if value is not None:
-            region = (index.to(out.device), *(slice(0, n) for n in value.shape[1:]))
+            region = (torch.tensor(index, device=out.device), *(slice(0, n) for n in value.shape[1:]))
             out[region] = value
     return out

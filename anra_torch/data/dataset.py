@@ -93,9 +93,9 @@ class ThermalVideoDataset(Dataset):
     Raises:
         TypeError: a source that is not a path, a pattern or a sequence of paths; a transform that is not
             callable.
-        ValueError: a missing source, no video found, a manifest without a ``path`` column, a manifest
-            spacing that is not a positive number, a non-positive ``dt`` / ``dx``, an unknown
-            ``collate_mode``.
+        ValueError: a missing source, no video found, a manifest row without a path or with a spacing that
+            is not a positive number, a non-positive ``dt`` / ``dx``, an unknown ``collate_mode``. (A
+            ``.csv`` without a ``path`` column is a video, not a manifest: it is read as a FLIR export.)
 
     Example:
         >>> import tempfile, numpy as np

@@ -109,7 +109,8 @@ class Resample:
         if video.t is None:
             if self.dt is None or abs(self.dt - video.dt) <= 1e-9 * video.dt:
                 return video
-            video = replace(video, t=torch.arange(video.frames.shape[0], dtype=torch.float64) * video.dt)
+            steps = torch.arange(video.frames.shape[0], dtype=torch.float64, device=video.frames.device)
+            video = replace(video, t=steps * video.dt)
         return resample_uniform(video, self.dt, method=self.method)
 
 

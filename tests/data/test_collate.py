@@ -163,6 +163,19 @@ def test_dtype_device_and_pinning() -> None:
     assert moved.dt.dtype == torch.float64 and moved.mask.device.type == "meta"
 
 
+def test_a_batch_is_made_on_the_videos_device_whatever_the_default() -> None:
+    videos = [video(8, 20, 20, 0.1, seed=0, grade=1.0), video(6, 20, 24, 0.2, seed=1, grade=2.0)]
+    torch.set_default_device("meta")  # a tensor made without a device would land here
+    try:
+        batch, cropped = collate(videos), collate(videos, mode="crop")
+        made = [batch.frames, batch.dt, batch.dx, batch.t, batch.sizes, batch.labels["grade"], batch.mask]
+        made += [batch.padding, cropped.frames, *batch.apply(lambda f, dt, dx: (f.mean(1), dt))]
+    finally:
+        torch.set_default_device(None)
+    assert {x.device.type for x in made} == {"cpu"}
+    assert torch.equal(batch.frames[0, :8, :, :20], videos[0].frames) and batch.padding.tolist() == [640, 960]
+
+
 def test_errors_are_one_line() -> None:
     one, other = video(8, 20, 20, 0.1), video(8, 20, 24, 0.1)
     with pytest.raises(ValueError, match=r"mode must be one of pad, crop, same, got 'stretch'"):
