@@ -18,10 +18,12 @@ The names here are the everyday ones; everything else lives in its subpackage, b
   the source map, Problem-1 refinement);
 - :mod:`anra_torch.video`: loading and preparing recordings; :mod:`anra_torch.tissue.features`,
   :mod:`anra_torch.tissue.dose`, :mod:`anra_torch.tissue.learned`: tissue features and damage;
+- :mod:`anra_torch.data`: :class:`ThermalVideoDataset` and batches for ``torch.utils.data.DataLoader``;
 - :mod:`anra_torch.batch`, :mod:`anra_torch.report`, :mod:`anra_torch.cli`.
 """
 
 from anra_torch.batch import run_batch
+from anra_torch.data import ThermalVideoDataset
 from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
 from anra_torch.estimation import ANRAEstimator, ANRAResult, StreamingEstimator
 from anra_torch.forecast import GainResult, assess_gain
@@ -40,6 +42,7 @@ __all__ = [
     "Effect",
     "GainResult",
     "StreamingEstimator",
+    "ThermalVideoDataset",
     "TissueFeatures",
     "Video",
     "assess_gain",

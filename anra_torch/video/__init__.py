@@ -27,6 +27,7 @@ from anra_torch.video.calibration import (
 )
 from anra_torch.video.core import PathLike, RawVideo, Truth, Video
 from anra_torch.video.formats import FOLDER_REGISTRY, LAZY_REGISTRY, RADIOMETRIC, REGISTRY
+from anra_torch.video.formats.flir_csv import is_flir_csv
 from anra_torch.video.formats.flir_fff import ObjectParameters
 from anra_torch.video.formats.flir_seq import FLIRFrames, SequenceIndex, index_sequence
 from anra_torch.video.formats.numpy_formats import save_npz
@@ -65,6 +66,7 @@ __all__ = [
     "hot_spot_signal",
     "index_sequence",
     "input_warnings",
+    "is_flir_csv",
     "lazy_npz_fields",
     "lazy_video",
     "load_calibration",

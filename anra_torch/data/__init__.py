@@ -1,0 +1,46 @@
+"""Thermal videos for ``torch.utils.data``: a dataset over files, batches that the layers take, transforms.
+
+- :mod:`~anra_torch.data.dataset`: :class:`ThermalVideoDataset` over a folder, a glob, a manifest CSV or a
+  list of paths; read lazily, item by item, by the recording policy of every command, and worker-safe
+  (``DataLoader(num_workers=2)``); items are :class:`~anra_torch.video.Video` with their times, spacing and
+  labels (``meta["labels"]``);
+- :mod:`~anra_torch.data.collate`: :func:`collate` into a :class:`VideoBatch` (videos of one shape stacked;
+  of different shapes padded with NaN or cropped), and :meth:`VideoBatch.apply`, which runs
+  :class:`~anra_torch.estimation.ANRAEstimator` or :class:`~anra_torch.tissue.TissueFeatures` with each video
+  seeing only its own samples;
+- :mod:`~anra_torch.data.transforms`: :class:`RegionOfInterest`, :class:`Resample`, :class:`SelectPhase`,
+  :class:`Compose`, by the library's own steps.
+
+Example:
+    >>> import tempfile, numpy as np
+    >>> from torch.utils.data import DataLoader
+    >>> from anra_torch.video import save_npz
+    >>> folder = tempfile.mkdtemp()
+    >>> for k in range(4):
+    ...     _ = save_npz(f"{folder}/v{k}.npz", np.zeros((8, 24, 24 + 4 * k)), dt=0.1, dx=0.2)
+    >>> dataset = ThermalVideoDataset(folder)
+    >>> batch = next(iter(DataLoader(dataset, batch_size=4, collate_fn=dataset.collate)))
+    >>> tuple(batch.frames.shape), batch.mode, batch.padding.tolist()
+    ((4, 8, 24, 36), 'pad', [2304, 1536, 768, 0])
+
+Shape:
+    Items ``(T, H, W)``; batches ``(B, T, H, W)``.
+"""
+
+from anra_torch.data.collate import COLLATE_MODES, VideoBatch, collate
+from anra_torch.data.dataset import MANIFEST_SPACING, ThermalVideoDataset, read_labels
+from anra_torch.data.transforms import PHASES, Compose, RegionOfInterest, Resample, SelectPhase
+
+__all__ = [
+    "COLLATE_MODES",
+    "MANIFEST_SPACING",
+    "PHASES",
+    "Compose",
+    "RegionOfInterest",
+    "Resample",
+    "SelectPhase",
+    "ThermalVideoDataset",
+    "VideoBatch",
+    "collate",
+    "read_labels",
+]
