@@ -161,6 +161,7 @@ class MatchedFilters(nn.Module):
         self.gradient = Gradient(laplacian_size, border=border)
         self.second = SecondDerivatives(laplacian_size, border=border)
         self._inner: dict[tuple[str, ...], Tensor] = {}
+        self._spectral: dict[tuple, tuple[Tensor, Tensor]] = {}  # transfers by frame size, device, dtype
 
     @property
     def sigma(self) -> float:

