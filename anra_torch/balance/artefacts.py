@@ -47,7 +47,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from anra_torch.balance.noise import fourth_difference, robust_sd, row_medians
+from anra_torch.balance.noise import robust_sd, row_medians, sampled_fourth_difference
 
 __all__ = ["OUTLIER_Z", "PIXEL_EFFECTS_FRAMES", "RESOLUTION", "Artefacts", "find_artefacts", "stuck_pixels"]
 
@@ -175,9 +175,11 @@ def _bad_pixels(frames: Tensor, finite: Tensor | None, floor: float = 0.0) -> Te
 def _quadratic_predictor() -> Tensor:
     """5 x 5 weights (zero centre) of the least-squares quadratic through the 24 neighbours, at the centre."""
     offsets = [(i, j) for i in range(-2, 3) for j in range(-2, 3) if (i, j) != (0, 0)]
-    design = torch.tensor([[1, j, i, j * j, i * j, i * i] for i, j in offsets], dtype=torch.float64)
+    design = torch.tensor(
+        [[1, j, i, j * j, i * j, i * i] for i, j in offsets], dtype=torch.float64, device="cpu"
+    )
     weights = torch.linalg.pinv(design)[0]
-    kernel = torch.zeros(5, 5, dtype=torch.float64)
+    kernel = torch.zeros(5, 5, dtype=torch.float64, device="cpu")
     for (i, j), w in zip(offsets, weights, strict=True):
         kernel[i + 2, j + 2] = w
     return kernel
@@ -233,7 +235,7 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
     passes over the video.
     """
     t, h, w = frames.shape
-    none = torch.zeros(0, 3, dtype=torch.long), frames.new_zeros(0)
+    none = torch.zeros(0, 3, dtype=torch.long, device=frames.device), frames.new_zeros(0)
     if t < 5:
         return none
     second = frames[1:-1] - 0.5 * (frames[:-2] + frames[2:])
@@ -260,7 +262,8 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
     # neighbours' (a smooth field's second differences are smooth too, even at a sharp, fast-changing
     # peak), by most of its own size.
     padded = F.pad(second[:, None], (2, 2, 2, 2), mode="replicate")[:, 0]
-    rows, cols = i[:, None] + torch.arange(5), j[:, None] + torch.arange(5)
+    five = torch.arange(5, device=frames.device)
+    rows, cols = i[:, None] + five, j[:, None] + five
     patch = padded[(k - 1)[:, None, None], rows[:, :, None], cols[:, None, :]]  # (N, 5, 5)
     own = patch[:, 2, 2]
     isolated = (own - (patch * _QUADRATIC_PREDICTOR.to(frames.dtype)).sum((1, 2))).abs()
@@ -289,11 +292,10 @@ def _fixed_pattern(frames: Tensor, floor: float = 0.0) -> tuple[bool, float]:
 
     def roughness(x: Tensor) -> float:
         axes = []
-        for d in (-2, -1):
-            fourth = fourth_difference(x, d)
-            centre = quiet.narrow(d, 2, fourth.shape[d])
-            axes.append(robust_sd(fourth[..., centre]))
-        return float(torch.tensor(axes).median()) / 70**0.5
+        for d in (-2, -1):  # the differences at the sampled quiet pixels only
+            centre = quiet.narrow(d, 2, x.shape[d] - 4)
+            axes.append(robust_sd(sampled_fourth_difference(x, d, where=centre), sample=None))
+        return float(torch.tensor(axes, device="cpu").median()) / 70**0.5
 
     static, moving = roughness(mean), roughness(frames[:: max(1, t // 16)] - mean)
     found = static > _PATTERN_RATIO * moving * (torch.pi / (2 * t)) ** 0.5 and static > 0.85 * moving
@@ -313,7 +315,7 @@ def _steps(frames: Tensor, floor: float = 0.0) -> tuple[tuple[int, ...], tuple[f
     trend = padded.unfold(0, 7, 1).median(-1).values
     jump = change - trend
     scale = robust_sd(jump, sample=None)
-    noise = robust_sd(fourth_difference(sub, 0)) / 70**0.5 / sub[0].numel() ** 0.5
+    noise = robust_sd(sampled_fourth_difference(sub, 0), sample=None) / 70**0.5 / sub[0].numel() ** 0.5
     threshold = max(OUTLIER_Z * max(scale, noise), floor)
     index = (jump.abs() > threshold).nonzero().flatten().tolist()
     return tuple(k + 1 for k in index), tuple(float(jump[k]) for k in index)

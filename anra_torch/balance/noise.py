@@ -12,7 +12,7 @@ from torch import Tensor
 
 from anra_torch.checks import as_video
 
-__all__ = ["NoiseModel", "estimate_noise_sd", "measure_noise"]
+__all__ = ["NoiseModel", "estimate_noise_sd", "measure_noise", "row_medians", "sampled_fourth_difference"]
 
 # Fourth difference [1, -4, 6, -4, 1]: annihilates cubics, so smooth thermal fields barely leak in.
 _TAPS = (1.0, -4.0, 6.0, -4.0, 1.0)
@@ -43,7 +43,7 @@ def row_medians(x: Tensor, valid: Tensor | None = None) -> Tensor:
     if x.device.type != "cpu" or x.numel() == 0:
         return x.median(1).values if valid is None else torch.where(valid, x, torch.nan).nanmedian(1).values
     values = x.detach() if valid is None else torch.where(valid, x.detach(), torch.inf)  # invalid: last
-    count = torch.full((x.shape[0],), x.shape[1]) if valid is None else valid.sum(1)
+    count = torch.full((x.shape[0],), x.shape[1], device="cpu") if valid is None else valid.sum(1)
     rank = ((count - 1).clamp_min(0) // 2).numpy()
     chosen = np.partition(values.numpy(), np.unique(rank), axis=1)[np.arange(x.shape[0]), rank]
     out = torch.from_numpy(np.ascontiguousarray(chosen)).to(x.dtype)
@@ -78,18 +78,24 @@ def estimate_noise_sd(frames: Tensor, *, mask: Tensor | None = None) -> Tensor:
         ``(B, T, H, W)`` -> ``(B,)``.
     """
     video, batched = as_video(frames, name="frames")
-    finite = torch.isfinite(video)
-    if mask is not None:
-        finite = finite & mask.reshape(video.shape).to(torch.bool)
-    everywhere = bool(finite.all())
+    # One sum tells a video without non-finite samples (inf and NaN carry through it): no masks then.
+    everywhere = mask is None and bool(torch.isfinite(video.sum()))
+    finite = None
+    if not everywhere:
+        finite = torch.isfinite(video)
+        if mask is not None:
+            finite = finite & mask.reshape(video.shape).to(torch.bool)
+        everywhere = bool(finite.all())
     clean = video if everywhere else torch.where(finite, video, torch.zeros_like(video))
     estimates = []
     for dim in (1, 2, 3):
         if video.shape[dim] < 5:
             continue
-        diff, ok = _fourth_difference(clean, finite, dim)
-        # no NaN to skip: the plain median is the same number, without a masked copy
-        median = row_medians(diff.abs().flatten(1), None if everywhere else ok.flatten(1))
+        if everywhere:  # no NaN to skip: the plain median is the same number, without a masked copy
+            median = row_medians(_taps_sum(clean, dim, 1).abs_().flatten(1))
+        else:
+            diff, ok = _fourth_difference(clean, finite, dim)
+            median = row_medians(diff.abs().flatten(1), ok.flatten(1))
         estimates.append(median * (_MAD_TO_SD / _GAIN))
     if not estimates:
         raise ValueError(
@@ -183,15 +189,15 @@ class NoiseModel:
 
     def time_kernel(self) -> Tensor:
         """``rho_t(tau)`` for ``tau = -m .. m``, float64."""
-        half = torch.tensor(self.time_corr, dtype=torch.float64)
-        return torch.cat([half.flip(0), torch.ones(1, dtype=torch.float64), half])
+        half = torch.tensor(self.time_corr, dtype=torch.float64, device="cpu")
+        return torch.cat([half.flip(0), torch.ones(1, dtype=torch.float64, device="cpu"), half])
 
     def space_kernel(self) -> Tensor:
         """``rho_s(d)`` for ``d = -r .. r`` px (``r`` = 4 lengths), float64."""
         if self.space_length == 0.0:
-            return torch.ones(1, dtype=torch.float64)
+            return torch.ones(1, dtype=torch.float64, device="cpu")
         r = max(1, math.ceil(4.0 * self.space_length))
-        d = torch.arange(-r, r + 1, dtype=torch.float64)
+        d = torch.arange(-r, r + 1, dtype=torch.float64, device="cpu")
         return torch.exp(-(d**2) / (2.0 * self.space_length**2))
 
     def correlate(self, x: Tensor) -> Tensor:
@@ -274,6 +280,38 @@ def fourth_difference(x: Tensor, dim: int, stride: int = 1) -> Tensor:
     """Fourth difference ``[1, -4, 6, -4, 1]`` of ``x`` along ``dim`` at ``stride`` (valid part: shorter by
     ``4 stride``); it annihilates cubics, so a smooth thermal field barely leaks into it."""
     return _taps_sum(x, dim, stride)
+
+
+def sampled_fourth_difference(
+    x: Tensor, dim: int, *, where: Tensor | None = None, sample: int = 50_000
+) -> Tensor:
+    """The values of ``fourth_difference(x, dim)`` (at the ``where`` pixels, a mask on its last two dims:
+    ``[..., where]``) that :func:`robust_sd` with ``sample`` takes, computed at those points only: every
+    ``n // sample``-th of the ``n`` values, in their order, each from its five samples of ``x``.
+
+    Shape:
+        ``x`` ``(..., H, W)``; ``where`` like the difference's last two dims; output ``(m,)``, ``m`` at
+        most about ``sample``.
+    """
+    dim = dim % x.ndim
+    shape = list(x.shape)
+    shape[dim] -= 4
+    if where is None:
+        n = math.prod(shape)
+        index = torch.arange(0, n, max(1, n // sample), device=x.device)
+        coords = list(torch.unravel_index(index, shape))
+    else:
+        pixels = where.nonzero()  # (P, 2)
+        n = math.prod(shape[:-2]) * pixels.shape[0]
+        index = torch.arange(0, n, max(1, n // sample), device=x.device)
+        lead = list(torch.unravel_index(index // pixels.shape[0], shape[:-2])) if x.ndim > 2 else []
+        coords = [*lead, *pixels[index % pixels.shape[0]].unbind(1)]
+    steps = [math.prod(x.shape[i + 1 :]) for i in range(x.ndim)]  # row-major, as take() reads
+    linear = sum(c * step for c, step in zip(coords, steps, strict=True))
+    out = x.take(linear) * _TAPS[0]  # as _taps_sum accumulates
+    for i, weight in enumerate(_TAPS[1:], start=1):
+        out.add_(x.take(linear + i * steps[dim]), alpha=weight)
+    return out
 
 
 def robust_sd(x: Tensor, *, sample: int | None = 50_000, nonzero: bool = False) -> float:
@@ -459,10 +497,12 @@ def _components(v1: float, v2: float, v3: float) -> tuple[float, float, float]:
     Least squares over a grid of lengths; a correlated component under a tenth of the total, or a length
     under half a pixel (its correlation at one pixel under 0.14), is counted as white (length 0).
     """
-    observed = torch.tensor([v1, v2, v3], dtype=torch.float64)
+    observed = torch.tensor([v1, v2, v3], dtype=torch.float64, device="cpu")
     lengths = [0.05 * k for k in range(10, 61)]
     design = torch.tensor(
-        [[[70.0, _gain(s, length)] for s in (1, 2, 3)] for length in lengths], dtype=torch.float64
+        [[[70.0, _gain(s, length)] for s in (1, 2, 3)] for length in lengths],
+        dtype=torch.float64,
+        device="cpu",
     )  # (lengths, 3, 2): every length's least squares in one batched solve
     solution = torch.linalg.lstsq(design, observed.expand(len(lengths), 3)[..., None]).solution[..., 0]
     solution = solution.clamp_min(0)
