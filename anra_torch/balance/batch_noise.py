@@ -64,7 +64,8 @@ class BatchNoise:
     def variance_error(self) -> Tensor:
         """Relative error of each video's measured noise variance, ``(B,)`` float64
         (:attr:`NoiseModel.variance_error <anra_torch.balance.NoiseModel.variance_error>`)."""
-        return torch.tensor([self.balanced(b).variance_error for b in range(len(self.models))], dtype=_F64)
+        errors = [self.balanced(b).variance_error for b in range(len(self.models))]
+        return torch.tensor(errors, dtype=_F64, device=self.sd.device)
 
     def fixed_effects(self, term: Tensor) -> Tensor:
         """``term`` ``(B, K, h, w)`` with each video's fixed effects removed."""

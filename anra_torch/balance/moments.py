@@ -255,8 +255,8 @@ def extend(
 
     def noise_part(a: str, b: str) -> Tensor:
         if noise is None:
-            return torch.zeros((), dtype=moments.raw.dtype)
-        field = torch.ones((), dtype=like.dtype)
+            return moments.raw.new_zeros(())
+        field = like.new_ones(())
         for n in (a, b):
             if n in weights:
                 field = field * weights[n]
@@ -276,7 +276,12 @@ def extend(
         tuple(every),
         torch.stack([torch.stack(list(row)) for row in raw]),
         torch.stack(
-            [torch.stack([torch.as_tensor(v, dtype=moments.raw.dtype) for v in row]) for row in part]
+            [
+                torch.stack(
+                    [torch.as_tensor(v, dtype=moments.raw.dtype, device=moments.raw.device) for v in row]
+                )
+                for row in part
+            ]
         ),
     )
 

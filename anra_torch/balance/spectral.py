@@ -85,7 +85,7 @@ def _wrapped(kernel: Tensor, size: tuple[int, int]) -> Tensor:
 def _transfer(kernels: list[Tensor], size: tuple[int, int]) -> Tensor:
     """The transfer of a correlation with each kernel in turn, ``(H, W // 2 + 1)`` float64 (real: every
     kernel is symmetric)."""
-    out = torch.ones(size[0], size[1] // 2 + 1, dtype=_F64)
+    out = torch.ones(size[0], size[1] // 2 + 1, dtype=_F64, device="cpu")
     for kernel in kernels:
         out = out * torch.fft.rfft2(_wrapped(kernel, size)).real
     return out
@@ -165,7 +165,7 @@ def pushed_back(
     out = spectrum.new_zeros(spectrum.shape[0], k + len(taps) - 1, *spectrum.shape[2:])
     for i, (tap, partner) in enumerate(zip(taps, pair, strict=True)):  # the transposed time filters
         if tap or partner:
-            out[:, i : i + k] += spectrum * (tap * rate + partner * average).unsqueeze(1)
+            out[:, i : i + k].addcmul_(spectrum, (tap * rate + partner * average).unsqueeze(1))
     return torch.fft.irfft2(out, s=size)
 
 

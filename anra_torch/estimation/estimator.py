@@ -510,8 +510,8 @@ class ANRAEstimator(nn.Module):
         warnings = tuple(w + poor_fit(e) if ok else w for w, e, ok in rows)
         field, confidence = self._field(chosen) if self.window is not None else (None, None)
         nan = torch.full_like(estimate, torch.nan)
-        k = torch.arange(per_frame.shape[1], dtype=video.dtype)
-        sigmas = torch.tensor([self.filters[i].sigma for i in usable], dtype=video.dtype)
+        k = torch.arange(per_frame.shape[1], dtype=video.dtype, device=video.device)
+        sigmas = torch.tensor([self.filters[i].sigma for i in usable], dtype=video.dtype, device=video.device)
         return ANRAResult(
             diffusivity=torch.where(valid, estimate, nan),
             std_error=torch.where(valid, chosen.std_error, nan),
