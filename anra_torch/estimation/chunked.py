@@ -89,9 +89,14 @@ def _read(frames: Any, start: int, stop: int, dtype: torch.dtype) -> Tensor:
     return tensor.to(dtype)
 
 
-def _dtype(frames: Any) -> torch.dtype:
-    kind = getattr(frames, "dtype", None)
-    return _F64 if kind in (np.float64, torch.float64) else torch.float32
+def _like(frames: Any, dtype: torch.dtype | None, device: torch.device | str | None) -> Tensor:
+    """A scalar in ``dtype`` (default float64 for float64 frames, else float32) on ``device`` (default the
+    frames' own, the CPU for arrays)."""
+    if dtype is None:
+        dtype = _F64 if getattr(frames, "dtype", None) in (np.float64, torch.float64) else torch.float32
+    if device is None:
+        device = frames.device if isinstance(frames, Tensor) else "cpu"
+    return torch.zeros((), dtype=dtype, device=device)
 
 
 _CONTEXT = 2  # frames on each side a spike search needs (its second difference in time, and a margin)
@@ -338,20 +343,16 @@ def estimate_chunked(
         error_every=error_every, pilot_blocks=pilot_blocks, pilot_frames=pilot_frames, pilot_side=pilot_side
     )
     total, length = _frames_total(frames, est.time.length), est.time.length
-    dtype = _dtype(frames) if dtype is None else dtype
-    # On the frames' device (the CPU for arrays) unless told: every tensor below follows the spacings.
-    if device is None:
-        device = frames.device if isinstance(frames, Tensor) else "cpu"
-    like = torch.zeros((), dtype=dtype, device=device)
+    like = _like(frames, dtype, device)  # the computation's dtype and device: every tensor follows it
     dt_ = as_spacing(dt, name="dt", unit="s", batch=1, like=like)
     dx_ = as_spacing(dx, name="dx", unit="mm", batch=1, like=like)
     block = min(total, max(pilot_frames, 2 * length))
     starts = _pilot_starts(total, block, pilot_blocks)
-    blocks = torch.stack([_read(frames, s, s + block, dtype).to(like.device) for s in starts])
+    blocks = torch.stack([_read(frames, s, s + block, like.dtype).to(like.device) for s in starts])
     pilot = _pilot(est, blocks, dt_, dx_, pilot_side, total)
     del blocks
     plan = (chunk_frames, error_every, precision, progress)
-    sums, seen = _accumulate(frames, est, pilot, dt_, dx_, dtype, plan)
+    sums, seen = _accumulate(frames, est, pilot, dt_, dx_, like.dtype, plan)
     result = _result(est, pilot, sums, seen, dt_, dx_)
     if est.strict and not bool(result.valid):
         raise ValueError(result.messages[0])
