@@ -1,27 +1,32 @@
-"""``anra batch`` against a plain NumPy/SciPy estimator on the same folder, as whole processes in turn.
+"""``anra batch`` and ``ANRAEstimator`` against the plain NumPy/SciPy peer, same files, same run.
 
-Writes ``--files`` videos of 224 x 224 px x 120 frames (float32 ``.npz``: the paper's Gaussian spot, peak
-3.8, FWHM 50 px, a = 0.2 mm^2/s, 27 Hz, dx = 10/224 mm, white noise sd 0.01, one seed per file), then runs
-``--runs`` pairs, A B A B ...:
+The peer is ``../shared/bench/plain_scipy.py`` (one fixed binomial smoothing of 4 px, the 5-tap smooth time
+derivative, a 3-point Laplacian, RTC weights; about 30 lines), imported as it is from ``--peer``. The files:
+``--files`` videos of 224 x 224 px x 120 frames (float32 ``.npz``: the paper's Gaussian spot, peak 3.8, FWHM
+50 px, a = 0.2 mm^2/s, 27 Hz, dx = 10/224 mm, white noise sd 0.01, one seed per file), written once (or
+taken from ``--data``). Every measurement runs in its own child process and is timed inside it, after its
+imports (start-up excluded), in pairs A B A B ... after one warm-up pair that is not counted:
 
-- A: ``anra batch DIR --out rows.csv --no-progress`` with default settings (automatic smoothing, standard
-  error, camera-artefact search, measured noise model);
-- B: ``python -m experiments.bench_batch --plain DIR FILTERS``: the same estimator with one fixed smoothing
-  (4 px) in NumPy/SciPy (``bench_scale.numpy_same_estimate``: no standard error, no artefact search), file
-  by file; its filters are written beforehand, so it imports NumPy and SciPy only, not torch.
+- **batch**: A = ``anra batch DIR --out rows.csv --no-progress`` (default settings: phases, the chunked route,
+  automatic smoothing, standard error, artefact search, measured noise; the torch threads it chooses),
+  through ``anra_torch.cli.main``; B = the peer over the same files (``np.load`` + ``estimate`` each),
+  one thread (SciPy's filters have one). Ratio: A's frames/s over B's (>= 1: ``anra batch`` is faster).
+- **estimator**: one thread (``OMP_NUM_THREADS=1``, ``torch.set_num_threads(1)``), every file read into
+  memory first; A = ``ANRAEstimator()`` (default: ``smoothing="auto"``) called on each video, B = the peer's
+  ``estimate`` on each. Ratio: A's values/s over B's (target >= 0.5).
 
-Each run is its own process (start-up included in both); wall time from the parent, peak RSS from the
-kernel's accounting of the finished child (``os.wait4``). The ratio B / A of wall times, pair by pair: at
-least 1 means ``anra batch`` is at least as fast. Writes ``bench_batch.json`` and ``bench_batch.md`` to
-``--out``. Usage::
+Each pair's ratio is printed; the table gives medians and the ratios' range. ``--profile`` adds a
+``torch.profiler`` table of one ``ANRAEstimator`` call (one thread) on one file: where the time goes.
+Writes ``bench_batch.json`` and ``bench_batch.md`` to ``--out``. Usage::
 
-    .venv/bin/python -m experiments.bench_batch --out results/bench_batch        # ~4 min, 2 cores
+    .venv/bin/python -m experiments.bench_batch --out results/bench_batch            # ~5 min, 2 cores
+    .venv/bin/python -m experiments.bench_batch --runs 5 --profile --out results/bench_batch
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
+import importlib.util
 import json
 import math
 import os
@@ -34,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.bench_scale import numpy_same_estimate, same_estimate_taps
-
+ROOT = Path(__file__).resolve().parents[1]
+PEER = ROOT.parent / "shared" / "bench" / "plain_scipy.py"
 A_TRUE, FPS, NOISE, FRAMES, SIDE = 0.2, 27.0, 0.01, 120, 224
 
 
@@ -55,121 +60,229 @@ def write_videos(folder: Path, files: int) -> None:
         np.savez(folder / f"v{i:02d}.npz", frames=noisy.astype(np.float32), dt=dt, dx=dx)
 
 
-def plain(folder: Path, filters: Path) -> None:
-    """B: the plain NumPy/SciPy estimate of every file, one ``name,a`` line each; the filters come from the
-    ``filters`` file, so this process imports NumPy and SciPy only (no torch)."""
-    with np.load(filters) as z:
-        taps = {k: z[k] for k in z.files}
-    for path in sorted(folder.glob("*.npz")):
-        with np.load(path) as z:
-            a = numpy_same_estimate(z["frames"], float(z["dt"]), float(z["dx"]), filters=taps)
-        print(f"{path.name},{a!r}", flush=True)
+def _peer(path: Path):  # noqa: ANN202 - the peer's module
+    spec = importlib.util.spec_from_file_location("plain_scipy", path)
+    if spec is None or spec.loader is None:
+        raise SystemExit(f"--peer {path}: not a Python file")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-def _run(command: list[str], log: Path) -> tuple[float, float]:
-    """Wall seconds and peak RSS (MiB) of one child process; its output goes to ``log``."""
-    with log.open("ab") as out:
-        start = time.perf_counter()
-        child = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
-        _, status, usage = os.wait4(child.pid, 0)
-        wall = time.perf_counter() - start
-    child.returncode = os.waitstatus_to_exitcode(status)
-    if child.returncode not in (0,):
-        raise RuntimeError(f"{command[0]} ... exited with {child.returncode}; see {log}")
-    return wall, usage.ru_maxrss / 1024
+def _files(folder: Path) -> list[Path]:
+    return sorted(folder.glob("*.npz"))
 
 
-def _errors(rows: Path, log: Path) -> tuple[float, float]:
-    """Median |a - 0.2| / 0.2 of ``anra batch``'s rows and of the plain estimator's last run."""
+def _load(path: Path) -> tuple[np.ndarray, float, float]:
+    with np.load(path) as z:
+        return z["frames"], float(z["dt"]), float(z["dx"])
+
+
+# ----------------------------------------------------------------------------------------- children
+def child_anra_batch(folder: Path, rows: Path) -> dict:
+    """A of the batch pair: ``anra batch`` through the CLI's own entry point, after its imports."""
+    from anra_torch.cli import main
+
+    rows.unlink(missing_ok=True)
+    start, cpu = time.perf_counter(), time.process_time()
+    code = main(["batch", str(folder), "--out", str(rows), "--no-progress"])
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    if code not in (0, None):
+        raise SystemExit(f"anra batch exited with {code}")
+    import csv
+
     with rows.open() as f:
-        anra = [float(r["diffusivity"]) for r in csv.DictReader(f)]
-    lines = [line.split(",") for line in log.read_text().splitlines() if line.startswith("v") and "," in line]
-    plain_a = [float(a) for _, a in lines[-len(anra) :]]
-    return (
-        statistics.median(abs(a - A_TRUE) / A_TRUE for a in anra),
-        statistics.median(abs(a - A_TRUE) / A_TRUE for a in plain_a),
-    )
+        values = [float(r["diffusivity"]) for r in csv.DictReader(f)]
+    return {"wall_s": wall, "cpu_s": cpu, "a": values}
 
 
-def measure(folder: Path, out: Path, runs: int) -> dict:
-    anra = Path(sys.executable).with_name("anra")
-    rows = out / "rows.csv"
-    a_cmd = [str(anra), "batch", str(folder), "--out", str(rows), "--no-progress"]
-    np.savez(out / "filters.npz", **same_estimate_taps(4.0))
-    filters = str(out / "filters.npz")
-    b_cmd = [sys.executable, "-m", "experiments.bench_batch", "--plain", str(folder), filters]
-    logs = {"anra": out / "anra.log", "plain": out / "plain.log"}
-    for log in logs.values():
-        log.unlink(missing_ok=True)
+def child_peer_files(folder: Path, peer: Path) -> dict:
+    """B of the batch pair: the peer over the files, reading each."""
+    estimate = _peer(peer).estimate
+    start, cpu = time.perf_counter(), time.process_time()
+    values = []
+    for path in _files(folder):
+        frames, dt, dx = _load(path)
+        values.append(float(estimate(frames, dt, dx)))
+    return {"wall_s": time.perf_counter() - start, "cpu_s": time.process_time() - cpu, "a": values}
+
+
+def child_estimator(folder: Path) -> dict:
+    """A of the estimator pair: ``ANRAEstimator()`` on every video in memory, one thread."""
+    import torch
+
+    from anra_torch import ANRAEstimator
+
+    torch.set_num_threads(1)
+    videos = [_load(p) for p in _files(folder)]
+    tensors = [(torch.from_numpy(f), dt, dx) for f, dt, dx in videos]
+    est = ANRAEstimator(strict=False)
+    start, cpu = time.perf_counter(), time.process_time()
+    values = [float(est(f, dt, dx).diffusivity) for f, dt, dx in tensors]
+    return {"wall_s": time.perf_counter() - start, "cpu_s": time.process_time() - cpu, "a": values}
+
+
+def child_peer_memory(folder: Path, peer: Path) -> dict:
+    """B of the estimator pair: the peer's ``estimate`` on every video in memory."""
+    estimate = _peer(peer).estimate
+    videos = [_load(p) for p in _files(folder)]
+    start, cpu = time.perf_counter(), time.process_time()
+    values = [float(estimate(f, dt, dx)) for f, dt, dx in videos]
+    return {"wall_s": time.perf_counter() - start, "cpu_s": time.process_time() - cpu, "a": values}
+
+
+def child_profile(folder: Path, rows: int) -> dict:
+    """A ``torch.profiler`` table of one ``ANRAEstimator()`` call on the first file, one thread."""
+    import torch
+    from torch.profiler import ProfilerActivity, profile
+
+    from anra_torch import ANRAEstimator
+
+    torch.set_num_threads(1)
+    frames, dt, dx = _load(_files(folder)[0])
+    video = torch.from_numpy(frames)
+    est = ANRAEstimator(strict=False)
+    est(video, dt, dx)  # warm: transfer functions, impulse responses
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        est(video, dt, dx)
+    return {"table": prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=rows)}
+
+
+# ------------------------------------------------------------------------------------------- parent
+def _child(args: list[str], *, one_thread: bool) -> dict:
+    env = os.environ | ({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"} if one_thread else {})
+    done = subprocess.run(
+        [sys.executable, "-m", "experiments.bench_batch", "--child", *args],
+        cwd=ROOT, env=env, capture_output=True, text=True,
+    )  # fmt: skip
+    if done.returncode != 0:
+        raise SystemExit(f"child {args[0]} failed:\n{done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _pairs(kind: str, folder: Path, out: Path, peer: Path, runs: int) -> list[dict]:
+    """``runs`` counted pairs (after a warm-up pair) of one comparison."""
+    if kind == "batch":
+        a_args, b_args, one = (
+            ["batch", str(folder), str(out / "rows.csv")],
+            ["peer_files", str(folder)],
+            False,
+        )
+    else:
+        a_args, b_args, one = ["estimator", str(folder)], ["peer_memory", str(folder)], 1
     pairs = []
-    for i in range(runs + 1):  # the first pair warms the file cache and is not counted
-        rows.unlink(missing_ok=True)
-        a = _run(a_cmd, logs["anra"])
-        b = _run(b_cmd, logs["plain"])
-        if i:
-            pairs.append({"anra_s": a[0], "anra_mib": a[1], "plain_s": b[0], "plain_mib": b[1]})
-    anra_error, plain_error = _errors(rows, logs["plain"])
-    ratios = [p["plain_s"] / p["anra_s"] for p in pairs]
+    for run in range(runs + 1):
+        a = _child(a_args, one_thread=bool(one))
+        b = _child([*b_args, str(peer)], one_thread=True)
+        ratio = b["wall_s"] / a["wall_s"]
+        print(f"{kind} pair {run}{' (warm-up)' if not run else ''}: anra {a['wall_s']:.2f} s, "
+              f"peer {b['wall_s']:.2f} s, ratio {ratio:.2f}", flush=True)  # fmt: skip
+        if run:
+            pairs.append({"anra": a, "peer": b, "ratio": ratio})
+    return pairs
+
+
+def _error(values: list[float]) -> float:
+    return statistics.median(abs(a - A_TRUE) / A_TRUE for a in values)
+
+
+def _summary(pairs: list[dict], files: int) -> dict:
+    frames = files * FRAMES
+    ratios = [p["ratio"] for p in pairs]
+    anra, peer = (statistics.median(p[k]["wall_s"] for p in pairs) for k in ("anra", "peer"))
     return {
-        "files": len(list(folder.glob("*.npz"))),
-        "shape": [FRAMES, SIDE, SIDE],
-        "pairs": pairs,
+        "anra_s": anra,
+        "peer_s": peer,
+        "anra_frames_per_s": frames / anra,
+        "peer_frames_per_s": frames / peer,
+        "anra_values_per_s": frames * SIDE * SIDE / anra,
+        "peer_values_per_s": frames * SIDE * SIDE / peer,
         "ratio_median": statistics.median(ratios),
         "ratio_min": min(ratios),
         "ratio_max": max(ratios),
-        "anra_median_error": anra_error,
-        "plain_median_error": plain_error,
+        "anra_error": _error(pairs[-1]["anra"]["a"]),
+        "peer_error": _error(pairs[-1]["peer"]["a"]),
+        "pairs": pairs,
     }
 
 
 def report(result: dict) -> str:
-    pairs = result["pairs"]
+    files, b, e = result["files"], result["batch"], result["estimator"]
+    lines = [
+        f"{files} files of {SIDE} x {SIDE} x {FRAMES} float32; {len(b['pairs'])} pairs A B per comparison, "
+        "start-up excluded (medians; ratio range in brackets)",
+        "",
+        "| comparison | anra (s) | peer (s) | anra | peer | ratio anra/peer | target | "
+        "median abs(a - 0.2)/0.2 anra, peer |",
+        "|---|---|---|---|---|---|---|---|",
+        f"| `anra batch` (default) vs peer over the files | {b['anra_s']:.2f} | {b['peer_s']:.2f} | "
+        f"{b['anra_frames_per_s']:.0f} frames/s | {b['peer_frames_per_s']:.0f} frames/s | "
+        f"{b['ratio_median']:.2f} ({b['ratio_min']:.2f}-{b['ratio_max']:.2f}) | >= 1 | "
+        f"{b['anra_error']:.2e}, {b['peer_error']:.2e} |",
+        f"| `ANRAEstimator()` in process, one thread, vs peer's `estimate` | {e['anra_s']:.2f} | "
+        f"{e['peer_s']:.2f} | {e['anra_values_per_s'] / 1e6:.1f} M values/s | "
+        f"{e['peer_values_per_s'] / 1e6:.1f} M values/s | "
+        f"{e['ratio_median']:.2f} ({e['ratio_min']:.2f}-{e['ratio_max']:.2f}) | >= 0.5 | "
+        f"{e['anra_error']:.2e}, {e['peer_error']:.2e} |",
+    ]
+    if result.get("profile"):
+        lines += ["", "One `ANRAEstimator()` call on one file, one thread (torch.profiler):", "", "```",
+                  result["profile"], "```"]  # fmt: skip
+    return "\n".join(lines)
 
-    def med(key: str) -> float:
-        return statistics.median(p[key] for p in pairs)
 
-    frames = result["files"] * FRAMES
-    return "\n".join(
-        [
-            f"{result['files']} files of {SIDE} x {SIDE} x {FRAMES} float32, {len(pairs)} pairs (median):",
-            "",
-            "| command | wall (s) | frames/s | peak RSS (MiB) | median abs(a - 0.2) / 0.2 |",
-            "|---|---|---|---|---|",
-            f"| `anra batch` (default) | {med('anra_s'):.2f} | {frames / med('anra_s'):.0f} | "
-            f"{med('anra_mib'):.0f} | {result['anra_median_error']:.2e} |",
-            f"| plain NumPy/SciPy, 4 px | {med('plain_s'):.2f} | {frames / med('plain_s'):.0f} | "
-            f"{med('plain_mib'):.0f} | {result['plain_median_error']:.2e} |",
-            "",
-            f"ratio plain / anra (wall, pair by pair): median {result['ratio_median']:.2f} "
-            f"(min {result['ratio_min']:.2f}, max {result['ratio_max']:.2f}); target >= 1",
-        ]
-    )
+def _run_child(argv: list[str]) -> None:
+    kind, *rest = argv
+    if kind == "batch":
+        result = child_anra_batch(Path(rest[0]), Path(rest[1]))
+    elif kind == "peer_files":
+        result = child_peer_files(Path(rest[0]), Path(rest[1]))
+    elif kind == "estimator":
+        result = child_estimator(Path(rest[0]))
+    elif kind == "peer_memory":
+        result = child_peer_memory(Path(rest[0]), Path(rest[1]))
+    else:
+        result = child_profile(Path(rest[0]), int(rest[1]))
+    print(json.dumps(result))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default="results/bench_batch", help="output folder")
-    parser.add_argument("--runs", type=int, default=5, help="counted pairs after one warm-up pair")
+    parser.add_argument("--runs", type=int, default=3, help="counted pairs per comparison, after a warm-up")
     parser.add_argument("--files", type=int, default=12, help="videos in the folder")
     parser.add_argument("--data", help="folder of the videos (default: a temporary one)")
-    parser.add_argument("--plain", nargs=2, help=argparse.SUPPRESS)
+    parser.add_argument("--peer", default=str(PEER), help="the plain estimator (plain_scipy.py)")
+    parser.add_argument("--profile", action="store_true", help="add a torch.profiler table")
+    parser.add_argument("--skip", choices=["batch", "estimator"], help="leave one comparison out")
+    parser.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.plain:
-        plain(Path(args.plain[0]), Path(args.plain[1]))
+    if args.child:
+        _run_child(args.child)
         return
     if args.runs < 1 or args.files < 1:
         parser.error(f"--runs and --files must be >= 1, got {args.runs} and {args.files}")
-    out = Path(args.out)
+    peer = Path(args.peer)
+    if not peer.is_file():
+        parser.error(f"--peer must be the plain estimator's file, got {peer} (not found)")
+    out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(args.data) if args.data else Path(tmp) / "videos"
-        if not list(folder.glob("*.npz")):
+        folder = Path(args.data).resolve() if args.data else Path(tmp) / "videos"
+        if not _files(folder):
             write_videos(folder, args.files)
-        result = measure(folder, out, args.runs)
+        files = len(_files(folder))
+        result: dict = {"files": files, "shape": [FRAMES, SIDE, SIDE]}
+        for kind in ("batch", "estimator"):
+            pairs = [] if args.skip == kind else _pairs(kind, folder, out, peer, args.runs)
+            result[kind] = _summary(pairs, files) if pairs else None
+        if args.profile:
+            result["profile"] = _child(["profile", str(folder), "25"], one_thread=True)["table"]
     (out / "bench_batch.json").write_text(json.dumps(result, indent=2))
-    text = report(result)
-    (out / "bench_batch.md").write_text(text + "\n")
-    print(text)
+    if result["batch"] and result["estimator"]:
+        text = report(result)
+        (out / "bench_batch.md").write_text(text + "\n")
+        print(text)
 
 
 if __name__ == "__main__":

@@ -9,6 +9,8 @@
 - :mod:`~anra_torch.balance.system`: :class:`BalanceSystem`, the balance of one video and its fits;
 - :mod:`~anra_torch.balance.artefacts`: camera artefacts found in the video and repaired first;
 - :mod:`~anra_torch.balance.batch_noise`: the noise context of a batch of videos;
+- :mod:`~anra_torch.balance.spectral`: the balance's ``U`` and ``L`` through the frames' spectra, shared
+  by every smoothing candidate, and the standard error's pushed-back lever by Parseval;
 - :mod:`~anra_torch.balance.loss`: the windowed loss-rate fit of the tissue features.
 
 Shape:
@@ -16,11 +18,18 @@ Shape:
 """
 
 from anra_torch.balance.artefacts import Artefacts, find_artefacts, stuck_pixels
-from anra_torch.balance.batch_noise import BatchNoise, batch_noise
+from anra_torch.balance.batch_noise import BatchNoise, PreparedBatch, batch_noise, prepare_batch
 from anra_torch.balance.filters import MatchedFilters
 from anra_torch.balance.loss import LOSS_REPLICATES, fit_loss_windows
 from anra_torch.balance.moments import Moments, TermNoise, accumulate
 from anra_torch.balance.noise import NoiseModel, estimate_noise_sd, measure_noise
+from anra_torch.balance.spectral import (
+    SpectralStage,
+    pushed_back,
+    pushed_norm,
+    spectral_stage,
+    spectral_terms,
+)
 from anra_torch.balance.system import BalanceSystem, Fit, NoiseSpec
 
 __all__ = [
@@ -31,8 +40,10 @@ __all__ = [
     "LOSS_REPLICATES",
     "MatchedFilters",
     "Moments",
+    "SpectralStage",
     "NoiseModel",
     "NoiseSpec",
+    "PreparedBatch",
     "TermNoise",
     "accumulate",
     "batch_noise",
@@ -40,5 +51,10 @@ __all__ = [
     "find_artefacts",
     "fit_loss_windows",
     "measure_noise",
+    "prepare_batch",
+    "pushed_back",
+    "pushed_norm",
+    "spectral_stage",
+    "spectral_terms",
     "stuck_pixels",
 ]

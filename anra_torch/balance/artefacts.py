@@ -47,7 +47,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from anra_torch.balance.noise import fourth_difference, robust_sd
+from anra_torch.balance.noise import robust_sd, row_medians, sampled_fourth_difference
 
 __all__ = ["OUTLIER_Z", "PIXEL_EFFECTS_FRAMES", "RESOLUTION", "Artefacts", "find_artefacts", "stuck_pixels"]
 
@@ -135,15 +135,15 @@ def _neighbour_median(image: Tensor, good: Tensor) -> Tensor:
     return patches.nanmedian(1).values.reshape(*lead, h, w)
 
 
-def _bad_pixels(frames: Tensor, finite: Tensor, floor: float = 0.0) -> Tensor:
+def _bad_pixels(frames: Tensor, finite: Tensor | None, floor: float = 0.0) -> Tensor:
     """Dead (constant while the scene changes, or never finite) and hot (an isolated impulse in the
     time-mean frame) elements, ``(H, W)`` bool.
 
-    ``frames`` must be free of spikes (they would move a pixel's mean).
+    ``frames`` must be free of spikes (they would move a pixel's mean); ``finite`` None: all finite.
     """
     t = frames.shape[0]
-    if bool(finite.all()):  # the usual case: no masked copies of the video
-        never = torch.zeros(frames.shape[1:], dtype=torch.bool)
+    if finite is None or bool(finite.all()):  # the usual case: no masked copies of the video
+        never = torch.zeros(frames.shape[1:], dtype=torch.bool, device=frames.device)
         low, high = torch.aminmax(frames, dim=0)
         constant = high == low
         mean = frames.sum(0) / t
@@ -162,7 +162,7 @@ def _bad_pixels(frames: Tensor, finite: Tensor, floor: float = 0.0) -> Tensor:
     # sharp peak, is close to it), by more than half its neighbourhood's range (the neighbours of an
     # impulse are pulled by it, but their range holds it).
     padded = F.pad(mean[None, None], (2, 2, 2, 2), mode="replicate")
-    excess = mean - F.conv2d(padded, _QUADRATIC_PREDICTOR.to(mean.dtype)[None, None])[0, 0]
+    excess = mean - F.conv2d(padded, _QUADRATIC_PREDICTOR.to(mean)[None, None])[0, 0]
     patches = F.unfold(padded, 5)[0]  # (25, H W)
     patches = torch.cat([patches[:12], patches[13:]]).reshape(24, *mean.shape)
     spread = patches.amax(0) - patches.amin(0)
@@ -175,9 +175,11 @@ def _bad_pixels(frames: Tensor, finite: Tensor, floor: float = 0.0) -> Tensor:
 def _quadratic_predictor() -> Tensor:
     """5 x 5 weights (zero centre) of the least-squares quadratic through the 24 neighbours, at the centre."""
     offsets = [(i, j) for i in range(-2, 3) for j in range(-2, 3) if (i, j) != (0, 0)]
-    design = torch.tensor([[1, j, i, j * j, i * j, i * i] for i, j in offsets], dtype=torch.float64)
+    design = torch.tensor(
+        [[1, j, i, j * j, i * j, i * i] for i, j in offsets], dtype=torch.float64, device="cpu"
+    )
     weights = torch.linalg.pinv(design)[0]
-    kernel = torch.zeros(5, 5, dtype=torch.float64)
+    kernel = torch.zeros(5, 5, dtype=torch.float64, device="cpu")
     for (i, j), w in zip(offsets, weights, strict=True):
         kernel[i + 2, j + 2] = w
     return kernel
@@ -188,6 +190,8 @@ _QUADRATIC_PREDICTOR = _quadratic_predictor()
 
 def _repair_pixels(frames: Tensor, bad: Tensor) -> Tensor:
     """Bad pixels replaced, frame by frame, by the median of their good neighbours (repeated outward)."""
+    if not bool(bad.any()):  # nothing to replace: the frames as they are
+        return frames
     out = frames.clone()
     good = ~bad
     for _ in range(4):  # a cluster of bad pixels fills from its rim inwards
@@ -231,7 +235,7 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
     passes over the video.
     """
     t, h, w = frames.shape
-    none = torch.zeros(0, 3, dtype=torch.long), frames.new_zeros(0)
+    none = torch.zeros(0, 3, dtype=torch.long, device=frames.device), frames.new_zeros(0)
     if t < 5:
         return none
     second = frames[1:-1] - 0.5 * (frames[:-2] + frames[2:])
@@ -258,7 +262,8 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
     # neighbours' (a smooth field's second differences are smooth too, even at a sharp, fast-changing
     # peak), by most of its own size.
     padded = F.pad(second[:, None], (2, 2, 2, 2), mode="replicate")[:, 0]
-    rows, cols = i[:, None] + torch.arange(5), j[:, None] + torch.arange(5)
+    five = torch.arange(5, device=frames.device)
+    rows, cols = i[:, None] + five, j[:, None] + five
     patch = padded[(k - 1)[:, None, None], rows[:, :, None], cols[:, None, :]]  # (N, 5, 5)
     own = patch[:, 2, 2]
     isolated = (own - (patch * _QUADRATIC_PREDICTOR.to(frames.dtype)).sum((1, 2))).abs()
@@ -283,15 +288,14 @@ def _fixed_pattern(frames: Tensor, floor: float = 0.0) -> tuple[bool, float]:
     # Over the quieter half of the pixels: a camera's pattern covers the whole sensor, while the static
     # structure of the scene (a heated spot, a source) sits where the temperature changes.
     power = (frames - mean).pow(2).mean(0)
-    quiet = power <= power.median()
+    quiet = power <= row_medians(power.reshape(1, -1))[0]
 
     def roughness(x: Tensor) -> float:
         axes = []
-        for d in (-2, -1):
-            fourth = fourth_difference(x, d)
-            centre = quiet.narrow(d, 2, fourth.shape[d])
-            axes.append(robust_sd(fourth[..., centre]))
-        return float(torch.tensor(axes).median()) / 70**0.5
+        for d in (-2, -1):  # the differences at the sampled quiet pixels only
+            centre = quiet.narrow(d, 2, x.shape[d] - 4)
+            axes.append(robust_sd(sampled_fourth_difference(x, d, where=centre), sample=None))
+        return float(torch.tensor(axes, device="cpu").median()) / 70**0.5
 
     static, moving = roughness(mean), roughness(frames[:: max(1, t // 16)] - mean)
     found = static > _PATTERN_RATIO * moving * (torch.pi / (2 * t)) ** 0.5 and static > 0.85 * moving
@@ -306,12 +310,12 @@ def _steps(frames: Tensor, floor: float = 0.0) -> tuple[tuple[int, ...], tuple[f
         return (), ()
     stride = max(1, int((frames[0].numel() / 20_000) ** 0.5))  # 20,000 pixels tell a global jump
     sub = frames[:, ::stride, ::stride]
-    change = (sub[1:] - sub[:-1]).flatten(1).median(1).values  # (T - 1,)
+    change = row_medians((sub[1:] - sub[:-1]).flatten(1))  # (T - 1,)
     padded = F.pad(change[None, None], (3, 3), mode="replicate")[0, 0]
     trend = padded.unfold(0, 7, 1).median(-1).values
     jump = change - trend
     scale = robust_sd(jump, sample=None)
-    noise = robust_sd(fourth_difference(sub, 0)) / 70**0.5 / sub[0].numel() ** 0.5
+    noise = robust_sd(sampled_fourth_difference(sub, 0), sample=None) / 70**0.5 / sub[0].numel() ** 0.5
     threshold = max(OUTLIER_Z * max(scale, noise), floor)
     index = (jump.abs() > threshold).nonzero().flatten().tolist()
     return tuple(k + 1 for k in index), tuple(float(jump[k]) for k in index)
@@ -331,18 +335,25 @@ def find_artefacts(frames: Tensor) -> tuple[Tensor, Artefacts]:
         ``frames`` ``(T, H, W)``; output the same.
     """
     video = frames if frames.is_floating_point() else frames.double()
-    finite = torch.isfinite(video)
-    non_finite = int((~finite).sum())
-    repaired = torch.where(finite, video, torch.nan) if non_finite else video.clone()
+    # One sum tells a video without non-finite samples (inf and NaN carry through it): no masks then.
+    everywhere = bool(torch.isfinite(video.sum()))
+    finite = None if everywhere else torch.isfinite(video)
+    non_finite = 0 if finite is None else int((~finite).sum())
+    repaired = torch.where(finite, video, torch.nan) if non_finite else video  # copied where changed
     floor = _floor(video)
     spike_at, without = _spikes(torch.where(finite, video, 0.0) if non_finite else video, floor)
-    keep = finite[spike_at[:, 0], spike_at[:, 1], spike_at[:, 2]]
-    spike_at, without = spike_at[keep], without[keep]
-    repaired[spike_at[:, 0], spike_at[:, 1], spike_at[:, 2]] = without
-    bad = _bad_pixels(repaired, torch.isfinite(repaired) if non_finite else finite, floor)
+    if finite is not None:
+        keep = finite[spike_at[:, 0], spike_at[:, 1], spike_at[:, 2]]
+        spike_at, without = spike_at[keep], without[keep]
+    if spike_at.shape[0]:
+        repaired = repaired.clone() if repaired is video else repaired
+        repaired[spike_at[:, 0], spike_at[:, 1], spike_at[:, 2]] = without
+    bad = _bad_pixels(repaired, torch.isfinite(repaired) if non_finite else None, floor)
     repaired = _repair_pixels(repaired, bad)
-    holes = ~torch.isfinite(repaired)  # samples still non-finite in good pixels: their pixel's mean
-    if bool(holes.any()):
+    repaired = video.clone() if repaired is video else repaired  # the caller owns what it gets
+    # Samples still non-finite in good pixels: their pixel's mean.
+    holes = None if everywhere else ~torch.isfinite(repaired)
+    if holes is not None and bool(holes.any()):
         local = repaired.nanmean(0, keepdim=True).expand_as(repaired)
         repaired = torch.where(holes, local, repaired).nan_to_num(float(repaired.nanmean()))
     pattern, pattern_sd = _fixed_pattern(repaired, floor)
@@ -362,17 +373,21 @@ def find_artefacts(frames: Tensor) -> tuple[Tensor, Artefacts]:
     return repaired, found
 
 
-def stuck_pixels(video: Tensor, finite: Tensor) -> Tensor:
+def stuck_pixels(video: Tensor, finite: Tensor | None) -> Tensor:
     """Dead elements: finite pixels constant in time while the rest of the frame changes, ``(B, T, H, W)``.
 
     A real scene seen through sensor noise never holds a pixel exactly constant; a few such pixels are
     dead or saturated elements whose Laplacian spikes would otherwise dominate the fit. Many constant
-    pixels (a noiseless static background) are left alone.
+    pixels (a noiseless static background) are left alone. ``finite`` None: every sample is finite.
     """
-    big = torch.finfo(video.dtype).max
-    high = torch.where(finite, video, torch.full_like(video, -big)).amax(1)
-    low = torch.where(finite, video, torch.full_like(video, big)).amin(1)
-    constant = (high == low) & finite.all(1)  # (B, H, W)
+    if finite is None:
+        low, high = torch.aminmax(video.detach(), dim=1)
+        constant = high == low
+    else:
+        big = torch.finfo(video.dtype).max
+        high = torch.where(finite, video, torch.full_like(video, -big)).amax(1)
+        low = torch.where(finite, video, torch.full_like(video, big)).amin(1)
+        constant = (high == low) & finite.all(1)  # (B, H, W)
     fraction = constant.flatten(1).float().mean(1)
     dead = constant & (fraction <= _MAX_STUCK_FRACTION).view(-1, 1, 1)
     return dead.unsqueeze(1).expand_as(video)

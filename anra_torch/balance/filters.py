@@ -161,6 +161,7 @@ class MatchedFilters(nn.Module):
         self.gradient = Gradient(laplacian_size, border=border)
         self.second = SecondDerivatives(laplacian_size, border=border)
         self._inner: dict[tuple[str, ...], Tensor] = {}
+        self._spectral: dict[tuple, tuple[Tensor, Tensor]] = {}  # transfers by frame size, device, dtype
 
     @property
     def sigma(self) -> float:
@@ -237,7 +238,7 @@ class MatchedFilters(nn.Module):
         """
         side = 2 * self.reach + 1
         with torch.enable_grad():
-            probe = torch.zeros(self.time.length, side, side, dtype=_F64, requires_grad=True)
+            probe = torch.zeros(self.time.length, side, side, dtype=_F64, device="cpu", requires_grad=True)
             kernels = sorted({TERMS[n].noise_kernel for n in names} - {None})
             out = self.terms(probe, 1.0, 1.0, kernels)
             responses = {}
@@ -245,7 +246,7 @@ class MatchedFilters(nn.Module):
                 h, w = term.shape[-2:]
                 (grad,) = torch.autograd.grad(term[0, h // 2, w // 2], probe, retain_graph=True)
                 responses[name] = grad.detach()
-        zero = torch.zeros(self.time.length, side, side, dtype=_F64)
+        zero = torch.zeros(self.time.length, side, side, dtype=_F64, device="cpu")
         return torch.stack([responses.get(TERMS[n].noise_kernel, zero) for n in names])
 
     def noise_inner(self, names: Sequence[str]) -> Tensor:
@@ -293,16 +294,20 @@ class MatchedFilters(nn.Module):
             else self._inner_within(names, noise if correlated else None, within, extent)
         )
         carriers = [TERMS[TERMS[n].noise_kernel or n] for n in names]
-        t = torch.tensor([c.time_order for c in carriers], dtype=_F64)
-        x = torch.tensor([c.space_order for c in carriers], dtype=_F64)
+        t = torch.tensor([c.time_order for c in carriers], dtype=_F64, device="cpu")
+        x = torch.tensor([c.space_order for c in carriers], dtype=_F64, device="cpu")
         t_pairs, x_pairs = t[:, None] + t[None, :], x[:, None] + x[None, :]
         batched = any(isinstance(v, Tensor) and v.ndim > 0 for v in (variance, dt, dx))
         if not batched:
             return float(variance) * inner / (float(dt) ** t_pairs * float(dx) ** x_pairs)
 
-        def per_video(v: float | Tensor) -> Tensor:
-            return torch.as_tensor(v, dtype=_F64).reshape(-1, 1, 1)
+        # On the spacings' device (the batch's): the inner products are data on the CPU.
+        device = next(v.device for v in (variance, dt, dx) if isinstance(v, Tensor) and v.ndim > 0)
 
+        def per_video(v: float | Tensor) -> Tensor:
+            return torch.as_tensor(v, dtype=_F64, device=device).reshape(-1, 1, 1)
+
+        inner, t_pairs, x_pairs = inner.to(device), t_pairs.to(device), x_pairs.to(device)
         return per_video(variance) * inner / (per_video(dt) ** t_pairs * per_video(dx) ** x_pairs)
 
     def _inner_within(

@@ -107,7 +107,7 @@ def fit_loss_windows(
     k = torch.arange(average.shape[1], device=average.device).view(1, -1, 1, 1)
     cooling = (k > average.argmax(1, keepdim=True)).to(_F64)
     # The noise of U and L (rise's is left uncorrected: it enters b only through its own energy).
-    covariance = torch.zeros(len(noise_sd), 3, 3, dtype=_F64)
+    covariance = torch.zeros(len(noise_sd), 3, 3, dtype=_F64, device=noise_sd.device)
     covariance[:, :2, :2] = filters.noise_covariance(("U", "L"), noise_sd**2, dt, dx)
     per_pixel = accumulate(
         {"U": rate, "L": lap, "R": rise},
@@ -163,7 +163,8 @@ def _loss_error(
     shape = (n, k + filters.time.length - 1, h, w)  # the frames the terms were made from
     total = torch.zeros_like(s_ll)
     for _ in range(LOSS_REPLICATES):
-        noise = noise_sd.view(-1, 1, 1, 1) * torch.randn(shape, generator=generator, dtype=_F64)
+        draw = torch.randn(shape, generator=generator, dtype=_F64, device="cpu")  # the same draws anywhere
+        noise = noise_sd.view(-1, 1, 1, 1) * draw.to(noise_sd.device)
         e = filters.terms(noise, dt, dx, ("U", "L", "T"))
         residual = e["U"] - a.unsqueeze(1) * e["L"] + b.unsqueeze(1) * (e["T"] - e["T"][:, :1])
         d_l, d_r = (_box((cooling * residual * x).sum(1), window) for x in (lap, rise))

@@ -106,6 +106,16 @@ class Moments:
         return Moments(self.names, self.raw + other.raw, self.noise + other.noise)
 
 
+def _constant(x: Tensor, dims: Sequence[int]) -> Tensor | None:
+    """``x`` with the ``dims`` it is constant over (broadcast there: stride 0) taken once and dropped, or None
+    where it varies over one of them."""
+    if any(x.stride(d) != 0 and x.shape[d] != 1 for d in dims):
+        return None
+    for d in sorted((d % x.ndim for d in dims), reverse=True):
+        x = x.select(d, 0)
+    return x
+
+
 def _sum_over(dims: Sequence[int] | None) -> Reduce:
     return (lambda x: x.sum()) if dims is None else (lambda x: x.sum(tuple(dims)))
 
@@ -115,8 +125,9 @@ def _raw(
 ) -> Tensor:
     """``reduce(w z_a z_b)`` for every pair, ``(..., P, P)``."""
     p = len(terms)
-    if (
+    if (  # more than three terms: their products' sums are cheaper as one matrix product
         weights is None
+        and p > 3
         and dims is not None
         and sorted(d % terms[0].ndim for d in dims) == list(range(terms[0].ndim - len(dims), terms[0].ndim))
     ):
@@ -193,6 +204,17 @@ def accumulate(
     names = tuple(names)
     fields = [terms[n] for n in names]
     fields = [f.expand_as(fields[0]) if f.shape != fields[0].shape else f for f in fields]
+    # Weights constant over the summed points (a frame's uniform weights) factor out of every sum.
+    constant = None
+    if weights is not None and reduce is None and dims is not None and weights.shape == fields[0].shape:
+        constant = _constant(weights, dims)
+    slope = None if noise is None or noise.slope is None else _constant(noise.slope, dims or ())
+    if constant is not None and (
+        noise is None or noise.slope is None or (slope is not None and not bool(slope.any()))
+    ):
+        quiet = None if noise is None else TermNoise(noise.covariance, noise.weights)
+        plain = accumulate(terms, names, dims=dims, noise=quiet)
+        return Moments(names, plain.raw * constant[..., None, None], plain.noise * constant[..., None, None])
     summed = reduce if reduce is not None else _sum_over(dims)
     raw = _raw(
         fields, weights, summed, None if reduce is not None else (dims or tuple(range(fields[0].ndim)))
@@ -233,8 +255,8 @@ def extend(
 
     def noise_part(a: str, b: str) -> Tensor:
         if noise is None:
-            return torch.zeros((), dtype=moments.raw.dtype)
-        field = torch.ones((), dtype=like.dtype)
+            return moments.raw.new_zeros(())
+        field = like.new_ones(())
         for n in (a, b):
             if n in weights:
                 field = field * weights[n]
@@ -254,7 +276,12 @@ def extend(
         tuple(every),
         torch.stack([torch.stack(list(row)) for row in raw]),
         torch.stack(
-            [torch.stack([torch.as_tensor(v, dtype=moments.raw.dtype) for v in row]) for row in part]
+            [
+                torch.stack(
+                    [torch.as_tensor(v, dtype=moments.raw.dtype, device=moments.raw.device) for v in row]
+                )
+                for row in part
+            ]
         ),
     )
 

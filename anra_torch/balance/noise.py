@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.checks import as_video
 
-__all__ = ["NoiseModel", "estimate_noise_sd", "measure_noise"]
+__all__ = ["NoiseModel", "estimate_noise_sd", "measure_noise", "row_medians", "sampled_fourth_difference"]
 
 # Fourth difference [1, -4, 6, -4, 1]: annihilates cubics, so smooth thermal fields barely leak in.
 _TAPS = (1.0, -4.0, 6.0, -4.0, 1.0)
@@ -27,6 +28,26 @@ def _taps_sum(x: Tensor, dim: int, stride: int) -> Tensor:
     for i, tap in enumerate(_TAPS[1:], start=1):
         out.add_(x.narrow(dim, i * stride, n), alpha=tap)
     return out
+
+
+def row_medians(x: Tensor, valid: Tensor | None = None) -> Tensor:
+    """The lower median of each row's ``valid`` values: ``torch.median`` (``nanmedian`` with NaN at the
+    invalid values; NaN for a row without any), exactly.
+
+    On the CPU by NumPy's selection (``np.partition`` on the values alone): 8x faster than torch's, which
+    selects (value, index) pairs. Not differentiable (noise levels are measured on detached frames).
+
+    Shape:
+        ``x`` ``(R, N)``, ``valid`` ``(R, N)`` bool or None; output ``(R,)``.
+    """
+    if x.device.type != "cpu" or x.numel() == 0:
+        return x.median(1).values if valid is None else torch.where(valid, x, torch.nan).nanmedian(1).values
+    values = x.detach() if valid is None else torch.where(valid, x.detach(), torch.inf)  # invalid: last
+    count = torch.full((x.shape[0],), x.shape[1], device="cpu") if valid is None else valid.sum(1)
+    rank = ((count - 1).clamp_min(0) // 2).numpy()
+    chosen = np.partition(values.numpy(), np.unique(rank), axis=1)[np.arange(x.shape[0]), rank]
+    out = torch.from_numpy(np.ascontiguousarray(chosen)).to(x.dtype)
+    return out if valid is None else torch.where(count > 0, out, torch.nan)
 
 
 def _fourth_difference(x: Tensor, finite: Tensor, dim: int) -> tuple[Tensor, Tensor]:
@@ -57,20 +78,24 @@ def estimate_noise_sd(frames: Tensor, *, mask: Tensor | None = None) -> Tensor:
         ``(B, T, H, W)`` -> ``(B,)``.
     """
     video, batched = as_video(frames, name="frames")
-    finite = torch.isfinite(video)
-    if mask is not None:
-        finite = finite & mask.reshape(video.shape).to(torch.bool)
-    everywhere = bool(finite.all())
+    # One sum tells a video without non-finite samples (inf and NaN carry through it): no masks then.
+    everywhere = mask is None and bool(torch.isfinite(video.sum()))
+    finite = None
+    if not everywhere:
+        finite = torch.isfinite(video)
+        if mask is not None:
+            finite = finite & mask.reshape(video.shape).to(torch.bool)
+        everywhere = bool(finite.all())
     clean = video if everywhere else torch.where(finite, video, torch.zeros_like(video))
     estimates = []
     for dim in (1, 2, 3):
         if video.shape[dim] < 5:
             continue
-        diff, ok = _fourth_difference(clean, finite, dim)
         if everywhere:  # no NaN to skip: the plain median is the same number, without a masked copy
-            median = diff.abs().flatten(1).median(dim=1).values
+            median = row_medians(_taps_sum(clean, dim, 1).abs_().flatten(1))
         else:
-            median = torch.where(ok, diff.abs(), torch.nan).flatten(1).nanmedian(dim=1).values
+            diff, ok = _fourth_difference(clean, finite, dim)
+            median = row_medians(diff.abs().flatten(1), ok.flatten(1))
         estimates.append(median * (_MAD_TO_SD / _GAIN))
     if not estimates:
         raise ValueError(
@@ -164,15 +189,15 @@ class NoiseModel:
 
     def time_kernel(self) -> Tensor:
         """``rho_t(tau)`` for ``tau = -m .. m``, float64."""
-        half = torch.tensor(self.time_corr, dtype=torch.float64)
-        return torch.cat([half.flip(0), torch.ones(1, dtype=torch.float64), half])
+        half = torch.tensor(self.time_corr, dtype=torch.float64, device="cpu")
+        return torch.cat([half.flip(0), torch.ones(1, dtype=torch.float64, device="cpu"), half])
 
     def space_kernel(self) -> Tensor:
         """``rho_s(d)`` for ``d = -r .. r`` px (``r`` = 4 lengths), float64."""
         if self.space_length == 0.0:
-            return torch.ones(1, dtype=torch.float64)
+            return torch.ones(1, dtype=torch.float64, device="cpu")
         r = max(1, math.ceil(4.0 * self.space_length))
-        d = torch.arange(-r, r + 1, dtype=torch.float64)
+        d = torch.arange(-r, r + 1, dtype=torch.float64, device="cpu")
         return torch.exp(-(d**2) / (2.0 * self.space_length**2))
 
     def correlate(self, x: Tensor) -> Tensor:
@@ -257,6 +282,38 @@ def fourth_difference(x: Tensor, dim: int, stride: int = 1) -> Tensor:
     return _taps_sum(x, dim, stride)
 
 
+def sampled_fourth_difference(
+    x: Tensor, dim: int, *, where: Tensor | None = None, sample: int = 50_000
+) -> Tensor:
+    """The values of ``fourth_difference(x, dim)`` (at the ``where`` pixels, a mask on its last two dims:
+    ``[..., where]``) that :func:`robust_sd` with ``sample`` takes, computed at those points only: every
+    ``n // sample``-th of the ``n`` values, in their order, each from its five samples of ``x``.
+
+    Shape:
+        ``x`` ``(..., H, W)``; ``where`` like the difference's last two dims; output ``(m,)``, ``m`` at
+        most about ``sample``.
+    """
+    dim = dim % x.ndim
+    shape = list(x.shape)
+    shape[dim] -= 4
+    if where is None:
+        n = math.prod(shape)
+        index = torch.arange(0, n, max(1, n // sample), device=x.device)
+        coords = list(torch.unravel_index(index, shape))
+    else:
+        pixels = where.nonzero()  # (P, 2)
+        n = math.prod(shape[:-2]) * pixels.shape[0]
+        index = torch.arange(0, n, max(1, n // sample), device=x.device)
+        lead = list(torch.unravel_index(index // pixels.shape[0], shape[:-2])) if x.ndim > 2 else []
+        coords = [*lead, *pixels[index % pixels.shape[0]].unbind(1)]
+    steps = [math.prod(x.shape[i + 1 :]) for i in range(x.ndim)]  # row-major, as take() reads
+    linear = sum(c * step for c, step in zip(coords, steps, strict=True))
+    out = x.take(linear) * _TAPS[0]  # as _taps_sum accumulates
+    for i, weight in enumerate(_TAPS[1:], start=1):
+        out.add_(x.take(linear + i * steps[dim]), alpha=weight)
+    return out
+
+
 def robust_sd(x: Tensor, *, sample: int | None = 50_000, nonzero: bool = False) -> float:
     """Normal-consistent median absolute deviation of the finite values of ``x`` (0 when there are none),
     over at most ``sample`` evenly spaced values (None: all of them), without exact zeros if ``nonzero``."""
@@ -266,7 +323,8 @@ def robust_sd(x: Tensor, *, sample: int | None = 50_000, nonzero: bool = False) 
     flat = flat[torch.isfinite(flat) & (flat != 0)] if nonzero else flat[torch.isfinite(flat)]
     if flat.numel() == 0:
         return 0.0
-    return float((flat - flat.median()).abs().median()) * _MAD_TO_SD
+    centre = row_medians(flat[None])
+    return float(row_medians((flat - centre).abs()[None])[0]) * _MAD_TO_SD
 
 
 def _robust_var(x: Tensor) -> float:
@@ -301,7 +359,7 @@ def _quiet_pixels(power: Tensor) -> Tensor:
     pad = _QUIET_WINDOW // 2
     padded = F.pad(power[None, None], (pad, pad, pad, pad), mode="replicate")
     local = F.avg_pool2d(padded, _QUIET_WINDOW, stride=1)[0, 0]
-    return local <= local.median()
+    return local <= row_medians(local.reshape(1, -1))[0]
 
 
 def _time_correlation(
@@ -377,7 +435,9 @@ def measure_noise(
     # pixel to decide whether the noise is white (the guards against thermal signal below were set on that
     # choice), then, for a correlated or static model, by the power around each pixel for its parts.
     power = deviation.pow(2).mean(0)
-    model = _model_over(video, deviation, power <= power.median(), white, static_pattern)
+    model = _model_over(
+        video, deviation, power <= row_medians(power.reshape(1, -1))[0], white, static_pattern
+    )
     if model.white:
         return model
     local = _model_over(video, deviation, _quiet_pixels(power), white, static_pattern)
@@ -437,10 +497,12 @@ def _components(v1: float, v2: float, v3: float) -> tuple[float, float, float]:
     Least squares over a grid of lengths; a correlated component under a tenth of the total, or a length
     under half a pixel (its correlation at one pixel under 0.14), is counted as white (length 0).
     """
-    observed = torch.tensor([v1, v2, v3], dtype=torch.float64)
+    observed = torch.tensor([v1, v2, v3], dtype=torch.float64, device="cpu")
     lengths = [0.05 * k for k in range(10, 61)]
     design = torch.tensor(
-        [[[70.0, _gain(s, length)] for s in (1, 2, 3)] for length in lengths], dtype=torch.float64
+        [[[70.0, _gain(s, length)] for s in (1, 2, 3)] for length in lengths],
+        dtype=torch.float64,
+        device="cpu",
     )  # (lengths, 3, 2): every length's least squares in one batched solve
     solution = torch.linalg.lstsq(design, observed.expand(len(lengths), 3)[..., None]).solution[..., 0]
     solution = solution.clamp_min(0)

@@ -124,7 +124,7 @@ class BalanceSystem:
         k, h, w = raw["U"].shape
         unit = self.filters.noise_covariance(
             kernels, 1.0, dt, dx, noise=self.noise, within=self.within, extent=(k, h * w)
-        )
+        ).to(self.frames.device)
         self._unit = {(a, b): unit[i, j] for i, a in enumerate(kernels) for j, b in enumerate(kernels)}
         self.kernels: dict[str, str | None] = {n: TERMS[n].noise_kernel for n in names}
         self.n = self.terms["U"].numel()
@@ -165,7 +165,7 @@ class BalanceSystem:
     def term_noise(self, names: Sequence[str], extra: NoiseSpec | None = None) -> TermNoise:
         """The noise of ``names`` (and of one more, trial term ``extra`` last) per output point."""
         kernels = [self.kernels[n] for n in names] + ([] if extra is None else [extra.kernel])
-        zero = torch.zeros((), dtype=_F64)
+        zero = torch.zeros((), dtype=_F64, device=self.frames.device)
         covariance = torch.stack(
             [
                 torch.stack([self._unit.get((a, b), zero) if a and b else zero for b in kernels])
@@ -245,7 +245,7 @@ class BalanceSystem:
     def expected_rss(self, fit: Fit) -> float:
         """Expected residual sum of squares of ``fit`` if the data were its model plus white noise."""
         names = ("U", *fit.columns)
-        weights = torch.cat([torch.ones(1, dtype=_F64), -fit.beta.to(_F64)])
+        weights = torch.cat([fit.beta.new_ones(1, dtype=_F64), -fit.beta.to(_F64)])
         return float(weights @ self.moments.subset(names).noise @ weights)
 
     def residual(self, fit: Fit) -> Tensor:
@@ -280,7 +280,7 @@ class BalanceSystem:
         base, x = slice(1, p + 1), p + 1
         raw_base, gram_base, cross_base = raw[base, base], cor[base, base], cor[base, 0]
         # A tiny ridge keeps the solves defined when a trial shape leaves the frame or copies a column.
-        ridge = 1e-10 * raw_base.diagonal().abs().max() * torch.eye(p, dtype=_F64)
+        ridge = 1e-10 * raw_base.diagonal().abs().max() * torch.eye(p, dtype=_F64, device=raw.device)
         beta_base = torch.linalg.solve(gram_base + ridge, cross_base)
         raw_extra, cross_extra = raw[base, x], cor[base, x]
         q_raw = raw[x, x] - raw_extra @ torch.linalg.solve(raw_base + ridge, raw_extra)

@@ -29,6 +29,7 @@ class BatchOptions:
         precision: read each video in time chunks and stop at this relative standard error, or None.
         calibration: apparent -> true temperature table applied to every video, or None (the table
             itself, not its path: Dask workers need not read it).
+        device: the torch device the estimates (and diagnoses) compute on; not a result parameter.
 
     Shape:
         No tensors.
@@ -43,6 +44,7 @@ class BatchOptions:
     roi: ROI | None = None
     calibration: CalibrationTable | None = None
     precision: float | None = None
+    device: str = "cpu"
 
     def parameters(self) -> dict[str, Any]:
         """Every option that changes a result, JSON-ready: the ``parameters`` cell of the resume key.

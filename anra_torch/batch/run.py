@@ -22,6 +22,7 @@ from anra_torch.batch.options import BatchOptions
 from anra_torch.batch.resume import plan
 from anra_torch.batch.table import check_format, parquet, read_table, row_key, write_table
 from anra_torch.checks import join_messages, one_line
+from anra_torch.estimation import ANRAEstimator
 from anra_torch.recording import (
     RecordingEstimate,
     diagnose_video,
@@ -61,7 +62,8 @@ def _diagnose_row(row: dict[str, Any], video: Video, options: BatchOptions) -> N
     start = time.perf_counter()
     try:
         copy, decimated = diagnosis_copy(video)
-        diagnosed = diagnose_video(copy.loaded(), fit_fraction=options.fit_fraction, decimated=decimated)
+        copy = copy.loaded().map_frames(lambda f: torch.as_tensor(f).to(options.device))
+        diagnosed = diagnose_video(copy, fit_fraction=options.fit_fraction, decimated=decimated)
         record = diagnosed.to_record()
     except (ValueError, TypeError) as err:
         row.update(status="error", error=f"{video.source}: diagnose: {one_line(err)}")
@@ -98,7 +100,8 @@ def process_paths(paths: Sequence[str], options: BatchOptions) -> list[dict[str,
             rows[i] = _error_row(path, one_line(err))
     order = list(videos)
     dtype = getattr(torch, options.dtype)
-    done = estimate_recordings([videos[i] for i in order], precision=options.precision, dtype=dtype)
+    est = ANRAEstimator(strict=False).to(options.device)  # the frames follow the estimator
+    done = estimate_recordings([videos[i] for i in order], est, precision=options.precision, dtype=dtype)
     for i, estimate in zip(order, done, strict=True):
         if not isinstance(estimate, RecordingEstimate):
             rows[i] = _error_row(paths[i], str(estimate))
@@ -190,6 +193,7 @@ def run_batch(
     calibration: CalibrationTable | PathLike | None = None,
     rerun: bool = False,
     precision: float | None = None,
+    device: str = "cpu",
 ) -> BatchSummary:
     """Estimate (and optionally diagnose) every input video into a resumable table.
 
@@ -213,6 +217,7 @@ def run_batch(
         rerun: recompute and replace ``ok`` rows made with other parameters (otherwise they stop the run).
         precision: read each video in time chunks until its relative standard error reaches it (e.g.
             0.001; :func:`~anra_torch.estimation.estimate_chunked`); ``frames_used`` says how many were read.
+        device: the torch device to compute on (``"cpu"``, ``"cuda"``, ...).
 
     Returns:
         :class:`BatchSummary`.
@@ -229,7 +234,7 @@ def run_batch(
     out = Path(out)
     _check_run(out, batch_size, dtype)
     given = {"dt": dt, "dx": dx, "diagnose": diagnose, "dtype": dtype, "resample": resample, "roi": roi}
-    options = _options(**given, calibration=calibration, precision=precision)
+    options = _options(**given, calibration=calibration, precision=precision, device=device)
     start = time.perf_counter()
     paths = expand_inputs(inputs)
     table = {row_key(row["path"]): row for row in read_table(out)}

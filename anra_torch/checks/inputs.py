@@ -164,7 +164,7 @@ def as_fields(initial: object, *, name: str = "initial") -> tuple[Tensor, bool]:
     """
     if not isinstance(initial, Tensor):
         try:
-            initial = torch.as_tensor(initial)
+            initial = torch.as_tensor(initial, device="cpu")
         except (TypeError, ValueError, RuntimeError) as err:
             raise TypeError(f"{name} must be a tensor or array, got {type(initial).__name__}") from err
     if initial.dtype == torch.bool or initial.is_complex():
@@ -182,6 +182,17 @@ def as_fields(initial: object, *, name: str = "initial") -> tuple[Tensor, bool]:
     return (initial if batched else initial.unsqueeze(0)), batched
 
 
+def own_tensor(value: object, dtype: torch.dtype | None = None) -> Tensor:
+    """``value`` as a tensor on its own device: a tensor stays where it is, an array or a list goes to the
+    CPU (never to the default device), in ``dtype`` when given.
+
+    Shape:
+        Any; the output has ``value``'s shape.
+    """
+    tensor = value if isinstance(value, Tensor) else torch.as_tensor(value, device="cpu")
+    return tensor if dtype is None else tensor.to(dtype)
+
+
 def as_video(frames: object, *, name: str = "frames", min_frames: int = 1) -> tuple[Tensor, bool]:
     """Return ``frames`` as a floating ``(B, T, H, W)`` tensor and whether the input was batched.
 
@@ -193,7 +204,7 @@ def as_video(frames: object, *, name: str = "frames", min_frames: int = 1) -> tu
     """
     if not isinstance(frames, Tensor):
         try:
-            frames = torch.as_tensor(frames)
+            frames = torch.as_tensor(frames, device="cpu")  # arrays live on the CPU
         except (TypeError, ValueError, RuntimeError) as err:
             raise TypeError(f"{name} must be a tensor or array, got {type(frames).__name__}") from err
     if frames.dtype == torch.bool or frames.is_complex():
@@ -221,7 +232,7 @@ def as_spacing(value: object, *, name: str, unit: str, batch: int, like: Tensor)
         spacing = value.detach().to(like.dtype).reshape(-1)
     else:
         try:
-            spacing = torch.as_tensor(value, dtype=like.dtype).reshape(-1)
+            spacing = torch.as_tensor(value, dtype=like.dtype, device=like.device).reshape(-1)
         except (TypeError, ValueError, RuntimeError) as err:
             raise ValueError(f"{name} must be a positive number in {unit}, got {value!r}") from err
     if spacing.numel() == 1:
@@ -244,7 +255,7 @@ def uniform_step(times: object, *, name: str = "t", rtol: float = 1e-3, atol: fl
     Raises:
         ValueError: fewer than two stamps, non-finite, not strictly increasing, or non-uniform.
     """
-    t = torch.as_tensor(times, dtype=torch.float64).reshape(-1)
+    t = torch.as_tensor(times, dtype=torch.float64, device="cpu").reshape(-1)
     if t.numel() < 2:
         raise ValueError(f"{name} needs at least 2 timestamps, got {t.numel()}")
     if not bool(torch.isfinite(t).all()):

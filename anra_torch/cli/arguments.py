@@ -13,6 +13,8 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+import torch
+
 from anra_torch.recording import open_recording
 from anra_torch.video import REGISTRY, Video
 
@@ -80,6 +82,18 @@ def object_parameters(args: argparse.Namespace) -> dict[str, float]:
     """The object parameters given on the command line, as keywords of
     :func:`~anra_torch.video.load_video` (none for a command without the flags)."""
     return {key: getattr(args, key) for key in OBJECT_FLAGS if getattr(args, key, None) is not None}
+
+
+def add_device_argument(parser: argparse.ArgumentParser) -> None:
+    """--device: where the command computes (the frames are moved there; the results do not depend on it
+    beyond rounding)."""
+    parser.add_argument(
+        "--device",
+        type=device,
+        default=torch.device("cpu"),
+        metavar="DEVICE",
+        help="compute on this torch device: cpu (default), cuda, cuda:1, mps, where present",
+    )
 
 
 def add_region_arguments(parser: argparse.ArgumentParser) -> None:
@@ -156,6 +170,22 @@ class Parser(argparse.ArgumentParser):
 
 
 # ----------------------------------------------------------------------------------- flag types
+def device(text: str) -> torch.device:
+    """A flag type: a torch device this machine has (``cpu``, ``cuda``, ``cuda:1``, ``mps``)."""
+    try:
+        chosen = torch.device(text)
+    except (RuntimeError, ValueError) as err:
+        raise argparse.ArgumentTypeError(f"must be a torch device such as cpu or cuda, got {text!r}") from err
+    present = {
+        "cpu": lambda: True,
+        "cuda": lambda: torch.cuda.is_available() and (chosen.index or 0) < torch.cuda.device_count(),
+        "mps": lambda: torch.backends.mps.is_available(),
+    }.get(chosen.type, lambda: False)()
+    if not present:
+        raise argparse.ArgumentTypeError(f"{text!r} is not available on this machine; use --device cpu")
+    return chosen
+
+
 def number(unit: str, *, positive: bool) -> Callable[[str], float]:
     """A flag type: a finite number in ``unit``, positive or non-negative."""
 

@@ -9,6 +9,7 @@ import sys
 from anra_torch.batch import run_batch, run_batch_dask
 from anra_torch.cli.arguments import (
     PROG,
+    add_device_argument,
     add_region_arguments,
     add_spacing_arguments,
     format_list,
@@ -39,6 +40,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     add_spacing_arguments(parser, "the files")
     add_region_arguments(parser)
+    add_device_argument(parser)
     parser.add_argument(
         "--batch-size",
         type=integer("videos", minimum=1),
@@ -92,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         "calibration": args.calibration,
         "rerun": args.rerun,
         "precision": args.precision,
+        "device": str(args.device),
     }
     if args.dask or args.scheduler:
         summary = run_batch_dask(

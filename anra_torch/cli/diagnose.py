@@ -18,8 +18,11 @@ import argparse
 import json
 from typing import Any
 
+import torch
+
 from anra_torch.checks import one_line
 from anra_torch.cli.arguments import (
+    add_device_argument,
     add_video_arguments,
     clean_json,
     format_list,
@@ -52,6 +55,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "unsmoothed frames. Exit status 2 on bad input.",
     )
     add_video_arguments(parser, format_list())
+    add_device_argument(parser)
     parser.add_argument(
         "--fit-fraction",
         type=number("fraction of the frames", positive=True),
@@ -119,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
             full_resolution=args.full_resolution,
             **object_parameters(args),
         )
+        if args.device.type != "cpu":  # the diagnosis computes where its frames are
+            recording = recording.loaded().map_frames(lambda f: torch.as_tensor(f).to(args.device))
         done = diagnose_video(
             recording,
             fit_fraction=args.fit_fraction,

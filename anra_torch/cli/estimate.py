@@ -36,6 +36,7 @@ from typing import Any
 
 from anra_torch.cli.arguments import (
     PROG,
+    add_device_argument,
     add_video_arguments,
     clean_json,
     format_list,
@@ -62,6 +63,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "chosen from the data; exit status 2 when no diffusivity can be estimated.",
     )
     add_video_arguments(parser, formats)
+    add_device_argument(parser)
     parser.add_argument(
         "--mode",
         choices=MODES,
@@ -153,7 +155,7 @@ def _depth_aware_line(d: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``anra estimate`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
-    est = ANRAEstimator(mode=args.mode, window=args.window, strict=False)
+    est = ANRAEstimator(mode=args.mode, window=args.window, strict=False).to(args.device)  # the frames follow
     video = open_input(args, on_disk_above=on_disk_above(args.precision))
     done = estimate_recording(video, est, precision=args.precision, progress=sys.stderr.isatty())
     summary = done.to_record()

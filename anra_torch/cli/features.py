@@ -4,7 +4,16 @@ from __future__ import annotations
 
 import argparse
 
-from anra_torch.cli.arguments import add_video_arguments, format_list, json_line, open_input, print_input
+import torch
+
+from anra_torch.cli.arguments import (
+    add_device_argument,
+    add_video_arguments,
+    format_list,
+    json_line,
+    open_input,
+    print_input,
+)
 from anra_torch.recording import input_record, phase_diffusivities
 from anra_torch.tissue import RULES, feature_summary, save_feature_maps
 
@@ -26,6 +35,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "the source-free phase's global diffusivity, as anra estimate does, and lists its phases.",
     )
     add_video_arguments(parser, format_list())
+    add_device_argument(parser)
     parser.add_argument(
         "--units", choices=("C", "K"), default="C", help="temperature unit of the frames (default C)"
     )
@@ -49,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
     """Run ``anra features`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     video = open_input(args, need_dx=False)
     try:
-        record, maps = feature_summary(video.frames, video.dt, video.dx, units=args.units, rule=args.rule)
+        frames = torch.as_tensor(video.frames).to(args.device)  # the features compute where the frames are
+        record, maps = feature_summary(frames, video.dt, video.dx, units=args.units, rule=args.rule)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
     record = {"path": str(video.source), **record, "out": None, "phases": [], "diffusivity_phase": None}

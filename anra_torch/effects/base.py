@@ -83,12 +83,12 @@ class Grid:
     @property
     def x(self) -> Tensor:
         """Column centres in mm."""
-        return (torch.arange(self.shape[1], dtype=torch.float64) + 0.5) * self.dx
+        return (torch.arange(self.shape[1], dtype=torch.float64, device="cpu") + 0.5) * self.dx
 
     @property
     def y(self) -> Tensor:
         """Row centres in mm."""
-        return (torch.arange(self.shape[0], dtype=torch.float64) + 0.5) * self.dx
+        return (torch.arange(self.shape[0], dtype=torch.float64, device="cpu") + 0.5) * self.dx
 
     def pad(self, u: Tensor) -> Tensor:
         """``u`` with one ghost pixel around the frame from the boundary condition."""

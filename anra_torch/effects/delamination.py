@@ -56,7 +56,9 @@ def _build(p: dict[str, float], grid: Grid) -> Term:
     disc = edge_disc(grid.x, grid.y, p["x"], p["y"], p["radius"], grid.dx)
 
     def term(t: Tensor, u: Tensor) -> Tensor:
-        elapsed = torch.as_tensor(t, dtype=_F64) - p["t_heat"]  # > 0: the heating precedes the first frame
+        elapsed = (
+            torch.as_tensor(t, dtype=_F64, device=u.device) - p["t_heat"]
+        )  # > 0: the heating precedes the first frame
         rate = p["strength"] * _difference(elapsed, p)
         return (rate * disc).to(u) * (u - p["T_ref"])
 
@@ -102,7 +104,7 @@ def _check(p: dict[str, float]) -> None:
 
 def _rates(p: dict[str, float], span: tuple[float, float]) -> Rates:
     """The disc's rate is below the plate's own at the simulation's start, ``strength r_plate(-t_heat)``."""
-    elapsed = torch.tensor(-p["t_heat"], dtype=_F64)
+    elapsed = torch.tensor(-p["t_heat"], dtype=_F64, device="cpu")
     return Rates(decay=p["strength"] * float(depth_rate(elapsed, p["plate_time"])))
 
 
@@ -129,7 +131,7 @@ def delamination_term(system: BalanceSystem, theta: Tensor, plate: dict[str, flo
     gx, gy = pixel_grid(system)
     dx = system.dx
     disc = edge_disc(gx, gy, cx * dx, cy * dx, radius * dx, dx)
-    t = torch.arange(system.shape[0], dtype=_F64) * system.dt - plate["t_heat"]
+    t = torch.arange(system.shape[0], dtype=_F64, device=system.frames.device) * system.dt - plate["t_heat"]
     rate = depth_rate(t, plate["depth_time"]) - depth_rate(t, depth_time)
     centred = system.frames.detach() - plate["T_ref"]
     field = rate[:, None, None] * disc[None] * centred
@@ -155,6 +157,7 @@ def _starts(system: BalanceSystem, fit: Fit) -> list[Tensor]:
                         math.log(fraction / (1 - fraction)),
                     ],
                     dtype=_F64,
+                    device=system.frames.device,
                 )
             )
     return starts

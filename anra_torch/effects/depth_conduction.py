@@ -68,9 +68,9 @@ def depth_rate(elapsed: Tensor, depth_time: float | Tensor) -> Tensor:
         ``r`` in 1/s, the shape of ``elapsed``.
     """
     elapsed = elapsed.to(_F64)
-    tau = torch.as_tensor(depth_time, dtype=_F64) / math.pi**2
+    tau = torch.as_tensor(depth_time, dtype=_F64, device=elapsed.device) / math.pi**2
     s = elapsed / tau
-    n = torch.arange(1, _SERIES + 1, dtype=_F64)
+    n = torch.arange(1, _SERIES + 1, dtype=_F64, device=elapsed.device)
     small = s < 1.0
     # direct series, used where s >= 1
     s_big = torch.where(small, torch.ones_like(s), s)[..., None]
@@ -90,7 +90,9 @@ def _build(p: dict[str, float], grid: Grid) -> Term:
     strength, t_heat, depth_time, t_ref = p["strength"], p["t_heat"], p["depth_time"], p["T_ref"]
 
     def term(t: Tensor, u: Tensor) -> Tensor:
-        elapsed = torch.as_tensor(t, dtype=_F64) - t_heat  # > 0: the heating precedes the first frame
+        elapsed = (
+            torch.as_tensor(t, dtype=_F64, device=u.device) - t_heat
+        )  # > 0: the heating precedes the first frame
         return (-strength * depth_rate(elapsed, depth_time)).to(u) * (u - t_ref)
 
     return term
@@ -113,7 +115,9 @@ def _check(p: dict[str, float]) -> None:
 
 def _rates(p: dict[str, float], span: tuple[float, float]) -> Rates:
     """The fastest decay is at the simulation's start (t = 0 s), ``strength r(-t_heat)``."""
-    return Rates(decay=p["strength"] * float(depth_rate(torch.tensor(-p["t_heat"]), p["depth_time"])))
+    return Rates(
+        decay=p["strength"] * float(depth_rate(torch.tensor(-p["t_heat"], device="cpu"), p["depth_time"]))
+    )
 
 
 def _bounds(p: dict[str, float], lo: float, hi: float, duration: float) -> tuple[float, float]:
@@ -146,7 +150,7 @@ def _spread(system: BalanceSystem) -> float:
 def depth_term(system: BalanceSystem, theta: Tensor) -> tuple[Tensor, Tensor]:
     """``Z`` on the output grid for ``theta`` (see :func:`_unpack`) and ``r`` at the output frames."""
     elapsed, depth_time, offset = _unpack(system, theta)
-    t = torch.arange(system.shape[0], dtype=_F64) * system.dt
+    t = torch.arange(system.shape[0], dtype=_F64, device=system.frames.device) * system.dt
     rate = depth_rate(t + elapsed, depth_time)
     field = rate[:, None, None] * (system.smoothed - offset)
     return system.filters.time.average(field), system.filters.time.average(rate[:, None, None])
@@ -171,6 +175,7 @@ def _starts(system: BalanceSystem) -> list[Tensor]:
                             offset / spread,
                         ],
                         dtype=_F64,
+                        device=system.frames.device,
                     )
                 )
     return starts

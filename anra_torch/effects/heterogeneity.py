@@ -94,7 +94,7 @@ def _disc(system: BalanceSystem, theta: Tensor) -> Tensor:
 def _heterogeneity_term(system: BalanceSystem, theta: Tensor, average: Tensor) -> Tensor:
     """``H = G div(disc grad S_t T)`` (flux form) on the output grid."""
     disc = _disc(system, theta)
-    flux = HeatRHS(disc, dx=system.dx)(torch.zeros((), dtype=_F64), average)
+    flux = HeatRHS(disc, dx=system.dx)(average.new_zeros((), dtype=_F64), average)
     return system.finish(flux)
 
 
@@ -134,7 +134,7 @@ def _heterogeneity_starts(system: BalanceSystem) -> list[Tensor]:
     m = system.margin
     a, energy = _local_diffusivity(system, 2 * int(math.ceil(2 * system.sigma)) + 5)
     ok = energy > 0.05 * energy.max()
-    starts = []
+    starts, device = [], system.frames.device
     if int(ok.sum()) >= 4:
         values, weights = a[ok], energy[ok]
         order = values.argsort()
@@ -146,7 +146,9 @@ def _heterogeneity_starts(system: BalanceSystem) -> list[Tensor]:
         between = cw[:-1] * (total_w - cw[:-1]) * (mean_low - mean_high) ** 2
         split = float(v[int(between.argmax())])
         rows, cols = torch.meshgrid(
-            torch.arange(a.shape[0], dtype=_F64), torch.arange(a.shape[1], dtype=_F64), indexing="ij"
+            torch.arange(a.shape[0], dtype=_F64, device=a.device),
+            torch.arange(a.shape[1], dtype=_F64, device=a.device),
+            indexing="ij",
         )
         for region in (ok & (a <= split), ok & (a > split)):
             count = int(region.sum())
@@ -154,10 +156,14 @@ def _heterogeneity_starts(system: BalanceSystem) -> list[Tensor]:
                 continue
             radius = max(math.sqrt(count / math.pi), _MIN_RADIUS_PX + 1.0)
             cx, cy = float(cols[region].mean()) + m + 0.5, float(rows[region].mean()) + m + 0.5
-            starts.append(torch.tensor([cx, cy, math.log(radius - _MIN_RADIUS_PX)], dtype=_F64))
+            starts.append(
+                torch.tensor([cx, cy, math.log(radius - _MIN_RADIUS_PX)], dtype=_F64, device=device)
+            )
     for cx, cy in _activity_centres(system):
         for radius in (6.0, 12.0, 20.0):
-            starts.append(torch.tensor([cx, cy, math.log(radius - _MIN_RADIUS_PX)], dtype=_F64))
+            starts.append(
+                torch.tensor([cx, cy, math.log(radius - _MIN_RADIUS_PX)], dtype=_F64, device=device)
+            )
     return starts
 
 

@@ -101,7 +101,7 @@ class Effect:
         Shape:
             ``T`` ``(H, W)`` or ``(B, H, W)`` on ``grid``; output like ``T``.
         """
-        time = t if isinstance(t, Tensor) else torch.as_tensor(float(t), dtype=torch.float64)
+        time = t if isinstance(t, Tensor) else torch.as_tensor(float(t), dtype=torch.float64, device=T.device)
         return self.spec.build(self.params, grid)(time, T)
 
     def to_dict(self) -> dict[str, Any]:
@@ -377,7 +377,7 @@ def simulate_effects(
 
 def _check_edges(edges: object, like: Tensor, batched: bool, n_frames: int) -> Tensor:
     """Finite frames ``(T, B, H, W)`` in ``like``'s dtype, from ``(B, T, H, W)`` (or ``(T, H, W)``)."""
-    edges = torch.as_tensor(edges)
+    edges = edges if isinstance(edges, Tensor) else torch.as_tensor(edges, device="cpu")
     batch, height, width = like.shape
     shape = (batch, n_frames, height, width) if batched else (n_frames, height, width)
     if tuple(edges.shape) != shape:
@@ -400,7 +400,7 @@ def _following(
     there, so RK4 follows the linear interpolation exactly; the integrator perturbs stage times into
     the step so each stage sees its own interval).
     """
-    ring = torch.ones(u0.shape[-2:], dtype=torch.bool)
+    ring = torch.ones(u0.shape[-2:], dtype=torch.bool, device=u0.device)
     ring[1:-1, 1:-1] = False
     per_substep = (edges[1:] - edges[:-1]) / substeps  # (T - 1, B, H, W), change per solver time unit
     last = max(per_substep.shape[0] - 1, 0)
@@ -414,7 +414,7 @@ def _following(
 
 def _check_forcing(forcing: object, like: Tensor) -> Tensor:
     """A finite stationary input map of the frame's shape, in ``like``'s dtype."""
-    forcing = torch.as_tensor(forcing)
+    forcing = forcing if isinstance(forcing, Tensor) else torch.as_tensor(forcing, device="cpu")
     height, width = like.shape[-2:]
     need = f"forcing must be a finite map of the frame's shape ({height}, {width}) in data units per s"
     if forcing.shape != (height, width):

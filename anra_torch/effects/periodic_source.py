@@ -91,7 +91,7 @@ def _spot(system: BalanceSystem, x: Tensor, y: Tensor, log_width: Tensor) -> Ten
 
 def periodic_term(system: BalanceSystem, theta: Tensor) -> Tensor:
     """``P`` for ``theta = (x, y, log width, log frequency, phase)`` (px, Hz, rad) on the output grid."""
-    t = torch.arange(system.shape[0], dtype=_F64) * system.dt
+    t = torch.arange(system.shape[0], dtype=_F64, device=system.frames.device) * system.dt
     modulation = _modulation(t, torch.exp(theta[3]), theta[4])
     field = modulation[:, None, None] * _spot(system, theta[0], theta[1], theta[2])[None]
     return system.finish(system.filters.time.average(field))
@@ -118,6 +118,7 @@ def _starts(system: BalanceSystem, fit: Fit) -> list[Tensor]:
                 torch.tensor(
                     [col + m + 0.5, row + m + 0.5, math.log(width - _MIN_WIDTH_PX), math.log(f), phase],
                     dtype=_F64,
+                    device=system.frames.device,
                 )
             )
     return starts

@@ -247,7 +247,9 @@ class Scene:
         Shape:
             ``x``, ``y`` broadcastable float64 tensors; output their broadcast shape.
         """
-        out = torch.full(torch.broadcast_shapes(x.shape, y.shape), self.background, dtype=_F64)
+        out = torch.full(
+            torch.broadcast_shapes(x.shape, y.shape), self.background, dtype=_F64, device=x.device
+        )
         for rise, cx, cy, sigma in self.spots:
             out = out + rise * torch.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2.0 * sigma**2))
         return out
@@ -283,7 +285,7 @@ class Scene:
         sd = noise_sd if noise_sd is not None else noise_frac * self.geometry.rise
         clean = clean.to(dtype)
         generator = torch.Generator().manual_seed(self.seed)
-        frames = clean + sd * torch.randn(clean.shape, generator=generator, dtype=dtype)
+        frames = clean + sd * torch.randn(clean.shape, generator=generator, dtype=dtype, device="cpu")
         size = tuple(self.initial.shape)
         reference, a_map = _reference(self.effects, Grid(size, self.dx, self.geometry.duration), self.a)
         return HiddenEffectVideo(
@@ -292,7 +294,7 @@ class Scene:
             dt=self.dt,
             dx=self.dx,
             a=reference,
-            times=torch.arange(self.n_frames, dtype=dtype) * self.dt,
+            times=torch.arange(self.n_frames, dtype=dtype, device="cpu") * self.dt,
             effects=self.effects,
             noise_sd=sd,
             seed=self.seed,

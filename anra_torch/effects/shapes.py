@@ -20,7 +20,9 @@ _F64 = torch.float64
 def pixel_grid(system: BalanceSystem) -> tuple[Tensor, Tensor]:
     """Pixel-centre coordinates (mm) of the full frame: x along columns ``(W,)``, y along rows ``(H,)``."""
     _, h, w = system.shape
-    return (torch.arange(w, dtype=_F64) + 0.5) * system.dx, (torch.arange(h, dtype=_F64) + 0.5) * system.dx
+    device = system.frames.device
+    x = (torch.arange(w, dtype=_F64, device=device) + 0.5) * system.dx
+    return x, (torch.arange(h, dtype=_F64, device=device) + 0.5) * system.dx
 
 
 def edge_disc(x: Tensor, y: Tensor, cx: Any, cy: Any, radius: Any, edge: float) -> Tensor:
@@ -82,6 +84,6 @@ def peak(image: Tensor, radius: int) -> tuple[float, float]:
     total = float(patch.sum())
     if total <= 0:
         return float(col), float(row)
-    rows = torch.arange(r0, r1, dtype=_F64)[:, None]
-    cols = torch.arange(c0, c1, dtype=_F64)[None, :]
+    rows = torch.arange(r0, r1, dtype=_F64, device=image.device)[:, None]
+    cols = torch.arange(c0, c1, dtype=_F64, device=image.device)[None, :]
     return float((patch * cols).sum()) / total, float((patch * rows).sum()) / total

@@ -84,7 +84,7 @@ def source_term(system: BalanceSystem, theta: Tensor) -> Tensor:
     n_frames = system.shape[0]
     x, y = pixel_grid(system)
     dx = system.dx
-    s = torch.arange(n_frames, dtype=_F64) / max(n_frames - 1, 1)  # fraction of the path
+    s = torch.arange(n_frames, dtype=_F64, device=theta.device) / max(n_frames - 1, 1)  # fraction of the path
     cx = (theta[0] + (theta[2] - theta[0]) * s) * dx
     cy = (theta[1] + (theta[3] - theta[1]) * s) * dx
     inv = 0.5 / ((_MIN_WIDTH_PX + torch.exp(theta[4])) * dx) ** 2
@@ -117,7 +117,11 @@ def _fit_source(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
     def loss(theta: Tensor) -> Tensor:
         return system.profile_loss(columns, source_term(system, theta)) / scale
 
-    starts = [torch.tensor([x0, y0, x1, y1, math.log(w - _MIN_WIDTH_PX)], dtype=_F64) for w in (2.0, 4.0)]
+    device = system.frames.device
+    starts = [
+        torch.tensor([x0, y0, x1, y1, math.log(w - _MIN_WIDTH_PX)], dtype=_F64, device=device)
+        for w in (2.0, 4.0)
+    ]
     theta = optimise(loss, starts if start is None else [*starts, start], iterations=40, runs=1)
     dx = system.dx
     shape = {

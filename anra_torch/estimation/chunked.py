@@ -39,7 +39,7 @@ import torch.nn.functional as F
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from anra_torch.balance import BatchNoise, batch_noise, find_artefacts, stuck_pixels
+from anra_torch.balance import BatchNoise, batch_noise, find_artefacts, spectral_stage, stuck_pixels
 from anra_torch.checks import MIN_RELIABILITY, MIN_SIGNIFICANCE, as_spacing, poor_fit, verdicts
 from anra_torch.estimation.estimator import ANRAEstimator, ANRAResult
 from anra_torch.layers import UniformAttention
@@ -89,9 +89,14 @@ def _read(frames: Any, start: int, stop: int, dtype: torch.dtype) -> Tensor:
     return tensor.to(dtype)
 
 
-def _dtype(frames: Any) -> torch.dtype:
-    kind = getattr(frames, "dtype", None)
-    return _F64 if kind in (np.float64, torch.float64) else torch.float32
+def _like(frames: Any, dtype: torch.dtype | None, device: torch.device | str | None) -> Tensor:
+    """A scalar in ``dtype`` (default float64 for float64 frames, else float32) on ``device`` (default the
+    frames' own, the CPU for arrays)."""
+    if dtype is None:
+        dtype = _F64 if getattr(frames, "dtype", None) in (np.float64, torch.float64) else torch.float32
+    if device is None:
+        device = frames.device if isinstance(frames, Tensor) else "cpu"
+    return torch.zeros((), dtype=dtype, device=device)
 
 
 _CONTEXT = 2  # frames on each side a spike search needs (its second difference in time, and a margin)
@@ -105,7 +110,8 @@ def _repaired(frames: Any, raw: Tensor, start: int, pilot: _Pilot, new: slice) -
     finite samples the repair changed, outside dead and hot elements."""
     stop = start + raw.shape[0]
     low, high = max(0, start - _CONTEXT), min(frames.shape[0], stop + _CONTEXT)
-    context = torch.cat([_read(frames, low, start, raw.dtype), raw, _read(frames, stop, high, raw.dtype)])
+    before, after = (_read(frames, a, b, raw.dtype).to(raw.device) for a, b in ((low, start), (stop, high)))
+    context = torch.cat([before, raw, after])
     finite = torch.isfinite(context) & ~pilot.dead
     video = torch.where(finite, context - pilot.offset, torch.nan)
     repaired, found = find_artefacts(video)
@@ -199,12 +205,14 @@ class _Pilot:
     a: float  # the pooled estimate, where the standard error is linearised
 
 
-def _signal_crop(blocks: Tensor, finite: Tensor, side: int) -> tuple[slice, slice]:
-    """The ``side`` x ``side`` px window (or the whole frame) where the pilot's frames change most."""
+def _signal_crop(blocks: Tensor, finite: Tensor | None, side: int) -> tuple[slice, slice]:
+    """The ``side`` x ``side`` px window (or the whole frame) where the pilot's frames change most
+    (``finite`` None: every sample is)."""
     h, w = blocks.shape[-2:]
     if h <= side and w <= side:
         return slice(None), slice(None)
-    change = torch.where(finite, blocks, torch.zeros_like(blocks)).var(1).sum(0).double()  # (H, W)
+    usable = blocks if finite is None else torch.where(finite, blocks, torch.zeros_like(blocks))
+    change = usable.var(1).sum(0).double()  # (H, W)
     sy, sx = min(side, h), min(side, w)
     table = F.pad(change.cumsum(0).cumsum(1), (1, 0, 1, 0))  # window sums from an integral image
     local = table[sy:, sx:] - table[:-sy, sx:] - table[sy:, :-sx] + table[:-sy, :-sx]
@@ -224,27 +232,34 @@ def _pilot(est: ANRAEstimator, blocks: Tensor, dt: Tensor, dx: Tensor, side: int
     n = blocks.shape[0]
     length = est.time.length
     scale = max(1.0, (total - length + 1) / (n * (blocks.shape[1] - length + 1)))  # outputs per pilot output
-    finite = torch.isfinite(blocks)
+    # One sum tells blocks without non-finite samples; without dead elements either, no masks (None).
+    finite = None if bool(torch.isfinite(blocks.sum())) else torch.isfinite(blocks)
     stuck = stuck_pixels(blocks, finite)
+    if finite is None and bool(stuck.any()):
+        finite = torch.ones_like(blocks, dtype=torch.bool)
     dead = stuck[:, 0].all(0)  # constant through every block: masked (the in-memory estimator repairs them)
     rows, cols = _signal_crop(blocks, finite, side)
     whole = rows == slice(None)  # the window is the whole frame: its artefact search is the noise model's
     if not whole:
-        masked = torch.where(finite & ~dead, blocks, torch.nan)
+        masked = blocks if finite is None else torch.where(finite & ~dead, blocks, torch.nan)
         repair = any(_needs_repair(find_artefacts(b)[1]) for b in masked)
-    blocks, finite = blocks[..., rows, cols], (finite & ~stuck)[..., rows, cols]
+    blocks = blocks[..., rows, cols]
+    finite = None if finite is None else (finite & ~stuck)[..., rows, cols]
     h, w = blocks.shape[-2:]
-    values = blocks[finite]
+    values = blocks.reshape(-1) if finite is None else blocks[finite]
     offset = float(values.double().mean()) if values.numel() else 0.0
-    centred = torch.where(finite, blocks - offset, torch.zeros_like(blocks))
+    centred = (
+        blocks - offset if finite is None else torch.where(finite, blocks - offset, torch.zeros_like(blocks))
+    )
     noise = batch_noise(centred, finite, noise_sd=est.noise_sd)
     if whole:  # an element stuck in one block only is masked there, not searched: it needs the repair too
         repair = bool((stuck[:, 0].any(0) & ~dead).any()) or any(_needs_repair(f) for f in noise.artefacts)
-    video = torch.where(finite, noise.cleaned, centred)
+    video = noise.cleaned if finite is None else torch.where(finite, noise.cleaned, centred)
     usable = est.usable(h, w)
     best, best_var, best_a = usable[0], math.inf, 0.0
+    stage = spectral_stage(est.filters[0], video, dt.expand(n))  # one time filter for every candidate
     for i in usable:  # the blocks pooled as one estimate: the candidate with the smallest standard error
-        sums = est.candidate_sums(i, video, finite, dt.expand(n), dx.expand(n), noise)
+        sums = est.candidate_sums(i, video, finite, dt.expand(n), dx.expand(n), noise, stage=stage)
         num, den, energy = (float(x.sum()) for x in (sums.num, sums.den, sums.energy))
         noise_var = float(sums.spread.double().pow(2).nansum())
         # The whole recording's standard error, as the estimator computes it, from the evenly spread blocks:
@@ -283,6 +298,7 @@ def estimate_chunked(
     error_every: int = 4,
     progress: bool = False,
     dtype: torch.dtype | None = None,
+    device: torch.device | str | None = None,
 ) -> ChunkedEstimate:
     """Diffusivity of a recording read in time chunks (see the module docs), memory bounded by the chunk.
 
@@ -307,6 +323,7 @@ def estimate_chunked(
         progress: show a tqdm progress bar over the frames.
         dtype: the computation's dtype, ``torch.float32`` or ``torch.float64`` (the accumulators are
             float64 either way); default float64 for float64 frames, else float32.
+        device: where each chunk is computed (default: the frames' own device, the CPU for arrays).
 
     Returns:
         :class:`ChunkedEstimate`.
@@ -326,16 +343,16 @@ def estimate_chunked(
         error_every=error_every, pilot_blocks=pilot_blocks, pilot_frames=pilot_frames, pilot_side=pilot_side
     )
     total, length = _frames_total(frames, est.time.length), est.time.length
-    dtype = _dtype(frames) if dtype is None else dtype
-    dt_ = as_spacing(dt, name="dt", unit="s", batch=1, like=torch.zeros((), dtype=dtype))
-    dx_ = as_spacing(dx, name="dx", unit="mm", batch=1, like=torch.zeros((), dtype=dtype))
+    like = _like(frames, dtype, device)  # the computation's dtype and device: every tensor follows it
+    dt_ = as_spacing(dt, name="dt", unit="s", batch=1, like=like)
+    dx_ = as_spacing(dx, name="dx", unit="mm", batch=1, like=like)
     block = min(total, max(pilot_frames, 2 * length))
     starts = _pilot_starts(total, block, pilot_blocks)
-    blocks = torch.stack([_read(frames, s, s + block, dtype) for s in starts])
+    blocks = torch.stack([_read(frames, s, s + block, like.dtype).to(like.device) for s in starts])
     pilot = _pilot(est, blocks, dt_, dx_, pilot_side, total)
     del blocks
     plan = (chunk_frames, error_every, precision, progress)
-    sums, seen = _accumulate(frames, est, pilot, dt_, dx_, dtype, plan)
+    sums, seen = _accumulate(frames, est, pilot, dt_, dx_, like.dtype, plan)
     result = _result(est, pilot, sums, seen, dt_, dx_)
     if est.strict and not bool(result.valid):
         raise ValueError(result.messages[0])
@@ -368,20 +385,21 @@ def _accumulate(
     chained = every == 1 or chunk < 2 * length
     # Filled in place: small tensors kept per chunk pinned the heap between the chunks' large temporaries
     # (glibc could not reuse the holes: +1 MB of peak memory per frame over 9000 frames).
-    sums_of = {name: torch.zeros(outputs, dtype=_F64) for name in ("rate_energy", "num", "den", "energy")}
+    sums_of = {n: dt.new_zeros(outputs, dtype=_F64) for n in ("rate_energy", "num", "den", "energy")}
     seen: dict[str, Any] = {"frames": 0, "masked": 0, "low": math.inf, "high": -math.inf, "spikes": 0}
     seen["finished"] = False
     variance_error = float(pilot.noise.variance_error[0])
     error = _NoiseVariance(length)
-    at = torch.tensor([pilot.a], dtype=dtype)
+    at = torch.tensor([pilot.a], dtype=dtype, device=dt.device)
     with tqdm(total=total, unit="frame", desc="anra chunks", disable=not progress) as bar:
         for j, start in enumerate(range(0, outputs, chunk)):
             stop = min(outputs, start + chunk)
-            raw = _read(frames, start, stop + length - 1, dtype)
-            finite = torch.isfinite(raw) & ~pilot.dead
+            raw = _read(frames, start, stop + length - 1, dtype).to(dt.device)
+            # One sum tells a chunk without non-finite samples (inf and NaN carry through it).
+            everywhere = bool(torch.isfinite(raw.sum())) and not bool(pilot.dead.any())
+            finite = None if everywhere else torch.isfinite(raw) & ~pilot.dead
             new = slice(seen["frames"] - start, None)  # input frames not counted by an earlier chunk
             seen["frames"] = stop + length - 1
-            everywhere = bool(finite.all())
             if not everywhere:
                 seen["masked"] += int((~finite[new]).sum())
             low, high = (float(v) for v in raw.aminmax()) if everywhere else _range(raw, finite)
@@ -392,13 +410,14 @@ def _accumulate(
             artefacts = pilot.noise.artefacts
             if pilot.repair:
                 video, found, spikes = _repaired(frames, raw, start, pilot, new)
-                finite, artefacts = torch.ones_like(finite), (found,)
+                finite, everywhere, artefacts = None, True, (found,)
                 seen["spikes"] += spikes
             noise = replace(pilot.noise, cleaned=video[None], artefacts=artefacts)
             first, last = start == 0, stop == outputs
             sampled = chained or first or last or j % every == 0
             sums = est.candidate_sums(
-                pilot.index, video[None], finite[None], dt, dx, noise, with_error=False,
+                pilot.index, video[None], None if finite is None else finite[None], dt, dx, noise,
+                with_error=False,
                 back_at=at if sampled else None,
             )  # fmt: skip
             for name, values in sums_of.items():
@@ -494,15 +513,15 @@ def _result(
     variance_error = float(pilot.noise.variance_error[0])
     a, se, reliability = _totals(sums, seen["error"], seen, variance_error)
 
-    def one(x: float) -> Tensor:
-        return torch.tensor([x], dtype=_F64)
+    def one(x: float | bool) -> Tensor:
+        return torch.tensor([x], dtype=_F64 if not isinstance(x, bool) else torch.bool, device=dt.device)
 
     measurable = reliability >= MIN_RELIABILITY and math.isfinite(a) and abs(a) >= MIN_SIGNIFICANCE * se
     changing = seen["high"] > seen["low"]
-    valid = torch.tensor([bool(changing and measurable)])
+    valid = one(bool(changing and measurable))
     estimate = one(a)
     messages, warnings = verdicts(
-        valid, torch.tensor([changing]), one(reliability), estimate, one(se), dt.to(_F64), dx.to(_F64)
+        valid, one(bool(changing)), one(reliability), estimate, one(se), dt.to(_F64), dx.to(_F64)
     )
     uu, ul, ll = (float(sums[k].sum()) for k in ("rate_energy", "num", "den"))
     explained = min(1.0, max(0.0, ul * ul / (uu * ll))) if uu > 0 and ll > 0 else 0.0
@@ -510,8 +529,8 @@ def _result(
         warnings = (warnings[0] + poor_fit(explained),)
     den = sums["den"]
     per_frame = torch.where(den == 0, torch.zeros_like(den), sums["num"] / torch.where(den == 0, 1.0, den))
-    k = torch.arange(per_frame.shape[0], dtype=_F64)
-    nan = torch.tensor([math.nan], dtype=_F64)
+    k = torch.arange(per_frame.shape[0], dtype=_F64, device=dt.device)
+    nan = one(math.nan)
     noise = pilot.noise
     record = noise.artefacts[0].to_record()
     if pilot.repair:
@@ -526,7 +545,7 @@ def _result(
         reliability=one(reliability),
         explained=one(explained),
         valid=valid,
-        n_masked=torch.tensor([seen["masked"]]),
+        n_masked=torch.tensor([seen["masked"]], device=dt.device),
         field=None,
         confidence=None,
         messages=messages,

@@ -27,7 +27,17 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from anra_torch.balance import BatchNoise, MatchedFilters, TermNoise, accumulate, batch_noise, stuck_pixels
+from anra_torch.balance import (
+    BatchNoise,
+    MatchedFilters,
+    SpectralStage,
+    TermNoise,
+    accumulate,
+    prepare_batch,
+    pushed_back,
+    spectral_stage,
+    spectral_terms,
+)
 from anra_torch.checks import (
     MIN_RELIABILITY,
     MIN_SIGNIFICANCE,
@@ -354,25 +364,28 @@ class ANRAEstimator(nn.Module):
         self,
         index: int,
         video: Tensor,
-        finite: Tensor,
+        finite: Tensor | None,
         dt: Tensor,
         dx: Tensor,
         noise: BatchNoise,
         *,
         with_error: bool = True,
         back_at: Tensor | None = None,
+        stage: SpectralStage | None = None,
     ) -> _Candidate:
         """The sums of smoothing candidate ``index`` over a centred ``(B, T, H, W)`` batch.
 
         Without ``with_error`` the standard error is NaN (no adjoint pass); with ``back_at`` (``a`` per
         video, ``(B,)``) the noise lever pushed back onto the frames at that ``a`` is returned in ``back``
-        instead (:mod:`anra_torch.estimation.chunked` adds it up over chunks)."""
+        instead (:mod:`anra_torch.estimation.chunked` adds it up over chunks). The terms come through the
+        frames' spectra (:mod:`anra_torch.balance.spectral`): ``stage``, the batch's time-filtered
+        spectra, is shared by every candidate (computed here when None)."""
         filters = self.filters[index]
-        stage = filters.smoothed_stage(video, dt)  # one Gaussian pass per candidate
-        terms = filters.terms(None, dt, dx, _NAMES, time_stage=stage, smoothed=True)
+        stage = spectral_stage(filters, video, dt) if stage is None else stage
+        terms = spectral_terms(filters, stage, dx)
         terms = {k: noise.fixed_effects(v) for k, v in terms.items()}
         rate, lap = terms["U"], terms["L"]
-        valid = self._valid_mask(finite, filters.margin) if not bool(finite.all()) else None
+        valid = None if finite is None or bool(finite.all()) else self._valid_mask(finite, filters.margin)
         weights, slope = self.attention.with_slope(rate, valid)
         term_noise = None
         if self.eiv_correction and self.mode == "lsq":
@@ -399,9 +412,12 @@ class ANRAEstimator(nn.Module):
             estimate = num.sum(1) / torch.where(total == 0, torch.ones_like(total), total)
             # Sandwich for one regressor: sd |A^T (w L)| / |sum w (L^2 - var)|.
             lever = noise.fixed_effects((weights * lap).detach())  # the projection is its own transpose
-            a = (estimate if back_at is None else back_at.to(estimate)).detach().view(-1, 1, 1, 1)
-            back = filters.adjoint({"U": lever, "L": -a * lever}, dt.detach(), dx.detach())
-            spread = noise.spread(back) if back_at is None else spread
+            a = (estimate if back_at is None else back_at.to(estimate)).detach()
+            pushed = (filters, lever, a, dt.detach(), dx.detach(), stage.size)
+            if back_at is None:  # Parseval: the spread without the pushed-back field
+                spread = noise.pushed_spread(*pushed)
+            else:
+                back = pushed_back(*pushed)
             std_error = spread / total.abs().clamp_min(torch.finfo(rate.dtype).tiny)
             # The correction's own error: the measured noise variance is known to a relative error.
             correction = (energy - den).sum(1) * noise.variance_error.to(rate.dtype)
@@ -470,23 +486,12 @@ class ANRAEstimator(nn.Module):
         """:meth:`forward` on a checked ``(B, T, H, W)`` batch with ``(B,)`` spacings; never raises on
         videos without activity (they come back flagged)."""
         b, t, h, w = video.shape
-        finite = torch.isfinite(video)
-        stuck = stuck_pixels(video, finite)
-        finite = finite & ~stuck
-        # Remove each video's mean (derivatives ignore it): keeps float32 precise on e.g. 300 K scenes,
-        # and fills masked pixels with a neutral value.
-        counts = finite.sum((1, 2, 3)).clamp_min(1)
-        mean = torch.where(finite, video, torch.zeros_like(video)).sum((1, 2, 3)) / counts
-        video = torch.where(finite, video - mean.view(b, 1, 1, 1), torch.zeros_like(video))
-        noise = batch_noise(video, finite, noise_sd=self.noise_sd)
-        # Dead elements take their repair (the good neighbours' median) and stay in the fit: masked, each cut
-        # its filters' support out of every frame: on the artefact benchmark's pure videos with dead and hot
-        # elements, up to 2.7 % from the clean estimate (0.02 % with the repair).
-        repaired = stuck & torch.isfinite(noise.cleaned)
-        video = torch.where(finite | repaired, noise.cleaned, video)
+        prepared = prepare_batch(video, noise_sd=self.noise_sd)
+        video, good, noise = prepared.video, prepared.good, prepared.noise
         noise_sd = noise.sd
         usable = self.usable(h, w)
-        candidates = [self.candidate_sums(i, video, finite | repaired, dt_, dx_, noise) for i in usable]
+        stage = spectral_stage(self.filters[0], video, dt_)  # one time filter for every candidate
+        candidates = [self.candidate_sums(i, video, good, dt_, dx_, noise, stage=stage) for i in usable]
         chosen, measured, choice = self._choose(candidates)
         num, den, energy, ratio = chosen.num, chosen.den, chosen.energy, chosen.ratio
         total_den = den.sum(1)
@@ -497,8 +502,7 @@ class ANRAEstimator(nn.Module):
             estimate = num.sum(1) / torch.where(total_den == 0, torch.ones_like(total_den), total_den)
         else:
             per_frame, estimate = ratio, ratio.mean(1)
-        low = torch.where(finite, video, torch.full_like(video, torch.inf)).amin((1, 2, 3))
-        changing = torch.where(finite, video, torch.full_like(video, -torch.inf)).amax((1, 2, 3)) > low
+        changing = prepared.changing
         valid = changing & measured & torch.isfinite(estimate)
         explained = _explained(chosen) if self.mode == "lsq" else torch.full_like(estimate, torch.nan)
         messages, warnings = verdicts(valid, changing, reliability, estimate, chosen.std_error, dt_, dx_)
@@ -506,8 +510,8 @@ class ANRAEstimator(nn.Module):
         warnings = tuple(w + poor_fit(e) if ok else w for w, e, ok in rows)
         field, confidence = self._field(chosen) if self.window is not None else (None, None)
         nan = torch.full_like(estimate, torch.nan)
-        k = torch.arange(per_frame.shape[1], dtype=video.dtype)
-        sigmas = torch.tensor([self.filters[i].sigma for i in usable], dtype=video.dtype)
+        k = torch.arange(per_frame.shape[1], dtype=video.dtype, device=video.device)
+        sigmas = torch.tensor([self.filters[i].sigma for i in usable], dtype=video.dtype, device=video.device)
         return ANRAResult(
             diffusivity=torch.where(valid, estimate, nan),
             std_error=torch.where(valid, chosen.std_error, nan),
@@ -518,7 +522,7 @@ class ANRAEstimator(nn.Module):
             reliability=reliability,
             explained=explained,
             valid=valid,
-            n_masked=(~finite).sum((1, 2, 3)),
+            n_masked=prepared.masked,
             field=field,
             confidence=confidence,
             messages=messages,

@@ -28,7 +28,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from anra_torch.checks import diffusivity_warnings
+from anra_torch.checks import diffusivity_warnings, own_tensor
 
 __all__ = [
     "MODELS",
@@ -133,7 +133,7 @@ def fit_small_box(frames: Tensor, dt: float, dx: float, kind: str) -> SmallBoxMo
     """
     if kind not in MODELS:
         raise ValueError(f"kind must be one of {', '.join(MODELS)}, got {kind!r}")
-    video = torch.as_tensor(frames).to(_F64)
+    video = own_tensor(frames, _F64)
     if video.ndim != 3 or min(video.shape[1:]) < 3:
         raise ValueError(f"frames must have shape (T, H, W) with H, W >= 3, got {tuple(video.shape)}")
     bad = int((~torch.isfinite(video)).sum())
@@ -202,7 +202,7 @@ def forecast_small_box(
     Shape:
         ``frames`` ``(T, H, W)`` -> ``(n, H, W)`` (edges as measured).
     """
-    video = torch.as_tensor(frames).to(_F64)
+    video = own_tensor(frames, _F64)
     if model.kind == "quasi_steady":
         out = video[start + 1 : start + 1 + n].clone()
         out[:, 1:-1, 1:-1] = harmonic_interior(out) + model.source
@@ -216,7 +216,7 @@ def forecast_small_box(
         )
     h = dt / substeps
     u = video[start].clone()
-    out = torch.empty((n, *u.shape), dtype=_F64)
+    out = torch.empty((n, *u.shape), dtype=_F64, device=u.device)
     for k in range(n):
         for s in range(substeps):
             w = (s + 1) / substeps
@@ -230,7 +230,7 @@ def forecast_small_box(
 @functools.lru_cache(maxsize=16)
 def _sine_basis(n: int) -> tuple[Tensor, Tensor]:
     """Orthonormal DST-I basis of ``n`` interior points and the 5-point second difference's eigenvalues."""
-    k = torch.arange(1, n + 1, dtype=_F64)
+    k = torch.arange(1, n + 1, dtype=_F64, device="cpu")  # data on the CPU, moved by the caller
     basis = math.sqrt(2 / (n + 1)) * torch.sin(math.pi * k[:, None] * k[None, :] / (n + 1))
     return basis, -4 * torch.sin(math.pi * k / (2 * (n + 1))) ** 2
 
@@ -243,11 +243,11 @@ def harmonic_interior(frames: Tensor) -> Tensor:
     Shape:
         ``(T, H, W)`` -> ``(T, H - 2, W - 2)``.
     """
-    video = torch.as_tensor(frames).to(_F64)
+    video = own_tensor(frames, _F64)
     edges = video.clone()
     edges[:, 1:-1, 1:-1] = 0.0
     rhs = -_laplacian5(edges, 1.0)  # the edges' pull on the interior
-    (sy, ly), (sx, lx) = _sine_basis(rhs.shape[-2]), _sine_basis(rhs.shape[-1])
+    (sy, ly), (sx, lx) = (tuple(v.to(rhs.device) for v in _sine_basis(n)) for n in rhs.shape[-2:])
     spectrum = sy @ rhs @ sx / (ly[:, None] + lx[None, :])
     return sy @ spectrum @ sx
 
@@ -265,7 +265,7 @@ def edge_explained(frames: Tensor) -> float:
     Shape:
         ``frames`` ``(T, H, W)``.
     """
-    video = torch.as_tensor(frames).to(_F64)
+    video = own_tensor(frames, _F64)
     if video.shape[0] >= 2 * SMOOTH_FRAMES:
         video = _moving_average(video, SMOOTH_FRAMES)
     inner = video[:, 1:-1, 1:-1] - video[:, 1:-1, 1:-1].mean(0)
@@ -304,7 +304,7 @@ def small_box_estimate(frames: Tensor, dt: float, dx: float) -> dict[str, Any]:
     Shape:
         ``frames`` ``(T, H, W)``.
     """
-    video = torch.as_tensor(frames).to(_F64)
+    video = own_tensor(frames, _F64)
     h, w = video.shape[1:]
     if min(h, w) < 3 or video.shape[0] < 3:
         return {"diffusivity": None, "std_error": None, "valid": False, "message": "too small: need 3 x 3 px"}

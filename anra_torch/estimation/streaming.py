@@ -39,6 +39,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from anra_torch.balance import MatchedFilters, Moments, accumulate, estimate_noise_sd
+from anra_torch.checks import own_tensor
 from anra_torch.video import LazyFrames
 
 __all__ = ["NpyFrames", "StreamingEstimate", "StreamingEstimator", "estimate_long"]
@@ -167,7 +168,7 @@ class StreamingEstimator:
 
     # ----------------------------------------------------------------------------------- filtering
     def _check(self, frames: Any) -> Tensor:
-        block = torch.as_tensor(frames)
+        block = own_tensor(frames)
         if block.dtype == torch.bool or block.is_complex():
             raise TypeError(f"frames must hold real temperatures, got dtype {block.dtype}")
         if block.ndim == 2:
@@ -214,7 +215,7 @@ class StreamingEstimator:
         block = self._check(frames)
         if self._offset is None:  # a constant offset keeps float32 precise on e.g. 300 K scenes
             first = block[0][torch.isfinite(block[0])]
-            self._offset = first.mean() if first.numel() else torch.zeros((), dtype=self.dtype)
+            self._offset = first.mean() if first.numel() else block.new_zeros(())
         block = block - self._offset
         if math.isnan(self.noise_sd) and len(self._noise_buffer) < self.noise_frames:
             self._noise_buffer.extend(block[: self.noise_frames - len(self._noise_buffer)])

@@ -347,7 +347,7 @@ def forecast_errors(
     squared = diff.pow(2)
     per_frame = squared.mean((-2, -1)).sqrt()
     if scored is not None:
-        scored = torch.as_tensor(scored, dtype=torch.bool)
+        scored = torch.as_tensor(scored, dtype=torch.bool, device=per_frame.device)
         if scored.shape != per_frame.shape or not bool(scored.any()):
             raise ValueError(
                 f"scored must mark at least one of the {per_frame.numel()} forecast frames, got "

@@ -245,7 +245,7 @@ def assess_gain(
     """
     tick = time.perf_counter()
     if not isinstance(frames, Tensor):
-        frames = torch.as_tensor(frames)
+        frames = torch.as_tensor(frames, device="cpu")
     if frames.ndim != 3:
         raise ValueError(f"frames must have shape (T, H, W), got {tuple(frames.shape)}")
     video = mostly_finite(frames.detach().to(_F64))  # counted on the whole video, not only the fit part
@@ -275,7 +275,11 @@ def _held_out_scored(scored: Tensor | None, n_frames: int, split: int, window: i
     """The held-out part of ``scored`` ``(T,)`` (None stays None), checked against the frames and window."""
     if scored is None:
         return None
-    scored = torch.as_tensor(scored, dtype=torch.bool)
+    scored = (
+        scored.to(torch.bool)
+        if isinstance(scored, Tensor)
+        else torch.as_tensor(scored, dtype=torch.bool, device="cpu")
+    )
     if scored.shape != (n_frames,):
         raise ValueError(f"scored must be one bool per frame ({n_frames},), got shape {tuple(scored.shape)}")
     if window != 1:
@@ -308,7 +312,9 @@ def _scored(run: _Forecasts, tick: float) -> GainResult:
         assimilated=run.assimilated,
     )
     n_frames = run.video.shape[0]
-    centres = torch.arange(split + 1, n_frames - run.window + 1, dtype=_F64) + (run.window - 1) / 2
+    centres = (
+        torch.arange(split + 1, n_frames - run.window + 1, dtype=_F64, device="cpu") + (run.window - 1) / 2
+    )
     return GainResult(
         diagnosis=diagnosis,
         split=split,

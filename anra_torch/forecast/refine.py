@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from anra_torch.checks import check_int
+from anra_torch.checks import check_int, own_tensor
 from anra_torch.effects import Effect, Grid, effect_rhs, step_rates
 from anra_torch.forecast.core import at_scale, check_diagnosis_frames, evaluation_scale, extended_effects
 from anra_torch.selection import Diagnosis
@@ -95,17 +95,18 @@ class _Model:
         self.effects = effects
         values = [a] + [float(v) for e in effects for v in e.params.values()]
         units = ["mm^2/s"] + [e.spec.params[k] for e in effects for k in e.params]
-        self.start = torch.tensor(values, dtype=_F64)
+        self.start = torch.tensor(values, dtype=_F64, device="cpu")
         # The base diffusivity and each effect's positive parameters move in log space.
         allowed = [True] + [k in e.spec.positive for e in effects for k in e.params]
         positive = [ok and v > 0 for ok, v in zip(allowed, values, strict=True)]
-        self.log = torch.tensor(positive)
+        self.log = torch.tensor(positive, device="cpu")
         self.scale = torch.tensor(
             [
                 1.0 if log else _natural_scale(v, u, dx=dx, spread=spread, duration=duration)
                 for v, u, log in zip(values, units, positive, strict=True)
             ],
             dtype=_F64,
+            device="cpu",
         )
 
     def values(self, delta: Tensor) -> Tensor:
@@ -192,7 +193,7 @@ def refine_model(
         ``frames`` ``(T, H, W)``.
     """
     tick = time.perf_counter()
-    video = torch.as_tensor(frames).detach().to(_F64)
+    video = own_tensor(frames, _F64).detach()
     if video.ndim != 3 or video.shape[0] < 2:
         raise ValueError(f"frames must have shape (T >= 2, H, W), got {tuple(video.shape)}")
     n, h, w = video.shape
@@ -207,7 +208,7 @@ def refine_model(
     model = _Model(a0, effects, dx=dx, spread=spread, duration=duration)
     grid = Grid((h, w), dx, duration)
     sse = _misfit(model, target, grid, a=a0, effects=effects, dt=dt, margin=diagnosis.margin)
-    delta = torch.zeros(len(model.names), dtype=_F64, requires_grad=True)
+    delta = torch.zeros(len(model.names), dtype=_F64, device="cpu", requires_grad=True)
     with torch.no_grad():
         sse_before = float(sse(delta))
     sse_after, best, n_iter, evaluations = _lbfgs(sse, delta, sse_before, iterations)
@@ -251,7 +252,7 @@ def _lbfgs(
         try:
             loss = sse(delta)
         except ValueError:  # a step outside the physical range: steer back
-            return torch.tensor(math.inf, dtype=_F64)
+            return torch.tensor(math.inf, dtype=_F64, device="cpu")
         value = float(loss.detach())
         if math.isfinite(value) and value < best[0]:
             best = (value, delta.detach().clone())

@@ -44,7 +44,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.balance import MatchedFilters, Moments, accumulate
-from anra_torch.checks import as_spacing
+from anra_torch.checks import as_spacing, own_tensor
 from anra_torch.effects import Effect, simulate_effects
 from anra_torch.forecast.core import assimilated_state, at_scale, check_scale, forecast_errors, time_average
 from anra_torch.forecast.gain import GainResult
@@ -122,7 +122,7 @@ class SourceMapModel:
                 ``(t - t_on)^-p`` is unbounded.
         """
         loss = (Effect("linear_loss", {"b": self.b, "T_ref": 0.0}),) if self.b > 0 else ()
-        state = torch.as_tensor(initial).to(_F64)
+        state = own_tensor(initial, _F64)
         if self.decay == 0.0:
             return simulate_effects(
                 state,
@@ -153,7 +153,7 @@ class SourceMapModel:
 
 def _nonnegative_pair(moments: Moments) -> tuple[float, float]:
     """Least squares ``U ~ a L - b T`` with ``a, b >= 0`` from the moments (two columns: try every face)."""
-    sign = torch.tensor([1.0, -1.0], dtype=_F64)  # the columns are L and -T
+    sign = torch.tensor([1.0, -1.0], dtype=_F64, device=moments.raw.device)  # the columns are L and -T
     gram, cross = moments.normal_equations(("L", "T"))
     gram, cross = gram * sign[:, None] * sign[None, :], cross * sign
     total = float(moments.block(["U"], ["U"])[0, 0])
@@ -214,7 +214,7 @@ def fit_source_map(
         >>> round(model.a, 2), round(float(model.forcing[12, 12]), 2)
         (0.1, 1.0)
     """
-    video = torch.as_tensor(frames)
+    video = own_tensor(frames)
     if video.ndim != 3:
         raise ValueError(f"frames must have shape (T, H, W), got {tuple(video.shape)}")
     n, h, w = video.shape
@@ -239,7 +239,9 @@ def fit_source_map(
     # Fixed effects: each pixel's projection on the input's profile (its time mean for a stationary map)
     # removed from every term removes q g(t) exactly.
     t_ref = (n - 2) * dt
-    g = torch.tensor([_profile(k * dt, decay, t_on, t_ref) for k in range(1, n - 1)], dtype=_F64)
+    g = torch.tensor(
+        [_profile(k * dt, decay, t_on, t_ref) for k in range(1, n - 1)], dtype=_F64, device=video.device
+    )
     g = g.view(-1, 1, 1)
     within = {k: v - g * (g * v).sum(0, keepdim=True) / (g * g).sum() for k, v in terms.items()}
     a, b = _nonnegative_pair(accumulate(within, ("U", "L", "T")))
@@ -307,7 +309,7 @@ def source_map_gain(
     Shape:
         ``frames`` ``(T, H, W)``.
     """
-    video = torch.as_tensor(frames).to(_F64)
+    video = own_tensor(frames, _F64)
     split, held_out = result.split, result.held_out
     if video.ndim != 3 or video.shape[0] != split + 1 + held_out:
         raise ValueError(

@@ -147,6 +147,10 @@ class UniformAttention(nn.Module):
         return self.with_slope(rate, mask)[0]
 
     def with_slope(self, rate: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        if mask is None and bool(torch.isfinite(rate.sum((-2, -1))).all()):  # every pixel: one weight
+            shape = (*rate.shape[:-2], 1, 1)
+            weight = rate.new_full(shape, 1.0 / (rate.shape[-2] * rate.shape[-1]))
+            return weight.expand_as(rate), rate.new_zeros(shape).expand_as(rate)  # broadcast, no memory
         valid = torch.isfinite(rate)
         if mask is not None:
             valid = valid & mask.to(torch.bool)

@@ -63,7 +63,7 @@ def _check_spacing_batch(spacing: float | Tensor, name: str, x: Tensor) -> None:
 
 
 def _check_spacing(spacing: float | Tensor, name: str, unit: str) -> None:
-    values = spacing if isinstance(spacing, Tensor) else torch.tensor(float(spacing))
+    values = spacing if isinstance(spacing, Tensor) else torch.tensor(float(spacing), device="cpu")
     if not bool(torch.isfinite(values).all()) or bool((values <= 0).any()):
         raise ValueError(f"{name} must be a positive finite number in {unit}, got {spacing!r}")
 
@@ -82,7 +82,7 @@ def _time_filter(frames: Tensor, taps: Tensor) -> Tensor:
 
 def _time_conv(frames: Tensor, taps: Tensor) -> Tensor:
     """The forward of :func:`_time_filter`: one Conv3d."""
-    weight = taps.to(frames.dtype).reshape(taps.shape[0], 1, -1, 1, 1)
+    weight = taps.to(frames).reshape(taps.shape[0], 1, -1, 1, 1)
     return F.conv3d(frames.unsqueeze(1), weight)
 
 
@@ -209,7 +209,7 @@ def _filter2d(x: Tensor, weight: Tensor, border: str) -> Tensor:
     mode = BORDERS[border]
     if mode is not None:
         flat = F.pad(flat, (kw // 2, kw // 2, kh // 2, kh // 2), mode=mode)
-    out = F.conv2d(flat, weight.to(x.dtype).unsqueeze(1))
+    out = F.conv2d(flat, weight.to(x).unsqueeze(1))
     return out.reshape(*lead, *out.shape[1:])
 
 
@@ -351,7 +351,7 @@ class _SpatialOperator(nn.Module):
             )
         else:
             flat = y.reshape(-1, 1, *y.shape[-2:])
-            out = F.conv_transpose2d(flat, self.kernels.to(y.dtype).unsqueeze(1))
+            out = F.conv_transpose2d(flat, self.kernels.to(y).unsqueeze(1))
             out = out.reshape(*y.shape[:-2], *out.shape[-2:])
         return out / _per_leading(dx, out, out.ndim - 1) ** self.order
 

@@ -53,13 +53,13 @@ def binomial(n: int) -> Tensor:
     """
     if n < 0:
         raise ValueError(f"binomial order must be >= 0, got {n}")
-    return torch.tensor([math.comb(n, k) for k in range(n + 1)], dtype=_DTYPE) / 2**n
+    return torch.tensor([math.comb(n, k) for k in range(n + 1)], dtype=_DTYPE, device="cpu") / 2**n
 
 
 def _convolve(a: Tensor, b: Tensor) -> Tensor:
     """Full 1D convolution of two tap vectors (commutative; symmetric factors keep correlation order)."""
     n = a.numel() + b.numel() - 1
-    out = torch.zeros(n, dtype=_DTYPE)
+    out = torch.zeros(n, dtype=_DTYPE, device="cpu")
     for i, ai in enumerate(a.tolist()):
         out[i : i + b.numel()] += ai * b
     return out
@@ -80,7 +80,7 @@ def first_derivative_taps(n: int) -> Tensor:
     """
     if n < 3:
         raise ValueError(f"first-derivative length must be >= 3, got {n}")
-    return _convolve(torch.tensor([-0.5, 0.0, 0.5], dtype=_DTYPE), binomial(n - 3))
+    return _convolve(torch.tensor([-0.5, 0.0, 0.5], dtype=_DTYPE, device="cpu"), binomial(n - 3))
 
 
 def second_derivative_taps(n: int) -> Tensor:
@@ -95,8 +95,8 @@ def second_derivative_taps(n: int) -> Tensor:
     if n < 3 or n % 2 == 0:
         raise ValueError(f"second-derivative size must be odd and >= 3, got {n}")
     if n == 3:
-        return torch.tensor([1.0, -2.0, 1.0], dtype=_DTYPE)
-    base = torch.tensor([0.25, 0.0, -0.5, 0.0, 0.25], dtype=_DTYPE)
+        return torch.tensor([1.0, -2.0, 1.0], dtype=_DTYPE, device="cpu")
+    base = torch.tensor([0.25, 0.0, -0.5, 0.0, 0.25], dtype=_DTYPE, device="cpu")
     return _convolve(base, binomial(n - 5))
 
 
@@ -142,7 +142,7 @@ class TimeStencil:
 
 def _smooth_stencil(length: int) -> TimeStencil:
     # D1_L = central difference * B_{L-3}; its spatial partner is B_{L-3} on the same centre.
-    pair = torch.zeros(length, dtype=_DTYPE)
+    pair = torch.zeros(length, dtype=_DTYPE, device="cpu")
     pair[1 : length - 1] = binomial(length - 3)
     return TimeStencil("smooth", first_derivative_taps(length), pair, (length - 1) / 2, 2)
 
@@ -159,8 +159,8 @@ def _hybrid_stencil(length: int) -> TimeStencil:
     if length not in _HYBRID_TABLE:
         raise ValueError(f"hybrid time family has lengths {sorted(_HYBRID_TABLE)}, got {length}")
     newest_first, denominator = _HYBRID_TABLE[length]
-    taps = torch.tensor(newest_first[::-1], dtype=_DTYPE) / denominator
-    pair = torch.zeros(length, dtype=_DTYPE)
+    taps = torch.tensor(newest_first[::-1], dtype=_DTYPE, device="cpu") / denominator
+    pair = torch.zeros(length, dtype=_DTYPE, device="cpu")
     pair[-1] = 1.0
     return TimeStencil("hybrid", taps, pair, float(length - 1), 2)
 
@@ -203,7 +203,7 @@ def _check_size(size: int) -> None:
 def _embed(kernel: Tensor, size: int) -> Tensor:
     """Zero-pad a (h, w) kernel to (size, size), keeping it centred."""
     h, w = kernel.shape
-    out = torch.zeros(size, size, dtype=_DTYPE)
+    out = torch.zeros(size, size, dtype=_DTYPE, device="cpu")
     top, left = (size - h) // 2, (size - w) // 2
     out[top : top + h, left : left + w] = kernel
     return out
@@ -250,9 +250,9 @@ def central_second_derivative_taps(size: int) -> Tensor:
     """
     if size < 3 or size % 2 == 0:
         raise ValueError(f"central second difference needs an odd size >= 3, got {size}")
-    offsets = torch.arange(size, dtype=_DTYPE) - size // 2
+    offsets = torch.arange(size, dtype=_DTYPE, device="cpu") - size // 2
     powers = torch.stack([offsets**p for p in range(size)])
-    rhs = torch.zeros(size, dtype=_DTYPE)
+    rhs = torch.zeros(size, dtype=_DTYPE, device="cpu")
     rhs[2] = 2.0
     return torch.linalg.solve(powers, rhs)
 
@@ -272,12 +272,12 @@ def _holoborodko_partner(size: int) -> Tensor:
 
 def _identity_partner(size: int) -> Tensor:
     _check_size(size)
-    return _embed(torch.ones(1, 1, dtype=_DTYPE), size)
+    return _embed(torch.ones(1, 1, dtype=_DTYPE, device="cpu"), size)
 
 
 def _central_laplacian(size: int) -> Tensor:
     _check_size(size)
-    kernel = torch.zeros(size, size, dtype=_DTYPE)
+    kernel = torch.zeros(size, size, dtype=_DTYPE, device="cpu")
     taps = central_second_derivative_taps(size)
     kernel[size // 2, :] += taps
     kernel[:, size // 2] += taps
@@ -343,8 +343,8 @@ def gaussian_taps(sigma: float, *, truncate: float = 3.5) -> Tensor:
     if not math.isfinite(sigma) or sigma < 0:
         raise ValueError(f"smoothing sigma must be a finite number >= 0 (pixels), got {sigma!r}")
     if sigma == 0:
-        return torch.ones(1, dtype=_DTYPE)
+        return torch.ones(1, dtype=_DTYPE, device="cpu")
     radius = math.ceil(truncate * sigma)
-    offsets = torch.arange(-radius, radius + 1, dtype=_DTYPE)
+    offsets = torch.arange(-radius, radius + 1, dtype=_DTYPE, device="cpu")
     taps = torch.exp(-0.5 * (offsets / sigma) ** 2)
     return taps / taps.sum()

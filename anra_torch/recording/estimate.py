@@ -334,6 +334,7 @@ def _estimate_chunked(
         precision=precision,
         progress=progress,
         dtype=dtype,
+        device=est.time.taps.device,
     )
     p.result, p.index = done.result, 0
     p.chunked = {
@@ -347,7 +348,8 @@ def _estimate_chunked(
 def _estimate_whole(members: list[PhaseEstimate], est: ANRAEstimator, dtype: torch.dtype | None) -> None:
     """Same-shaped phases of one or many recordings in one estimator call."""
     start = time.perf_counter()
-    frames = [torch.as_tensor(p.part.loaded().frames) for p in members]
+    device = est.time.taps.device  # the frames follow the estimator
+    frames = [torch.as_tensor(p.part.loaded().frames).to(device) for p in members]
     if len(members) == 1 and dtype is None:
         result = est(frames[0], members[0].part.dt, members[0].part.dx)
         members[0].result, members[0].index = result, 0

@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.balance import BalanceSystem, Fit, NoiseSpec, find_artefacts, measure_noise
-from anra_torch.checks import positive
+from anra_torch.checks import own_tensor, positive
 from anra_torch.selection.diagnose import SMOOTHING, minimum_frame_size
 
 __all__ = [
@@ -136,7 +136,7 @@ def depth_aware_diffusivity(
     Shape:
         ``frames`` ``(T, H, W)``.
     """
-    video = torch.as_tensor(frames).to(torch.float64)
+    video = own_tensor(frames, torch.float64)
     dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
     if video.ndim != 3 or video.shape[0] < 6:
         raise ValueError(f"frames must have shape (T, H, W) with T >= 6, got {tuple(video.shape)}")

@@ -27,7 +27,11 @@ def wald_score(fit: Fit, group: Sequence[str]) -> float:
 def log10_pvalue(chi2: float, dof: int) -> float:
     """``log10 P(chi2_dof > chi2)``, accurate far into the tail (no underflow)."""
     s, x = 0.5 * dof, 0.5 * max(chi2, 0.0)
-    q = float(torch.special.gammaincc(torch.tensor(s, dtype=_F64), torch.tensor(x, dtype=_F64)))
+    q = float(
+        torch.special.gammaincc(
+            torch.tensor(s, dtype=_F64, device="cpu"), torch.tensor(x, dtype=_F64, device="cpu")
+        )
+    )
     if q > 1e-280:
         return math.log10(q)
     # Q(s, x) ~ x^(s-1) e^-x / Gamma(s) (1 + (s-1)/x) for large x.

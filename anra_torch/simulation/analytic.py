@@ -46,7 +46,11 @@ SPECTRAL_BOUNDARIES: dict[str, Callable[[Tensor], Tensor]] = {
 def _as_times(times: object, *, like_dtype: torch.dtype, name: str = "times") -> Tensor:
     """Return non-negative finite times (s) as a ``(T,)`` tensor."""
     try:
-        t = torch.as_tensor(times, dtype=like_dtype)
+        t = (
+            times.to(like_dtype)
+            if isinstance(times, Tensor)
+            else torch.as_tensor(times, dtype=like_dtype, device="cpu")
+        )
     except (TypeError, ValueError, RuntimeError) as err:
         raise TypeError(f"{name} must be a sequence or tensor of times in s, got {times!r}") from err
     if t.ndim > 1 or t.numel() == 0:
@@ -186,8 +190,8 @@ def gaussian_blobs(
     a_t = a_t.reshape(*lead, 1, 1) if lead and a_t.numel() > 1 else a_t.reshape(())
     variance = sigma.unsqueeze(-1) ** 2 + 2.0 * a_t * t  # (..., N, T)
     amplitude = peak.unsqueeze(-1) * sigma.unsqueeze(-1) ** 2 / variance
-    x = (torch.arange(width, dtype=dtype) + 0.5) * step
-    y = (torch.arange(height, dtype=dtype) + 0.5) * step
+    x = (torch.arange(width, dtype=dtype, device=peak.device) + 0.5) * step
+    y = (torch.arange(height, dtype=dtype, device=peak.device) + 0.5) * step
     cx = centre[..., 0, None, None]
     cy = centre[..., 1, None, None]
     # Separable: exp(-r^2 / 2v) = exp(-dx^2 / 2v) exp(-dy^2 / 2v), so no (N, T, H, W) intermediate.
@@ -265,7 +269,11 @@ def gaussian_blob(
 def _as_param(value: object, name: str, dtype: torch.dtype) -> Tensor:
     """A finite float tensor (graph kept for tensors)."""
     try:
-        tensor = value.to(dtype) if isinstance(value, Tensor) else torch.as_tensor(value, dtype=dtype)
+        tensor = (
+            value.to(dtype)
+            if isinstance(value, Tensor)
+            else torch.as_tensor(value, dtype=dtype, device="cpu")
+        )
     except (TypeError, ValueError, RuntimeError) as err:
         raise TypeError(f"{name} must be numbers or a tensor, got {value!r}") from err
     if not bool(torch.isfinite(tensor.detach()).all()):

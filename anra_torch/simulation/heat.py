@@ -86,7 +86,7 @@ def as_diffusivity(
     """
     if not isinstance(a, Tensor):
         try:
-            a = torch.as_tensor(a, dtype=like.dtype)
+            a = torch.as_tensor(a, dtype=like.dtype, device=like.device)
         except (TypeError, ValueError, RuntimeError) as err:
             raise TypeError(f"a must be a number or a tensor in mm^2/s, got {a!r}") from err
     if a.is_complex() or a.dtype == torch.bool:
@@ -144,7 +144,9 @@ class HeatRHS(nn.Module):
     ) -> None:
         super().__init__()
         check_choice(boundary, "boundary", list(BOUNDARIES))
-        a_tensor = a if isinstance(a, Tensor) else torch.as_tensor(float(a), dtype=torch.float64)
+        a_tensor = (
+            a if isinstance(a, Tensor) else torch.as_tensor(float(a), dtype=torch.float64, device="cpu")
+        )
         values = a_tensor.detach()
         if not bool(torch.isfinite(values).all()) or bool((values < 0).any()):
             shown = values.item() if values.numel() == 1 else f"min {values.min().item():g}"
@@ -162,7 +164,7 @@ class HeatRHS(nn.Module):
         if isinstance(value, Tensor):
             tensor = value
         else:  # float64 so that a float64 state sees the exact value
-            tensor = torch.as_tensor(float(value), dtype=torch.float64)
+            tensor = torch.as_tensor(float(value), dtype=torch.float64, device="cpu")
         if tensor.ndim > 1:
             raise ValueError(f"{name} must be a number or a (B,) tensor, got {tuple(tensor.shape)}")
         values = tensor.detach()
@@ -306,7 +308,7 @@ def _boundary_value(value: object, boundary: str, *, batch: int, like: Tensor) -
     tensor = value if isinstance(value, Tensor) else None
     if tensor is None:
         try:
-            tensor = torch.as_tensor(value, dtype=like.dtype)
+            tensor = torch.as_tensor(value, dtype=like.dtype, device=like.device)
         except (TypeError, ValueError, RuntimeError) as err:
             raise TypeError(f"boundary_value must be a number or a tensor, got {value!r}") from err
     tensor = tensor.to(dtype=like.dtype, device=like.device)

@@ -159,7 +159,7 @@ class _Domain:
 def _evaluate(initial: Callable[[Tensor, Tensor], Tensor], x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """``initial`` on the grid ``y`` (rows) x ``x`` (columns), ``(Ny, Nx)`` float64."""
     values = initial(torch.from_numpy(x)[None, :], torch.from_numpy(y)[:, None])
-    out = torch.as_tensor(values, dtype=_F64).expand(y.size, x.size).numpy()
+    out = torch.as_tensor(values, dtype=_F64, device="cpu").expand(y.size, x.size).numpy()
     if not np.isfinite(out).all():
         raise ValueError("initial must give finite temperatures over the padded domain")
     return out

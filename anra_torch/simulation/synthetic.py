@@ -134,11 +134,11 @@ def paper_video(
 
     dx = extent / size
     dt = 1.0 / fps
-    times = torch.arange(round(duration * fps) + 1, dtype=torch.float64) / fps
+    times = torch.arange(round(duration * fps) + 1, dtype=torch.float64, device="cpu") / fps
     sigma = diameter_px / FWHM_PER_SIGMA * dx
     clean = gaussian_blob(times, shape=(size, size), dx=dx, a=a, peak=peak, sigma=sigma).to(dtype)
     generator = torch.Generator().manual_seed(seed)
-    noise = torch.randn((n_videos, *clean.shape), generator=generator, dtype=dtype)
+    noise = torch.randn((n_videos, *clean.shape), generator=generator, dtype=dtype, device="cpu")
     frames = clean + noise_sd * noise
     if crop is not None:
         frames, clean = _centre(frames, crop), _centre(clean, crop)
@@ -209,7 +209,7 @@ def blobs_video(
 
     generator = torch.Generator().manual_seed(seed)
     peaks, sigma_px, centre_px = _draw_blobs(generator, n_videos, n_blobs, size, peaks_range, sigmas_range)
-    times = torch.arange(n_frames, dtype=torch.float64) / fps
+    times = torch.arange(n_frames, dtype=torch.float64, device="cpu") / fps
     clean = gaussian_blobs(
         times,
         shape=(size, size),
@@ -220,7 +220,7 @@ def blobs_video(
         centres=centre_px * dx,
         background=background,
     ).to(dtype)
-    frames = clean + noise_sd * torch.randn(clean.shape, generator=generator, dtype=dtype)
+    frames = clean + noise_sd * torch.randn(clean.shape, generator=generator, dtype=dtype, device="cpu")
     return SyntheticVideo(frames=frames, clean=clean, dt=1.0 / fps, dx=dx, a=a, times=times.to(dtype))
 
 
@@ -261,7 +261,7 @@ def _draw_blobs(
     Shape:
         ``(B, N)``, ``(B, N)``, ``(B, N, 2)``.
     """
-    draws = torch.rand((n_videos, n_blobs, 4), generator=generator, dtype=torch.float64)
+    draws = torch.rand((n_videos, n_blobs, 4), generator=generator, dtype=torch.float64, device="cpu")
     peaks = peak_range[0] + (peak_range[1] - peak_range[0]) * draws[..., 0]
     sigma_px = sigma_range[0] + (sigma_range[1] - sigma_range[0]) * draws[..., 1]
     margin = 2.0 * sigma_px  # centres at least two initial sd from every edge

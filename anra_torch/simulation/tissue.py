@@ -106,7 +106,11 @@ class TissueRHS(nn.Module):
     ) -> None:
         super().__init__()
         self.heat = HeatRHS(diffusivity, dx=dx)
-        b = perfusion if isinstance(perfusion, Tensor) else torch.tensor(float(perfusion), dtype=_F64)
+        b = (
+            perfusion
+            if isinstance(perfusion, Tensor)
+            else torch.tensor(float(perfusion), dtype=_F64, device="cpu")
+        )
         if not bool(torch.isfinite(b.detach()).all()) or bool((b.detach() < 0).any()):
             shown = b.item() if b.numel() == 1 else f"min {b.detach().min().item():g}"
             raise ValueError(f"perfusion must be finite and non-negative in 1/s, got {shown}")
@@ -114,7 +118,7 @@ class TissueRHS(nn.Module):
         self.body_temperature = (
             body_temperature
             if isinstance(body_temperature, Tensor)
-            else torch.tensor(float(body_temperature))
+            else torch.tensor(float(body_temperature), device="cpu")
         )
         self.dx, self.time_scale = float(dx), float(time_scale)
 
@@ -124,8 +128,8 @@ class TissueRHS(nn.Module):
         out = self.heat(seconds, u).reshape(u.shape) - self.perfusion.to(u) * excess
         if self.source is not None:
             h, w = u.shape[-2:]
-            x = (torch.arange(w, dtype=u.dtype) + 0.5) * self.dx
-            y = (torch.arange(h, dtype=u.dtype) + 0.5) * self.dx
+            x = (torch.arange(w, dtype=u.dtype, device=u.device) + 0.5) * self.dx
+            y = (torch.arange(h, dtype=u.dtype, device=u.device) + 0.5) * self.dx
             out = out + self.source.field(seconds.to(u.dtype), x, y)
         return out * self.time_scale
 

@@ -68,7 +68,9 @@ _IMPLAUSIBLE_CELSIUS = 200.0
 i.e. colder than -73 C) was given the wrong unit: living tissue is neither."""
 
 _F64 = torch.float64
-_GL_NODES, _GL_WEIGHTS = (torch.tensor(v, dtype=_F64) for v in np.polynomial.legendre.leggauss(8))
+_GL_NODES, _GL_WEIGHTS = (
+    torch.tensor(v, dtype=_F64, device="cpu") for v in np.polynomial.legendre.leggauss(8)
+)
 _MAX_EXPONENT_STEP = 1.0  # largest change of Ea / (R T) over one Gauss-Legendre piece
 
 
@@ -101,7 +103,7 @@ def _as_history(temperatures: object) -> tuple[Tensor, tuple[int, ...]]:
     """``(B, T, P)`` float64 view of a history or video, and the output shape (time axis dropped)."""
     if not isinstance(temperatures, Tensor):
         try:
-            temperatures = torch.as_tensor(temperatures)
+            temperatures = torch.as_tensor(temperatures, device="cpu")
         except (TypeError, ValueError, RuntimeError) as err:
             raise TypeError(
                 f"temperatures must be a tensor or array, got {type(temperatures).__name__}"
@@ -120,10 +122,11 @@ def _as_history(temperatures: object) -> tuple[Tensor, tuple[int, ...]]:
     )
 
 
-def _as_dt(dt: object, batch: int) -> Tensor:
-    """Frame period(s) as a ``(B, 1, 1)`` float64 tensor."""
+def _as_dt(dt: object, batch: int, device: torch.device) -> Tensor:
+    """Frame period(s) as a ``(B, 1, 1)`` float64 tensor on ``device``."""
     try:
-        step = torch.as_tensor(dt.detach() if isinstance(dt, Tensor) else dt, dtype=_F64).reshape(-1)
+        step = torch.as_tensor(dt.detach() if isinstance(dt, Tensor) else dt, dtype=_F64, device=device)
+        step = step.reshape(-1)
     except (TypeError, ValueError, RuntimeError) as err:
         raise ValueError(f"dt must be a positive number in s, got {dt!r}") from err
     if step.numel() == 1:
@@ -199,7 +202,7 @@ def _prepare(temperatures: object, dt: object, units: str, rule: str) -> tuple[T
         raise ValueError(
             f"rule={rule!r} needs at least {2 if rule == 'linear' else 1} frames, got {x.shape[1]}"
         )
-    return to_celsius(x, units), _as_dt(dt, x.shape[0]), shape
+    return to_celsius(x, units), _as_dt(dt, x.shape[0], x.device), shape
 
 
 def _segments(x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -331,7 +334,7 @@ def arrhenius_omega(
     pieces = torch.where(ok, pieces, 0.0).flatten()
     start, delta = t0.flatten(), (t1 - t0).flatten()
     total = torch.zeros_like(start)
-    nodes, weights = 0.5 * (_GL_NODES + 1.0), 0.5 * _GL_WEIGHTS  # on [0, 1]
+    nodes, weights = 0.5 * (_GL_NODES.to(x.device) + 1.0), 0.5 * _GL_WEIGHTS.to(x.device)  # on [0, 1]
     # Piece j of every segment that has more than j pieces; the active set shrinks quickly.
     active = torch.nonzero(pieces > 0).flatten()
     j = 0

@@ -367,7 +367,7 @@ class TissueFeatures(nn.Module):
             )
             for i, n in enumerate(summary["n_masked"].tolist())
         )
-        valid = torch.zeros(b, dtype=torch.bool) if result is None else result.valid
+        valid = torch.zeros(b, dtype=torch.bool, device=video.device) if result is None else result.valid
         absent = {name: reason for name in self.map_names if name not in maps}
         error = None if reason else spatial["loss_rate_std_error"]
         out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent)

@@ -75,10 +75,14 @@ class LearnedTissueModel(nn.Module):
         self.shape, self.dx, self.grid = tuple(shape), float(dx), tuple(grid)
         if not math.isfinite(body_temperature):
             raise ValueError(f"body_temperature must be finite, got {body_temperature!r}")
-        self.body_temperature = nn.Parameter(torch.tensor(float(body_temperature), dtype=_F64))
+        self.body_temperature = nn.Parameter(torch.tensor(float(body_temperature), dtype=_F64, device="cpu"))
 
         def start(value: float | Tensor, name: str, unit: str) -> Tensor:
-            v = torch.as_tensor(value, dtype=_F64)
+            v = (
+                value.to(_F64)
+                if isinstance(value, Tensor)
+                else torch.as_tensor(value, dtype=_F64, device="cpu")
+            )
             v = v.expand(self.grid) if v.ndim == 0 else v
             if tuple(v.shape) != self.grid:
                 raise ValueError(f"{name} must be a number or have shape {self.grid}, got {tuple(v.shape)}")
@@ -89,8 +93,8 @@ class LearnedTissueModel(nn.Module):
         # Learned: theta in log a = log a_0 + span tanh(theta): a stays within a factor e^span of its start.
         self.register_buffer("log_diffusivity_start", start(diffusivity, "diffusivity", "mm^2/s"))
         self.register_buffer("log_perfusion_start", start(perfusion, "perfusion", "1/s"))
-        self.diffusivity_theta = nn.Parameter(torch.zeros(self.grid, dtype=_F64))
-        self.perfusion_theta = nn.Parameter(torch.zeros(self.grid, dtype=_F64))
+        self.diffusivity_theta = nn.Parameter(torch.zeros(self.grid, dtype=_F64, device="cpu"))
+        self.perfusion_theta = nn.Parameter(torch.zeros(self.grid, dtype=_F64, device="cpu"))
 
     @classmethod
     def from_video(

@@ -152,7 +152,7 @@ class Video:
         """The video with its frames in memory: frames on disk read whole, others as they are."""
         if not self.on_disk:
             return self
-        return replace(self, frames=torch.as_tensor(self.frames[0 : len(self.frames)]))
+        return replace(self, frames=torch.as_tensor(self.frames[0 : len(self.frames)], device="cpu"))
 
     def map_frames(self, change: Callable[[Tensor], Tensor], **changes: Any) -> Video:
         """The video with ``change`` applied to its frames and to the truth's clean frames, and the other
