@@ -69,12 +69,13 @@ def random_scene(seed: int, *, kind: str | None = None) -> BioheatScene:
     t_on, cooling = 1.0, round(min(max(exposure, 4.0), 20.0) * rate) / rate
     duration = t_on + exposure + cooling
     spread = math.sqrt(4.0 * tissue.diffusivity * duration)  # the heat's lateral reach, mm
-    dx = round(min(max((4.0 + 2.0 * spread) / 48, 0.1), 0.25), 3)
-    centre = (24 * dx, 24 * dx)
     target = rng.uniform(60.0, 95.0)
-    width = rng.uniform(0.25, 0.625)  # sigma: a 1/e^2 diameter of 1-2.5 mm
+    width = rng.uniform(0.25, 1.0)  # a beam's sigma: 1/e^2 diameters of 1-4 mm
+    radius = rng.uniform(1.0, 3.0)  # a probe's
+    size = 2.0 * radius if kind == "contact" else 4.0 * width
+    dx = round(min(max((3.0 + size + 2.0 * spread) / 48, 0.1), 0.25), 3)
+    centre = (24 * dx, 24 * dx)
     if kind == "contact":
-        radius = rng.uniform(0.5, 1.25)
         source: SurfaceFlux | Contact = Contact(centre, radius, target + 1.0, t_on, t_on + exposure)
     else:
         half = 0.5 * rng.uniform(1.0, 4.0) if kind == "sweep" else 0.0

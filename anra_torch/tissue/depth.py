@@ -50,6 +50,7 @@ from anra_torch.checks import number
 from anra_torch.dose import RULES, SKIN, ArrheniusConstants, arrhenius_omega, cem43
 from anra_torch.tissue.depth_solver import (
     FIRST_STEP,
+    GROWTH,
     bottom_depth,
     check_rate,
     dct_matrices,
@@ -75,6 +76,7 @@ __all__ = [
 CEM43_THRESHOLD = 240.0
 """Default CEM43 threshold (min) of :attr:`DepthMaps.cem43_depth`: thermal necrosis of most tissues."""
 _BLOCK_VALUES = 2**22  # temperatures formed per block of frames (32 MiB in float64)
+_COARSE_GROWTH = 1.15  # the depth grid of the pass that finds how deep the heat goes
 _F64 = torch.float64
 
 
@@ -156,8 +158,7 @@ def subsurface_temperature(
 # ------------------------------------------------------------------------------------------ damage
 DOSE_FLOOR = 40.0
 """C: a node whose temperature never exceeds this gets no dose (the skin's Arrhenius rate is 1e-6 1/s
-there, CEM43 accrues 1/64 min per min), and nodes are reported down to where the peak temperature's upper
-bound falls below it (the 1-D solve under each video's hottest surface history, which bounds the 3-D one)."""
+there, CEM43 accrues 1/64 min per min), and nodes are reported down to where the peak falls below it."""
 
 
 @dataclass(frozen=True)
@@ -272,29 +273,28 @@ class _Doses:
         self.cem43 = self.cem43.reshape(b, -1).index_add(1, hot, minutes).reshape(self.cem43.shape)
 
 
-def _upper_bound_depth(
-    rise: Tensor, dt: Tensor, a: Tensor, b: Tensor, body: Tensor, thickness: object
+def _reach(
+    rise: Tensor, dt: Tensor, dx: Tensor, a: Tensor, b: Tensor, body: Tensor, thickness: object
 ) -> float:
-    """Deepest depth (mm) where any video's peak can exceed :data:`DOSE_FLOOR`: the 1-D solve (no lateral
-    loss) under each video's hottest surface history, which bounds the 3-D solution from above."""
-    hottest = rise.detach().flatten(2).amax(2)[..., None, None]  # (B, T, 1, 1)
-    floor = DOSE_FLOOR - body  # K
-    if not bool((hottest.amax((1, 2, 3)) > floor).any()):
+    """Deepest depth (mm) where any video's peak exceeds :data:`DOSE_FLOOR`, one coarse node deeper: the
+    3-D solve on a coarse depth grid (spacings growing :data:`_COARSE_GROWTH`-fold), peak only."""
+    floor = DOSE_FLOOR - body  # K, (B,)
+    if not bool((rise.detach().flatten(1).amax(1) > floor).any()):
         return 0.0
     duration = float(dt.max()) * (rise.shape[1] - 1)
     reach = 7.0 * math.sqrt(float(a.max()) * duration) + 0.1  # where an erfc tail falls below 1e-6
     if thickness is not None:
         reach = min(reach, float(thickness) * (1.0 - 1e-9))
-    reported = depth_nodes(max(reach, 2 * FIRST_STEP))
+    reported = depth_nodes(max(reach, 2 * FIRST_STEP), growth=_COARSE_GROWTH)
     nodes = solver_nodes(reported, bottom_depth(thickness, float(reported[-1]), a, duration))
-    # One pixel: only the k = 0 mode, so the pixel size does not matter.
-    problem = frame_problem(hottest, dt, torch.ones_like(dt), a.detach(), b.detach(), nodes, len(reported))
+    problem = frame_problem(rise.detach(), dt, dx, a.detach(), b.detach(), nodes, len(reported))
     peak = torch.full((rise.shape[0], len(reported)), -torch.inf, device=rise.device, dtype=rise.dtype)
-    for start, states in march(problem, 256):
-        peak = torch.maximum(peak, node_temperatures(hottest, problem, start, states).amax(1)[..., 0, 0])
+    block = max(1, _BLOCK_VALUES // rise[:, 0].numel() // len(reported))
+    for start, states in march(problem, block):
+        peak = torch.maximum(peak, node_temperatures(rise, problem, start, states).amax((1, 3, 4)))
     warm = (peak > floor.view(-1, 1)).any(0)
     deepest = int(torch.nonzero(warm).max()) if bool(warm.any()) else 0
-    return float(reported[min(deepest + 2, len(reported) - 1)])
+    return float(reported[min(deepest + 1, len(reported) - 1)])
 
 
 def _variants(
@@ -342,6 +342,8 @@ def damage_in_depth(
     rule: str = "linear",
     cem43_threshold: float = CEM43_THRESHOLD,
     max_depth: float | None = None,
+    growth: float = GROWTH,
+    lateral: bool = True,
     seed: int = 0,
 ) -> DepthMaps:
     """Omega, CEM43 and the peak temperature at every depth node under every pixel, the damage depth and
@@ -363,7 +365,11 @@ def damage_in_depth(
         constants: Arrhenius constants (default skin).
         rule: how each node's history is integrated (:data:`anra_torch.dose.RULES`).
         cem43_threshold: CEM43 (min) whose depth is mapped.
-        max_depth: deepest node (mm); default where the peak's upper bound falls below :data:`DOSE_FLOOR`.
+        max_depth: deepest node (mm); default one coarse node below the deepest point where the peak
+            exceeds :data:`DOSE_FLOOR` (a coarse pass with ``a + 2 diffusivity_std``).
+        growth: ratio of consecutive depth spacings (:data:`GROWTH`; from :data:`FIRST_STEP` at the surface).
+        lateral: False solves each pixel's column on its own (per-pixel 1-D, no heat sideways): a
+            comparison, too deep under small spots.
         seed: seed of the noise video.
 
     Returns:
@@ -395,13 +401,16 @@ def damage_in_depth(
     )
     if max_depth is None:
         bounds = (a.detach() + 2 * errors[0], (b.detach() - 2 * errors[1]).clamp_min(0.0))
-        max_depth = _upper_bound_depth(rise, dt_, *bounds, body, thickness)
-    reported = depth_nodes(max(number(max_depth, "max_depth", "mm", minimum=0.0), 2 * FIRST_STEP))
+        max_depth = _reach(rise, dt_, dx_, *bounds, body, thickness)
+    reported = depth_nodes(
+        max(number(max_depth, "max_depth", "mm", minimum=0.0), 2 * FIRST_STEP), growth=growth
+    )
     duration = float(dt_.max()) * (rise.shape[1] - 1)
     bottom = bottom_depth(thickness, float(reported[-1]), a + 2 * errors[0], duration)
     stacked, rates, losses, v = _variants(rise, a, b, errors, seed)
+    nodes = solver_nodes(reported, bottom)
     problem = frame_problem(
-        stacked, dt_.repeat(v), dx_.repeat(v), rates, losses, solver_nodes(reported, bottom), len(reported)
+        stacked, dt_.repeat(v), dx_.repeat(v), rates, losses, nodes, len(reported), lateral=lateral
     )
     z, (h, w) = len(reported), rise.shape[-2:]
     doses = _Doses(rise, (v * batch, z, h, w), dt_.repeat(v), rule, constants)

@@ -173,12 +173,22 @@ def dct_matrices(rise: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def frame_problem(
-    rise: Tensor, dt: Tensor, dx: Tensor, a: Tensor, b: Tensor, nodes: tuple, reported: int
+    rise: Tensor,
+    dt: Tensor,
+    dx: Tensor,
+    a: Tensor,
+    b: Tensor,
+    nodes: tuple,
+    reported: int,
+    *,
+    lateral: bool = True,
 ) -> ModalProblem:
-    """:class:`ModalProblem` of every cosine mode of the surface ``rise`` ``(B, T, H, W)`` (K)."""
+    """:class:`ModalProblem` of every cosine mode of the surface ``rise`` ``(B, T, H, W)`` (K); with
+    ``lateral=False`` every mode has ``k = 0``: each pixel's column on its own (per-pixel 1-D)."""
     ch, cw = dct_matrices(rise)
     spectrum = (ch @ rise @ cw.T).flatten(2)
-    return modal_problem(spectrum, wavenumbers(*rise.shape[-2:], dx), dt, a, b, nodes, reported)
+    k2 = wavenumbers(*rise.shape[-2:], dx)
+    return modal_problem(spectrum, k2 if lateral else torch.zeros_like(k2), dt, a, b, nodes, reported)
 
 
 def phi_functions(z: Tensor) -> tuple[Tensor, Tensor]:
