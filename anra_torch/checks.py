@@ -221,7 +221,7 @@ def as_spacing(value: object, *, name: str, unit: str, batch: int, like: Tensor)
         spacing = value.detach().to(like.dtype).reshape(-1)
     else:
         try:
-            spacing = torch.as_tensor(value, dtype=like.dtype).reshape(-1)
+            spacing = torch.as_tensor(value, dtype=like.dtype, device=like.device).reshape(-1)
         except (TypeError, ValueError, RuntimeError) as err:
             raise ValueError(f"{name} must be a positive number in {unit}, got {value!r}") from err
     if spacing.numel() == 1:

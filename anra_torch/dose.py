@@ -120,10 +120,11 @@ def _as_history(temperatures: object) -> tuple[Tensor, tuple[int, ...]]:
     )
 
 
-def _as_dt(dt: object, batch: int) -> Tensor:
-    """Frame period(s) as a ``(B, 1, 1)`` float64 tensor."""
+def _as_dt(dt: object, batch: int, device: torch.device) -> Tensor:
+    """Frame period(s) as a ``(B, 1, 1)`` float64 tensor on ``device``."""
     try:
-        step = torch.as_tensor(dt.detach() if isinstance(dt, Tensor) else dt, dtype=_F64).reshape(-1)
+        step = torch.as_tensor(dt.detach() if isinstance(dt, Tensor) else dt, dtype=_F64, device=device)
+        step = step.reshape(-1)
     except (TypeError, ValueError, RuntimeError) as err:
         raise ValueError(f"dt must be a positive number in s, got {dt!r}") from err
     if step.numel() == 1:
@@ -199,7 +200,7 @@ def _prepare(temperatures: object, dt: object, units: str, rule: str) -> tuple[T
         raise ValueError(
             f"rule={rule!r} needs at least {2 if rule == 'linear' else 1} frames, got {x.shape[1]}"
         )
-    return to_celsius(x, units), _as_dt(dt, x.shape[0]), shape
+    return to_celsius(x, units), _as_dt(dt, x.shape[0], x.device), shape
 
 
 def _segments(x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -331,7 +332,8 @@ def arrhenius_omega(
     pieces = torch.where(ok, pieces, 0.0).flatten()
     start, delta = t0.flatten(), (t1 - t0).flatten()
     total = torch.zeros_like(start)
-    nodes, weights = 0.5 * (_GL_NODES + 1.0), 0.5 * _GL_WEIGHTS  # on [0, 1]
+    nodes = (0.5 * (_GL_NODES + 1.0)).to(start.device)  # on [0, 1], where the data is
+    weights = (0.5 * _GL_WEIGHTS).to(start.device)
     # Piece j of every segment that has more than j pieces; the active set shrinks quickly.
     active = torch.nonzero(pieces > 0).flatten()
     j = 0

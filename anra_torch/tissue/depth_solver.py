@@ -86,6 +86,9 @@ def solver_nodes(reported: np.ndarray, bottom: float) -> tuple[float, ...]:
     while nodes[-1] < bottom:
         step *= DEEP_GROWTH
         nodes.append(nodes[-1] + step)
+    if len(nodes) > len(reported) + 1 and bottom - nodes[-2] < 0.5 * (nodes[-2] - nodes[-3]):
+        nodes.pop(-2)  # the last step would be too short next to its neighbour: merge it
+    nodes[-1] = bottom  # exactly: a layer's bottom is held at the body temperature
     return tuple(float(z) for z in nodes)
 
 
@@ -290,7 +293,8 @@ def surface_rise(
 
 def bottom_depth(thickness: object, deepest: float, a: Tensor, duration: float) -> float:
     """The bottom node (mm): the layer's ``thickness``, or deep enough that no heat reaches it in the record
-    (``7 sqrt(a t)`` below the deepest reported node: an erfc tail under 1e-6)."""
+    (``7 sqrt(a t)`` below the deepest reported node: an erfc tail under 1e-6), rounded up to whole mm so
+    that a small change of ``a`` keeps the grid (and the gradient is the fixed grid's)."""
     if thickness is not None:
         thickness = number(thickness, "thickness", "mm", positive=True)
         if thickness <= deepest:
@@ -298,7 +302,7 @@ def bottom_depth(thickness: object, deepest: float, a: Tensor, duration: float) 
                 f"thickness must be deeper than the deepest depth ({deepest:g} mm), got {thickness:g}"
             )
         return thickness
-    return deepest + 7.0 * math.sqrt(float(a.detach().max()) * duration) + 0.1
+    return float(math.ceil(deepest + 7.0 * math.sqrt(float(a.detach().max()) * duration) + 0.1))
 
 
 # ------------------------------------------------------------------------------------------ heat input
