@@ -31,7 +31,8 @@ Damage in depth (:func:`damage_in_depth`): Omega and CEM43 of every depth node's
 :func:`anra_torch.dose.arrhenius_omega` and :func:`anra_torch.dose.cem43`, the peak-temperature profile, the
 damage depth (the deepest point with ``Omega >= 1``: ``ln Omega`` interpolated linearly between nodes) and
 the depth of a CEM43 threshold, each with a standard error propagated from the standard errors of ``a``
-and ``b`` and from the noise (one extra solve each: the linearised propagation).
+and ``b`` and from the noise (one extra solve each: the linearised propagation), with the frames' sampling
+in time (the two dose rules' difference).
 
 Units: mm, s, C, mm^2/s, 1/s.
 """
@@ -66,6 +67,7 @@ from anra_torch.tissue.depth_solver import (
 __all__ = [
     "CEM43_THRESHOLD",
     "DOSE_FLOOR",
+    "OMEGA_FLOOR",
     "DepthMaps",
     "damage_in_depth",
     "subsurface_temperature",
@@ -156,9 +158,12 @@ def subsurface_temperature(
 
 
 # ------------------------------------------------------------------------------------------ damage
+OMEGA_FLOOR = 45.0
+"""C: a node never hotter than this gets no Omega (the skin's rate there is 4.5e-5 1/s: under 0.003 in a
+minute, against the threshold of 1)."""
 DOSE_FLOOR = 40.0
-"""C: a node whose temperature never exceeds this gets no dose (the skin's Arrhenius rate is 1e-6 1/s
-there, CEM43 accrues 1/64 min per min), and nodes are reported down to where the peak falls below it."""
+"""C: a node whose temperature never exceeds this gets no CEM43 (1/64 min per min there), and nodes are
+reported down to where the peak falls below it."""
 
 
 @dataclass(frozen=True)
@@ -223,7 +228,7 @@ def threshold_depth(values: Tensor, depths: Tensor, threshold: float | Tensor) -
 
     Example:
         >>> omega = torch.tensor([8.0, 2.0, 0.5]).view(3, 1, 1)  # ln: 2.08, 0.69, -0.69
-        >>> float(threshold_depth(omega, torch.tensor([0.0, 0.1, 0.2]), 1.0))
+        >>> round(float(threshold_depth(omega, torch.tensor([0.0, 0.1, 0.2]), 1.0)), 6)
         0.15
     """
     z = depths.to(device=values.device, dtype=values.dtype)
@@ -242,35 +247,65 @@ def threshold_depth(values: Tensor, depths: Tensor, threshold: float | Tensor) -
 
 
 class _Doses:
-    """Running peak (C), Omega and CEM43 (float64) of every node of a batch, block by block; the doses only
-    over nodes some video's block takes above :data:`DOSE_FLOOR` (gathered, then added back)."""
+    """Running peak (C), Omega and CEM43 (float64) of every node of a batch, block by block, by ``rule`` and,
+    for the first ``base`` videos, by the other rule too (the time-sampling term of the errors); each dose
+    only over the nodes some video's block takes above its floor (:data:`OMEGA_FLOOR`,
+    :data:`DOSE_FLOOR`), gathered and added back."""
 
     def __init__(
-        self, like: Tensor, shape: tuple[int, ...], dt: Tensor, rule: str, constants: ArrheniusConstants
+        self,
+        like: Tensor,
+        shape: tuple[int, ...],
+        dt: Tensor,
+        rule: str,
+        constants: ArrheniusConstants,
+        base: int,
     ):
         self.peak = torch.full(shape, -torch.inf, device=like.device, dtype=like.dtype)
-        self.omega = torch.zeros(shape, device=like.device, dtype=_F64)
-        self.cem43 = torch.zeros(shape, device=like.device, dtype=_F64)
-        self.dt, self.rule, self.constants = dt, rule, constants
+        zeros = {"device": like.device, "dtype": _F64}
+        self.doses = {
+            (name, r): torch.zeros(shape if r == rule else (base, *shape[1:]), **zeros)
+            for name in ("omega", "cem43")
+            for r in RULES
+        }
+        self.dt, self.rule, self.constants, self.base = dt, rule, constants, base
         self.previous: Tensor | None = None
+
+    @property
+    def omega(self) -> Tensor:
+        return self.doses["omega", self.rule]
+
+    @property
+    def cem43(self) -> Tensor:
+        return self.doses["cem43", self.rule]
+
+    def other(self, name: str) -> Tensor:
+        """The base videos' ``name`` by the other rule."""
+        return self.doses[name, next(r for r in RULES if r != self.rule)]
 
     def add(self, celsius: Tensor) -> None:
         """Add a block ``(B, L, Z, H, W)`` of temperatures (C)."""
         self.peak = torch.maximum(self.peak, celsius.amax(1))
-        history = celsius if self.previous is None else torch.cat([self.previous, celsius], 1)
-        if self.rule == "linear":  # segments join consecutive blocks
-            self.previous = celsius[:, -1:]
-        if history.shape[1] < (2 if self.rule == "linear" else 1):
-            return
-        hot = torch.nonzero((history.detach() > DOSE_FLOOR).any(1).any(0).flatten()).flatten()
-        if not hot.numel():
-            return
-        picked = history.flatten(2).index_select(2, hot).unsqueeze(-1)  # (B, L, P, 1)
-        omega = arrhenius_omega(picked, self.dt, constants=self.constants, rule=self.rule)[..., 0]
-        minutes = cem43(picked, self.dt, rule=self.rule)[..., 0]
-        b = history.shape[0]
-        self.omega = self.omega.reshape(b, -1).index_add(1, hot, omega).reshape(self.omega.shape)
-        self.cem43 = self.cem43.reshape(b, -1).index_add(1, hot, minutes).reshape(self.cem43.shape)
+        joined = celsius if self.previous is None else torch.cat([self.previous, celsius], 1)
+        self.previous = celsius[:, -1:]  # linear segments join consecutive blocks
+        warmest = joined.detach().amax(1).amax(0).flatten()  # over the block and the batch
+        for floor, name in ((DOSE_FLOOR, "cem43"), (OMEGA_FLOOR, "omega")):
+            hot = torch.nonzero(warmest > floor).flatten()
+            if not hot.numel():
+                continue
+            for rule in RULES:
+                history = celsius if rule == "hold" else joined
+                if history.shape[1] < 2 and rule == "linear":
+                    continue
+                videos = len(history) if rule == self.rule else self.base
+                picked = history[:videos].flatten(2).index_select(2, hot).unsqueeze(-1)  # (B, L, P, 1)
+                if name == "omega":
+                    dose = arrhenius_omega(picked, self.dt[:videos], constants=self.constants, rule=rule)
+                else:
+                    dose = cem43(picked, self.dt[:videos], rule=rule)
+                total = self.doses[name, rule]
+                total = total.reshape(videos, -1).index_add(1, hot, dose[..., 0]).reshape(total.shape)
+                self.doses[name, rule] = total
 
 
 def _reach(
@@ -297,6 +332,16 @@ def _reach(
     return float(reported[min(deepest + 1, len(reported) - 1)])
 
 
+def _parameters(values: dict[str, object], like: Tensor) -> list[Tensor]:
+    """``a``, ``b`` and the three standard errors (detached) as ``(B,)``, checked."""
+    units = {"diffusivity": "mm^2/s", "loss_rate": "1/s", "diffusivity_std": "mm^2/s", "loss_rate_std": "1/s"}
+    out = []
+    for name, value in values.items():
+        x = check_rate(value, name, units.get(name, "K"), like.shape[0], like, positive=name == "diffusivity")
+        out.append(x if name in ("diffusivity", "loss_rate") else x.detach())
+    return out
+
+
 def _variants(
     rise: Tensor, a: Tensor, b: Tensor, errors: tuple[Tensor, Tensor, Tensor], seed: int
 ) -> tuple[Tensor, Tensor, Tensor, int]:
@@ -316,13 +361,18 @@ def _variants(
     return torch.cat(rises), torch.cat(rates), torch.cat(losses), len(rises)
 
 
-def _spread(values: Tensor, v: int) -> tuple[Tensor, Tensor]:
-    """The base value and the root sum of squares of the perturbed copies' changes, from ``(V B, ...)``."""
+def _spread(
+    values: Tensor, v: int, other: Tensor | None = None, threshold: float = 1.0, depths: Tensor | None = None
+) -> tuple[Tensor, Tensor]:
+    """The base value and the root sum of squares of the perturbed copies' changes, from ``(V B, ...)``; with
+    ``other`` (the base's dose by the other integration rule), half the two rules' difference in depth is
+    added in quadrature: the frames' sampling in time."""
     stacked = values.reshape(v, -1, *values.shape[1:])
     base = stacked[0]
-    if v == 1:
-        return base, torch.zeros_like(base)
-    return base, ((stacked[1:] - base) ** 2).sum(0).sqrt()
+    variance = ((stacked[1:] - base) ** 2).sum(0) if v > 1 else torch.zeros_like(base)
+    if other is not None:
+        variance = variance + (0.5 * (threshold_depth(other, depths, threshold) - base)) ** 2
+    return base, variance.sqrt()
 
 
 def damage_in_depth(
@@ -351,7 +401,9 @@ def damage_in_depth(
 
     The standard errors propagate those of ``a`` and ``b`` and the noise to first order: one extra solve
     with ``a + diffusivity_std``, one with ``b + loss_rate_std``, one with a seeded white-noise video of sd
-    ``noise_sd`` added to the frames; the error is the root sum of squares of their changes.
+    ``noise_sd`` added to the frames; the error is the root sum of squares of their changes and of the
+    frames' sampling in time (the depths' histories are known only at the frames: half the difference
+    between the dose by the two integration rules of :data:`anra_torch.dose.RULES`).
 
     Args:
         frames: surface temperatures in ``units`` (finite), ``(T, H, W)`` or ``(B, T, H, W)``.
@@ -388,17 +440,8 @@ def damage_in_depth(
         raise TypeError(f"constants must be ArrheniusConstants, got {type(constants).__name__}")
     cem43_threshold = number(cem43_threshold, "cem43_threshold", "min", positive=True)
     rise, batched, dt_, dx_, body = surface_rise(frames, dt, dx, units, body_temperature)
-    batch = rise.shape[0]
-    a = check_rate(diffusivity, "diffusivity", "mm^2/s", batch, rise, positive=True)
-    b = check_rate(loss_rate, "loss_rate", "1/s", batch, rise, positive=False)
-    errors = tuple(
-        check_rate(v, n, u, batch, rise, positive=False).detach()
-        for v, n, u in (
-            (diffusivity_std, "diffusivity_std", "mm^2/s"),
-            (loss_rate_std, "loss_rate_std", "1/s"),
-            (noise_sd, "noise_sd", "K"),
-        )
-    )
+    given = {"diffusivity": diffusivity, "loss_rate": loss_rate, "diffusivity_std": diffusivity_std}
+    a, b, *errors = _parameters(given | {"loss_rate_std": loss_rate_std, "noise_sd": noise_sd}, rise)
     if max_depth is None:
         bounds = (a.detach() + 2 * errors[0], (b.detach() - 2 * errors[1]).clamp_min(0.0))
         max_depth = _reach(rise, dt_, dx_, *bounds, body, thickness)
@@ -407,22 +450,50 @@ def damage_in_depth(
     )
     duration = float(dt_.max()) * (rise.shape[1] - 1)
     bottom = bottom_depth(thickness, float(reported[-1]), a + 2 * errors[0], duration)
-    stacked, rates, losses, v = _variants(rise, a, b, errors, seed)
-    nodes = solver_nodes(reported, bottom)
-    problem = frame_problem(
-        stacked, dt_.repeat(v), dx_.repeat(v), rates, losses, nodes, len(reported), lateral=lateral
+    settings = (rule, constants, cem43_threshold, lateral, seed)
+    maps = _solve(
+        rise, dt_, dx_, body, (a, b), errors, solver_nodes(reported, bottom), len(reported), settings
     )
-    z, (h, w) = len(reported), rise.shape[-2:]
-    doses = _Doses(rise, (v * batch, z, h, w), dt_.repeat(v), rule, constants)
+    return maps if batched else maps.unbatched()
+
+
+def _solve(
+    rise: Tensor,
+    dt: Tensor,
+    dx: Tensor,
+    body: Tensor,
+    rates: tuple[Tensor, Tensor],
+    errors: tuple[Tensor, Tensor, Tensor],
+    nodes: tuple,
+    reported: int,
+    settings: tuple,
+) -> DepthMaps:
+    """The march of the base problem and its perturbed copies, their doses and the maps with their spread."""
+    rule, constants, cem43_threshold, lateral, seed = settings
+    a, b = rates
+    batch, (h, w) = rise.shape[0], rise.shape[-2:]
+    stacked, diffusivities, losses, v = _variants(rise, a, b, errors, seed)
+    problem = frame_problem(
+        stacked, dt.repeat(v), dx.repeat(v), diffusivities, losses, nodes, reported, lateral=lateral
+    )
+    doses = _Doses(rise, (v * batch, reported, h, w), dt.repeat(v), rule, constants, batch)
     offset = body.repeat(v).view(-1, 1, 1, 1, 1)
-    block = max(1, _BLOCK_VALUES // (v * batch * z * h * w))
+    block = max(1, _BLOCK_VALUES // (v * batch * reported * h * w))
     for start, states in march(problem, block):
         doses.add(offset + node_temperatures(stacked, problem, start, states))
-    depths = torch.from_numpy(reported).to(device=rise.device, dtype=_F64)
-    damage, damage_std = _spread(threshold_depth(doses.omega, depths, 1.0), v)
-    dose_depth, dose_std = _spread(threshold_depth(doses.cem43, depths, cem43_threshold), v)
+    depths = torch.tensor(nodes[:reported], dtype=_F64, device="cpu").to(rise.device)
+    damage, damage_std = _spread(
+        threshold_depth(doses.omega, depths, 1.0), v, doses.other("omega"), 1.0, depths
+    )
+    dose_depth, dose_std = _spread(
+        threshold_depth(doses.cem43, depths, cem43_threshold),
+        v,
+        doses.other("cem43"),
+        cem43_threshold,
+        depths,
+    )
     peak, peak_std = _spread(doses.peak, v)
-    maps = DepthMaps(
+    return DepthMaps(
         depths=depths,
         peak=peak,
         peak_std=peak_std,
@@ -441,7 +512,6 @@ def damage_in_depth(
         body_temperature=body,
         truncated=doses.omega[:batch, -1] >= 1.0,
     )
-    return maps if batched else maps.unbatched()
 
 
 def surface_heat_input(

@@ -18,7 +18,7 @@ from anra_torch.dose import SKIN, ArrheniusConstants
 from anra_torch.tissue.depth import CEM43_THRESHOLD, DepthMaps, damage_in_depth
 from anra_torch.tissue.depth_fit import DepthParameters, fit_depth_parameters
 
-__all__ = ["DEPTH_MAPS", "DepthFeatures", "depth_features"]
+__all__ = ["DEPTH_MAPS", "PRIOR", "DepthFeatures", "depth_features"]
 
 _F64 = torch.float64
 
@@ -29,6 +29,10 @@ _SOURCES = {
     "cem43_depth_std_mm": "cem43_depth_std",
 }
 DEPTH_MAPS: tuple[str, ...] = tuple(_SOURCES)
+PRIOR: dict[str, tuple[float, float]] = {"diffusivity": (0.14, 0.03), "loss_rate": (0.005, 0.005)}
+"""Textbook skin values with wide standard errors (value, standard error) for a recording whose cooling
+cannot be fitted (none recorded, or nothing above the noise): ``a`` 0.14 mm^2/s (0.08-0.20 within two
+standard errors), ``b`` 0.005 1/s."""
 """The ``(H, W)`` depth maps (mm) :class:`anra_torch.features.TissueFeatures` adds with ``depth=True``."""
 
 
@@ -37,13 +41,16 @@ class DepthFeatures:
     """The depth maps of a batch with the parameters they used (batched: leading ``B``).
 
     Attributes:
-        maps: :data:`DEPTH_MAPS` name -> ``(B, H, W)`` (mm); NaN for a video without a usable fit (no
-            cooling recorded, or flagged as volumetrically heated), with the reason in ``messages``.
+        maps: :data:`DEPTH_MAPS` name -> ``(B, H, W)`` (mm); NaN for a video flagged as volumetrically
+            heated, with the reason in ``messages``.
         profiles: the :class:`DepthMaps` of the videos with maps (``(B, Z, H, W)`` profiles, NaN likewise),
             or None when no video has them.
-        parameters: the :class:`anra_torch.tissue.depth_fit.DepthParameters` of every video.
+        parameters: the :class:`anra_torch.tissue.depth_fit.DepthParameters` of every video (where they are
+            not valid, the maps used :data:`PRIOR`).
         used: whether a video's maps were computed, ``(B,)``.
-        messages: per video, why there are no maps or what is flagged ("" otherwise).
+        messages: per video, why there are no maps, what is flagged or that the prior was used ("" otherwise).
+        used_parameters: the ``diffusivity``, ``loss_rate``, their ``_std`` and ``noise_sd`` the maps used,
+            each ``(B,)``: the fit's, or :data:`PRIOR` where it is not valid.
         thickness: the layer's thickness (mm) or None (half-space).
     """
 
@@ -52,6 +59,7 @@ class DepthFeatures:
     parameters: DepthParameters
     used: Tensor
     messages: tuple[str, ...]
+    used_parameters: dict[str, Tensor]
     thickness: float | None = None
 
     def record(self, index: int = 0) -> dict:
@@ -66,11 +74,11 @@ class DepthFeatures:
             else f"layer of {self.thickness:g} mm over tissue held at the body temperature",
             "model": "dT/dt = a (d_xx + d_yy + d_zz) T - b (T - T_body) under the frame (cosine modes: no "
             "flux through its edges), the frames as the surface temperature, in equilibrium with the first",
-            "diffusivity_mm2_s": value(p.diffusivity),
-            "diffusivity_std_mm2_s": value(p.diffusivity_std),
-            "loss_rate_per_s": value(p.loss_rate),
-            "loss_rate_std_per_s": value(p.loss_rate_std),
-            "parameters_from": p.method,
+            "diffusivity_mm2_s": value(self.used_parameters["diffusivity"]),
+            "diffusivity_std_mm2_s": value(self.used_parameters["diffusivity_std"]),
+            "loss_rate_per_s": value(self.used_parameters["loss_rate"]),
+            "loss_rate_std_per_s": value(self.used_parameters["loss_rate_std"]),
+            "parameters_from": p.method if bool(p.valid[index]) else "textbook prior (no fit: see message)",
             "noise_sd_K": value(p.noise_sd),
             "cooling_start_frame": int(p.cooling_start[index]),
             "misfit": value(p.misfit),
@@ -100,8 +108,8 @@ def depth_features(
     thickness: float | None = None,
 ) -> DepthFeatures:
     """Fit ``a`` and ``b`` (:func:`anra_torch.tissue.depth_fit.fit_depth_parameters`) and map the damage in
-    depth (:func:`damage_in_depth`) with their standard errors and the noise's, for every video whose fit is
-    valid and not flagged as volumetric.
+    depth (:func:`damage_in_depth`) with their standard errors and the noise's, for every video not flagged
+    as volumetric (with :data:`PRIOR` where the fit is not possible).
 
     Args:
         frames: surface temperatures in ``units`` (finite), ``(T, H, W)`` or ``(B, T, H, W)``.
@@ -116,7 +124,13 @@ def depth_features(
     """
     video = frames if frames.ndim == 4 else frames.unsqueeze(0)
     parameters = fit_depth_parameters(video, dt, dx, units=units)
-    used = parameters.valid & ~parameters.volumetric
+    used = ~parameters.volumetric  # never absorbed into a number
+    chosen = {}
+    for name, (value, error) in PRIOR.items():
+        std = getattr(parameters, f"{name}_std")
+        chosen[name] = torch.where(parameters.valid, getattr(parameters, name), value)
+        chosen[f"{name}_std"] = torch.where(parameters.valid, std, error)
+    chosen["noise_sd"] = parameters.noise_sd
     b, (h, w) = video.shape[0], video.shape[-2:]
     nan = torch.full((b, h, w), torch.nan, dtype=_F64, device=video.device)
     maps = {name: nan.clone() for name in DEPTH_MAPS}
@@ -124,7 +138,6 @@ def depth_features(
     if bool(used.any()):
         pick = torch.nonzero(used).flatten()
         spacing = [s if not isinstance(s, Tensor) or s.numel() == 1 else s[pick] for s in (dt, dx)]
-        fitted = ("diffusivity", "loss_rate", "diffusivity_std", "loss_rate_std", "noise_sd")
         found = damage_in_depth(
             video[pick],
             *spacing,
@@ -133,16 +146,16 @@ def depth_features(
             rule=rule,
             cem43_threshold=cem43_threshold,
             thickness=thickness,
-            **{k: getattr(parameters, k)[pick] for k in fitted},
+            **{k: v[pick] for k, v in chosen.items()},
         )
         for name, field_name in _SOURCES.items():
             maps[name][pick] = getattr(found, field_name).to(_F64)
         profiles = _scatter(found, pick, b)
     messages = tuple(
-        m if m else ("" if ok else "depth maps not computed")
-        for m, ok in zip(parameters.messages, used.tolist(), strict=True)
+        f"{m}; the textbook prior used instead (a 0.14 +- 0.03 mm^2/s, b 0.005 +- 0.005 1/s)" if not ok else m
+        for m, ok in zip(parameters.messages, parameters.valid.tolist(), strict=True)
     )
-    return DepthFeatures(maps, profiles, parameters, used, messages, thickness)
+    return DepthFeatures(maps, profiles, parameters, used, messages, chosen, thickness)
 
 
 def _scatter(found: DepthMaps, pick: Tensor, batch: int) -> DepthMaps:

@@ -3,17 +3,20 @@
 The surface alone cannot tell ``a`` in one dimension (the surface flux of a half-space scales with
 ``sqrt(a)`` whatever the history), and the plain ANRA balance reads the heat that leaves downwards as
 lateral spreading. The depth model itself gives a consistent estimate. Once the source is off (a laser
-switched off, a probe lifted, a tip gone), no heat crosses the surface: the heat that entered through it,
-:func:`anra_torch.tissue.surface_heat_input` of the measured surface under ``a`` and ``b``, must stay flat.
-With the wrong ``a`` the same surface implies heat still flowing in or out, in a way that differs between
-the frame's lateral modes (``a |k|^2`` sets how fast each one empties sideways) and, through ``b``, over
-time. :func:`fit_depth_parameters` finds ``(a, b)`` by Gauss-Newton on that residual:
+switched off, a probe lifted, a tip gone), the only heat crossing the surface is what it loses to the air:
+the heat that entered through it, :func:`anra_torch.tissue.surface_heat_input` of the measured surface
+under ``a`` and ``b``, must fall by just ``a beta int theta_s dt`` (``beta = h / k``, 1/mm). With the wrong
+``a`` the same surface implies heat still flowing in or out, in a way that differs between the frame's
+lateral modes (``a |k|^2`` sets how fast each one empties sideways) and, through ``b``, over time.
+:func:`fit_depth_parameters` finds ``(a, b, beta)`` by Gauss-Newton on that residual:
 
-    r(n, k) = (Q_k(t_n) - Q_k(t_0)) / sqrt(sum_k Q_k(t_0)^2),   n after the switch-off at t_0,
+    r(n, k) = (Q_k(t_n) - Q_k(t_0) + a beta int_{t_0}^{t_n} g_k dt) / sqrt(sum_k Q_k(t_0)^2),
 
-over the cosine modes ``k`` whose energy stands well above the noise (scale-free in ``a``: no noise bias
-towards small ``a``). The switch-off is the last frame at which the heated area's mean is within 5 % of
-its rise from its maximum; the fit starts two frames later (the interval across the switch is not linear).
+for the frames ``n`` after the switch-off at ``t_0`` and the cosine modes ``k`` whose energy stands well
+above the noise (scale-free in ``a``: no noise bias towards small ``a``). Without ``beta`` the loss to the
+air would be read as perfusion. The switch-off is the last frame at which the hottest point (3 x 3 px
+means) is within 5 % of its largest rise; the fit starts two frames later (the interval across the switch
+is not linear).
 
 Standard errors: the measured white noise pushed through the same residual (seeded replicate videos, to
 first order) and the jackknife over groups of lateral modes at the solution (one linearised step per
@@ -70,7 +73,9 @@ DIFFUSIVITY_RANGE = (0.01, 2.0)
 """mm^2/s: the fit stays inside."""
 LOSS_RANGE = (0.0, 0.1)
 """1/s: the fit's perfusion stays inside."""
-VOLUMETRIC_MISFIT = 0.05
+SURFACE_LOSS_RANGE = (0.0, 1.0)
+"""1/mm: the fit's loss through the surface (``h / k``: air, radiation) stays inside."""
+VOLUMETRIC_MISFIT = 0.02
 """Largest residual share (:attr:`DepthParameters.misfit`) of a surface-heated recording; above it the heat
 looks deposited below the surface (or another effect the depth model lacks acts) and the video is flagged."""
 _SWITCH_SHARE = (
@@ -79,7 +84,7 @@ _SWITCH_SHARE = (
 _FIT_GROWTH = 1.1  # the fit's depth grid (the heat content needs less resolution than the damage front)
 _GROUPS = 8  # jackknife groups of lateral modes
 _REPLICATES = 8  # seeded noise videos for the noise part of the standard errors
-_STEP = (0.02, 5e-4)  # finite-difference steps in (ln a, b)
+_STEP = (0.02, 5e-4)  # finite-difference steps in (ln a, b); the residual is linear in beta
 _F64 = torch.float64
 
 
@@ -90,6 +95,9 @@ class DepthParameters:
     Attributes:
         diffusivity: ``a`` in mm^2/s, ``(B,)``; ``diffusivity_std`` its standard error.
         loss_rate: ``b`` (perfusion) in 1/s, ``(B,)``; ``loss_rate_std`` its standard error.
+        surface_loss: ``beta = h / k`` in 1/mm of the heat the surface loses after the switch-off (air,
+            radiation; not part of the depth model: the surface temperature is measured), ``(B,)``;
+            ``surface_loss_std`` its standard error.
         noise_sd: the frames' white noise (K), ``(B,)``.
         cooling_start: first frame of the fit (two after the switch-off), ``(B,)``.
         misfit: residual share at the fit, ``(B,)``: ``sum r^2`` (0: the heat input stays exactly flat).
@@ -102,6 +110,8 @@ class DepthParameters:
     diffusivity_std: Tensor
     loss_rate: Tensor
     loss_rate_std: Tensor
+    surface_loss: Tensor
+    surface_loss_std: Tensor
     noise_sd: Tensor
     cooling_start: Tensor
     misfit: Tensor
@@ -109,7 +119,10 @@ class DepthParameters:
     valid: Tensor
     messages: tuple[str, ...]
 
-    method = "zero surface flux after the switch-off: 3-D depth model, Gauss-Newton over (a, b)"
+    method = (
+        "the heat input through the surface stays flat after the switch-off but for a surface loss: 3-D "
+        "depth model, Gauss-Newton over (a, b, h/k)"
+    )
 
     def unbatched(self) -> DepthParameters:
         """The same result with the batch dimension of size 1 removed."""
@@ -149,7 +162,8 @@ class _Modes:
 
     ``spectrum`` ``(B, T, K)`` (K), ``k2`` ``(B, K)`` (1/mm^2), ``weight`` ``(B, T, K)`` (1 where a mode above
     the noise and a frame after the switch-off meet, else 0), ``group`` ``(B, K)`` (jackknife group),
-    ``start`` ``(B,)`` (first frame of the fit), ``dt`` ``(B,)``."""
+    ``start`` ``(B,)`` (first frame of the fit), ``dt`` ``(B,)``, ``exposure`` ``(B, T, K)`` (K s: the
+    surface rise integrated over time since the fit's first frame, the trapezoid rule)."""
 
     spectrum: Tensor
     k2: Tensor
@@ -157,15 +171,11 @@ class _Modes:
     group: Tensor
     start: Tensor
     dt: Tensor
+    exposure: Tensor
 
     def repeat(self, c: int) -> _Modes:
         """Each video ``c`` times (video-major), for ``c`` candidate parameters per video."""
-        return _Modes(
-            *(
-                x.repeat_interleave(c, 0)
-                for x in (self.spectrum, self.k2, self.weight, self.group, self.start, self.dt)
-            )
-        )
+        return _Modes(*(x.repeat_interleave(c, 0) for x in self.__dict__.values()))
 
 
 def _modes(rise: Tensor, dx: Tensor, dt: Tensor, noise: Tensor, start: Tensor) -> _Modes:
@@ -183,9 +193,15 @@ def _modes(rise: Tensor, dx: Tensor, dt: Tensor, noise: Tensor, start: Tensor) -
     weight = (after.unsqueeze(-1) & above.unsqueeze(1)).to(rise.dtype)
     group = torch.arange(count, device=rise.device).expand_as(order) % _GROUPS
     k2 = wavenumbers(*rise.shape[-2:], dx).gather(1, order)
-    return _Modes(
-        spectrum.gather(2, order.unsqueeze(1).expand(-1, rise.shape[1], -1)), k2, weight, group, start, dt
-    )
+    picked = spectrum.gather(2, order.unsqueeze(1).expand(-1, rise.shape[1], -1))
+    return _Modes(picked, k2, weight, group, start, dt, _exposure(picked, dt, start))
+
+
+def _exposure(spectrum: Tensor, dt: Tensor, start: Tensor) -> Tensor:
+    """``int_{t_0}^{t_n} g dt`` of every mode ``(N, T, K)`` (trapezoid rule; negative before ``t_0``)."""
+    steps = 0.5 * (spectrum[:, 1:] + spectrum[:, :-1]) * dt.view(-1, 1, 1)
+    total = torch.cat([torch.zeros_like(spectrum[:, :1]), steps.cumsum(1)], 1)
+    return total - total.gather(1, start.view(-1, 1, 1).expand(-1, 1, total.shape[2]))
 
 
 def _heat(modes: _Modes, a: Tensor, b: Tensor, spectrum: Tensor | None = None) -> Tensor:
@@ -207,44 +223,50 @@ def _change(q: Tensor, modes: _Modes) -> tuple[Tensor, Tensor]:
     return (q - at_start) * modes.weight, norm
 
 
-def _residual(modes: _Modes, theta: Tensor) -> Tensor:
-    """Residual ``(B, C, T, K)`` of ``C`` candidates ``theta`` ``(B, C, 2)`` = ``(ln a, b)`` per video: the
-    heat input's change since the fit's first frame over ``sqrt(sum_k Q_k(t_0)^2)``, so that its size does
-    not scale with ``a``."""
+def _residual(modes: _Modes, theta: Tensor) -> tuple[Tensor, Tensor]:
+    """Residual ``(B, C, T, K)`` of ``C`` candidates ``theta`` ``(B, C, 3)`` = ``(ln a, b, beta)`` per video:
+    the heat input's change since the fit's first frame plus what the surface lost to the air
+    (``a beta int g dt``) over ``sqrt(sum_k Q_k(t_0)^2)``, so that its size does not scale with ``a``; and
+    its derivative with respect to ``beta`` (the residual is linear in it)."""
     b, c = theta.shape[:2]
     many = modes.repeat(c)
-    change, norm = _change(_heat(many, theta[..., 0].exp().flatten(), theta[..., 1].flatten()), many)
-    return (change / norm.view(-1, 1, 1)).view(b, c, *change.shape[1:])
+    a = theta[..., 0].exp().flatten()
+    change, norm = _change(_heat(many, a, theta[..., 1].flatten()), many)
+    d_beta = (a / norm).view(-1, 1, 1) * many.exposure * many.weight
+    r = change / norm.view(-1, 1, 1) + theta[..., 2].reshape(-1, 1, 1) * d_beta
+    return r.view(b, c, *r.shape[1:]), d_beta.view(b, c, *r.shape[1:])
 
 
 def _clamp(theta: Tensor) -> Tensor:
-    low = theta.new_tensor([math.log(DIFFUSIVITY_RANGE[0]), LOSS_RANGE[0]])
-    high = theta.new_tensor([math.log(DIFFUSIVITY_RANGE[1]), LOSS_RANGE[1]])
+    low = theta.new_tensor([math.log(DIFFUSIVITY_RANGE[0]), LOSS_RANGE[0], SURFACE_LOSS_RANGE[0]])
+    high = theta.new_tensor([math.log(DIFFUSIVITY_RANGE[1]), LOSS_RANGE[1], SURFACE_LOSS_RANGE[1]])
     return torch.maximum(torch.minimum(theta, high), low)
 
 
 def _jacobian(modes: _Modes, theta: Tensor) -> tuple[Tensor, Tensor]:
-    """Residual ``(B, T, K)`` and its forward-difference Jacobian ``(B, T, K, 2)`` at ``theta`` ``(B, 2)``
-    (three candidates per video in one batch)."""
+    """Residual ``(B, T, K)`` and its Jacobian ``(B, T, K, 3)`` at ``theta`` ``(B, 3)``: forward differences
+    in ``ln a`` and ``b`` (three candidates per video in one batch), exact in ``beta``."""
     step = theta.new_tensor(_STEP)
-    candidates = torch.cat([theta.unsqueeze(1), theta.unsqueeze(1) + torch.diag(step).unsqueeze(0)], 1)
-    r = _residual(modes, candidates)
-    jac = torch.stack([(r[:, 1] - r[:, 0]) / step[0], (r[:, 2] - r[:, 0]) / step[1]], -1)
+    shifts = torch.zeros(3, 3, dtype=theta.dtype, device=theta.device)
+    shifts[1, 0], shifts[2, 1] = step[0], step[1]
+    r, d_beta = _residual(modes, theta.unsqueeze(1) + shifts)
+    jac = torch.stack([(r[:, 1] - r[:, 0]) / step[0], (r[:, 2] - r[:, 0]) / step[1], d_beta[:, 0]], -1)
     return r[:, 0], jac
 
 
 def _start(modes: _Modes, b0: float) -> Tensor:
-    """The best of a coarse grid of ``ln a`` (0.03-0.8 mm^2/s) at ``b = b0``: ``(B, 2)``."""
+    """The best of a coarse grid of ``ln a`` (0.03-0.8 mm^2/s) at ``b = b0``, ``beta = 0``: ``(B, 3)``."""
     grid = torch.linspace(
         math.log(0.03), math.log(0.8), 9, dtype=modes.spectrum.dtype, device=modes.spectrum.device
     )
-    theta = torch.stack([grid, torch.full_like(grid, b0)], -1).expand(modes.start.shape[0], -1, -1)
-    cost = (_residual(modes, theta) ** 2).sum((2, 3))
-    return theta.gather(1, cost.argmin(1).view(-1, 1, 1).expand(-1, 1, 2))[:, 0]
+    theta = torch.stack([grid, torch.full_like(grid, b0), torch.zeros_like(grid)], -1)
+    theta = theta.expand(modes.start.shape[0], -1, -1)
+    cost = (_residual(modes, theta)[0] ** 2).sum((2, 3))
+    return theta.gather(1, cost.argmin(1).view(-1, 1, 1).expand(-1, 1, 3))[:, 0]
 
 
 def _step(r: Tensor, jac: Tensor, damping: Tensor) -> Tensor:
-    """Levenberg-Marquardt step ``(B, 2)``: ``(J^T J + damping diag(J^T J)) d = -J^T r``."""
+    """Levenberg-Marquardt step ``(B, P)``: ``(J^T J + damping diag(J^T J)) d = -J^T r``."""
     jj = torch.einsum("btki,btkj->bij", jac, jac)
     jr = torch.einsum("btki,btk->bi", jac, r)
     lhs = jj + damping.view(-1, 1, 1) * torch.diag_embed(jj.diagonal(dim1=1, dim2=2).clamp_min(1e-30))
@@ -252,7 +274,7 @@ def _step(r: Tensor, jac: Tensor, damping: Tensor) -> Tensor:
 
 
 def _gauss_newton(modes: _Modes, theta: Tensor, iterations: int = 12) -> tuple[Tensor, Tensor, Tensor]:
-    """Minimise ``sum r^2`` from ``theta`` ``(B, 2)``: the solution, its residual and Jacobian there."""
+    """Minimise ``sum r^2`` from ``theta`` ``(B, 3)``: the solution, its residual and Jacobian there."""
     r, jac = _jacobian(modes, theta)
     cost = (r**2).sum((1, 2))
     damping = torch.full_like(cost, 1e-3)
@@ -261,7 +283,7 @@ def _gauss_newton(modes: _Modes, theta: Tensor, iterations: int = 12) -> tuple[T
         r_t, jac_t = _jacobian(modes, trial)
         cost_t = (r_t**2).sum((1, 2))
         better = cost_t < cost
-        moved = (trial - theta).abs() / theta.new_tensor(_STEP)
+        moved = (trial - theta).abs() / theta.new_tensor([*_STEP, 1e-3])
         keep = better.view(-1, 1)
         theta = torch.where(keep, trial, theta)
         r = torch.where(better.view(-1, 1, 1), r_t, r)
@@ -274,8 +296,8 @@ def _gauss_newton(modes: _Modes, theta: Tensor, iterations: int = 12) -> tuple[T
 
 
 def _errors(modes: _Modes, theta: Tensor, r: Tensor, jac: Tensor, noise: Tensor) -> Tensor:
-    """Standard errors of ``(ln a, b)`` ``(B, 2)``: the larger of the noise's (seeded white replicates of
-    the measured sd through the residual, first order) and the jackknife's over groups of modes (one
+    """Standard errors of ``(ln a, b, beta)`` ``(B, 3)``: the larger of the noise's (seeded white replicates
+    of the measured sd through the residual, first order) and the jackknife's over groups of modes (one
     linearised step per group without it)."""
     batch, (t, k) = theta.shape[0], modes.spectrum.shape[1:]
     jj = torch.einsum("btki,btkj->bij", jac, jac)
@@ -287,6 +309,8 @@ def _errors(modes: _Modes, theta: Tensor, r: Tensor, jac: Tensor, noise: Tensor)
     a, b = (theta[:, i].repeat_interleave(_REPLICATES) for i in (0, 1))
     _, norm = _change(_heat(modes, theta[:, 0].exp(), theta[:, 1]), modes)
     change, _ = _change(_heat(many, a.exp(), b, white), many)
+    beta = theta[:, 2].repeat_interleave(_REPLICATES).view(-1, 1, 1)
+    change = change + a.exp().view(-1, 1, 1) * beta * _exposure(white, many.dt, many.start) * many.weight
     change = change.view(batch, _REPLICATES, t, k) / norm.view(-1, 1, 1, 1)
     shift = torch.einsum("bij,brj->bri", inverse, torch.einsum("btki,brtk->bri", jac, change))
     noise_var = (shift**2).mean(1)
@@ -354,6 +378,8 @@ def fit_depth_parameters(
         diffusivity_std=torch.where(valid, a * se[:, 0], nan),
         loss_rate=torch.where(valid, theta[:, 1], nan),
         loss_rate_std=torch.where(valid, se[:, 1], nan),
+        surface_loss=torch.where(valid, theta[:, 2], nan),
+        surface_loss_std=torch.where(valid, se[:, 2], nan),
         noise_sd=noise,
         cooling_start=start,
         misfit=torch.where(valid, misfit, nan),
