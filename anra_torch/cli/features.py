@@ -15,6 +15,7 @@ from anra_torch.cli.arguments import (
     print_input,
 )
 from anra_torch.recording import input_record, phase_diffusivities
+from anra_torch.report import write_depth_report
 from anra_torch.tissue import RULES, feature_summary, save_feature_maps
 
 __all__ = ["add_parser", "run"]
@@ -52,15 +53,39 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="print one JSON object: cem43_minutes_max, omega_max, peak_temperature_max, ... with units",
     )
     parser.add_argument("--out", metavar="MAPS.npz", help="save the maps (one (H, W) array each) to MAPS.npz")
+    parser.add_argument(
+        "--depth",
+        action="store_true",
+        help="also map the damage in depth under each pixel (needs --dx and a recorded cooling): a and b "
+        "fitted on the cooling, the bioheat equation solved under the frame with the frames as its surface "
+        "(surface heating); adds damage_depth_mm, damage_depth_std_mm, cem43_depth_mm(_std_mm) and the depth "
+        "profiles to --out, and the assumptions to the JSON ('depth')",
+    )
+    parser.add_argument(
+        "--thickness",
+        type=float,
+        metavar="MM",
+        help="with --depth: a layer this thick over tissue at body temperature (default a half-space)",
+    )
+    parser.add_argument(
+        "--report",
+        metavar="DIR",
+        help="with --depth: write DIR/depth.md with the depth map and depth profiles",
+    )
     parser.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``anra features`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
+    if args.report is not None and not args.depth:
+        raise ValueError("--report draws the depth maps: pass --depth with it")
     video = open_input(args, need_dx=False)
+    options = {"depth": True, "thickness": args.thickness} if args.depth else {}
     try:
         frames = torch.as_tensor(video.frames).to(args.device)  # the features compute where the frames are
-        record, maps = feature_summary(frames, video.dt, video.dx, units=args.units, rule=args.rule)
+        record, maps = feature_summary(
+            frames, video.dt, video.dx, units=args.units, rule=args.rule, **options
+        )
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
     record = {"path": str(video.source), **record, "out": None, "phases": [], "diffusivity_phase": None}
@@ -76,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
         record["input"] = input_record(video)
     if args.out is not None:
         record["out"] = save_feature_maps(args.out, maps, dt=video.dt, dx=video.dx)
+    if args.report is not None and maps.depth is not None:
+        record["report"] = str(
+            write_depth_report(args.report, str(video.source), maps.depth, float(video.dx))
+        )
     if args.json:
         print(json_line(record))
         return 0
@@ -87,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         "omega_max",
         "damaged_fraction",
         "diffusivity_global",
+        *(("damage_depth_mm_max",) if args.depth else ()),
     ):
         value = record.get(key)
         shown = "n/a" if value is None else f"{value:.4g} {record['units'][key]}"
@@ -96,4 +126,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"  note: {record['message']}")
     if record["out"]:
         print(f"  maps: {record['out']}")
+    if record.get("report"):
+        print(f"  report: {record['report']}")
     return 0

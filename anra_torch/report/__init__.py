@@ -6,19 +6,24 @@
   forecast test (``anra diagnose --report``);
 - :func:`write_phase_report` (:mod:`~anra_torch.report.phases`): a recording's phases, their timeline and
   forecasts (``anra diagnose --report``);
+- :func:`write_depth_report` (:mod:`~anra_torch.report.depth`): the damage-depth map and depth profiles
+  (``anra features --depth --report``);
 - shared helpers (number format, axes in mm, colour maps) in :mod:`~anra_torch.report.figures`.
 """
 
+from anra_torch.report.depth import DEPTH_FIGURES, write_depth_report
 from anra_torch.report.diagnosis import DIAGNOSIS_FIGURES, write_diagnosis_report
 from anra_torch.report.estimate import FIGURES, attention_map, write_estimate_report
 from anra_torch.report.figures import format_pm
 from anra_torch.report.phases import write_phase_report
 
 __all__ = [
+    "DEPTH_FIGURES",
     "DIAGNOSIS_FIGURES",
     "FIGURES",
     "attention_map",
     "format_pm",
+    "write_depth_report",
     "write_diagnosis_report",
     "write_estimate_report",
     "write_phase_report",

@@ -13,13 +13,27 @@
 - :mod:`~anra_torch.simulation.camera`: what real infrared cameras add (:data:`ARTEFACTS`, :func:`plant`).
 - Independent references, sharing none of the operators above: :mod:`~anra_torch.simulation.independent`
   (:func:`simulate_continuum`, the continuous PDE by spectral and finite-volume methods, pixel averages) and
-  :mod:`~anra_torch.simulation.plate` (conduction into a plate below the surface, exact).
+  :mod:`~anra_torch.simulation.plate` (conduction into a plate below the surface, exact);
+  :mod:`~anra_torch.simulation.bioheat_reference` (:func:`simulate_bioheat`, 3-D Pennes bioheat by finite
+  volumes with the Arrhenius damage in depth) and its scenes, :mod:`~anra_torch.simulation.bioheat_scenes`
+  (:func:`random_scene`).
 
 :func:`anra_torch.effects.simulate_effects` and :func:`anra_torch.forecast.refine_model` integrate their
 right-hand sides with the same :func:`integrate`. Units: mm, s, mm^2/s.
 """
 
 from anra_torch.simulation.analytic import SPECTRAL_BOUNDARIES, gaussian_blob, gaussian_blobs, heat_spectral
+from anra_torch.simulation.bioheat_reference import (
+    BioheatResult,
+    BioheatScene,
+    Contact,
+    DepthGrid,
+    SurfaceFlux,
+    Tissue,
+    camera_frames,
+    simulate_bioheat,
+)
+from anra_torch.simulation.bioheat_scenes import random_scene
 from anra_torch.simulation.camera import ARTEFACTS, plant
 from anra_torch.simulation.heat import BOUNDARIES, HeatRHS, simulate_heat
 from anra_torch.simulation.independent import METHODS, Continuum, gaussian_cells, simulate_continuum
@@ -42,32 +56,41 @@ __all__ = [
     "ADAPTIVE_METHODS",
     "ARTEFACTS",
     "BOUNDARIES",
-    "METHODS",
-    "Continuum",
-    "SyntheticVideo",
-    "blobs_video",
-    "flash_plate_video",
-    "gaussian_cells",
-    "paper_video",
-    "plant",
-    "plate_factor",
-    "simulate_continuum",
-    "with_depth",
     "FIXED_STEP_METHODS",
+    "METHODS",
     "POLICIES",
     "SAFETY",
     "SPECTRAL_BOUNDARIES",
+    "BioheatResult",
+    "BioheatScene",
+    "Contact",
+    "Continuum",
+    "DepthGrid",
     "HeatRHS",
     "MovingSource",
     "StabilityRegion",
     "StepCount",
     "StepPolicy",
+    "SurfaceFlux",
+    "SyntheticVideo",
+    "Tissue",
     "TissueRHS",
+    "blobs_video",
+    "camera_frames",
+    "flash_plate_video",
     "gaussian_blob",
     "gaussian_blobs",
+    "gaussian_cells",
     "heat_spectral",
     "integrate",
+    "paper_video",
+    "plant",
+    "plate_factor",
+    "random_scene",
+    "simulate_bioheat",
+    "simulate_continuum",
     "simulate_heat",
     "simulate_tissue",
     "stable_substeps",
+    "with_depth",
 ]

@@ -1,10 +1,33 @@
-"""Tissue: thermal dose, per-pixel damage features, and tissue models learned from video.
+"""Tissue: thermal dose, per-pixel damage features, tissue models learned from video, and what heat did
+below the surface.
 
 - :mod:`~anra_torch.tissue.dose`: CEM43 and the Arrhenius damage integral of temperature histories;
 - :mod:`~anra_torch.tissue.features`: :class:`TissueFeatures`, per-pixel maps for damage classification;
-- :mod:`~anra_torch.tissue.learned`: :class:`LearnedTissueModel`, fitted end to end through the simulator.
+- :mod:`~anra_torch.tissue.learned`: :class:`LearnedTissueModel`, fitted end to end through the simulator;
+- :mod:`~anra_torch.tissue.depth`: the subsurface temperature under every pixel from the measured surface
+  (:func:`subsurface_temperature`), the heat that entered through it (:func:`surface_heat_input`), Omega,
+  CEM43 and the peak temperature in depth with the damage depth and its standard error
+  (:func:`damage_in_depth`, :class:`DepthMaps`);
+- :mod:`~anra_torch.tissue.depth_fit`: the diffusivity and perfusion the depth model needs, fitted on the
+  recording's cooling, and the flag for volumetric heating (:func:`fit_depth_parameters`,
+  :class:`DepthParameters`);
+- :mod:`~anra_torch.tissue.depth_features`: both together, the maps of ``TissueFeatures(depth=True)`` and
+  ``anra features --depth`` (:func:`depth_features`);
+- :mod:`~anra_torch.tissue.depth_solver`: the engine the others share (depth grid, operator, the march).
 """
 
+from anra_torch.tissue.depth import (
+    CEM43_THRESHOLD,
+    DOSE_FLOOR,
+    DepthMaps,
+    damage_in_depth,
+    subsurface_temperature,
+    surface_heat_input,
+    threshold_depth,
+)
+from anra_torch.tissue.depth_features import DEPTH_MAPS, DepthFeatures, depth_features
+from anra_torch.tissue.depth_fit import DepthParameters, fit_depth_parameters
+from anra_torch.tissue.depth_solver import depth_nodes
 from anra_torch.tissue.dose import (
     CEM43_R,
     GAS_CONSTANT,
@@ -32,26 +55,39 @@ from anra_torch.tissue.features import (
 from anra_torch.tissue.learned import LearnedTissueModel, relative_error
 
 __all__ = [
+    "ArrheniusConstants",
     "CEM43_R",
+    "CEM43_THRESHOLD",
+    "DEPTH_MAPS",
+    "DOSE_FLOOR",
     "DOSE_MAPS",
+    "DepthFeatures",
+    "DepthMaps",
+    "DepthParameters",
     "GAS_CONSTANT",
     "LOSS_REPLICATES",
+    "LearnedTissueModel",
     "MAPS",
     "MAX_LOSS_ERROR",
     "MIN_CONFIDENCE",
     "RULES",
     "SKIN",
+    "TissueFeatureMaps",
+    "TissueFeatures",
     "UNITS",
     "arrhenius_omega",
     "cem43",
     "count_masked",
+    "damage_in_depth",
+    "depth_features",
+    "depth_nodes",
     "feature_summary",
+    "fit_depth_parameters",
     "relative_error",
     "save_feature_maps",
+    "subsurface_temperature",
+    "surface_heat_input",
+    "threshold_depth",
     "time_above",
     "to_celsius",
-    "ArrheniusConstants",
-    "LearnedTissueModel",
-    "TissueFeatureMaps",
-    "TissueFeatures",
 ]

@@ -26,7 +26,7 @@ How a sampled frame history ``T_0 .. T_{N-1}`` (period ``dt``) becomes ``T(t)``,
 Non-finite samples (dropped frames, masked pixels) contribute nothing: with ``"hold"`` their frame, with
 ``"linear"`` the segments they end. :func:`count_masked` says how many there were.
 
-Computation is in float64 whatever the input dtype.
+Computation is in float64 whatever the input dtype; gradients flow to the temperatures.
 """
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def _as_history(temperatures: object) -> tuple[Tensor, tuple[int, ...]]:
             ) from err
     if temperatures.dtype == torch.bool or temperatures.is_complex():
         raise TypeError(f"temperatures must be real numbers, got dtype {temperatures.dtype}")
-    x = temperatures.detach().to(_F64)
+    x = temperatures.to(_F64)  # gradients flow (the depth maps differentiate through the doses)
     if x.ndim == 1:
         return x.reshape(1, -1, 1), ()
     if x.ndim == 3:
@@ -158,8 +158,8 @@ def to_celsius(temperatures: Tensor, units: str = "C") -> Tensor:
     """
     if units not in UNITS:
         raise ValueError(f"units must be one of {', '.join(map(repr, UNITS))}, got {units!r}")
-    x = temperatures.detach().to(_F64)
-    finite = x[torch.isfinite(x)]
+    x = temperatures.to(_F64)
+    finite = x.detach()[torch.isfinite(x.detach())]
     if finite.numel():
         low, high = float(finite.min()), float(finite.max())
         zero = -KELVIN_AT_ZERO_CELSIUS if units == "C" else 0.0

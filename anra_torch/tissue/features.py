@@ -73,6 +73,7 @@ from anra_torch.balance import LOSS_REPLICATES, MatchedFilters, estimate_noise_s
 from anra_torch.checks import as_spacing, as_video, join_messages, one_line
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.layers import GaussianSmoothing, rtc_attention
+from anra_torch.tissue.depth_features import DEPTH_MAPS, DepthFeatures, depth_features
 from anra_torch.tissue.dose import (
     CEM43_R,
     GAS_CONSTANT,
@@ -128,6 +129,7 @@ DOSE_MAPS: tuple[str, ...] = MAPS[:6]
 """The maps that need no spatial filter (any frame size); the others need the estimator's filters to fit."""
 
 _UNITS = {
+    **{name: "mm" for name in DEPTH_MAPS},
     "peak_temperature": "C",
     "cem43_minutes": "min",
     "omega": "1",
@@ -159,6 +161,10 @@ class TissueFeatureMaps:
         loss_rate_std_error: standard error of ``loss_rate`` (1/s, inf where the window never cools),
             ``(B, H, W)``; None without the ANRA maps.
         absent: map name -> why it was not computed (frames too small or too few, no pixel size).
+        depth: with ``TissueFeatures(depth=True)`` and a pixel size, the depth model's maps, profiles and
+            parameters (:class:`anra_torch.tissue.DepthFeatures`, batched even for a single video); the
+            :data:`anra_torch.tissue.DEPTH_MAPS` are also in ``maps`` (NaN for a video without a usable fit,
+            with the reason in ``messages``).
     """
 
     maps: dict[str, Tensor]
@@ -169,6 +175,7 @@ class TissueFeatureMaps:
     messages: tuple[str, ...]
     loss_rate_std_error: Tensor | None = None
     absent: dict[str, str] = field(default_factory=dict)
+    depth: DepthFeatures | None = None
 
     def stack(self, names: Sequence[str] | None = None) -> Tensor:
         """The maps as channels, ``(B, F, H, W)`` (or ``(F, H, W)``), in the order of ``names``."""
@@ -228,6 +235,11 @@ class TissueFeatures(nn.Module):
         window: side (px, odd) of the estimator's diffusivity field and of the loss-rate fit.
         time_length: Holoborodko time window (frames).
         sharpness: RTC attention sharpness on ``|dT/dt| / max`` (unit invariant).
+        depth: also map the damage in depth (:func:`anra_torch.tissue.depth_features`: ``a`` and ``b``
+            fitted on the recording's cooling, the bioheat equation solved under the frame with the frames
+            as its surface; needs ``dx``): :data:`anra_torch.tissue.DEPTH_MAPS` and
+            :attr:`TissueFeatureMaps.depth`.
+        thickness: with ``depth``, None for a half-space, else a layer's thickness in mm.
 
     Shape:
         ``frames`` ``(B, T, H, W)``, ``(T, H, W)`` or a one-pixel trace ``(T,)`` (as ``(T, 1, 1)``); ``dt``
@@ -257,6 +269,8 @@ class TissueFeatures(nn.Module):
         window: int = 9,
         time_length: int = 5,
         sharpness: float = 4.0,
+        depth: bool = False,
+        thickness: float | None = None,
     ) -> None:
         super().__init__()
         if units not in UNITS:
@@ -288,12 +302,13 @@ class TissueFeatures(nn.Module):
         self.time = self.filters.time
         self.estimator = ANRAEstimator(window=window, strict=False)
         self.window = window
+        self.depth, self.thickness = bool(depth), thickness
 
     @property
     def map_names(self) -> tuple[str, ...]:
         """Names of the maps, in order."""
         above = tuple(f"time_above_{t:g}" for t in self.thresholds)
-        return ("peak_temperature", *above, *MAPS[4:])
+        return ("peak_temperature", *above, *MAPS[4:], *(DEPTH_MAPS if self.depth else ()))
 
     def history_smoothing(self, height: int, width: int) -> float:
         """The Gaussian sigma (px) the doses of ``height x width`` px frames are taken at: ``smoothing``,
@@ -347,6 +362,8 @@ class TissueFeatures(nn.Module):
         reason = spatial if isinstance(spatial, str) else ""
         if not reason:
             maps |= spatial["maps"]
+        depth, depth_reason = self._depth_maps(filled, dt_, dx_)
+        maps |= {} if depth is None else depth.maps
         units = {name: _UNITS.get(name, "s") for name in maps}
         summary = self._summary(maps, masked, None if reason else spatial, dt_ * (t - 1))
         units |= {f"{name}_max": unit for name, unit in units.items()}
@@ -363,15 +380,31 @@ class TissueFeatures(nn.Module):
                     f"rate and ANRA maps not computed: {reason}" if reason else "",
                     raw_note,
                     f"{int(n)} non-finite samples masked" if int(n) else "",
+                    f"depth maps: {depth.messages[i]}" if depth is not None and depth.messages[i] else "",
                 ]
             )
             for i, n in enumerate(summary["n_masked"].tolist())
         )
         valid = torch.zeros(b, dtype=torch.bool, device=video.device) if result is None else result.valid
-        absent = {name: reason for name in self.map_names if name not in maps}
+        why = {name: depth_reason for name in DEPTH_MAPS}
+        absent = {name: why.get(name, reason) for name in self.map_names if name not in maps}
         error = None if reason else spatial["loss_rate_std_error"]
-        out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent)
+        out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent, depth)
         return out if batched else out.unbatched()
+
+    def _depth_maps(self, filled: Tensor, dt: Tensor, dx: Tensor | None) -> tuple[DepthFeatures | None, str]:
+        """The depth model's maps (with ``depth=True``) of the filled frames (C), or why they are absent."""
+        if not self.depth:
+            return None, ""
+        if dx is None:
+            return None, "no pixel size (pass dx, --dx in mm)"
+        try:
+            found = depth_features(
+                filled, dt, dx, constants=self.constants, rule=self.rule, thickness=self.thickness
+            )
+        except ValueError as err:
+            return None, one_line(err)
+        return found, ""
 
     def _dose_maps(self, filled: Tensor, finite: Tensor, fill: Tensor, dt: Tensor) -> dict[str, Tensor]:
         """Peak, times above, CEM43 and Omega of the denoised history: no spatial filter needed."""
@@ -476,6 +509,8 @@ def feature_summary(
     units: str = "C",
     rule: str = "linear",
     constants: ArrheniusConstants = SKIN,
+    depth: bool = False,
+    thickness: float | None = None,
 ) -> tuple[dict, TissueFeatureMaps]:
     """The ``anra features --json`` object of one video and the maps it was made from.
 
@@ -485,7 +520,9 @@ def feature_summary(
     temperature reported is Celsius), ``masked_fraction``, ``valid``, ``message``, ``dose`` (the rule,
     recorded span, smoothing, thresholds and the CEM43 and Arrhenius constants used), ``extremes`` (over
     which windows the ANRA maps' maxima were taken; None without them), ``absent`` (map -> why it was not
-    computed) and ``units`` (key -> unit). Non-finite numbers become None.
+    computed) and ``units`` (key -> unit). Non-finite numbers become None. With ``depth``, ``depth`` holds
+    the depth model's assumptions and parameters (:meth:`anra_torch.tissue.DepthFeatures.record`; None
+    without a pixel size).
 
     Args:
         frames: temperatures in ``units``.
@@ -494,11 +531,13 @@ def feature_summary(
         units: ``"C"`` or ``"K"``.
         rule: dose integration, ``"linear"`` or ``"hold"`` (:data:`anra_torch.tissue.RULES`).
         constants: Arrhenius constants.
+        depth: also the damage-in-depth maps (:class:`TissueFeatures` ``depth``).
+        thickness: with ``depth``, a layer's thickness in mm (None: a half-space).
 
     Shape:
         ``frames`` ``(T, H, W)`` or ``(T,)``.
     """
-    extractor = TissueFeatures(units=units, rule=rule, constants=constants)
+    extractor = TissueFeatures(units=units, rule=rule, constants=constants, depth=depth, thickness=thickness)
     maps = extractor(frames, dt, dx)
     t, h, w = (*frames.shape, 1, 1)[:3]
     record: dict = {"frames": int(t), "height": int(h), "width": int(w)}
@@ -520,14 +559,17 @@ def feature_summary(
         }
     )
     record["absent"] = dict(maps.absent)
+    if depth:
+        record["depth"] = None if maps.depth is None else maps.depth.record(0)
     record["units"] = {"dt": "s", "dx": "mm", **{k: maps.units[k] for k in maps.summary}}
     return record, maps
 
 
 def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: float | None) -> str:
     """Write the maps of one video to ``.npz``: one ``(H, W)`` array per map computed, ``masked``, ``dt``,
-    ``dx`` (when known) and ``units_<name>`` strings. Returns the path written (``.npz`` appended when
-    missing).
+    ``dx`` (when known) and ``units_<name>`` strings; with depth maps also ``depth_mm`` ``(Z,)`` and the
+    profiles ``peak_temperature_depth`` (C), ``peak_temperature_depth_std`` (K), ``omega_depth`` and
+    ``cem43_depth_minutes``, each ``(Z, H, W)``. Returns the path written (``.npz`` appended when missing).
 
     Raises:
         OSError: the file cannot be written.
@@ -538,5 +580,11 @@ def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: floa
     arrays["masked"] = maps.masked.cpu().numpy()
     units = {f"units_{name}": np.array(maps.units[name]) for name in maps.maps}
     spacing = {"dt": np.array(dt)} | ({} if dx is None else {"dx": np.array(dx)})
+    profiles = None if maps.depth is None else maps.depth.profiles
+    if profiles is not None:
+        names = {"peak": "peak_temperature_depth", "peak_std": "peak_temperature_depth_std"}
+        names |= {"omega": "omega_depth", "cem43": "cem43_depth_minutes"}
+        arrays |= {name: getattr(profiles, key)[0].detach().cpu().numpy() for key, name in names.items()}
+        arrays["depth_mm"] = profiles.depths.cpu().numpy()
     np.savez_compressed(target, **spacing, **arrays, **units)
     return target

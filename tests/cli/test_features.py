@@ -15,7 +15,17 @@ from shared_data import DATA
 
 from anra_torch.cli import main
 from anra_torch.layers.derivatives import GaussianSmoothing
-from anra_torch.simulation import MovingSource, simulate_tissue
+from anra_torch.simulation import (
+    BioheatScene,
+    MovingSource,
+    SurfaceFlux,
+    Tissue,
+    camera_frames,
+    simulate_bioheat,
+    simulate_tissue,
+)
+from anra_torch.simulation.bioheat_scenes import flux_peak
+from anra_torch.tissue import depth_features
 from anra_torch.tissue.dose import arrhenius_omega, cem43
 from anra_torch.tissue.features import TissueFeatures
 from anra_torch.video import save_npz
@@ -239,3 +249,75 @@ def test_features_integrate_the_recorded_span_and_name_the_constants(
     assert code == 2 and err.count("\n") == 1 and "needs at least 2, got 1" in err and "--rule hold" in err
     code, out, err = run(capsys, "features", one, "--json", "--rule", "hold")
     assert code == 0 and json.loads(out)["omega_max"] == pytest.approx(omega_constant(60.0, 1.0), rel=1e-12)
+
+
+# ------------------------------------------------------------------------------------- damage in depth
+@pytest.fixture(scope="module")
+def depth_burn(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """A 0.4 mm beam for 3 s on skin-like tissue (independent 3-D simulator), 3 s of cooling, 0.2 K noise."""
+    tissue = Tissue(diffusivity=0.13, perfusion=0.003)
+    centre = (2.8, 2.8)
+    unit = SurfaceFlux(centre, centre, 0.4, 1.0, 0.5, 3.5)
+    power = 45.0 / flux_peak(unit, tissue, np.array([centre]), np.array([3.5]))
+    scene = BioheatScene(
+        tissue, (SurfaceFlux(centre, centre, 0.4, power, 0.5, 3.5),), 7.0, (28, 28), 0.2, 10.0, 1.5
+    )
+    result = simulate_bioheat(scene)
+    frames = camera_frames(result, 0.2, 5)
+    folder = tmp_path_factory.mktemp("depth")
+    return {
+        "video": save_npz(folder / "burn.npz", frames, dt=result.dt, dx=result.dx),
+        "no_dx": save_npz(folder / "no_dx.npz", frames, dt=result.dt, dx=None),
+        "frames": torch.from_numpy(frames),
+        "result": result,
+    }
+
+
+def test_depth_maps_json_and_npz(
+    depth_burn: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    target = tmp_path / "maps.npz"
+    code, out, err = run(capsys, "features", depth_burn["video"], "--depth", "--out", target, "--json")
+    assert (code, err) == (0, "")
+    record = json.loads(out)
+    depth = record["depth"]
+    assert depth["absorption"].startswith("at the surface") and depth["geometry"] == "half-space"
+    assert depth["diffusivity_mm2_s"] == pytest.approx(0.13, rel=0.1)
+    assert depth["diffusivity_std_mm2_s"] > 0 and depth["loss_rate_per_s"] >= 0
+    assert "zero surface flux" in depth["parameters_from"] and depth["maps"] and not depth["volumetric"]
+    assert record["units"]["damage_depth_mm_max"] == "mm"
+    maps = np.load(target)
+    h, w = depth_burn["frames"].shape[1:]
+    for name in ("damage_depth_mm", "damage_depth_std_mm", "cem43_depth_mm", "cem43_depth_std_mm"):
+        assert maps[name].shape == (h, w) and np.isfinite(maps[name]).all()
+        assert str(maps[f"units_{name}"]) == "mm"
+    z = maps["depth_mm"]
+    assert z[0] == 0.0 and maps["peak_temperature_depth"].shape == maps["omega_depth"].shape == (z.size, h, w)
+    # The same numbers as the library call, and close to the independent simulator's truth.
+    expected = depth_features(depth_burn["frames"], depth_burn["result"].dt, depth_burn["result"].dx)
+    np.testing.assert_allclose(
+        maps["damage_depth_mm"], expected.maps["damage_depth_mm"][0].numpy(), rtol=1e-12
+    )
+    truth = depth_burn["result"].damage_depth
+    assert record["damage_depth_mm_max"] == pytest.approx(truth.max(), abs=0.03)
+    assert 0.1 < truth.max() < 0.4
+
+
+def test_depth_without_pixel_size_says_why(depth_burn: dict, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "features", depth_burn["no_dx"], "--depth", "--json")
+    assert code == 0
+    record = json.loads(out)
+    assert record["depth"] is None
+    assert record["absent"]["damage_depth_mm"] == "no pixel size (pass dx, --dx in mm)"
+
+
+def test_report_needs_depth(depth_burn: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "features", depth_burn["video"], "--report", tmp_path)
+    assert code == 2
+    assert "--report draws the depth maps: pass --depth with it" in err
+
+
+def test_thickness_is_stated(depth_burn: dict, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "features", depth_burn["video"], "--depth", "--thickness", "8", "--json")
+    assert (code, err) == (0, "")
+    assert json.loads(out)["depth"]["geometry"].startswith("layer of 8 mm")

@@ -1,0 +1,84 @@
+"""The fit of ``a`` and ``b`` on the cooling and the volumetric flag, on the independent 3-D simulator."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from depth_scenes import (
+    BODY,
+    burn_video,
+    reference_scene,
+)
+
+from anra_torch.simulation import camera_frames, simulate_bioheat
+from anra_torch.tissue import (
+    DEPTH_MAPS,
+    damage_in_depth,
+    depth_features,
+    fit_depth_parameters,
+)
+from anra_torch.tissue.depth_fit import VOLUMETRIC_MISFIT, cooling_start
+
+
+@pytest.fixture(scope="module")
+def burn() -> tuple[torch.Tensor, float, float]:
+    """A Gaussian spot held at up to 85 C for 4 s, then cooling: ``(frames, dt, dx)``."""
+    return burn_video()
+
+
+def test_cooling_starts_two_frames_after_the_switch_off(burn: tuple[torch.Tensor, float, float]) -> None:
+    frames, _, _ = burn
+    assert int(cooling_start((frames - BODY).unsqueeze(0))[0]) == 16 + 2  # last heated frame: 16
+
+
+@pytest.fixture(scope="module")
+def surface_burn():
+    result = simulate_bioheat(reference_scene(None))
+    return result, torch.from_numpy(camera_frames(result, 0.3, 3))
+
+
+@pytest.mark.slow
+def test_depth_model_matches_the_independent_3d_simulator(surface_burn) -> None:
+    result, frames = surface_burn
+    maps = damage_in_depth(
+        frames, result.dt, result.dx, diffusivity=0.15, loss_rate=0.004, body_temperature=BODY
+    )
+    damaged = result.damage_depth > 0.1
+    assert damaged.sum() > 30 and 0.2 < result.damage_depth.max() < 0.35
+    error = np.abs(maps.damage_depth.numpy() - result.damage_depth)[damaged]
+    assert np.median(error) < 0.005 and error.max() < 0.01  # mm
+    one_d = damage_in_depth(frames, result.dt, result.dx, diffusivity=0.15, loss_rate=0.004, lateral=False)
+    assert np.median(one_d.damage_depth.numpy()[damaged] - result.damage_depth[damaged]) > 0.02  # too deep
+
+
+@pytest.mark.slow
+def test_fit_recovers_a_and_the_flag_stays_down_under_surface_heating(surface_burn) -> None:
+    result, frames = surface_burn
+    fit = fit_depth_parameters(frames, result.dt, result.dx, body_temperature=BODY)
+    assert bool(fit.valid) and not bool(fit.volumetric) and fit.messages == ""
+    assert float(fit.diffusivity) == pytest.approx(0.15, rel=0.03)
+    assert abs(float(fit.diffusivity) - 0.15) < 3 * float(fit.diffusivity_std)
+    assert 0.0 <= float(fit.loss_rate) < 0.015 and 0.0 <= float(fit.surface_loss) < 0.2  # truth 0.004, 0.02
+    assert float(fit.misfit) < VOLUMETRIC_MISFIT / 5
+
+
+@pytest.mark.slow
+def test_volumetric_heating_is_flagged_not_mapped() -> None:
+    result = simulate_bioheat(reference_scene(1.0))  # near-infrared: mu = 1 1/mm
+    frames = torch.from_numpy(camera_frames(result, 0.3, 4))
+    fit = fit_depth_parameters(frames, result.dt, result.dx, body_temperature=BODY)
+    assert bool(fit.valid) and bool(fit.volumetric) and "volumetrically heated" in fit.messages
+    found = depth_features(frames, result.dt, result.dx)
+    assert not bool(found.used[0]) and found.profiles is None
+    assert all(bool(torch.isnan(found.maps[name]).all()) for name in DEPTH_MAPS)
+    assert found.record(0)["volumetric"] is True
+
+
+def test_no_cooling_means_no_fit(burn: tuple[torch.Tensor, float, float]) -> None:
+    frames, dt, dx = burn
+    fit = fit_depth_parameters(frames[:18], dt, dx)  # ends at the switch-off
+    assert not bool(fit.valid) and math.isnan(float(fit.diffusivity))
+    assert "frames after the switch-off" in fit.messages
