@@ -48,6 +48,7 @@ LAZY_IMPORTS = {
     "h5py": "the formats extra",
     "tifffile": "the formats extra",
     "imagecodecs": "the formats extra",
+    "scipy": "the test extra (the independent 3-D bioheat simulator, a reference for tests and experiments)",
     "torchdiffeq": "loads scipy.integrate (0.4 s at every start of commands that integrate nothing)",
 }
 """Third-party modules a function may import (optional extras; the one measured start-up cost)."""

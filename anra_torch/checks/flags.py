@@ -257,8 +257,10 @@ def verdicts(
     (:func:`anra_torch.checks.diffusivity_warnings`; none for an invalid video)."""
     messages, warnings = [], []
     z = estimate / std_error
-    rows = zip(*(v.tolist() for v in (valid, moving, reliability, z, estimate, dt, dx)), strict=True)
-    for ok, changing, signal, zz, a, step, size in rows:
+    rows = zip(
+        *(v.tolist() for v in (valid, moving, reliability, z, estimate, std_error, dt, dx)), strict=True
+    )
+    for ok, changing, signal, zz, a, error, step, size in rows:
         found = tuple(diffusivity_warnings(a, dt=step, dx=size, z=zz)) if ok else ()
         warnings.append(found)
         if not changing:
@@ -268,7 +270,9 @@ def verdicts(
                 "no pixel has a filter window free of masked samples and with signal (too many masked "
                 "samples or too small a frame); no diffusivity estimated"
             )
-        elif not ok and not (math.isfinite(signal) and math.isfinite(zz)):
+        elif not ok and not all(
+            math.isfinite(x) for x in (signal, zz, a, error)
+        ):  # a / inf is 0, not a result
             messages.append(
                 "the balance of dT/dt and the Laplacian is not finite (an overflow: check that dt is in s, "
                 "dx in mm and the frames' values are temperatures); no diffusivity estimated"
