@@ -1,11 +1,12 @@
-# Two commands do all set-up on a fresh machine: `make demo` and `make test`.
+# Two commands do all set-up on a fresh machine: `make demo` and `make test`; `make docs` builds the site.
 VENV    ?= .venv
 PY      := $(VENV)/bin/python
 PIP     := $(PY) -m pip install -q -c constraints.txt
 STAMP   := $(VENV)/.anra-installed
+DOCS_STAMP := $(VENV)/.anra-docs-installed
 OUT     ?= results/demo
 
-.PHONY: demo test test-fast install lint bench-paper clean
+.PHONY: demo test test-fast install lint docs bench-paper clean
 
 $(PY):
 	python3 -m venv $(VENV)
@@ -17,6 +18,16 @@ $(STAMP): pyproject.toml constraints.txt | $(PY)
 	touch $(STAMP)
 
 install: $(STAMP)
+
+$(DOCS_STAMP): $(STAMP)
+	$(PIP) -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+# The documentation site, offline and strict: a warning (a broken link, a reference to a name that is not
+# documented at its face, a docstring that is not valid markup) fails it; not yet nitpicky (-n). From scratch each time (-E: no stale pages).
+docs: $(DOCS_STAMP)
+	$(VENV)/bin/sphinx-build -E -q -W --keep-going -b html docs docs/_build/html
+	@echo "docs/_build/html/index.html"
 
 demo: $(STAMP)
 	$(VENV)/bin/anra demo --out $(OUT)
@@ -36,4 +47,4 @@ bench-paper: $(STAMP)
 	$(PY) -m experiments.paper_simulation --out results/paper_simulation
 
 clean:
-	rm -rf $(VENV) results .pytest_cache
+	rm -rf $(VENV) results .pytest_cache docs/_build

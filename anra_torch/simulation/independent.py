@@ -63,7 +63,7 @@ Forcing = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
 
 @dataclass
 class Continuum:
-    """The continuous PDE ``dT/dt = div(A grad T) - v . grad T - b (T - T_ref) + q(t, x, y)``.
+    """The continuous PDE ``dT/dt = div(A grad T) - dot(v, grad T) - b (T - T_ref) + q(t, x, y)``.
 
     ``A`` is the constant tensor ``[[a_x, a_xy], [a_xy, a_y]]`` unless ``diffusivity`` (a field ``a(x, y)``)
     or ``conductivity`` (``a(T) = a0 (1 + beta (T - T_ref))``) replaces it by ``a I``.
