@@ -16,7 +16,8 @@
   :mod:`~anra_torch.simulation.plate` (conduction into a plate below the surface, exact);
   :mod:`~anra_torch.simulation.bioheat_reference` (:func:`simulate_bioheat`, 3-D Pennes bioheat by finite
   volumes with the Arrhenius damage in depth) and its scenes, :mod:`~anra_torch.simulation.bioheat_scenes`
-  (:func:`random_scene`).
+  (:func:`random_scene`); :mod:`~anra_torch.simulation.plate_reference` (:func:`reference_plate_video`, a 3-D
+  anisotropic flash-thermography plate by finite volumes on an irregular mesh, with defects of any shape).
 
 :func:`anra_torch.effects.simulate_effects` and :func:`anra_torch.forecast.refine_model` integrate their
 right-hand sides with the same :func:`integrate`. Units: mm, s, mm^2/s.
@@ -49,6 +50,13 @@ from anra_torch.simulation.integrator import (
     stable_substeps,
 )
 from anra_torch.simulation.plate import flash_plate_video, plate_factor, with_depth
+from anra_torch.simulation.plate_reference import (
+    DEFECT_KINDS,
+    Defect,
+    ReferencePlate,
+    default_flash,
+    reference_plate_video,
+)
 from anra_torch.simulation.synthetic import SyntheticVideo, blobs_video, paper_video
 from anra_torch.simulation.tissue import MovingSource, TissueRHS, simulate_tissue
 
@@ -56,6 +64,7 @@ __all__ = [
     "ADAPTIVE_METHODS",
     "ARTEFACTS",
     "BOUNDARIES",
+    "DEFECT_KINDS",
     "FIXED_STEP_METHODS",
     "METHODS",
     "POLICIES",
@@ -65,9 +74,11 @@ __all__ = [
     "BioheatScene",
     "Contact",
     "Continuum",
+    "Defect",
     "DepthGrid",
     "HeatRHS",
     "MovingSource",
+    "ReferencePlate",
     "StabilityRegion",
     "StepCount",
     "StepPolicy",
@@ -77,6 +88,7 @@ __all__ = [
     "TissueRHS",
     "blobs_video",
     "camera_frames",
+    "default_flash",
     "flash_plate_video",
     "gaussian_blob",
     "gaussian_blobs",
@@ -87,6 +99,7 @@ __all__ = [
     "plant",
     "plate_factor",
     "random_scene",
+    "reference_plate_video",
     "simulate_bioheat",
     "simulate_continuum",
     "simulate_heat",
