@@ -2,29 +2,57 @@
 
 ``anra simulate`` writes a small video; ``anra estimate --json``, ``anra features --json`` and ``anra batch``
 run on it; their top-level keys and columns are compared with the first column of the page's tables, both
-ways. (``anra diagnose --json`` is not tabulated yet: the page says so.)
+ways. ``anra diagnose --json`` runs once on a small advection video (with ``--source-map`` and ``--roi``, so
+that the keys those add appear too): its top-level keys and those of an effect, a phase, ``noise`` and
+``artefacts`` are compared the same way (a documented key whose meaning begins with "only" may be absent), the
+keys of ``base``, ``extended``, ``raw``, ``source_map`` and ``input`` must be named in their row's meaning,
+and the effects' parameter table is compared with the effects' registry.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from anra_torch.cli import main
+from anra_torch.effects import EFFECTS
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "reference" / "outputs.md"
 
 
+def table(heading: str) -> list[list[str]]:
+    """The cells of the rows under ``## heading`` whose first cell is backquoted."""
+    section = PAGE.read_text().split(f"\n## {heading}\n", 1)[1].split("\n## ", 1)[0]
+    return [line.split("|")[1:-1] for line in section.splitlines() if line.startswith("| `")]
+
+
+def names(cell: str) -> set[str]:
+    return set(re.findall(r"`([^`]+)`", cell))
+
+
 def documented(heading: str) -> set[str]:
     """The backquoted names in the first column of the table under ``## heading``."""
-    section = PAGE.read_text().split(f"\n## {heading}\n", 1)[1].split("\n## ", 1)[0]
-    rows = [line.split("|")[1] for line in section.splitlines() if line.startswith("| `")]
-    return {name for cell in rows for name in re.findall(r"`([^`]+)`", cell)}
+    return {name for row in table(heading) for name in names(row[0])}
+
+
+def optional(heading: str) -> set[str]:
+    """The documented names whose meaning (last column) begins with "only": they may be absent."""
+    return {name for row in table(heading) if row[-1].strip().startswith("only") for name in names(row[0])}
+
+
+def meaning(heading: str, key: str) -> str:
+    """The meaning (last column) of ``key``'s row under ``## heading``."""
+    (row,) = [row for row in table(heading) if key in names(row[0])]
+    return row[-1]
 
 
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
@@ -56,3 +84,56 @@ def test_batch_columns_are_documented(video: Path, capsys: pytest.CaptureFixture
     page = documented("`anra batch` columns")
     assert columns - page == set(), f"emitted, not documented: {sorted(columns - page)}"
     assert page - columns == set(), f"documented, not emitted: {sorted(page - columns)}"
+
+
+DIAGNOSE = "`anra diagnose --json`"
+PARTS: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {
+    DIAGNOSE: lambda d: d,
+    f"{DIAGNOSE}: an effect": lambda d: d["effects"][0],
+    f"{DIAGNOSE}: a phase": lambda d: d["phases"][0],
+    f"{DIAGNOSE}: `noise`": lambda d: d["noise"],
+    f"{DIAGNOSE}: `artefacts`": lambda d: d["artefacts"],
+}
+
+
+@pytest.fixture(scope="module")
+def diagnosed(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """``anra diagnose --json`` of a 32 px advection video of 1 s (about 10 s)."""
+    path = tmp_path_factory.mktemp("diagnose") / "h.npz"
+    simulate = ["simulate", "--effect", "advection", "--size", "32", "--duration", "1.0", "-o", str(path)]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(simulate) == 0
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["diagnose", str(path), "--json", "--source-map", "--roi", "1,1,30,30"]) == 0
+    return json.loads(out.getvalue())
+
+
+@pytest.mark.parametrize("heading", PARTS)
+def test_diagnose_keys_are_documented(heading: str, diagnosed: dict[str, Any]) -> None:
+    keys = set(PARTS[heading](diagnosed))
+    page = documented(heading)
+    assert keys - page == set(), f"emitted, not documented: {sorted(keys - page)}"
+    missing = page - keys - optional(heading)
+    assert missing == set(), f"documented, not emitted (nor marked 'only ...'): {sorted(missing)}"
+
+
+@pytest.mark.parametrize(
+    ("heading", "key"),
+    [(DIAGNOSE, k) for k in ("base", "extended", "raw", "source_map", "input")]
+    + [(f"{DIAGNOSE}: a phase", "base")],
+)
+def test_diagnose_nested_keys_are_named(heading: str, key: str, diagnosed: dict[str, Any]) -> None:
+    nested = set(PARTS[heading](diagnosed)[key])
+    unnamed = nested - names(meaning(heading, key))
+    assert unnamed == set(), f"{key} holds {sorted(unnamed)}, which its row does not name"
+
+
+def test_effect_parameters_match_the_registry() -> None:
+    rows = {
+        next(iter(names(effect))): names(params)
+        for effect, params in table(f"{DIAGNOSE}: an effect's `params`")
+    }
+    assert set(rows) == set(EFFECTS)
+    for name, spec in EFFECTS.items():
+        assert rows[name] == set(spec.params) | set(spec.derived_units), name

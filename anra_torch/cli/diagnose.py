@@ -9,7 +9,8 @@ camera artefacts found and masked); ``source_map`` with ``--source-map``;
 copy (``input.decimated``, above 2^22 pixel values unless --full-resolution); ``warnings``, a list of lines,
 empty when all is well: input samples masked, the final model's diffusivity negative or outside every known
 material, "the model does not explain the data" when its forecast RMSE stays above 3 noise floors (with the
-ratio), a number not finite and reported as null. On failure: ``{"path", "error"}``.
+ratio), a number not finite and reported as null; ``phase`` (the described phase's kind) and ``phases``
+(every phase's record). Every key with its unit: docs/reference/outputs.md. On failure: ``{"path", "error"}``.
 """
 
 from __future__ import annotations

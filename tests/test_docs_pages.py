@@ -1,0 +1,60 @@
+"""The documentation's pages name commands, not commits.
+
+Every number on a results page names the command that reproduces it; none names a commit (issue 38's
+acceptance). A commit is recognised as git abbreviates one: 7 to 40 hexadecimal digits standing alone, with at
+least one digit (a word such as "defaced" is hexadecimal too) and not part of a decimal number (the digits
+after the point of ``8.314462618`` are not a commit). A whole number of 7 digits or more is written with
+separators (``4,194,304``) or as a power (``2^22``).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+# docs/conf.py writes these at every build from the docstrings and the parser (git ignores them): what they
+# show is the code's, e.g. a default of 16777216 pixel values, not a page's claim.
+GENERATED = {DOCS / "reference" / "commands.md"}
+GENERATED |= {p for p in (DOCS / "api").glob("*.md") if p.name != "index.md"}
+PAGES = sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts and p not in GENERATED)
+PAGES.append(ROOT / "README.md")
+RESULTS = sorted((DOCS / "results").glob("*.md"))
+COMMIT = re.compile(r"(?<![\w.,])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}(?![\w]|\.\d)")
+COMMAND = re.compile(r"python -m experiments\.\w+|`anra \w+")
+
+
+def commits(text: str) -> list[str]:
+    """The tokens of ``text`` that look like abbreviated or full commit hashes."""
+    return COMMIT.findall(text)
+
+
+def test_the_commit_pattern() -> None:
+    assert commits("at 7701573 (10 seeds), since 5d9783a, before 8ca9d02f and after HEAD") == [
+        "7701573",
+        "5d9783a",
+        "8ca9d02f",
+    ]
+    full = "e2278f4c0ffee5d9783a0123456789abcdef0123"
+    assert commits(f"({full}).") == [full]
+    not_commits = "8.314462618 J, 1234567.5 s, 2^22 = 4,194,304, defaced, 123456, 0x7fffffffff, a1b2c3"
+    assert commits(not_commits) == []
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_page_names_a_commit(page: Path) -> None:
+    found = commits(page.read_text())
+    assert found == [], f"{page.relative_to(ROOT)} names commits {found}: say what changed, not where"
+
+
+def test_the_pages_are_found() -> None:
+    assert len(RESULTS) >= 8 and ROOT / "README.md" in PAGES and DOCS / "limits.md" in PAGES
+
+
+@pytest.mark.parametrize("page", [p for p in RESULTS if p.name != "index.md"], ids=lambda p: p.name)
+def test_every_results_page_names_a_command(page: Path) -> None:
+    message = f"{page.name} names no `python -m experiments.` nor `anra` command"
+    assert COMMAND.search(page.read_text()), message
