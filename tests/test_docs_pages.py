@@ -1,4 +1,4 @@
-"""The documentation's pages name commands, not commits.
+"""The documentation's pages name commands, not commits, and the tests they name exist.
 
 Every number on a results page names the command that reproduces it; none names a commit (issue 38's
 acceptance). A commit is recognised as git abbreviates one: 7 to 40 hexadecimal digits standing alone, with at
@@ -25,6 +25,10 @@ PAGES.append(ROOT / "README.md")
 RESULTS = sorted((DOCS / "results").glob("*.md"))
 COMMIT = re.compile(r"(?<![\w.,])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}(?![\w]|\.\d)")
 COMMAND = re.compile(r"python -m experiments\.\w+|`anra \w+")
+# a test file a page names, ``tests/video/test_resample.py``, and the ``-k WORD`` that may follow it (a
+# command may wrap onto the next line)
+TEST_PATH = re.compile(r"(?<![\w/.])tests/[\w/]+\.py")
+SELECTION = re.compile(r"(?<![\w/.])(tests/[\w/]+\.py)\s+-k\s+(\w+)")
 
 
 def commits(text: str) -> list[str]:
@@ -58,3 +62,28 @@ def test_the_pages_are_found() -> None:
 def test_every_results_page_names_a_command(page: Path) -> None:
     message = f"{page.name} names no `python -m experiments.` nor `anra` command"
     assert COMMAND.search(page.read_text()), message
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_test_file_a_page_names_exists(page: Path) -> None:
+    missing = sorted({path for path in TEST_PATH.findall(page.read_text()) if not (ROOT / path).is_file()})
+    assert missing == [], f"{page.relative_to(ROOT)} names test files that do not exist: {missing}"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_selection_a_page_names_finds_a_test_in_its_file(page: Path) -> None:
+    """``pytest PATH -k WORD`` with one word selects the tests whose name holds it (ignoring case): the file
+    must define one, or the test moved and the page still sends readers to its old home."""
+    empty = []
+    for path, word in SELECTION.findall(page.read_text()):
+        file = ROOT / path
+        names = re.findall(r"^\s*(?:async )?def (test_\w+)", file.read_text(), re.M) if file.is_file() else []
+        if not any(word.lower() in name.lower() for name in names):
+            empty.append(f"{path} -k {word}")
+    assert empty == [], f"{page.relative_to(ROOT)} names selections that find no test: {empty}"
+
+
+def test_the_test_path_patterns() -> None:
+    text = "`pytest tests/video/test_resample.py -k\nkeeps_every_sample`, `tests/reference.py`, a/tests/b.py"
+    assert TEST_PATH.findall(text) == ["tests/video/test_resample.py", "tests/reference.py"]
+    assert SELECTION.findall(text) == [("tests/video/test_resample.py", "keeps_every_sample")]
