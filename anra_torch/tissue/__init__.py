@@ -19,6 +19,7 @@ below the surface.
 from anra_torch.tissue.depth import (
     CEM43_THRESHOLD,
     DOSE_FLOOR,
+    NOISE_DRAWS,
     DepthMaps,
     damage_in_depth,
     subsurface_temperature,
@@ -60,6 +61,7 @@ __all__ = [
     "CEM43_THRESHOLD",
     "DEPTH_MAPS",
     "DOSE_FLOOR",
+    "NOISE_DRAWS",
     "DOSE_MAPS",
     "DepthFeatures",
     "DepthMaps",
