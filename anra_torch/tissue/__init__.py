@@ -13,19 +13,20 @@ below the surface.
   :class:`DepthParameters`);
 - :mod:`~anra_torch.tissue.depth_features`: both together, the maps of ``TissueFeatures(depth=True)`` and
   ``anra features --depth`` (:func:`depth_features`);
-- :mod:`~anra_torch.tissue.depth_solver`: the engine the others share (depth grid, operator, the march).
+- :mod:`~anra_torch.tissue.depth_solver`: the engine the others share (depth grid, operator, the march);
+- :mod:`~anra_torch.tissue.depth_errors`: the maps' standard errors (perturbed copies, :data:`NOISE_DRAWS`).
 """
 
 from anra_torch.tissue.depth import (
     CEM43_THRESHOLD,
     DOSE_FLOOR,
-    NOISE_DRAWS,
     DepthMaps,
     damage_in_depth,
     subsurface_temperature,
     surface_heat_input,
     threshold_depth,
 )
+from anra_torch.tissue.depth_errors import NOISE_DRAWS
 from anra_torch.tissue.depth_features import DEPTH_MAPS, DepthFeatures, depth_features
 from anra_torch.tissue.depth_fit import DepthParameters, fit_depth_parameters
 from anra_torch.tissue.depth_solver import depth_nodes

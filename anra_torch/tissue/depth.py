@@ -48,6 +48,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.checks import number
+from anra_torch.tissue.depth_errors import perturbed_copies, spread
 from anra_torch.tissue.depth_solver import (
     FIRST_STEP,
     GROWTH,
@@ -67,7 +68,6 @@ from anra_torch.tissue.dose import RULES, SKIN, ArrheniusConstants, arrhenius_om
 __all__ = [
     "CEM43_THRESHOLD",
     "DOSE_FLOOR",
-    "NOISE_DRAWS",
     "OMEGA_FLOOR",
     "DepthMaps",
     "damage_in_depth",
@@ -78,10 +78,7 @@ __all__ = [
 
 CEM43_THRESHOLD = 240.0
 """Default CEM43 threshold (min) of :attr:`DepthMaps.cem43_depth`: thermal necrosis of most tissues."""
-NOISE_DRAWS = 8
-"""Seeded white-noise videos whose changes give the noise's part of the standard errors (their mean square):
-one draw gives a standard error with one degree of freedom, whose +-2 band holds the truth only 70 % of the
-time (``2 / pi * atan(2)``) where the noise dominates; eight give about 92 % (Student's t, 8 degrees)."""
+_GROUP = 4  # copies (base and perturbed) of the videos marched together: their modal operators' memory
 _BLOCK_VALUES = 2**22  # temperatures formed per block of frames (32 MiB in float64)
 _COARSE_GROWTH = 1.15  # the depth grid of the pass that finds how deep the heat goes
 _F64 = torch.float64
@@ -347,50 +344,6 @@ def _parameters(values: dict[str, object], like: Tensor) -> list[Tensor]:
     return out
 
 
-def _variants(
-    rise: Tensor, a: Tensor, b: Tensor, errors: tuple[Tensor, Tensor, Tensor], seed: int
-) -> tuple[Tensor, Tensor, Tensor, int]:
-    """The base problem and the perturbed copies of each non-zero standard error (``a + se``, ``b + se``, the
-    surface plus :data:`NOISE_DRAWS` seeded noise videos of the measured sd), stacked along the batch:
-    ``(rise, a, b, weights)``, ``weights`` (``V - 1``) the weight of each copy's squared change in the
-    variance (1 for ``a`` and ``b``, ``1 / NOISE_DRAWS`` for each noise draw: their mean square)."""
-    sa, sb, sn = errors
-    rises, rates, losses, weights = [rise], [a], [b], []
-    if bool((sa > 0).any()):
-        rises, rates, losses, weights = [*rises, rise], [*rates, a + sa], [*losses, b], [*weights, 1.0]
-    if bool((sb > 0).any()):
-        rises, rates, losses, weights = [*rises, rise], [*rates, a], [*losses, b + sb], [*weights, 1.0]
-    if bool((sn > 0).any()):
-        generator = torch.Generator().manual_seed(seed)
-        shape = (NOISE_DRAWS, *rise.shape)
-        noise = torch.randn(shape, generator=generator, dtype=_F64, device="cpu").to(rise.device, rise.dtype)
-        rises.extend(rise + sn.view(-1, 1, 1, 1) * noise)
-        rates, losses = [*rates, *[a] * NOISE_DRAWS], [*losses, *[b] * NOISE_DRAWS]
-        weights = [*weights, *[1.0 / NOISE_DRAWS] * NOISE_DRAWS]
-    as_tensor = torch.tensor(weights, dtype=_F64, device="cpu").to(rise.device, rise.dtype)
-    return torch.cat(rises), torch.cat(rates), torch.cat(losses), as_tensor
-
-
-def _spread(
-    values: Tensor,
-    weights: Tensor,
-    other: Tensor | None = None,
-    threshold: float = 1.0,
-    depths: Tensor | None = None,
-) -> tuple[Tensor, Tensor]:
-    """The base value and the root of the perturbed copies' weighted squared changes (``weights``, ``(V -
-    1,)``: see :func:`_variants`), from ``(V B, ...)``; with ``other`` (the base's dose by the other
-    integration rule), half the two rules' difference in depth is added in quadrature: the frames' sampling
-    in time."""
-    stacked = values.reshape(len(weights) + 1, -1, *values.shape[1:])
-    base = stacked[0]
-    change = (stacked[1:] - base) ** 2
-    variance = (weights.to(change.dtype).view(-1, *[1] * base.ndim) * change).sum(0)
-    if other is not None:
-        variance = variance + (0.5 * (threshold_depth(other, depths, threshold) - base)) ** 2
-    return base, variance.sqrt()
-
-
 def damage_in_depth(
     frames: Tensor,
     dt: float | Tensor,
@@ -418,9 +371,8 @@ def damage_in_depth(
     The standard errors propagate those of ``a`` and ``b`` and the noise to first order: one extra solve
     with ``a + diffusivity_std``, one with ``b + loss_rate_std``, :data:`NOISE_DRAWS` with seeded white-noise
     videos of sd ``noise_sd`` added to the frames; the error is the root sum of squares of the first two
-    changes, of the noise draws' root mean square change and of the
-    frames' sampling in time (the depths' histories are known only at the frames: half the difference
-    between the dose by the two integration rules of :data:`anra_torch.tissue.RULES`).
+    changes, of the draws' root mean square change and of the frames' sampling in time (half the difference
+    between the depths by the two integration rules of :data:`anra_torch.tissue.RULES`).
 
     Args:
         frames: surface temperatures in ``units`` (finite), ``(T, H, W)`` or ``(B, T, H, W)``.
@@ -488,35 +440,34 @@ def _solve(
     """The march of the base problem and its perturbed copies, their doses and the maps with their spread."""
     rule, constants, cem43_threshold, lateral, seed = settings
     a, b = rates
-    batch, (h, w) = rise.shape[0], rise.shape[-2:]
-    stacked, diffusivities, losses, weights = _variants(rise, a, b, errors, seed)
-    v = len(weights) + 1
-    problem = frame_problem(
-        stacked, dt.repeat(v), dx.repeat(v), diffusivities, losses, nodes, reported, lateral=lateral
-    )
-    doses = _Doses(rise, (v * batch, reported, h, w), dt.repeat(v), rule, constants, batch)
-    offset = body.repeat(v).view(-1, 1, 1, 1, 1)
-    block = max(1, _BLOCK_VALUES // (v * batch * reported * h * w))
-    for start, states in march(problem, block):
-        doses.add(offset + node_temperatures(stacked, problem, start, states))
+    batch = rise.shape[0]
+    stacked, diffusivities, losses, weights = perturbed_copies(rise, a, b, errors, seed)
+    step, span = _GROUP * batch, (nodes, reported)
+    groups = [
+        _march_doses(
+            stacked, (dt, dx, body), (diffusivities, losses), slice(start, start + step), settings, span
+        )
+        for start in range(0, (len(weights) + 1) * batch, step)
+    ]
+    omega, cem43_, peak_ = (torch.cat([g[k] for g in groups]) for k in ("omega", "cem43", "peak"))
+    first = groups[0]
     depths = torch.tensor(nodes[:reported], dtype=_F64, device="cpu").to(rise.device)
-    damage, damage_std = _spread(
-        threshold_depth(doses.omega, depths, 1.0), weights, doses.other("omega"), 1.0, depths
+    other_omega, other_cem43 = first["other_omega"][:batch], first["other_cem43"][:batch]
+    damage, damage_std = spread(
+        threshold_depth(omega, depths, 1.0), weights, threshold_depth(other_omega, depths, 1.0)
     )
-    dose_depth, dose_std = _spread(
-        threshold_depth(doses.cem43, depths, cem43_threshold),
+    dose_depth, dose_std = spread(
+        threshold_depth(cem43_, depths, cem43_threshold),
         weights,
-        doses.other("cem43"),
-        cem43_threshold,
-        depths,
+        threshold_depth(other_cem43, depths, cem43_threshold),
     )
-    peak, peak_std = _spread(doses.peak, weights)
+    peak, peak_std = spread(peak_, weights)
     return DepthMaps(
         depths=depths,
         peak=peak,
         peak_std=peak_std,
-        omega=doses.omega[:batch],
-        cem43=doses.cem43[:batch],
+        omega=omega[:batch],
+        cem43=cem43_[:batch],
         damage_depth=damage,
         damage_depth_std=damage_std,
         cem43_depth=dose_depth,
@@ -528,8 +479,43 @@ def _solve(
         loss_rate_std=errors[1],
         noise_sd=errors[2],
         body_temperature=body,
-        truncated=doses.omega[:batch, -1] >= 1.0,
+        truncated=omega[:batch, -1] >= 1.0,
     )
+
+
+def _march_doses(
+    stacked: Tensor,
+    per_video: tuple[Tensor, Tensor, Tensor],
+    rates: tuple[Tensor, Tensor],
+    part: slice,
+    settings: tuple,
+    nodes: tuple[tuple, int],
+) -> dict[str, Tensor]:
+    """Peak, Omega and CEM43 at the reported nodes of the problems ``part`` of the stacked ``(V B, T, H, W)``
+    rises (``_GROUP`` copies of the ``B`` videos at a time: the modal operators of every problem marched
+    together are held at once), and, for those problems, the doses by the other rule (``other_omega``,
+    ``other_cem43``). ``per_video``: ``dt``, ``dx`` and the body temperature, ``(B,)`` each."""
+    rule, constants, _, lateral, _ = settings
+    nodes, reported = nodes
+    rises = stacked[part]
+    n, (h, w) = rises.shape[0], rises.shape[-2:]
+    batch = per_video[0].numel()
+    index = (torch.arange(part.start, part.start + n, device="cpu") % batch).to(rises.device)
+    spacing, size, warm = (x[index] for x in per_video)
+    a, b = (r[part] for r in rates)
+    problem = frame_problem(rises, spacing, size, a, b, nodes, reported, lateral=lateral)
+    doses = _Doses(rises, (n, reported, h, w), spacing, rule, constants, n)
+    offset = warm.view(-1, 1, 1, 1, 1)
+    block = max(1, _BLOCK_VALUES // (n * reported * h * w))
+    for start, states in march(problem, block):
+        doses.add(offset + node_temperatures(rises, problem, start, states))
+    return {
+        "omega": doses.omega,
+        "cem43": doses.cem43,
+        "peak": doses.peak,
+        "other_omega": doses.other("omega"),
+        "other_cem43": doses.other("cem43"),
+    }
 
 
 def surface_heat_input(

@@ -107,37 +107,6 @@ def test_standard_errors_follow_the_parameters(burn: tuple[torch.Tensor, float, 
     assert 0.0 < float((up - base)[10, 10]) < 0.05 * float(base[10, 10])
 
 
-@pytest.mark.slow
-def test_the_noise_part_of_the_standard_error_is_the_spread_over_noisy_videos(
-    burn: tuple[torch.Tensor, float, float],
-) -> None:
-    """The noise's standard error (a mean square over :data:`NOISE_DRAWS` seeded draws) against the
-    spread of the damage depth over 16 independent noisy copies of the video (other seeds): the same size,
-    pixel by pixel, within the scatter of estimates with 8 and 16 degrees of freedom."""
-    frames, dt, dx = burn
-    args = {"diffusivity": A, "loss_rate": 0.003, "body_temperature": BODY}
-    sd = 0.3
-    total = damage_in_depth(frames, dt, dx, noise_sd=sd, seed=7, **args).damage_depth_std
-    sampling = damage_in_depth(frames, dt, dx, **args).damage_depth_std  # the frames' sampling in time alone
-    error = (total**2 - sampling**2).clamp_min(0.0).sqrt()
-    generator = torch.Generator().manual_seed(11)
-    copies = torch.stack(
-        [
-            damage_in_depth(
-                frames + sd * torch.randn(frames.shape, generator=generator, dtype=F64), dt, dx, **args
-            ).damage_depth
-            for _ in range(16)
-        ]
-    )
-    spread = copies.std(0)
-    deep = (copies > 0.05).all(0)
-    assert int(deep.sum()) >= 20
-    ratio = (error[deep] / spread[deep]).median()
-    assert 0.7 < float(ratio) < 1.4, float(ratio)
-    # One draw alone would be a one-degree-of-freedom estimate: its ratios scatter far more widely.
-    assert float((error[deep] / spread[deep]).quantile(0.1)) > 0.4
-
-
 def test_gradients_flow_to_frames_and_parameters() -> None:
     frames = (BODY + 20 * torch.rand(3, 2, 2, dtype=F64)).requires_grad_()
     a = torch.tensor(A, dtype=F64, requires_grad=True)
