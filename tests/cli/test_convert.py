@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_data import DATA as SHARED_DATA
 
 from anra_torch.cli import main
 from anra_torch.video import load_video, save_npz
@@ -16,7 +17,7 @@ from anra_torch.video.lazy import LazyFrames
 from experiments.fff_writer import Camera, counts_for, planck_celsius, simple_frame
 
 pytest.importorskip("imagecodecs", reason="the formats extra (imagecodecs) is not installed")
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "flir_fff"
+DATA = SHARED_DATA / "flir_fff"
 CAMERA = Camera(emissivity=0.95, distance=2.0)
 
 

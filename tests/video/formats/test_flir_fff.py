@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_data import DATA as SHARED_DATA
 
 from anra_torch.cli import main
 from anra_torch.video import load_video, save_npz
@@ -25,7 +26,7 @@ from experiments.fff_writer import (
 )
 
 pytest.importorskip("imagecodecs", reason="the formats extra (imagecodecs) is not installed")
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "flir_fff"
+DATA = SHARED_DATA / "flir_fff"
 real = pytest.mark.skipif(not DATA.is_dir(), reason=f"measured data folder {DATA} is absent")
 
 
