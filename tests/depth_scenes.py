@@ -5,13 +5,15 @@ independent 3-D simulator."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import torch
 from scipy.special import erfc
 
-from anra_torch.simulation import BioheatScene, SurfaceFlux, Tissue
+from anra_torch.simulation import BioheatScene, SurfaceFlux, Tissue, camera_frames, simulate_bioheat
 from anra_torch.simulation.bioheat_scenes import flux_peak
+from anra_torch.video import save_npz
 
 F64 = torch.float64
 A, BODY, RISE = 0.14, 37.0, 43.0
@@ -80,3 +82,24 @@ def reference_scene(absorption: float | None) -> BioheatScene:
     power = 45.0 / flux_peak(unit, tissue, np.array([centre]), np.array([4.5]))
     source = SurfaceFlux(centre, centre, 0.4, power * (1.5 if absorption else 1.0), 0.5, 4.5, absorption)
     return BioheatScene(tissue, (source,), 10.0, (32, 32), 0.2, 10.0, 1.5)
+
+
+def beam_recording(folder: Path) -> dict:
+    """A 0.4 mm beam for 3 s on skin-like tissue (the independent 3-D simulator), 3 s of cooling, 0.2 K
+    noise, saved in ``folder``: ``video`` (``.npz`` with its spacings), ``no_dx`` (without a pixel size),
+    ``frames`` and the simulator's ``result``."""
+    tissue = Tissue(diffusivity=0.13, perfusion=0.003)
+    centre = (2.8, 2.8)
+    unit = SurfaceFlux(centre, centre, 0.4, 1.0, 0.5, 3.5)
+    power = 45.0 / flux_peak(unit, tissue, np.array([centre]), np.array([3.5]))
+    scene = BioheatScene(
+        tissue, (SurfaceFlux(centre, centre, 0.4, power, 0.5, 3.5),), 7.0, (28, 28), 0.2, 10.0, 1.5
+    )
+    result = simulate_bioheat(scene)
+    frames = camera_frames(result, 0.2, 5)
+    return {
+        "video": save_npz(folder / "burn.npz", frames, dt=result.dt, dx=result.dx),
+        "no_dx": save_npz(folder / "no_dx.npz", frames, dt=result.dt, dx=None),
+        "frames": torch.from_numpy(frames),
+        "result": result,
+    }

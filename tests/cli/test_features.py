@@ -10,21 +10,16 @@ import numpy as np
 import pytest
 import torch
 from commands import run
+from depth_scenes import beam_recording
 from reference import A_SKIN, EA_SKIN, R_GAS, cem43_constant, omega_constant
 from shared_data import DATA
 
 from anra_torch.cli import main
 from anra_torch.layers.derivatives import GaussianSmoothing
 from anra_torch.simulation import (
-    BioheatScene,
     MovingSource,
-    SurfaceFlux,
-    Tissue,
-    camera_frames,
-    simulate_bioheat,
     simulate_tissue,
 )
-from anra_torch.simulation.bioheat_scenes import flux_peak
 from anra_torch.tissue import depth_features
 from anra_torch.tissue.dose import arrhenius_omega, cem43
 from anra_torch.tissue.features import TissueFeatures
@@ -255,22 +250,7 @@ def test_features_integrate_the_recorded_span_and_name_the_constants(
 @pytest.fixture(scope="module")
 def depth_burn(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """A 0.4 mm beam for 3 s on skin-like tissue (independent 3-D simulator), 3 s of cooling, 0.2 K noise."""
-    tissue = Tissue(diffusivity=0.13, perfusion=0.003)
-    centre = (2.8, 2.8)
-    unit = SurfaceFlux(centre, centre, 0.4, 1.0, 0.5, 3.5)
-    power = 45.0 / flux_peak(unit, tissue, np.array([centre]), np.array([3.5]))
-    scene = BioheatScene(
-        tissue, (SurfaceFlux(centre, centre, 0.4, power, 0.5, 3.5),), 7.0, (28, 28), 0.2, 10.0, 1.5
-    )
-    result = simulate_bioheat(scene)
-    frames = camera_frames(result, 0.2, 5)
-    folder = tmp_path_factory.mktemp("depth")
-    return {
-        "video": save_npz(folder / "burn.npz", frames, dt=result.dt, dx=result.dx),
-        "no_dx": save_npz(folder / "no_dx.npz", frames, dt=result.dt, dx=None),
-        "frames": torch.from_numpy(frames),
-        "result": result,
-    }
+    return beam_recording(tmp_path_factory.mktemp("depth"))
 
 
 def test_depth_maps_json_and_npz(
@@ -284,7 +264,9 @@ def test_depth_maps_json_and_npz(
     assert depth["absorption"].startswith("at the surface") and depth["geometry"] == "half-space"
     assert depth["diffusivity_mm2_s"] == pytest.approx(0.13, rel=0.1)
     assert depth["diffusivity_std_mm2_s"] > 0 and depth["loss_rate_per_s"] >= 0
-    assert "flat after the switch-off" in depth["parameters_from"] and depth["maps"] and not depth["volumetric"]
+    assert (
+        "flat after the switch-off" in depth["parameters_from"] and depth["maps"] and not depth["volumetric"]
+    )
     assert record["units"]["damage_depth_mm_max"] == "mm"
     maps = np.load(target)
     h, w = depth_burn["frames"].shape[1:]
