@@ -36,9 +36,9 @@ tissue is assumed to start at the temperature the loss pulls towards). ``a`` and
 jointly, with the errors-in-variables correction of ``L``, on the frames after each pixel's peak (no
 source acts there in a heating-then-cooling history) within a ``window``; the source is what the balance
 leaves over the whole video. The standard error of each window's ``b``
-(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the measured white noise propagated through the same
-filters and the window's normal equations (first order, :data:`LOSS_REPLICATES` seeded noise videos:
-about 25 % relative precision).
+(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the white noise the estimator measured, propagated
+through the same filters and the window's normal equations (first order, without noise copies:
+:mod:`anra_torch.balance.loss_error`).
 
 Extremes: ``diffusivity_max`` is taken over confident windows only (``confidence >=``
 :data:`MIN_CONFIDENCE`), ``loss_rate_max`` and ``source_max`` over those whose ``b`` is also measured:
@@ -69,7 +69,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from anra_torch.balance import LOSS_REPLICATES, MatchedFilters, estimate_noise_sd, fit_loss_windows
+from anra_torch.balance import MatchedFilters, fit_loss_windows
 from anra_torch.checks import as_spacing, as_video, join_messages, one_line
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.layers import GaussianSmoothing, rtc_attention
@@ -87,7 +87,6 @@ from anra_torch.tissue.dose import (
 
 __all__ = [
     "DOSE_MAPS",
-    "LOSS_REPLICATES",
     "MAPS",
     "MAX_LOSS_ERROR",
     "MIN_CONFIDENCE",
@@ -443,7 +442,7 @@ class TissueFeatures(nn.Module):
         field_a = torch.where(result.confidence > 0, result.field, global_a.view(b, 1, 1))
         maps["diffusivity"] = torch.nan_to_num(field_a, nan=0.0)
         maps["confidence"] = result.confidence
-        noise_sd = estimate_noise_sd(filled).reshape(b).to(_F64)
+        noise_sd = result.noise_sd.reshape(b).to(_F64)  # measured once, by the estimator
         fit = fit_loss_windows(self.filters, terms, maps["diffusivity"], noise_sd, dt, dx, window=self.window)
         maps["loss_rate"], maps["source"] = fit.loss_rate, fit.source
         return {"maps": maps, "result": result, "loss_rate_std_error": fit.std_error}
