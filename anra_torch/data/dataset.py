@@ -232,6 +232,7 @@ class ThermalVideoDataset(Dataset):
                 dx=entry.dx,
                 calibration=self.calibration,
                 need_dx=False,
+                need_time=False,
                 on_disk_above=self.on_disk_above,
             )
 
