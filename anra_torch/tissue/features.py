@@ -81,9 +81,7 @@ from anra_torch.tissue.dose import (
     SKIN,
     UNITS,
     ArrheniusConstants,
-    arrhenius_omega,
-    cem43,
-    time_above,
+    dose_maps,
     to_celsius,
 )
 
@@ -410,15 +408,18 @@ class TissueFeatures(nn.Module):
         """Peak, times above, CEM43 and Omega of the denoised history: no spatial filter needed."""
         h, w = filled.shape[-2:]
         history = self.history_smoother(filled) if self.history_smoothing(h, w) else filled
-        history_masked = torch.where(finite, history, torch.nan)
-        seen = finite.any(1)
-        maps = {"peak_temperature": history.masked_fill(~finite, -torch.inf).amax(1)}
-        maps["peak_temperature"] = torch.where(seen, maps["peak_temperature"], fill)
-        for t in self.thresholds:
-            maps[f"time_above_{t:g}"] = time_above(history_masked, dt, t, rule=self.rule)
-        maps["cem43_minutes"] = cem43(history_masked, dt, rule=self.rule)
-        maps["omega"] = arrhenius_omega(history_masked, dt, constants=self.constants, rule=self.rule)
-        return maps
+        complete = bool(finite.all())  # the common case: no sample masked, no masked copy to make
+        peak = (history if complete else history.masked_fill(~finite, -torch.inf)).amax(1)
+        maps = {"peak_temperature": peak if complete else torch.where(finite.any(1), peak, fill)}
+        doses = dose_maps(
+            history,
+            dt,
+            thresholds=self.thresholds,
+            constants=self.constants,
+            rule=self.rule,
+            finite=None if complete else finite,
+        )
+        return maps | doses
 
     def _spatial(self, video: Tensor, filled: Tensor, dt: Tensor, dx: Tensor | None) -> dict | str:
         """The rate and ANRA maps, the estimator's result and the loss rate's standard error; or why the
