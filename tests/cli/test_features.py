@@ -394,4 +394,5 @@ def test_fuzzed_depth_options_end_cleanly(depth_burn: dict, tmp_path: Path) -> N
                     values = maps[key]
                     if values.dtype.kind == "f":
                         assert not np.isinf(values).any(), f"{label}: {key} holds infinities"
+    print(f"fuzz features --depth: {sum(codes.values())} runs, exit 0: {codes[0]}, exit 2: {codes[2]}")
     assert codes[0] >= 5 and codes[2] >= 5, codes

@@ -314,6 +314,7 @@ def test_fuzzed_folders_with_corrupt_files_never_stop_an_epoch(tmp_path: Path, w
         skipped = [s for b in batches for s in b.skipped]
         assert sorted(read + [s.path.name for s in skipped]) == sorted(p.name for p in dataset.sources)
         assert {"good.npz", "wide.npz"} <= set(read) and {s.path.name for s in skipped} <= bad
+        print(f"fuzz dataset ({workers} workers): {len(read)} read, {len(skipped)} skipped of {len(dataset)}")
         for s in skipped:
             assert s.path.name in s.reason and "\n" not in s.reason and "Traceback" not in s.reason
         for b in batches:

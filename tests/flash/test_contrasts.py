@@ -238,4 +238,5 @@ def test_fuzzed_degenerate_videos_give_finite_contrasts_or_one_line_errors() -> 
             continue
         for out in outputs:
             assert bool(torch.isfinite(out).all()), f"case {case}: {name} of {kind} {shape} {video.dtype}"
+    print(f"fuzz flash: 600 calls, finite results: {600 - errors}, one-line ValueError: {errors}")
     assert 50 < errors < 550
