@@ -70,7 +70,7 @@ import torch
 from torch import Tensor, nn
 
 from anra_torch.balance import MatchedFilters, fit_loss_windows
-from anra_torch.checks import as_spacing, as_video, join_messages, one_line
+from anra_torch.checks import as_spacing, as_video, atomic_output, join_messages, one_line
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.layers import GaussianSmoothing, rtc_attention
 from anra_torch.tissue.depth_features import DEPTH_MAPS, DepthFeatures, depth_features
@@ -566,25 +566,28 @@ def feature_summary(
 
 
 def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: float | None) -> str:
-    """Write the maps of one video to ``.npz``: one ``(H, W)`` array per map computed, ``masked``, ``dt``,
-    ``dx`` (when known) and ``units_<name>`` strings; with depth maps also ``depth_mm`` ``(Z,)`` and the
-    profiles ``peak_temperature_depth`` (C), ``peak_temperature_depth_std`` (K), ``omega_depth`` and
-    ``cem43_depth_minutes``, each ``(Z, H, W)``. Returns the path written (``.npz`` appended when missing).
+    """Write the maps of one video to ``.npz`` atomically: one ``(H, W)`` array per map computed, ``masked``,
+    ``dt``, ``dx`` (when known) and ``units_<name>`` strings; with depth maps also ``depth_mm`` ``(Z,)`` and
+    the profiles ``peak_temperature_depth`` (C), ``peak_temperature_depth_std`` (K), ``omega_depth`` (1) and
+    ``cem43_depth_minutes`` (min), each ``(Z, H, W)`` with its ``units_<name>`` too. Returns the path written
+    (``.npz`` appended when missing).
 
     Raises:
         OSError: the file cannot be written.
     """
-
     target = str(path) if str(path).endswith(".npz") else f"{path}.npz"
     arrays = {name: m.detach().cpu().numpy() for name, m in maps.maps.items()}
     arrays["masked"] = maps.masked.cpu().numpy()
-    units = {f"units_{name}": np.array(maps.units[name]) for name in maps.maps}
+    units = {name: maps.units[name] for name in maps.maps}
     spacing = {"dt": np.array(dt)} | ({} if dx is None else {"dx": np.array(dx)})
     profiles = None if maps.depth is None else maps.depth.profiles
     if profiles is not None:
-        names = {"peak": "peak_temperature_depth", "peak_std": "peak_temperature_depth_std"}
-        names |= {"omega": "omega_depth", "cem43": "cem43_depth_minutes"}
-        arrays |= {name: getattr(profiles, key)[0].detach().cpu().numpy() for key, name in names.items()}
+        names = {"peak": ("peak_temperature_depth", "C"), "peak_std": ("peak_temperature_depth_std", "K")}
+        names |= {"omega": ("omega_depth", "1"), "cem43": ("cem43_depth_minutes", "min")}
+        arrays |= {name: getattr(profiles, key)[0].detach().cpu().numpy() for key, (name, _) in names.items()}
         arrays["depth_mm"] = profiles.depths.cpu().numpy()
-    np.savez_compressed(target, **spacing, **arrays, **units)
+        units |= dict(names.values()) | {"depth_mm": "mm"}
+    strings = {f"units_{name}": np.array(unit) for name, unit in units.items()}
+    with atomic_output(target) as temp, open(temp, "wb") as handle:
+        np.savez_compressed(handle, **spacing, **arrays, **strings)
     return target
