@@ -198,10 +198,13 @@ class TissueFeatureMaps:
         )
 
 
-def _fill(celsius: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def _fill(celsius: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
     """Non-finite samples filled with the pixel's mean of its finite frames (37 C for a pixel never seen):
-    ``(filled (B, T, H, W), finite (B, T, H, W), per-pixel fill (B, H, W))``."""
+    ``(filled (B, T, H, W), finite (B, T, H, W), per-pixel fill (B, H, W))``; the fill is None (and the
+    frames are returned as they are) when every sample is finite."""
     finite = torch.isfinite(celsius)
+    if bool(finite.all()):
+        return celsius, finite, None
     count = finite.sum(1, keepdim=True)
     fill = torch.where(finite, celsius, 0.0).sum(1, keepdim=True) / count.clamp_min(1)
     fill = torch.where(count > 0, fill, 37.0)  # a pixel never seen: body temperature, counted as masked
@@ -403,13 +406,14 @@ class TissueFeatures(nn.Module):
             return None, one_line(err)
         return found, ""
 
-    def _dose_maps(self, filled: Tensor, finite: Tensor, fill: Tensor, dt: Tensor) -> dict[str, Tensor]:
-        """Peak, times above, CEM43 and Omega of the denoised history: no spatial filter needed."""
+    def _dose_maps(self, filled: Tensor, finite: Tensor, fill: Tensor | None, dt: Tensor) -> dict:
+        """Peak, times above, CEM43 and Omega of the denoised history: no spatial filter needed (``fill``
+        None: every sample finite)."""
         h, w = filled.shape[-2:]
         history = self.history_smoother(filled) if self.history_smoothing(h, w) else filled
-        complete = bool(finite.all())  # the common case: no sample masked, no masked copy to make
+        complete = fill is None  # the common case: no sample masked, no masked copy to make
         peak = (history if complete else history.masked_fill(~finite, -torch.inf)).amax(1)
-        maps = {"peak_temperature": peak if complete else torch.where(finite.any(1), peak, fill)}
+        maps = {"peak_temperature": peak if fill is None else torch.where(finite.any(1), peak, fill)}
         doses = dose_maps(
             history,
             dt,
@@ -432,10 +436,8 @@ class TissueFeatures(nn.Module):
         except ValueError as err:
             return one_line(err)
         rate = terms["U"]
-        maps = {
-            "heating_rate": rate.amax(1).clamp_min(0) + 0.0,
-            "cooling_rate": (-rate).amax(1).clamp_min(0) + 0.0,
-        }
+        low, high = torch.aminmax(rate, dim=1)
+        maps = {"heating_rate": high.clamp_min(0) + 0.0, "cooling_rate": (-low).clamp_min(0) + 0.0}
         attention = rtc_attention(rate, sharpness=self.sharpness, unit_invariant=True)
         maps["rtc_attention"] = attention.mean(1) * (h * w)
         global_a = torch.where(result.valid, result.diffusivity, torch.zeros_like(result.diffusivity))
