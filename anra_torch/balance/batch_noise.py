@@ -20,6 +20,7 @@ from torch import Tensor
 from anra_torch.balance.artefacts import Artefacts, find_artefacts, stuck_pixels
 from anra_torch.balance.moments import within
 from anra_torch.balance.noise import NoiseModel, estimate_noise_sd, measure_noise
+from anra_torch.balance.robust import pixel_stats
 from anra_torch.balance.spectral import pushed_back, pushed_norm
 
 if TYPE_CHECKING:
@@ -104,17 +105,25 @@ class BatchNoise:
         return out
 
     def pushed_spread(
-        self, filters: MatchedFilters, lever: Tensor, a: Tensor, dt: Tensor, dx: Tensor, size: tuple[int, int]
+        self,
+        filters: MatchedFilters,
+        lever: Tensor,
+        a: Tensor,
+        dt: Tensor,
+        dx: Tensor,
+        size: tuple[int, int],
+        *,
+        frames: int | None = None,
     ) -> Tensor:
         """:meth:`spread` of ``A_U^T lever - a A_L^T lever`` without the pushed-back field where the noise is
-        white (:func:`~anra_torch.balance.spectral.pushed_norm`); the field of the others only, ``(B,)``.
+        white (:func:`~anra_torch.balance.spectral.pushed_norm`, ``frames`` as there); the field of the
+        others only, ``(B,)``.
 
         Shape:
             ``lever`` ``(B, K, h, w)``; ``a``, ``dt``, ``dx`` ``(B,)``.
         """
-        out = (self.sd.to(_F64) * pushed_norm(filters, lever, a, dt, dx, size).clamp_min(0).sqrt()).to(
-            self.sd
-        )
+        norm = pushed_norm(filters, lever, a, dt, dx, size, frames=frames)
+        out = (self.sd.to(_F64) * norm.clamp_min(0).sqrt()).to(self.sd)
         for b in range(len(self.models)):  # the few videos with correlated noise: their field
             model = self.balanced(b)
             if not model.white:
@@ -151,14 +160,18 @@ def _batch_noise(video: Tensor, finite: Tensor | None, *, noise_sd: float | None
     cleaned, artefacts, models = [], [], []
     for index in range(b):  # artefacts and noise are properties of each recording
         one = video[index] if finite is None else torch.where(finite[index], video[index], torch.nan)
-        repaired, found = find_artefacts(one.detach())
+        one = one.detach()
+        stats = pixel_stats(one) if finite is None and one.is_floating_point() else None  # read once
+        repaired, found = find_artefacts(one, stats=stats)
         cleaned.append(repaired.to(video.dtype))
         artefacts.append(found)
         if white is None:
             models.append(NoiseModel(float(noise_sd)))
-        else:  # nothing repaired: the white estimate of the repaired video is the batch's
-            known = None if found.any else float(white[index])
-            models.append(measure_noise(repaired, static_pattern=found.fixed_pattern, white_sd=known))
+        else:  # nothing repaired: the white estimate and the pixels' statistics are the video's
+            known, same = (None, None) if found.any else (float(white[index]), stats)
+            models.append(
+                measure_noise(repaired, static_pattern=found.fixed_pattern, white_sd=known, stats=same)
+            )
     if white is None:
         sd = torch.full((b,), float(noise_sd), dtype=video.dtype, device=device)
     else:
