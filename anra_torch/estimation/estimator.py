@@ -384,7 +384,7 @@ class ANRAEstimator(nn.Module):
         stage = SpectralStage(torch.fft.rfft2(rate), torch.fft.rfft2(average), (h, w))
         del rate, average
         if contenders is None:  # every candidate on every frame
-            contenders = torch.ones(b, len(usable), dtype=torch.bool)
+            contenders = torch.ones(b, len(usable), dtype=torch.bool, device="cpu")
         picked = contenders.any(0).nonzero()[:, 0].tolist()
         candidates = [
             self.candidate_sums(usable[i], video, good, dt_, dx_, noise, stage=stage) for i in picked
