@@ -26,7 +26,7 @@ from anra_torch.balance.spectral import pushed_back, pushed_norm
 if TYPE_CHECKING:
     from anra_torch.balance.filters import MatchedFilters
 
-__all__ = ["BatchNoise", "PreparedBatch", "batch_noise", "prepare_batch"]
+__all__ = ["BatchNoise", "PreparedBatch", "batch_noise", "concat_prepared", "prepare_batch"]
 
 _F64 = torch.float64
 
@@ -201,6 +201,7 @@ class PreparedBatch:
         noise: the batch's noise context (:func:`batch_noise`).
         changing: whether each video's good samples change at all, ``(B,)`` bool.
         masked: samples left out of each video (non-finite or dead), ``(B,)``.
+        offset: the mean subtracted from each video, ``(B,)`` (``video + offset`` is in the frames' units).
     """
 
     video: Tensor
@@ -208,6 +209,34 @@ class PreparedBatch:
     noise: BatchNoise
     changing: Tensor
     masked: Tensor
+    offset: Tensor
+
+    def repaired(self, index: int) -> Tensor:
+        """Video ``index`` with its artefacts repaired and every sample finite, in the frames' units:
+        what :func:`~anra_torch.balance.find_artefacts` returns for it, ``(T, H, W)``."""
+        return self.noise.cleaned[index].detach() + self.offset[index].to(self.noise.cleaned.dtype)
+
+
+def concat_prepared(parts: Sequence[PreparedBatch]) -> PreparedBatch:
+    """Prepared batches of same-shaped videos as one batch, in order."""
+    if len(parts) == 1:
+        return parts[0]
+    good = None
+    if any(p.good is not None for p in parts):
+        good = torch.cat(
+            [torch.ones_like(p.video, dtype=torch.bool) if p.good is None else p.good for p in parts]
+        )
+    noises = [p.noise for p in parts]
+    noise = BatchNoise(
+        torch.cat([n.cleaned for n in noises]),
+        torch.cat([n.sd for n in noises]),
+        tuple(m for n in noises for m in n.models),
+        torch.cat([n.pixel for n in noises]),
+        torch.cat([n.frame for n in noises]),
+        tuple(a for n in noises for a in n.artefacts),
+    )
+    cat = [torch.cat([getattr(p, name) for p in parts]) for name in ("video", "changing", "masked", "offset")]
+    return PreparedBatch(cat[0], good, noise, cat[1], cat[2], cat[3])
 
 
 def prepare_batch(video: Tensor, *, noise_sd: float | None = None) -> PreparedBatch:
@@ -227,10 +256,13 @@ def prepare_batch(video: Tensor, *, noise_sd: float | None = None) -> PreparedBa
     stuck = stuck_pixels(video, finite)
     if finite is None and not bool(stuck.any()):
         # Remove each video's mean (derivatives ignore it): keeps float32 precise on e.g. 300 K scenes.
-        centred = video - video.sum((1, 2, 3), keepdim=True) / video[0].numel()
+        offset = video.sum((1, 2, 3), keepdim=True) / video[0].numel()
+        centred = video - offset
         noise = batch_noise(centred, None, noise_sd=noise_sd)
-        low, high = torch.aminmax(noise.cleaned.detach().flatten(1), dim=1)
-        return PreparedBatch(noise.cleaned, None, noise, high > low, video.new_zeros(b, dtype=torch.long))
+        flat = noise.cleaned.detach().flatten(1)
+        changing = flat.amax(1) > flat.amin(1)
+        zeros = video.new_zeros(b, dtype=torch.long)
+        return PreparedBatch(noise.cleaned, None, noise, changing, zeros, offset.detach().reshape(b))
     finite = (torch.isfinite(video) if finite is None else finite) & ~stuck
     # ... and fills masked pixels with a neutral value.
     counts = finite.sum((1, 2, 3)).clamp_min(1)
@@ -244,4 +276,5 @@ def prepare_batch(video: Tensor, *, noise_sd: float | None = None) -> PreparedBa
     video = torch.where(finite | repaired, noise.cleaned, video)
     low = torch.where(finite, video, torch.full_like(video, torch.inf)).amin((1, 2, 3))
     changing = torch.where(finite, video, torch.full_like(video, -torch.inf)).amax((1, 2, 3)) > low
-    return PreparedBatch(video, finite | repaired, noise, changing, (~finite).sum((1, 2, 3)))
+    masked = (~finite).sum((1, 2, 3))
+    return PreparedBatch(video, finite | repaired, noise, changing, masked, mean.detach())

@@ -30,6 +30,7 @@ from torch import Tensor, nn
 from anra_torch.balance import (
     BatchNoise,
     MatchedFilters,
+    PreparedBatch,
     SpectralStage,
     TermNoise,
     accumulate,
@@ -336,7 +337,14 @@ class ANRAEstimator(nn.Module):
         return F.pad(m, (margin, margin, margin, margin)) if margin else m
 
     # -------------------------------------------------------------------------------- forward
-    def forward(self, frames: Tensor, dt: float | Tensor, dx: float | Tensor) -> ANRAResult:
+    def forward(
+        self,
+        frames: Tensor,
+        dt: float | Tensor,
+        dx: float | Tensor,
+        *,
+        prepared: PreparedBatch | None = None,
+    ) -> ANRAResult:
         """Estimate the diffusivity of each video.
 
         Args:
@@ -345,6 +353,8 @@ class ANRAEstimator(nn.Module):
                 in every frame (dead elements), are masked and counted in ``n_masked``.
             dt: frame period in s, float or ``(B,)``.
             dx: pixel size in mm, float or ``(B,)``.
+            prepared: ``frames`` as :func:`~anra_torch.balance.prepare_batch` measured them already (their
+                artefacts, noise and masks), where the caller has it: nothing is measured again.
 
         Returns:
             :class:`ANRAResult` (unbatched for a single ``(T, H, W)`` video).
@@ -359,9 +369,14 @@ class ANRAEstimator(nn.Module):
         dx_ = as_spacing(dx, name="dx", unit="mm", batch=b, like=video)
         # Videos are independent: a batch too big for the caches runs in slices of whole videos (on CPU a
         # 32 x 224 x 224 x 28 batch in one piece was measured ~3x slower per video than one at a time).
-        step = max(1, _SLICE_ELEMENTS // video[0].numel())
+        step = max(1, _SLICE_ELEMENTS // video[0].numel()) if prepared is None else b
+        if prepared is not None and tuple(prepared.video.shape) != tuple(video.shape):
+            raise ValueError(
+                f"prepared must be of these frames, of shape {tuple(video.shape)}, "
+                f"got {tuple(prepared.video.shape)}"
+            )
         parts = [
-            self._estimate(video[i : i + step], dt_[i : i + step], dx_[i : i + step])
+            self._estimate(video[i : i + step], dt_[i : i + step], dx_[i : i + step], prepared)
             for i in range(0, b, step)
         ]
         result = parts[0] if len(parts) == 1 else concat_results(parts)
@@ -371,11 +386,13 @@ class ANRAEstimator(nn.Module):
             raise ValueError(f"{where}{result.messages[bad]}")
         return result if batched else result.unbatched()
 
-    def _estimate(self, video: Tensor, dt_: Tensor, dx_: Tensor) -> ANRAResult:
+    def _estimate(
+        self, video: Tensor, dt_: Tensor, dx_: Tensor, prepared: PreparedBatch | None = None
+    ) -> ANRAResult:
         """:meth:`forward` on a checked ``(B, T, H, W)`` batch with ``(B,)`` spacings; never raises on
         videos without activity (they come back flagged)."""
         b, t, h, w = video.shape
-        prepared = prepare_batch(video, noise_sd=self.noise_sd)
+        prepared = prepare_batch(video, noise_sd=self.noise_sd) if prepared is None else prepared
         video, good, noise = prepared.video, prepared.good, prepared.noise
         noise_sd = noise.sd
         usable = self.usable(h, w)
