@@ -36,9 +36,9 @@ tissue is assumed to start at the temperature the loss pulls towards). ``a`` and
 jointly, with the errors-in-variables correction of ``L``, on the frames after each pixel's peak (no
 source acts there in a heating-then-cooling history) within a ``window``; the source is what the balance
 leaves over the whole video. The standard error of each window's ``b``
-(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the measured white noise propagated through the same
-filters and the window's normal equations (first order, :data:`LOSS_REPLICATES` seeded noise videos:
-about 25 % relative precision).
+(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the white noise the estimator measured, propagated
+through the same filters and the window's normal equations (first order, without noise copies:
+:mod:`anra_torch.balance.loss_error`).
 
 Extremes: ``diffusivity_max`` is taken over confident windows only (``confidence >=``
 :data:`MIN_CONFIDENCE`), ``loss_rate_max`` and ``source_max`` over those whose ``b`` is also measured:
@@ -69,7 +69,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from anra_torch.balance import LOSS_REPLICATES, MatchedFilters, estimate_noise_sd, fit_loss_windows
+from anra_torch.balance import MatchedFilters, fit_loss_windows
 from anra_torch.checks import as_spacing, as_video, atomic_output, join_messages, one_line
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.layers import GaussianSmoothing, rtc_attention
@@ -87,7 +87,6 @@ from anra_torch.tissue.dose import (
 
 __all__ = [
     "DOSE_MAPS",
-    "LOSS_REPLICATES",
     "MAPS",
     "MAX_LOSS_ERROR",
     "MIN_CONFIDENCE",
@@ -199,10 +198,13 @@ class TissueFeatureMaps:
         )
 
 
-def _fill(celsius: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def _fill(celsius: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
     """Non-finite samples filled with the pixel's mean of its finite frames (37 C for a pixel never seen):
-    ``(filled (B, T, H, W), finite (B, T, H, W), per-pixel fill (B, H, W))``."""
+    ``(filled (B, T, H, W), finite (B, T, H, W), per-pixel fill (B, H, W))``; the fill is None (and the
+    frames are returned as they are) when every sample is finite."""
     finite = torch.isfinite(celsius)
+    if bool(finite.all()):
+        return celsius, finite, None
     count = finite.sum(1, keepdim=True)
     fill = torch.where(finite, celsius, 0.0).sum(1, keepdim=True) / count.clamp_min(1)
     fill = torch.where(count > 0, fill, 37.0)  # a pixel never seen: body temperature, counted as masked
@@ -404,13 +406,14 @@ class TissueFeatures(nn.Module):
             return None, one_line(err)
         return found, ""
 
-    def _dose_maps(self, filled: Tensor, finite: Tensor, fill: Tensor, dt: Tensor) -> dict[str, Tensor]:
-        """Peak, times above, CEM43 and Omega of the denoised history: no spatial filter needed."""
+    def _dose_maps(self, filled: Tensor, finite: Tensor, fill: Tensor | None, dt: Tensor) -> dict:
+        """Peak, times above, CEM43 and Omega of the denoised history: no spatial filter needed (``fill``
+        None: every sample finite)."""
         h, w = filled.shape[-2:]
         history = self.history_smoother(filled) if self.history_smoothing(h, w) else filled
-        complete = bool(finite.all())  # the common case: no sample masked, no masked copy to make
+        complete = fill is None  # the common case: no sample masked, no masked copy to make
         peak = (history if complete else history.masked_fill(~finite, -torch.inf)).amax(1)
-        maps = {"peak_temperature": peak if complete else torch.where(finite.any(1), peak, fill)}
+        maps = {"peak_temperature": peak if fill is None else torch.where(finite.any(1), peak, fill)}
         doses = dose_maps(
             history,
             dt,
@@ -433,17 +436,15 @@ class TissueFeatures(nn.Module):
         except ValueError as err:
             return one_line(err)
         rate = terms["U"]
-        maps = {
-            "heating_rate": rate.amax(1).clamp_min(0) + 0.0,
-            "cooling_rate": (-rate).amax(1).clamp_min(0) + 0.0,
-        }
+        low, high = torch.aminmax(rate, dim=1)
+        maps = {"heating_rate": high.clamp_min(0) + 0.0, "cooling_rate": (-low).clamp_min(0) + 0.0}
         attention = rtc_attention(rate, sharpness=self.sharpness, unit_invariant=True)
         maps["rtc_attention"] = attention.mean(1) * (h * w)
         global_a = torch.where(result.valid, result.diffusivity, torch.zeros_like(result.diffusivity))
         field_a = torch.where(result.confidence > 0, result.field, global_a.view(b, 1, 1))
         maps["diffusivity"] = torch.nan_to_num(field_a, nan=0.0)
         maps["confidence"] = result.confidence
-        noise_sd = estimate_noise_sd(filled).reshape(b).to(_F64)
+        noise_sd = result.noise_sd.reshape(b).to(_F64)  # measured once, by the estimator
         fit = fit_loss_windows(self.filters, terms, maps["diffusivity"], noise_sd, dt, dx, window=self.window)
         maps["loss_rate"], maps["source"] = fit.loss_rate, fit.source
         return {"maps": maps, "result": result, "loss_rate_std_error": fit.std_error}
