@@ -27,8 +27,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,6 +42,7 @@ from anra_torch.estimation import (
     estimate_chunked,
     small_box_estimate,
 )
+from anra_torch.recording.parallel import side_by_side
 from anra_torch.recording.phases import (
     MIN_PHASE_FRAMES,
     SOURCE_FREE,
@@ -421,32 +421,6 @@ def _described(phases: list[PhaseEstimate], several: bool) -> PhaseEstimate:
     return chosen
 
 
-def _chunked_side_by_side(
-    tasks: list[PhaseEstimate], run: Any
-) -> Iterator[tuple[PhaseEstimate, BaseException | None]]:
-    """Run ``run(task)`` on each chunked task: several at once, one per torch thread, each on one thread
-    (their medians and memory-bound passes then use every core: ``experiments/bench_batch.py``)."""
-
-    def one(task: PhaseEstimate) -> tuple[PhaseEstimate, BaseException | None]:
-        try:
-            run(task)
-        except (ValueError, TypeError, OSError, RuntimeError) as err:
-            return task, err
-        return task, None
-
-    threads = torch.get_num_threads()
-    workers = min(len(tasks), threads)
-    if workers < 2:
-        yield from map(one, tasks)
-        return
-    torch.set_num_threads(1)
-    try:
-        with ThreadPoolExecutor(workers) as pool:
-            yield from pool.map(one, tasks)
-    finally:
-        torch.set_num_threads(threads)
-
-
 def estimate_recordings(
     videos: Sequence[Video],
     estimator: ANRAEstimator | None = None,
@@ -457,8 +431,9 @@ def estimate_recordings(
 ) -> list[RecordingEstimate | ValueError]:
     """Estimate many recordings, each as :func:`estimate_recording` does, sharing estimator calls.
 
-    Same-shaped phases estimated whole go through one estimator call; recordings read in chunks run side by
-    side, one per torch thread. A recording that fails gets its one-line ``ValueError`` (naming the file)
+    Each recording is measured and its phases found side by side with the others, one per torch thread;
+    same-shaped small phases estimated whole then go through one estimator call, camera-sized ones
+    (:data:`CAMERA_SIZED`) and recordings read in chunks run side by side. A recording that fails gets its one-line ``ValueError`` (naming the file)
     in its place; the others go on.
 
     Args:
@@ -478,12 +453,26 @@ def estimate_recordings(
     if precision is not None and (est.mode != "lsq" or est.window is not None):
         raise ValueError("--precision reads the recording in chunks: it needs --mode lsq without --window")
     plans: list[_Plan | ValueError] = []
-    for video in videos:
-        try:
-            plans.append(_plan(video, est, precision, dtype))
-        except (ValueError, TypeError, OSError) as err:
-            plans.append(ValueError(f"{video.source}: {one_line(err)}"))
+    for video, plan, err in side_by_side(videos, lambda v: _plan(v, est, precision, dtype)):
+        plans.append(plan if err is None else ValueError(f"{video.source}: {one_line(err)}"))
     return _run(videos, plans, est, precision, dtype, progress)
+
+
+def _whole_groups(plans: list[_Plan | ValueError]) -> list[list[PhaseEstimate]]:
+    """The phases estimated whole, in groups that share an estimator call: same-shaped phases of different
+    recordings (a recording's own phases never share one: each is estimated as it would be alone), each
+    camera-sized one on its own (the estimator would take it alone anyway; alone, it runs beside another)."""
+    groups: dict[tuple, list[PhaseEstimate]] = {}
+    for plan in (plan for plan in plans if not isinstance(plan, ValueError)):
+        for k, p in enumerate(p for p in plan[0] if p.route == "whole"):
+            shape = tuple(p.part.frames.shape)
+            alone = math.prod(shape) >= CAMERA_SIZED
+            groups.setdefault((k, *shape, id(p) if alone else 0), []).append(p)
+    return list(groups.values())
+
+
+CAMERA_SIZED = 2**20
+"""Pixel values from which a phase estimated whole gets an estimator call of its own."""
 
 
 def _run(
@@ -509,27 +498,17 @@ def _run(
         except (ValueError, TypeError, RuntimeError) as err:
             fail(p, err)
     chunked = [p for p in tasks if p.route == "chunked"]
-    for p, err in _chunked_side_by_side(
-        chunked, lambda p: _estimate_chunked(p, est, precision, dtype, progress)
-    ):
+    for p, _, err in side_by_side(chunked, lambda p: _estimate_chunked(p, est, precision, dtype, progress)):
         if err is not None:
             fail(p, err)
-    # Same-shaped phases of different recordings share a call (a recording's own phases never do: each is
-    # estimated as it would be alone).
-    groups: dict[tuple, list[PhaseEstimate]] = {}
-    for plan in (plan for plan in plans if not isinstance(plan, ValueError)):
-        whole = [p for p in plan[0] if p.route == "whole"]
-        for k, p in enumerate(whole):
-            groups.setdefault((k, *p.part.frames.shape), []).append(p)
-    for members in groups.values():
-        try:
-            _estimate_whole(members, est, dtype)
-        except (ValueError, TypeError, RuntimeError):
-            for p in members:  # something in the batch is wrong: one by one, for exact messages
-                try:
-                    _estimate_whole([p], est, dtype)
-                except (ValueError, TypeError, RuntimeError, OSError) as err:
-                    fail(p, err)
+    retry = []
+    for members, _, err in side_by_side(_whole_groups(plans), lambda m: _estimate_whole(m, est, dtype)):
+        retry += members if err is not None and len(members) > 1 else []
+        if err is not None and len(members) == 1:
+            fail(members[0], err)
+    for p, _, err in side_by_side(retry, lambda p: _estimate_whole([p], est, dtype)):
+        if err is not None:  # something in its batch was wrong: one by one, for exact messages
+            fail(p, err)
     out: list[RecordingEstimate | ValueError] = []
     for i, plan in enumerate(plans):
         if isinstance(plan, ValueError) or i in failed:
