@@ -34,6 +34,7 @@ from typing import Any
 
 import torch
 
+from anra_torch.balance import PreparedBatch, concat_prepared, prepare_batch
 from anra_torch.checks import POOR_FIT, depth_bias, join_messages, one_line
 from anra_torch.estimation import (
     CHUNKED_VALUES,
@@ -96,6 +97,8 @@ class PhaseEstimate:
         chunked: ``chunk_frames``, ``frames_used`` and ``pilot`` of a chunked estimate.
         depth_aware: the depth-aware record (or ``{"error": ...}``) where it was fitted.
         seconds: wall time of this phase's estimate (its share of a batched call), s.
+        prepared: the phase's frames as the estimator prepares them, measured once with the phases
+            (a recording of one phase read whole), or None.
     """
 
     phase: Phase
@@ -107,6 +110,7 @@ class PhaseEstimate:
     chunked: dict[str, Any] | None = None
     depth_aware: dict[str, Any] | None = None
     seconds: float = 0.0
+    prepared: PreparedBatch | None = field(default=None, repr=False)
 
     def estimate_record(self) -> dict[str, Any]:
         """The estimate's own record: :meth:`ANRAResult.to_record` or the small-box record."""
@@ -284,19 +288,32 @@ _Plan = tuple[list[PhaseEstimate], bool]
 """A recording's phases with their routes, and whether it has several."""
 
 
-def _plan(video: Video, est: ANRAEstimator, precision: float | None) -> _Plan:
-    """Every phase of ``video`` with its route, and whether it has several phases."""
-    chunked = reads_in_chunks(video, est, precision)
+def _plan(video: Video, est: ANRAEstimator, precision: float | None, dtype: torch.dtype | None) -> _Plan:
+    """Every phase of ``video`` with its route, and whether it has several phases. A recording read whole
+    is measured once (:func:`~anra_torch.balance.prepare_batch`): the phases are searched in its repaired
+    frames, and a recording of one phase is estimated on that measurement."""
+    chunked, prepared, frames = reads_in_chunks(video, est, precision), None, video.frames
+    whole = _route(video, est, chunked) == "whole" and isinstance(frames, torch.Tensor) and frames.ndim == 3
+    if whole and frames.shape[0] >= est.time.length:
+        frames = frames.to(est.time.taps.device, dtype or frames.dtype)
+        prepared = prepare_batch(frames[None], noise_sd=est.noise_sd) if frames.is_floating_point() else None
     # With a precision target the recording is one phase: finding phases would read all of it.
     phases = (
         []
         if precision is not None
-        else find_phases(video.frames, video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
+        else find_phases(
+            video.frames,
+            video.t,
+            dt=video.dt,
+            measured_t=video.meta.get("measured_t"),
+            repaired_frames=None if prepared is None else prepared.repaired(0),
+        )
     )
     several = len(phases) > 1
     if not several:  # the recording is estimated whole, named after its one phase
         phase = phases[0] if phases else whole_recording(video)
-        return [PhaseEstimate(phase, video, _route(video, est, chunked))], False
+        route = _route(video, est, chunked)
+        return [PhaseEstimate(phase, video, route, prepared=prepared if route == "whole" else None)], False
     out = []
     for phase in phases:
         part = video.span(phase.start, phase.stop)
@@ -350,15 +367,17 @@ def _estimate_whole(members: list[PhaseEstimate], est: ANRAEstimator, dtype: tor
     start = time.perf_counter()
     device = est.time.taps.device  # the frames follow the estimator
     frames = [torch.as_tensor(p.part.loaded().frames).to(device) for p in members]
+    kind = dtype or frames[0].dtype
+    measured = [p.prepared for p in members]
+    prepared = None if any(m is None for m in measured) else concat_prepared(measured)  # type: ignore[arg-type]
     if len(members) == 1 and dtype is None:
-        result = est(frames[0], members[0].part.dt, members[0].part.dx)
+        result = est(frames[0][None], members[0].part.dt, members[0].part.dx, prepared=prepared).unbatched()
         members[0].result, members[0].index = result, 0
     else:
-        kind = dtype or frames[0].dtype
         stacked = torch.stack([f.to(kind) for f in frames])
         dt = torch.tensor([p.part.dt for p in members], dtype=torch.float64)
         dx = torch.tensor([p.part.dx for p in members], dtype=torch.float64)
-        result = est(stacked, dt, dx)
+        result = est(stacked, dt, dx, prepared=prepared)
         for i, p in enumerate(members):
             p.result, p.index = result, i
     share = (time.perf_counter() - start) / len(members)
@@ -461,7 +480,7 @@ def estimate_recordings(
     plans: list[_Plan | ValueError] = []
     for video in videos:
         try:
-            plans.append(_plan(video, est, precision))
+            plans.append(_plan(video, est, precision, dtype))
         except (ValueError, TypeError, OSError) as err:
             plans.append(ValueError(f"{video.source}: {one_line(err)}"))
     return _run(videos, plans, est, precision, dtype, progress)
@@ -570,7 +589,7 @@ def phase_diffusivities(video: Video) -> tuple[list[dict[str, Any]], dict[str, A
         ValueError: one line naming the file, when a phase cannot be estimated.
     """
     est = ANRAEstimator(strict=False)
-    plan = _plan(video, est, None)
+    plan = _plan(video, est, None, None)
     if not plan[1]:
         return [], None
     (done,) = _run([video], [plan], est, None, None, False)
