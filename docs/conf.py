@@ -77,6 +77,7 @@ SUBPACKAGES = (
     ("selection", "Selection"),
     ("forecast", "Forecasts"),
     ("tissue", "Tissue"),
+    ("flash", "Flash thermography"),
     ("report", "Reports"),
     ("recording", "Recordings"),
     ("batch", "Batch"),

@@ -9,6 +9,7 @@ separators (``4,194,304``) or as a power (``2^22``).
 
 from __future__ import annotations
 
+import ast
 import re
 from pathlib import Path
 
@@ -87,3 +88,19 @@ def test_the_test_path_patterns() -> None:
     text = "`pytest tests/video/test_resample.py -k\nkeeps_every_sample`, `tests/reference.py`, a/tests/b.py"
     assert TEST_PATH.findall(text) == ["tests/video/test_resample.py", "tests/reference.py"]
     assert SELECTION.findall(text) == [("tests/video/test_resample.py", "keeps_every_sample")]
+
+
+def test_every_subpackage_face_has_an_api_page() -> None:
+    """docs/conf.py writes one API page per subpackage it lists (from the face's ``__all__``); every
+    subpackage is listed, and every page is in the API index."""
+    tree = ast.parse((DOCS / "conf.py").read_text())
+    (listed,) = [
+        ast.literal_eval(node.value)
+        for node in tree.body
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "SUBPACKAGES" for t in node.targets)
+    ]
+    package = ROOT / "anra_torch"
+    faces = {p.parent.name for p in package.glob("*/__init__.py")}
+    assert {name for name, _ in listed} == faces
+    index = (DOCS / "api" / "index.md").read_text()
+    assert [name for name, _ in listed if not re.search(rf"^{name}$", index, re.M)] == []

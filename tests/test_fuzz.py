@@ -19,21 +19,15 @@ hypothesis is not installed in this environment, so the cases come from ``numpy.
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import io
-import json
 import math
-import re
 import time
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from anra_torch.cli import main
+from commands import ECHOED_NON_FINITE, NON_FINITE_WORD, assert_clean, run_isolated
 
 pytestmark = pytest.mark.slow
 
@@ -44,8 +38,6 @@ _DTYPES = ("float64", "float32", "float16", "int16", "uint8", "uint16", "int32",
 _SPACINGS = (0.04, 0.1, 0.5, 1e-6, 1e6, 0.0, -1.0, math.nan, math.inf, 1e-300, 1e300, 0.0001)
 _FLAGS = ("0.04", "0.2", "0", "-1", "nan", "inf", "1e-300", "1e300", "abc", "0.0001", "1e6", "1e-7")
 _SPIKES = (1e3, 1e4, 1e6, 2e6, 1e15, 1e20, 1e30, 1e300, -1e300, math.inf, -math.inf, math.nan)
-_WORD = re.compile(r"\b(nan|inf|infinity)\b", re.IGNORECASE)
-_ECHO = re.compile(r"got '?[-+]?(nan|inf)'?", re.IGNORECASE)
 
 
 def _smooth(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
@@ -157,22 +149,6 @@ def _flags(rng: np.random.Generator, command: str) -> list[str]:
     return argv
 
 
-def _check_output(label: str, code: int, out: str, err: str, caught: list[warnings.WarningMessage]) -> None:
-    assert code in (0, 2), f"{label}: exit {code}: {err}"
-    assert "Traceback" not in err and not caught, f"{label}: {err} {[str(w.message) for w in caught]}"
-    if code == 2:
-        assert err.startswith("anra: error: ") and err.count("\n") == 1, f"{label}: {err!r}"
-    for line in out.splitlines():
-        if line.startswith("{"):
-
-            def refuse(name: str, line: str = line) -> None:
-                raise AssertionError(f"{label}: non-finite {name} in JSON: {line}")
-
-            json.loads(line, parse_constant=refuse)
-    text = _ECHO.sub("", out + err)  # an error may quote the non-finite value it received ("got nan")
-    assert not _WORD.search(text), f"{label}: non-finite word in output: {out} {err}"
-
-
 def _check_table(label: str, table: Path) -> int:
     """Every cell of a batch CSV is empty, text or finite; returns the number of rows with status ok."""
     if not table.exists():
@@ -181,21 +157,11 @@ def _check_table(label: str, table: Path) -> int:
         rows = list(csv.DictReader(handle))
     for row in rows:
         for key, cell in row.items():
-            assert not _WORD.fullmatch(cell.strip()), f"{label}: non-finite {key}={cell!r}"
-            assert not _WORD.search(_ECHO.sub("", cell)), f"{label}: non-finite word in {key}={cell!r}"
+            assert not NON_FINITE_WORD.fullmatch(cell.strip()), f"{label}: non-finite {key}={cell!r}"
+            assert not NON_FINITE_WORD.search(ECHOED_NON_FINITE.sub("", cell)), (
+                f"{label}: non-finite word in {key}={cell!r}"
+            )
     return sum(row["status"] == "ok" for row in rows)
-
-
-def _run(argv: list[str]) -> tuple[int, str, str, list[warnings.WarningMessage]]:
-    out, err = io.StringIO(), io.StringIO()
-    with (
-        contextlib.redirect_stdout(out),
-        contextlib.redirect_stderr(err),
-        warnings.catch_warnings(record=True) as caught,
-    ):
-        warnings.simplefilter("always")
-        code = main(argv)
-    return code, out.getvalue(), err.getvalue(), list(caught)
 
 
 def _fuzz(command: str, seed: int, tmp_path: Path, make_argv: Callable[..., tuple[list[str], int]]) -> dict:
@@ -208,8 +174,8 @@ def _fuzz(command: str, seed: int, tmp_path: Path, make_argv: Callable[..., tupl
         folder.mkdir()
         argv, n = make_argv(rng, folder, index)
         label = f"{command} case {index}: {' '.join(argv)}"
-        code, out, err, caught = _run(argv)
-        _check_output(label, code, out, err, caught)
+        code, out, err, caught = run_isolated(argv)
+        assert_clean(label, code, out, err, caught)
         if command == "batch":
             ok_rows += _check_table(label, folder / "rows.csv")
         codes[code] += 1

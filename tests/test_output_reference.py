@@ -2,11 +2,13 @@
 
 ``anra simulate`` writes a small video; ``anra estimate --json``, ``anra features --json`` and ``anra batch``
 run on it; their top-level keys and columns are compared with the first column of the page's tables, both
-ways. ``anra diagnose --json`` runs once on a small advection video (with ``--source-map`` and ``--roi``, so
-that the keys those add appear too): its top-level keys and those of an effect, a phase, ``noise`` and
-``artefacts`` are compared the same way (a documented key whose meaning begins with "only" may be absent), the
-keys of ``base``, ``extended``, ``raw``, ``source_map`` and ``input`` must be named in their row's meaning,
-and the effects' parameter table is compared with the effects' registry.
+ways; ``anra features --depth --out --report --json`` on a tiny 3-D scene adds the depth keys and the
+``--out`` file's entries (with those of a plain ``--out``), compared both ways too. ``anra diagnose --json``
+runs once on a small advection video (with ``--source-map`` and ``--roi``, so that the keys those add appear
+too): its top-level keys and those of an effect, a phase, ``noise`` and ``artefacts`` are compared the same
+way (a documented key whose meaning begins with "only" may be absent), the keys of ``base``, ``extended``,
+``raw``, ``source_map`` and ``input`` must be named in their row's meaning, and the effects' parameter table
+is compared with the effects' registry.
 """
 
 from __future__ import annotations
@@ -20,10 +22,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+from depth_scenes import beam_recording
 
 from anra_torch.cli import main
 from anra_torch.effects import EFFECTS
+from anra_torch.video import save_npz
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "reference" / "outputs.md"
@@ -70,10 +75,57 @@ def video(tmp_path: Path) -> Path:
 
 @pytest.mark.parametrize("command", ["estimate", "features"])
 def test_json_keys_are_documented(command: str, video: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Without options every key is emitted but those documented "only with" an option (``--depth``,
+    ``--report``: :func:`test_depth_keys_and_maps_are_documented` emits them)."""
     keys = set(json.loads(run([command, str(video), "--json"], capsys)))
     page = documented(f"`anra {command} --json`")
     assert keys - page == set(), f"emitted, not documented: {sorted(keys - page)}"
+    missing = page - keys - optional(f"`anra {command} --json`")
+    assert missing == set(), f"documented, not emitted: {sorted(missing)}"
+
+
+FEATURES, OUT = "`anra features --json`", "`anra features --out`"
+
+
+def npz_entries(path: str) -> set[str]:
+    """An ``--out`` file's entries, every ``units_<name>`` checked to name an entry and counted as one."""
+    with np.load(path) as maps:
+        entries = set(maps.files)
+    units = {e for e in entries if e.startswith("units_")}
+    assert {u.removeprefix("units_") for u in units} <= entries, sorted(units)
+    return entries - units | ({"units_<name>"} if units else set())
+
+
+@pytest.fixture(scope="module")
+def tiny_depth(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """12 x 12 px (0.4 mm) of the beam on the independent 3-D simulator: depth maps and profiles made."""
+    found = beam_recording(tmp_path_factory.mktemp("depth"))
+    frames = found["frames"].numpy()[:, 2:26:2, 2:26:2]
+    return save_npz(found["video"].parent / "tiny.npz", frames, dt=found["result"].dt, dx=0.4)
+
+
+def test_depth_keys_and_maps_are_documented(
+    tiny_depth: Path, video: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``features --depth --out --report --json`` on the tiny 3-D scene and a plain ``--json --out`` run (the
+    rate and ANRA maps need 20 x 20 px): every documented key emitted by one of them, none undocumented,
+    ``depth``'s keys named in its row; the two ``--out`` files' entries against the ``--out`` table, both
+    ways."""
+    maps = tmp_path / "depth.npz"
+    argv = [str(tiny_depth), "--json", "--depth", "--out", str(maps), "--report", str(tmp_path / "r")]
+    record = json.loads(run(["features", *argv], capsys))
+    assert record["depth"]["maps"], record["depth"]["message"]
+    plain = tmp_path / "plain.npz"
+    keys = set(record) | set(json.loads(run(["features", str(video), "--json", "--out", str(plain)], capsys)))
+    page = documented(FEATURES)
+    assert set(record) - page == set(), f"emitted, not documented: {sorted(set(record) - page)}"
     assert page - keys == set(), f"documented, not emitted: {sorted(page - keys)}"
+    unnamed = set(record["depth"]) - names(meaning(FEATURES, "depth"))
+    assert unnamed == set(), f"depth holds {sorted(unnamed)}, which its row does not name"
+    entries = npz_entries(str(maps)) | npz_entries(str(plain))
+    assert npz_entries(str(plain)) & optional(OUT) == set(), "a plain --out wrote what only --depth writes"
+    assert entries - documented(OUT) == set(), f"written, not documented: {sorted(entries - documented(OUT))}"
+    assert documented(OUT) - entries == set(), f"documented, not written: {sorted(documented(OUT) - entries)}"
 
 
 def test_batch_columns_are_documented(video: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -22,9 +22,9 @@ def _is_video_file(path: Path) -> bool:
 def _is_video_folder(path: Path) -> bool:
     """A folder that is itself one video (:data:`anra_torch.video.FOLDER_REGISTRY`): one file per frame.
 
-    JPEGs are always single frames (FLIR radiometric JPEGs), so a folder holding them is one video. A
-    ``.csv`` / ``.txt`` file is either a per-frame matrix (its first line is numbers) or a whole video (a
-    FLIR CSV export starts with a header): the first such file decides.
+    JPEGs and ``.fff`` files are single frames (FLIR radiometric JPEGs, FFF frames as a camera streams them),
+    so a folder holding them is one video. A ``.csv`` / ``.txt`` file is either a per-frame matrix (its first
+    line is numbers) or a whole video (a FLIR CSV export starts with a header): the first such file decides.
     """
     if not path.is_dir():
         return False
@@ -35,7 +35,7 @@ def _is_video_folder(path: Path) -> bool:
     )
     if not frames:
         return False
-    if any(f.suffix.lower() in (".jpg", ".jpeg") for f in frames):
+    if any(f.suffix.lower() in (".jpg", ".jpeg", ".fff") for f in frames):
         return True
     try:
         with frames[0].open("r", errors="replace") as handle:

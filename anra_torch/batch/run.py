@@ -21,7 +21,7 @@ from anra_torch.batch.inputs import PathLike, expand_inputs
 from anra_torch.batch.options import BatchOptions
 from anra_torch.batch.resume import plan
 from anra_torch.batch.table import check_format, parquet, read_table, row_key, write_table
-from anra_torch.checks import join_messages, one_line
+from anra_torch.checks import check_output, join_messages, one_line
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.recording import (
     RecordingEstimate,
@@ -199,8 +199,8 @@ def run_batch(
 
     Args:
         inputs: files, folders or glob patterns (see :func:`expand_inputs`).
-        out: the table, ``.csv`` or ``.parquet`` (Parquet needs the ``parquet`` extra); rows of earlier
-            runs are kept, inputs already ``ok`` are skipped.
+        out: the table, ``.csv`` or ``.parquet`` (Parquet needs the ``parquet`` extra), none of the inputs
+            (a folder holding it leaves it out); rows of earlier runs are kept, inputs ``ok`` are skipped.
         dt: frame period in s overriding the files.
         dx: pixel size in mm overriding the files.
         diagnose: also diagnose each video (hidden effects, forecast gain; ~1-5 s per video).
@@ -226,17 +226,18 @@ def run_batch(
         No tensors: each video is read as ``(T, H, W)`` frames and estimated with same-shaped others.
 
     Raises:
-        ValueError: bad ``out`` suffix, ``batch_size`` < 1, unknown ``dtype``, a ``precision`` outside (0, 1),
-            a malformed ``roi``, a bad calibration file, an ``out`` that is not a batch table or (without
-            ``rerun``) holds ``ok`` rows of these inputs made with other parameters. Bad inputs never raise:
-            they get error rows.
+        ValueError: bad ``out`` suffix, an ``out`` that is an input, ``batch_size`` < 1, unknown ``dtype``,
+            a ``precision`` outside (0, 1), a malformed ``roi``, a bad calibration file, an ``out`` that is
+            not a batch table or (without ``rerun``) holds ``ok`` rows of these inputs made with other
+            parameters. Bad inputs never raise: they get error rows.
     """
     out = Path(out)
     _check_run(out, batch_size, dtype)
     given = {"dt": dt, "dx": dx, "diagnose": diagnose, "dtype": dtype, "resample": resample, "roi": roi}
     options = _options(**given, calibration=calibration, precision=precision, device=device)
     start = time.perf_counter()
-    paths = expand_inputs(inputs)
+    check_output(out, inputs, name="--out")
+    paths = [p for p in expand_inputs(inputs) if Path(p).resolve() != out.resolve()]  # never its own table
     table = {row_key(row["path"]): row for row in read_table(out)}
     todo, stamps, changed = plan(paths, table, options, rerun=rerun, out=out)
     key = json.dumps(options.parameters(), sort_keys=True)

@@ -5,12 +5,12 @@ from __future__ import annotations
 import csv
 import math
 import os
-import secrets
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from anra_torch.batch.inputs import PathLike
+from anra_torch.checks import atomic_output
 
 __all__ = ["BATCH_COLUMNS", "FORMATS", "check_format", "parquet", "read_table", "row_key", "write_table"]
 
@@ -117,44 +117,27 @@ def read_table(path: PathLike) -> list[dict[str, Any]]:
     return [{k: _typed(row.get(k), kind) for k, kind in BATCH_COLUMNS.items()} for row in raw]
 
 
-def _temporary(path: Path) -> tuple[int, str]:
-    """A new hidden file next to ``path``, opened for writing with mode 0666 less the umask (as ``open``
-    would create it; :func:`tempfile.mkstemp` makes 0600, which the replace would then keep)."""
-    while True:
-        temp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
-        try:
-            return os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), str(temp)
-        except FileExistsError:  # pragma: no cover - 48 random bits
-            continue
-
-
 def write_table(path: PathLike, rows: Sequence[dict[str, Any]]) -> Path:
-    """Write rows atomically: a temporary file in the same folder, then :func:`os.replace`.
+    """Write rows atomically (:func:`~anra_torch.checks.atomic_output`: a temporary file in the same folder,
+    then :func:`os.replace`).
 
     An interruption at any moment leaves either the previous table or the new one, never a partial file.
     The file gets the mode the umask allows (0644 under umask 022).
     """
     path = Path(path)
     suffix = check_format(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     clean = [{k: _typed(row.get(k), kind) for k, kind in BATCH_COLUMNS.items()} for row in rows]
-    handle, temp = _temporary(path)
-    try:
+    with atomic_output(path) as temp:
         if suffix == ".csv":
-            with os.fdopen(handle, "w", newline="", encoding="utf-8") as out:
+            with temp.open("w", newline="", encoding="utf-8") as out:
                 writer = csv.DictWriter(out, fieldnames=list(BATCH_COLUMNS))
                 writer.writeheader()
                 writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in clean)
                 out.flush()
                 os.fsync(out.fileno())
         else:
-            os.close(handle)
             pa, pq = parquet()
             types = {str: pa.string(), float: pa.float64(), int: pa.int64()}
             schema = pa.schema([(k, types[kind]) for k, kind in BATCH_COLUMNS.items()])
             pq.write_table(pa.Table.from_pylist(clean, schema=schema), temp)
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
     return path

@@ -3,7 +3,8 @@
 - :mod:`~anra_torch.checks.inputs`: one place for each kind of input check and its one-line message
   (``ValueError`` for a bad value or shape, ``TypeError`` for a wrong type);
 - :mod:`~anra_torch.checks.flags`: plausibility and model-failure flags, the warnings a result carries,
-  worded once for every command.
+  worded once for every command;
+- :mod:`~anra_torch.checks.outputs`: where outputs go: never over an input, written atomically.
 """
 
 from anra_torch.checks.flags import (
@@ -42,6 +43,7 @@ from anra_torch.checks.inputs import (
     spacing_in_range,
     uniform_step,
 )
+from anra_torch.checks.outputs import atomic_output, check_output, write_text
 
 __all__ = [
     "DEPTH_BIAS",
@@ -56,9 +58,11 @@ __all__ = [
     "as_fields",
     "as_spacing",
     "as_video",
+    "atomic_output",
     "check_choice",
     "check_dtype",
     "check_int",
+    "check_output",
     "check_shape",
     "depth_bias",
     "diffusivity_warnings",
@@ -76,4 +80,5 @@ __all__ = [
     "spacing_in_range",
     "uniform_step",
     "verdicts",
+    "write_text",
 ]

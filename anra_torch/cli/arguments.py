@@ -111,10 +111,17 @@ def add_region_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def open_input(args: argparse.Namespace, *, need_dx: bool = True, on_disk_above: int | None = None) -> Video:
+def open_input(
+    args: argparse.Namespace,
+    *,
+    need_dx: bool = True,
+    need_time: bool = True,
+    on_disk_above: int | None = None,
+) -> Video:
     """The recording of VIDEO with --dt, --dx, --roi and --calibration, as every command reads it
     (:func:`~anra_torch.recording.open_recording`: left on disk above ``on_disk_above`` pixel values, else
-    prepared; ``meta`` says what was done). ``need_dx=False`` accepts a video without pixel size."""
+    prepared; ``meta`` says what was done). ``need_dx=False`` accepts a video without pixel size,
+    ``need_time=False`` a single frame (with --dt)."""
     try:
         return open_recording(
             args.video,
@@ -123,6 +130,7 @@ def open_input(args: argparse.Namespace, *, need_dx: bool = True, on_disk_above:
             roi=args.roi,
             calibration=args.calibration,
             need_dx=need_dx,
+            need_time=need_time,
             on_disk_above=on_disk_above,
             **object_parameters(args),
         )
@@ -186,17 +194,18 @@ def device(text: str) -> torch.device:
     return chosen
 
 
-def number(unit: str, *, positive: bool) -> Callable[[str], float]:
-    """A flag type: a finite number in ``unit``, positive or non-negative."""
+def number(unit: str, *, positive: bool, maximum: float = math.inf) -> Callable[[str], float]:
+    """A flag type: a finite number in ``unit``, positive or non-negative, at most ``maximum``."""
 
     def parse(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             value = math.nan
-        if not math.isfinite(value) or (value <= 0 if positive else value < 0):
+        if not math.isfinite(value) or (value <= 0 if positive else value < 0) or value > maximum:
             need = "positive" if positive else "non-negative"
-            raise argparse.ArgumentTypeError(f"must be a {need} number in {unit}, got {text!r}")
+            most = f" up to {maximum:g}" if maximum < math.inf else ""
+            raise argparse.ArgumentTypeError(f"must be a {need} number in {unit}{most}, got {text!r}")
         return value
 
     return parse

@@ -8,7 +8,8 @@ frames ``START .. STOP - 1`` (Python slice bounds, negative from the end), ``--r
 What is written (the same in every format, each reader of ``anra`` reads it back):
 
 - ``frames``: ``(T, H, W)`` float32 in the recording's unit (degrees Celsius for FLIR files), rows top to
-  bottom as the camera shows them;
+  bottom as the camera shows them; a sample without a value is NaN (never an infinity), counted in
+  ``warnings``;
 - ``t``: ``(T,)`` float64, each frame's time in s from the first written frame (a FLIR frame's capture
   time, to the millisecond, as measured: times that repeat or go backwards are kept and flagged);
 - ``dx``: the pixel size in mm, when the file or ``--dx`` gives it; ``unit``: the temperature unit;
@@ -27,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import zipfile
 from collections.abc import Callable
@@ -37,11 +37,19 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from anra_torch.cli.arguments import add_object_arguments, add_spacing_arguments, number, object_parameters
+from anra_torch.checks import atomic_output, check_output
+from anra_torch.cli.arguments import (
+    add_object_arguments,
+    add_spacing_arguments,
+    json_line,
+    number,
+    object_parameters,
+)
 from anra_torch.video import (
     LAZY_REGISTRY,
     LazyFrames,
     ObjectParameters,
+    SingleFrameError,
     lazy_npz_fields,
     load_video,
     parse_roi,
@@ -107,7 +115,11 @@ def _source(args: argparse.Namespace) -> tuple[Any, np.ndarray, float | None, di
         found = _numpy_source(path, args)
         if found is not None:
             return found
-    video = load_video(path, dt=args.dt, dx=args.dx, timestamps="keep", **objects)
+    try:
+        video = load_video(path, dt=args.dt, dx=args.dx, timestamps="keep", **objects)
+    except SingleFrameError:  # one frame (a folder of one .fff): its one time is 0 s, no period is needed
+        video = load_video(path, dt=1.0, dx=args.dx, **objects)
+        video.meta.pop("dt_source", None)
     t = video.t.numpy() if video.t is not None else np.arange(video.frames.shape[0]) * video.dt
     return video.frames.numpy(), t, video.dx, dict(video.meta)
 
@@ -143,8 +155,7 @@ class _Npz:
     """An uncompressed ``.npz``: the small entries, then ``frames`` streamed, ``meta`` last."""
 
     def __init__(self, path: Path, shape: tuple[int, int, int], extra: dict[str, Any]) -> None:
-        self.path, self.partial = path, path.with_name(path.name + ".part")
-        self.archive = zipfile.ZipFile(self.partial, "w", zipfile.ZIP_STORED, allowZip64=True)
+        self.archive = zipfile.ZipFile(path, "w", zipfile.ZIP_STORED, allowZip64=True)
         for key, value in extra.items():
             self._entry(key, np.asarray(value))
         self.stream = self.archive.open("frames.npy", "w", force_zip64=True)
@@ -162,11 +173,10 @@ class _Npz:
         self.stream.close()
         self._entry("meta", np.asarray(meta))
         self.archive.close()
-        os.replace(self.partial, self.path)
 
     def abort(self) -> None:
+        self.stream.close()  # the archive refuses to close over an open entry (and would hide the error)
         self.archive.close()
-        self.partial.unlink(missing_ok=True)
 
 
 class _Hdf5:
@@ -177,8 +187,7 @@ class _Hdf5:
             import h5py
         except ImportError as err:
             raise ImportError("writing HDF5 needs h5py: pip install anra_torch[formats]") from err
-        self.path, self.partial = path, path.with_name(path.name + ".part")
-        self.file = h5py.File(self.partial, "w")
+        self.file = h5py.File(path, "w")
         self.frames = self.file.create_dataset("frames", shape, dtype="<f4", chunks=(1, *shape[1:]))
         self.file.create_dataset("t", data=extra.pop("t"))
         self.frames.attrs.update(extra)
@@ -191,11 +200,9 @@ class _Hdf5:
     def finish(self, meta: str) -> None:
         self.file.attrs["meta"] = meta
         self.file.close()
-        os.replace(self.partial, self.path)
 
     def abort(self) -> None:
         self.file.close()
-        self.partial.unlink(missing_ok=True)
 
 
 class _Tiff:
@@ -206,9 +213,8 @@ class _Tiff:
             import tifffile
         except ImportError as err:
             raise ImportError("writing TIFF needs tifffile: pip install anra_torch[formats]") from err
-        self.path, self.partial = path, path.with_name(path.name + ".part")
         self.shape, self.extra = shape, {k: np.asarray(v).tolist() for k, v in extra.items()}
-        self.writer = tifffile.TiffWriter(self.partial, bigtiff=True)
+        self.writer = tifffile.TiffWriter(path, bigtiff=True)
         self.first = True
 
     def write(self, chunk: np.ndarray) -> None:
@@ -219,11 +225,9 @@ class _Tiff:
     def finish(self, meta: str) -> None:
         self.writer.overwrite_description(json.dumps({"shape": list(self.shape), **self.extra, "meta": meta}))
         self.writer.close()
-        os.replace(self.partial, self.path)
 
     def abort(self) -> None:
         self.writer.close()
-        self.partial.unlink(missing_ok=True)
 
 
 WRITERS: dict[str, Callable[..., Any]] = {
@@ -233,7 +237,9 @@ WRITERS: dict[str, Callable[..., Any]] = {
     ".tif": _Tiff,
     ".tiff": _Tiff,
 }
-"""Output suffix -> writer: ``(path, shape, extra)`` with ``write(chunk)``, ``finish(meta)``, ``abort()``."""
+"""Output suffix -> writer: ``(path, shape, extra)`` with ``write(chunk)``, ``finish(meta)`` and ``abort()``;
+each writes the temporary file :func:`~anra_torch.checks.atomic_output` gives it (the rename is not its
+business)."""
 
 
 # ------------------------------------------------------------------------------------------ command
@@ -275,7 +281,7 @@ def _flags(times: np.ndarray, start: int) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``anra convert`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
-    out = Path(args.out)
+    out = check_output(args.out, [args.video], name="-o")
     writer_of = WRITERS.get(out.suffix.lower())
     if writer_of is None:
         raise ValueError(f"-o must end in one of {', '.join(WRITERS)}, got {out.name!r}")
@@ -290,29 +296,54 @@ def run(args: argparse.Namespace) -> int:
         extra["dx"] = float(dx)
     if "t_resolution" in meta:
         extra["t_resolution"] = float(meta["t_resolution"])
-    out.parent.mkdir(parents=True, exist_ok=True)
-    writer = writer_of(out, (stop - start, height, width), dict(extra))
     step = max(1, math.ceil(int(args.chunk_values) / (h * w)))
-    nan = 0
-    try:
-        with tqdm(total=stop - start, unit="frame", file=sys.stderr, disable=not sys.stderr.isatty()) as bar:
-            for a in range(start, stop, step):
-                block = np.asarray(frames[a : min(a + step, stop)], dtype=np.float32)
-                block = block[:, y0 : y0 + height, x0 : x0 + width]
-                nan += int(np.isnan(block).sum())
-                writer.write(block)
-                bar.update(len(block))
-        if nan:
-            warnings.append(
-                f"{nan} samples are NaN (not finite in the file, or counts outside the Planck range)"
-            )
-        record = {"source": str(args.video), **meta, "frames": [start, stop], "t_first_s": float(t[start])}
-        record.update(roi=[x0, y0, width, height] if args.roi else None, warnings=warnings)
-        writer.finish(json.dumps(record, default=_plain))
-    except BaseException:
-        writer.abort()
-        raise
+    with atomic_output(out) as temp:
+        writer = writer_of(temp, (stop - start, height, width), dict(extra))
+        try:
+            bad = _stream(frames, writer, (start, stop, step), (y0, height, x0, width))
+            if bad == (stop - start) * height * width:
+                raise ValueError(
+                    f"{args.video}: no finite value in the frames to write ({bad} samples not finite, or "
+                    "counts outside the Planck range); nothing written"
+                )
+            if bad:
+                warnings.append(
+                    f"{bad} samples masked (not finite in the file, beyond float32, or counts outside the "
+                    "Planck range)"
+                )
+            record = {
+                "source": str(args.video),
+                **meta,
+                "frames": [start, stop],
+                "t_first_s": float(t[start]),
+            }
+            record.update(roi=[x0, y0, width, height] if args.roi else None, warnings=warnings)
+            plain = json.loads(json.dumps(record, default=_plain))  # numpy values as JSON's own first
+            writer.finish(json_line(plain))  # strict JSON: a non-finite value (a damaged header's) is null
+        except BaseException:
+            writer.abort()
+            raise
     for line in warnings:
         print(f"anra: warning: {line}", file=sys.stderr)
     print(f"{out}: {stop - start} frames of {height} x {width} px over {times[-1]:.3f} s ({extra['unit']})")
     return 0
+
+
+def _stream(frames: Any, writer: Any, span: tuple[int, int, int], region: tuple[int, int, int, int]) -> int:
+    """Frames ``start .. stop - 1`` (``span``: start, stop, frames per chunk) of ``region`` (y0, height, x0,
+    width) written chunk by chunk as float32, every sample that is not finite there as NaN; returns how
+    many."""
+    start, stop, step = span
+    y0, height, x0, width = region
+    bad = 0
+    with tqdm(total=stop - start, unit="frame", file=sys.stderr, disable=not sys.stderr.isatty()) as bar:
+        for a in range(start, stop, step):
+            with np.errstate(over="ignore", invalid="ignore"):  # beyond float32: counted, written as NaN
+                block = np.asarray(frames[a : min(a + step, stop)], dtype=np.float32)
+            block = np.array(block[:, y0 : y0 + height, x0 : x0 + width])
+            lost = ~np.isfinite(block)
+            block[lost] = np.nan
+            bad += int(lost.sum())
+            writer.write(block)
+            bar.update(len(block))
+    return bad

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import time
-from pathlib import Path
 
+from anra_torch.checks import check_output
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.report import format_pm, write_estimate_report
 from anra_torch.simulation import paper_video
@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         raise ImportError(
             "anra demo writes a report with matplotlib, which is not installed: pip install anra_torch[plot]"
         )
-    out = Path(args.out)
+    out = check_output(args.out, name="--out", folder=True)
     start = time.perf_counter()
     synthetic = paper_video(noise_sd=0.01, seed=0)
     path = save_npz(

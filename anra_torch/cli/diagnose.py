@@ -21,7 +21,7 @@ from typing import Any
 
 import torch
 
-from anra_torch.checks import one_line
+from anra_torch.checks import check_output, one_line
 from anra_torch.cli.arguments import (
     add_device_argument,
     add_video_arguments,
@@ -115,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         if not 0 < args.fit_fraction < 1:
             raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
+        if args.report is not None:
+            check_output(args.report, [args.video], name="--report", folder=True)
         recording, decimated = open_for_diagnosis(
             args.video,
             dt=args.dt,

@@ -6,11 +6,13 @@ import argparse
 
 import torch
 
+from anra_torch.checks import check_output
 from anra_torch.cli.arguments import (
     add_device_argument,
     add_video_arguments,
     format_list,
     json_line,
+    number,
     open_input,
     print_input,
 )
@@ -18,7 +20,11 @@ from anra_torch.recording import input_record, phase_diffusivities
 from anra_torch.report import write_depth_report
 from anra_torch.tissue import RULES, feature_summary, save_feature_maps
 
-__all__ = ["add_parser", "run"]
+__all__ = ["MAX_THICKNESS", "add_parser", "run"]
+
+MAX_THICKNESS = 1000.0
+"""Thickest ``--thickness`` (mm): a layer of a metre is beyond any tissue and any recording's reach (heat
+spreads ``sqrt(a t)``, 22 mm in an hour at 0.14 mm^2/s), and the solver's grid grows with its logarithm."""
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -63,9 +69,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--thickness",
-        type=float,
+        type=number("mm", positive=True, maximum=MAX_THICKNESS),
         metavar="MM",
-        help="with --depth: a layer this thick over tissue at body temperature (default a half-space)",
+        help=f"with --depth: a layer this thick over tissue at body temperature, in (0, {MAX_THICKNESS:g}] "
+        "mm (default a half-space; a thicker layer is one: leave the flag out)",
     )
     parser.add_argument(
         "--report",
@@ -79,7 +86,15 @@ def run(args: argparse.Namespace) -> int:
     """Run ``anra features`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     if args.report is not None and not args.depth:
         raise ValueError("--report draws the depth maps: pass --depth with it")
-    video = open_input(args, need_dx=False)
+    if args.thickness is not None and not args.depth:
+        raise ValueError("--thickness is the depth model's layer: pass --depth with it")
+    if args.out is not None:
+        maps_path = args.out if str(args.out).endswith(".npz") else f"{args.out}.npz"
+        check_output(args.out, [args.video], name="--out")
+        check_output(maps_path, [args.video], name="--out")
+    if args.report is not None:
+        check_output(args.report, [args.video], name="--report", folder=True)
+    video = open_input(args, need_dx=False, need_time=False)
     options = {"depth": True, "thickness": args.thickness} if args.depth else {}
     try:
         frames = torch.as_tensor(video.frames).to(args.device)  # the features compute where the frames are
@@ -88,6 +103,9 @@ def run(args: argparse.Namespace) -> int:
         )
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
+    depth_absent = record["absent"].get("damage_depth_mm") or ""
+    if args.thickness is not None and depth_absent.startswith("thickness "):  # the flag's fault: say so
+        raise ValueError(f"{video.source}: --{depth_absent}")
     record = {"path": str(video.source), **record, "out": None, "phases": [], "diffusivity_phase": None}
     if video.dx is not None and record.get("diffusivity_global") is not None:
         # A recording with a heating and a cooling: its diffusivity is the source-free phase's, as in estimate
@@ -120,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
     ):
         value = record.get(key)
         shown = "n/a" if value is None else f"{value:.4g} {record['units'][key]}"
+        if value is None and key == "damage_depth_mm_max" and depth_absent:
+            shown += f" ({depth_absent})"
         of_phase = key == "diffusivity_global" and record["diffusivity_phase"]
         print(f"  {key}: {shown}" + (f" (the {record['diffusivity_phase']} phase's)" if of_phase else ""))
     if record["message"]:

@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from anra_torch.checks import check_output
 from anra_torch.cli.arguments import integer, number
 from anra_torch.effects import EFFECTS, HiddenEffectVideo, hidden_effect_video
 from anra_torch.simulation import SyntheticVideo, blobs_video, paper_video
@@ -34,6 +35,7 @@ class Preset:
         help: one line for ``--help``.
         shown: how ``--help`` states a default that is not a plain number.
         effects: whether the scene takes ``--effect`` / ``--param`` (hidden effects with their truth).
+        min_size: the smallest ``--size`` (px) the scene fits in, and why (for the message).
     """
 
     build: Callable[..., SyntheticVideo | HiddenEffectVideo]
@@ -41,6 +43,7 @@ class Preset:
     help: str
     shown: dict[str, str] = field(default_factory=dict)
     effects: bool = False
+    min_size: tuple[int, str] = (1, "")
 
     def default_text(self, key: str) -> str:
         value = self.defaults[key]
@@ -100,6 +103,7 @@ PRESETS: dict[str, Preset] = {
         _blobs,
         {"a": 0.15, "noise": 0.02, "fps": 30.0, "frames": 40, "size": 96, "dx": 0.5},
         "three Gaussian hot spots at random places on a warm background, 96 px at 0.5 mm, 30 Hz",
+        min_size=(49, "its blobs start with an sd of up to 12 px, and 4 sd must fit in the frame"),
     ),
     "hidden": Preset(
         _hidden,
@@ -108,6 +112,7 @@ PRESETS: dict[str, Preset] = {
         "plus the --effect terms (the scene of --effect)",
         {"noise": "0.01 x the peak rise"},
         effects=True,
+        min_size=(16, "the scene's hot spots and effect regions need it"),
     ),
 }
 """``anra simulate --preset NAME``: a new preset is one more entry."""
@@ -185,6 +190,11 @@ def _synthesize(args: argparse.Namespace) -> SyntheticVideo | HiddenEffectVideo:
         raise ValueError(f"--effect needs a scene with effects (--preset {scenes}), got --preset {name}")
     options = dict(preset.defaults)
     options.update({k: getattr(args, k) for k in preset.defaults if getattr(args, k) is not None})
+    least, why = preset.min_size
+    if options["size"] < least:
+        raise ValueError(
+            f"--size must be at least {least} px for --preset {name} ({why}), got {options['size']}"
+        )
     if args.duration is not None:
         options["frames"] = round(args.duration * options["fps"]) + 1
     video = preset.build(seed=args.seed, **options, **extra)
@@ -193,6 +203,8 @@ def _synthesize(args: argparse.Namespace) -> SyntheticVideo | HiddenEffectVideo:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``anra simulate`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
+    out = check_output(args.out, name="-o")  # a folder or a device (-o /dev/null) is refused, not appended to
+    check_output(out if out.suffix.lower() == ".npz" else out.with_name(out.name + ".npz"), name="-o")
     video = _synthesize(args)
     name = _preset_name(args)
     if isinstance(video, HiddenEffectVideo):
@@ -284,7 +296,10 @@ def _add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     """--a, --noise, --fps, --size, --dx, --frames | --duration, with the presets' defaults in their help."""
 
     def preset_default(key: str) -> str:
-        return "default " + ", ".join(f"{name} {p.default_text(key)}" for name, p in PRESETS.items())
+        text = "default " + ", ".join(f"{name} {p.default_text(key)}" for name, p in PRESETS.items())
+        if key == "size":
+            text += "; at least " + ", ".join(f"{n} {p.min_size[0]}" for n, p in PRESETS.items())
+        return text
 
     length = parser.add_mutually_exclusive_group()
     for group, flag, kind, metavar, text in (

@@ -3,7 +3,7 @@
 - :mod:`~anra_torch.data.dataset`: :class:`ThermalVideoDataset` over a folder, a glob, a manifest CSV or a
   list of paths; read lazily, item by item, by the recording policy of every command, and worker-safe
   (``DataLoader(num_workers=2)``); items are :class:`~anra_torch.video.Video` with their times, spacing and
-  labels (``meta["labels"]``);
+  labels (``meta["labels"]``), or a :class:`SkippedVideo` for a file that cannot be read (``on_error``);
 - :mod:`~anra_torch.data.collate`: :func:`collate` into a :class:`VideoBatch` (videos of one shape stacked;
   of different shapes padded with NaN or cropped), and :meth:`VideoBatch.apply`, which runs
   :class:`~anra_torch.estimation.ANRAEstimator` or :class:`~anra_torch.tissue.TissueFeatures` with each video
@@ -27,18 +27,20 @@ Shape:
     Items ``(T, H, W)``; batches ``(B, T, H, W)``.
 """
 
-from anra_torch.data.collate import COLLATE_MODES, VideoBatch, collate
-from anra_torch.data.dataset import MANIFEST_SPACING, ThermalVideoDataset, read_labels
+from anra_torch.data.collate import COLLATE_MODES, SkippedVideo, VideoBatch, collate
+from anra_torch.data.dataset import MANIFEST_SPACING, ON_ERROR, ThermalVideoDataset, read_labels
 from anra_torch.data.transforms import PHASES, Compose, RegionOfInterest, Resample, SelectPhase
 
 __all__ = [
     "COLLATE_MODES",
     "MANIFEST_SPACING",
+    "ON_ERROR",
     "PHASES",
     "Compose",
     "RegionOfInterest",
     "Resample",
     "SelectPhase",
+    "SkippedVideo",
     "ThermalVideoDataset",
     "VideoBatch",
     "collate",

@@ -38,12 +38,29 @@ from torch import Tensor
 
 from anra_torch.video import Video, crop
 
-__all__ = ["COLLATE_MODES", "VideoBatch", "collate"]
+__all__ = ["COLLATE_MODES", "SkippedVideo", "VideoBatch", "collate"]
 
 COLLATE_MODES = ("pad", "crop", "same")
 """How :func:`collate` batches videos of different shapes: pad with NaN, crop to the common part, refuse."""
 
 _F64 = torch.float64
+
+
+@dataclass(frozen=True)
+class SkippedVideo:
+    """An item a dataset could not read (``ThermalVideoDataset(on_error="skip")``): its file and why, in one
+    line. :func:`collate` leaves it out of the batch and lists it in :attr:`VideoBatch.skipped`.
+
+    Attributes:
+        path: the file (or folder of frame files).
+        reason: the one-line error.
+
+    Shape:
+        No tensors.
+    """
+
+    path: Path
+    reason: str
 
 
 @dataclass(frozen=True)
@@ -60,6 +77,8 @@ class VideoBatch:
         sources: each video's file or folder (None for a video built in memory).
         meta: each video's :attr:`~anra_torch.video.Video.meta` without its labels.
         mode: ``"same"`` (one shape), ``"pad"`` or ``"crop"``: what :func:`collate` did.
+        skipped: the items left out as unreadable (:class:`SkippedVideo`), in item order; a batch of
+            nothing else holds no video (``len`` 0).
 
     Shape:
         ``frames`` ``(B, T, H, W)``; ``dt``, ``dx`` ``(B,)``; ``t`` ``(B, T)``; ``sizes`` ``(B, 3)``;
@@ -75,6 +94,7 @@ class VideoBatch:
     sources: tuple[Path | None, ...]
     meta: tuple[dict[str, Any], ...]
     mode: str = "same"
+    skipped: tuple[SkippedVideo, ...] = ()
 
     def __len__(self) -> int:
         return self.frames.shape[0]
@@ -153,8 +173,12 @@ class VideoBatch:
             ``frames`` ``(B, T, H, W)`` -> per-video results ``(B, ...)``, maps ``(B, H, W)``.
 
         Raises:
-            ValueError: what the layer raises, with the videos it was given.
+            ValueError: what the layer raises, with the videos it was given; a batch without a video (every
+                item skipped).
         """
+        if not len(self):
+            gone = "; ".join(f"{s.path.name}: {s.reason}" for s in self.skipped) or "none given"
+            raise ValueError(f"the batch holds no video (skipped: {gone}); leave it out of the loop")
         sizes = [tuple(row) for row in self.sizes.tolist()]
         groups = sorted(set(sizes))
         if groups == [tuple(self.frames.shape[1:])]:
@@ -188,7 +212,8 @@ def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | 
 
     Args:
         videos: the videos (items of :class:`~anra_torch.data.ThermalVideoDataset`, or any
-            :class:`~anra_torch.video.Video`); labels in ``meta["labels"]``.
+            :class:`~anra_torch.video.Video`); labels in ``meta["labels"]``. A :class:`SkippedVideo` item
+            is left out and listed in :attr:`VideoBatch.skipped` (only skipped items: an empty batch).
         mode: :data:`COLLATE_MODES`: ``"pad"`` (NaN, default), ``"crop"`` (the common first frames and
             centre), ``"same"`` (refuse different shapes).
         dtype: of the frames; default the videos' common floating dtype (integer counts: the default dtype).
@@ -209,13 +234,17 @@ def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | 
         raise ValueError(f"mode must be one of {', '.join(COLLATE_MODES)}, got {mode!r}")
     if isinstance(videos, Video) or not isinstance(videos, Sequence) or not videos:
         raise TypeError(f"videos must be a non-empty sequence of Video, got {type(videos).__name__}")
-    wrong = next((v for v in videos if not isinstance(v, Video)), None)
+    wrong = next((v for v in videos if not isinstance(v, Video | SkippedVideo)), None)
     if wrong is not None:
         raise TypeError(
             f"videos must be a non-empty sequence of Video, got an item of {type(wrong).__name__}"
         )
     if dtype is not None and not dtype.is_floating_point:
         raise TypeError(f"dtype must be a floating dtype, got {dtype}")
+    skipped = tuple(v for v in videos if isinstance(v, SkippedVideo))
+    videos = [v for v in videos if isinstance(v, Video)]
+    if not videos:
+        return _empty(skipped, dtype or torch.get_default_dtype())
     videos = [replace(v, frames=_tensor(v.loaded().frames)) for v in videos]
     shapes = [tuple(v.frames.shape) for v in videos]
     if len(set(shapes)) > 1 and mode == "same":
@@ -247,6 +276,23 @@ def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | 
         sources=tuple(v.source for v in videos),
         meta=tuple({k: x for k, x in v.meta.items() if k != "labels"} for v in videos),
         mode=mode,
+        skipped=skipped,
+    )
+
+
+def _empty(skipped: tuple[SkippedVideo, ...], dtype: torch.dtype) -> VideoBatch:
+    """The batch of items that were all skipped: no video."""
+    cpu = torch.device("cpu")
+    return VideoBatch(
+        frames=torch.zeros((0, 0, 0, 0), dtype=dtype, device=cpu),
+        dt=torch.zeros(0, dtype=_F64, device=cpu),
+        dx=None,
+        t=torch.zeros((0, 0), dtype=_F64, device=cpu),
+        sizes=torch.zeros((0, 3), dtype=torch.int64, device=cpu),
+        labels={},
+        sources=(),
+        meta=(),
+        skipped=skipped,
     )
 
 

@@ -33,6 +33,7 @@ from __future__ import annotations
 import csv
 import glob
 import os
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -42,16 +43,21 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from anra_torch.data.collate import COLLATE_MODES, VideoBatch, collate
+from anra_torch.checks import one_line
+from anra_torch.data.collate import COLLATE_MODES, SkippedVideo, VideoBatch, collate
 from anra_torch.estimation import CHUNKED_VALUES
 from anra_torch.recording import open_recording
 from anra_torch.video import FOLDER_REGISTRY, REGISTRY, CalibrationTable, PathLike, Video, is_flir_csv
 
-__all__ = ["MANIFEST_SPACING", "ThermalVideoDataset", "read_labels"]
+__all__ = ["MANIFEST_SPACING", "ON_ERROR", "ThermalVideoDataset", "read_labels"]
 
 MANIFEST_SPACING = ("dt", "dx")
 """Manifest columns that give a video's spacing (``dt`` s, ``dx`` mm), overriding the file's; the ``path``
 column names the video, every other column is a label."""
+
+ON_ERROR = ("skip", "raise")
+"""What an item that cannot be read does: becomes a :class:`~anra_torch.data.SkippedVideo` (with a warning;
+:meth:`ThermalVideoDataset.collate` leaves it out of its batch and lists it), or raises its one-line error."""
 
 _GLOB = frozenset("*?[")
 
@@ -85,6 +91,11 @@ class ThermalVideoDataset(Dataset):
             in chunks (:func:`~anra_torch.recording.open_recording`; None: always read whole). Default:
             :data:`~anra_torch.estimation.CHUNKED_VALUES`, as ``anra estimate``.
         collate_mode: how :meth:`collate` batches videos of different shapes (:data:`COLLATE_MODES`).
+        on_error: what an item that cannot be read does (:data:`ON_ERROR`): ``"skip"`` (default: a long
+            epoch never dies on one file) returns a :class:`~anra_torch.data.SkippedVideo` with the one-line
+            reason, warns (:class:`RuntimeWarning`), records it in :attr:`failed` (in the process that read
+            it) and :meth:`collate` leaves it out of the batch, listing it in ``batch.skipped``; ``"raise"``
+            raises the error.
 
     Shape:
         Items: :class:`~anra_torch.video.Video` with frames ``(T, H, W)`` (their own size); :meth:`collate`
@@ -94,8 +105,9 @@ class ThermalVideoDataset(Dataset):
         TypeError: a source that is not a path, a pattern or a sequence of paths; a transform that is not
             callable.
         ValueError: a missing source, no video found, a manifest row without a path or with a spacing that
-            is not a positive number, a non-positive ``dt`` / ``dx``, an unknown ``collate_mode``. (A
-            ``.csv`` without a ``path`` column is a video, not a manifest: it is read as a FLIR export.)
+            is not a positive number, a non-positive ``dt`` / ``dx``, an unknown ``collate_mode`` or
+            ``on_error``. (A ``.csv`` without a ``path`` column is a video, not a manifest: it is read as a
+            FLIR export.)
 
     Example:
         >>> import tempfile, numpy as np
@@ -122,6 +134,7 @@ class ThermalVideoDataset(Dataset):
         calibration: CalibrationTable | PathLike | None = None,
         on_disk_above: int | None = CHUNKED_VALUES,
         collate_mode: str = "pad",
+        on_error: str = "skip",
     ) -> None:
         for name, value, unit in (("dt", dt, "s"), ("dx", dx, "mm")):
             if value is not None and not (isinstance(value, int | float) and 0 < value < float("inf")):
@@ -130,6 +143,8 @@ class ThermalVideoDataset(Dataset):
             raise TypeError(f"transform must be callable (Video -> Video), got {type(transform).__name__}")
         if collate_mode not in COLLATE_MODES:
             raise ValueError(f"collate_mode must be one of {', '.join(COLLATE_MODES)}, got {collate_mode!r}")
+        if on_error not in ON_ERROR:
+            raise ValueError(f"on_error must be one of {', '.join(ON_ERROR)}, got {on_error!r}")
         if isinstance(labels, str):
             labels = (labels,)
         self.dt, self.dx = dt, dx
@@ -138,8 +153,12 @@ class ThermalVideoDataset(Dataset):
         self.calibration = calibration
         self.on_disk_above = on_disk_above
         self.collate_mode = collate_mode
+        self.on_error = on_error
         self.skipped: dict[str, str] = {}
         """Entries of a source folder left out: name -> why (not a video)."""
+        self.failed: dict[str, str] = {}
+        """Items skipped as unreadable in this process: path -> the one-line reason (a ``DataLoader``
+        worker's are in its batches' ``skipped``)."""
         self.entries = self._entries(source)
         if not self.entries:
             why = (
@@ -201,25 +220,36 @@ class ThermalVideoDataset(Dataset):
         """The path of every video, in item order."""
         return tuple(entry.path for entry in self.entries)
 
-    def __getitem__(self, index: int) -> Video:
-        """Read video ``index`` (opened here, in the calling worker), its labels, then ``transform``.
+    def __getitem__(self, index: int) -> Video | SkippedVideo:
+        """Read video ``index`` (opened here, in the calling worker), its labels, then ``transform``; an
+        item that cannot be read is skipped or raises (``on_error``).
 
         Shape:
             ``frames`` ``(T, H, W)``; labels as stored.
 
         Raises:
             IndexError: ``index`` out of range.
-            ValueError: every error of :func:`~anra_torch.recording.open_recording` (unreadable file,
-                no frame period and no ``dt``, ...), a label missing from an ``.npz`` file.
+            ValueError: with ``on_error="raise"``, every error of
+                :func:`~anra_torch.recording.open_recording` (unreadable file, no frame period and no
+                ``dt``, ...), a label missing from an ``.npz`` file, a transform's.
         """
         if not -len(self) <= index < len(self):
             raise IndexError(f"index must be in [{-len(self)}, {len(self) - 1}], got {index}")
         entry = self.entries[index]
-        video = self._read(entry)
-        labels = {**entry.labels, **read_labels(entry.path, self.labels)}
-        labels = {k: _label_value(v, entry.path) for k, v in labels.items()}
-        video = replace(video, meta={**video.meta, "labels": labels})
-        return self.transform(video) if self.transform is not None else video
+        try:
+            video = self._read(entry)
+            labels = {**entry.labels, **read_labels(entry.path, self.labels)}
+            labels = {k: _label_value(v, entry.path) for k, v in labels.items()}
+            video = replace(video, meta={**video.meta, "labels": labels})
+            return self.transform(video) if self.transform is not None else video
+        except (ValueError, OSError) as err:  # this file's fault; a bug elsewhere still raises
+            if self.on_error == "raise":
+                raise
+            reason = one_line(err)
+            reason = reason if str(entry.path) in reason else f"{entry.path}: {reason}"
+            self.failed[str(entry.path)] = reason
+            warnings.warn(f"skipped, cannot be read: {reason}", RuntimeWarning, stacklevel=2)
+            return SkippedVideo(entry.path, reason)
 
     def _read(self, entry: _Entry) -> Video:
         """The recording with the manifest's spacing (overriding) or else the dataset's (where the file
@@ -232,6 +262,7 @@ class ThermalVideoDataset(Dataset):
                 dx=entry.dx,
                 calibration=self.calibration,
                 need_dx=False,
+                need_time=False,
                 on_disk_above=self.on_disk_above,
             )
 
@@ -246,8 +277,9 @@ class ThermalVideoDataset(Dataset):
             video = replace(video, dx=float(self.dx), meta={**video.meta, "dx_source": "dataset"})
         return video
 
-    def collate(self, videos: Sequence[Video]) -> VideoBatch:
-        """:func:`anra_torch.data.collate` with this dataset's ``collate_mode`` (a ``collate_fn``).
+    def collate(self, videos: Sequence[Video | SkippedVideo]) -> VideoBatch:
+        """:func:`anra_torch.data.collate` with this dataset's ``collate_mode`` (a ``collate_fn``); skipped
+        items are left out and listed in ``batch.skipped``.
 
         Shape:
             ``B`` videos ``(T_i, H_i, W_i)`` -> frames ``(B, T, H, W)``.
@@ -257,7 +289,7 @@ class ThermalVideoDataset(Dataset):
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}({len(self)} videos, dt={self.dt}, dx={self.dx}, labels={self.labels}, "
-            f"collate_mode={self.collate_mode!r})"
+            f"collate_mode={self.collate_mode!r}, on_error={self.on_error!r})"
         )
 
 

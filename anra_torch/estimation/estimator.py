@@ -63,6 +63,8 @@ _NAMES = ("U", "L")  # the plain balance dT/dt = a Lap T
 
 _SLICE_ELEMENTS = 2**21  # pixel values per slice of a batch (8 MiB in float32): keeps the work in cache
 
+_NO_FINITE = "no finite frame: every sample is NaN, infinite or a dead element; no diffusivity estimated"
+
 
 def _concat(parts: list[ANRAResult]) -> ANRAResult:
     """Results of consecutive slices of a batch as one batched result."""
@@ -249,7 +251,9 @@ class ANRAEstimator(nn.Module):
         noise_sd: known noise standard deviation (units of the data); default estimated per video.
         window: side (px, odd) of the windowed diffusivity field; None skips the field.
         strict: raise ``ValueError`` when a video shows no measurable thermal activity; otherwise
-            return it flagged (``valid`` False, NaN diffusivity, a message).
+            return it flagged (``valid`` False, NaN diffusivity, a message). A video of a batch without a
+            finite sample (a failed read, padding) is flagged either way ("no finite frame"): it holds no
+            measurement to be strict about, and the others' estimates stand.
 
     Shape:
         ``frames`` ``(B, T, H, W)`` or ``(T, H, W)``; ``dt`` (s) and ``dx`` (mm/px) floats or ``(B,)``.
@@ -476,8 +480,13 @@ class ANRAEstimator(nn.Module):
             for i in range(0, b, step)
         ]
         result = parts[0] if len(parts) == 1 else _concat(parts)
-        if self.strict and not bool(result.valid.all()):
-            bad = int((~result.valid).nonzero()[0])
+        empty = result.n_masked >= video[0].numel()  # nothing finite to measure: said so per video
+        if bool(empty.any()):
+            flagged = zip(result.messages, empty.tolist(), strict=True)
+            result = replace(result, messages=tuple(_NO_FINITE if e else m for m, e in flagged))
+        refused = ~result.valid & (~empty if batched and not bool(empty.all()) else True)
+        if self.strict and bool(refused.any()):
+            bad = int(refused.nonzero()[0])
             where = f"video {bad}: " if batched else ""
             raise ValueError(f"{where}{result.messages[bad]}")
         return result if batched else result.unbatched()

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from anra_torch.checks import as_video, check_choice, check_int
+from anra_torch.checks import as_video, check_choice, check_int, spacing_in_range
 
 __all__ = ["PCT_STANDARDISE", "PCTResult", "PPTResult", "TSRResult", "pct", "ppt", "tsr"]
 
@@ -84,8 +84,8 @@ def tsr(frames: Tensor, times: Tensor, *, degree: int = 7, baseline: float | Ten
         pixel's fit (``samples`` counts what each fit used).
 
     Raises:
-        ValueError: bad shapes, non-finite frames, times not positive, a pixel with fewer usable samples
-            than ``degree + 1`` (its baseline is above its signal).
+        ValueError: bad shapes, non-finite frames or baseline, times not positive, a pixel with fewer
+            usable samples than ``degree + 1`` (its baseline is above its signal).
 
     Shape:
         ``times`` ``(T,)``; outputs as in :class:`TSRResult`.
@@ -159,14 +159,20 @@ def _weighted_fit(basis: Tensor, values: Tensor, usable: Tensor, degree: int) ->
 
 
 def _as_map(value: float | Tensor, video: Tensor, name: str) -> Tensor:
-    """A number or a map as ``(B, H, W)`` on the video's device and dtype."""
+    """A number or a map as ``(B, H, W)`` on the video's device and dtype, finite there."""
     b, _, h, w = video.shape
     if not isinstance(value, Tensor):
-        return torch.full((b, h, w), float(value), device=video.device, dtype=video.dtype)
+        value = torch.tensor(float(value), device=video.device, dtype=torch.float64)
     if value.shape not in ((h, w), (b, h, w), ()):
         raise ValueError(f"{name} must be a number or have shape ({h}, {w}) or ({b}, {h}, {w}), got "
                          f"{tuple(value.shape)}")  # fmt: skip
-    return value.to(device=video.device, dtype=video.dtype).expand(b, h, w)
+    converted = value.to(device=video.device, dtype=video.dtype)
+    if not bool(torch.isfinite(converted).all()):
+        largest = torch.finfo(video.dtype).max
+        raise ValueError(
+            f"{name} must be finite (within +-{largest:.3g} in {video.dtype}), got non-finite values"
+        )
+    return converted.expand(b, h, w)
 
 
 def _unbatch(result: TSRResult | PCTResult | PPTResult) -> TSRResult | PCTResult | PPTResult:
@@ -204,10 +210,12 @@ def pct(frames: Tensor, *, components: int = 6, standardise: str = "pixel") -> P
         standardise: one of :data:`PCT_STANDARDISE`.
 
     Returns:
-        :class:`PCTResult`, the components in decreasing order of variance.
+        :class:`PCTResult`, the components in decreasing order of variance; a component beyond the
+        standardised video's rank (no variance left) is zero, map and time alike, with variance 0.
 
     Raises:
-        ValueError: bad shapes, non-finite frames, an unknown ``standardise``, too many components.
+        ValueError: bad shapes, non-finite frames, an unknown ``standardise``, too many components, a single
+            pixel with ``"frame"``, a video in which nothing varies after standardising (no component).
 
     Shape:
         as in :class:`PCTResult`.
@@ -218,40 +226,52 @@ def pct(frames: Tensor, *, components: int = 6, standardise: str = "pixel") -> P
     b, t, h, w = video.shape
     if components > min(t, h * w):
         raise ValueError(f"components must be at most min(T, H W) = {min(t, h * w)}, got {components}")
-    matrix = video.reshape(b, t, h * w)
+    if standardise == "frame" and h * w < 2:
+        raise ValueError(f"standardise='frame' needs at least 2 pixels per frame, got {h} x {w}")
+    # float64 throughout, each video scaled to a largest magnitude of 1: no square over- or underflows
+    matrix = video.reshape(b, t, h * w).to(torch.float64)
+    tiny = torch.finfo(torch.float64).tiny
     if standardise == "frame":
         matrix = matrix - matrix.mean(2, keepdim=True)
-        matrix = matrix / matrix.std(2, keepdim=True).clamp_min(torch.finfo(video.dtype).tiny)
+        matrix = matrix / matrix.std(2, keepdim=True).clamp_min(tiny)
     else:
         matrix = matrix - matrix.mean(1, keepdim=True)
         if standardise == "pixel":
-            matrix = matrix / matrix.std(1, keepdim=True).clamp_min(torch.finfo(video.dtype).tiny)
+            matrix = matrix / matrix.std(1, keepdim=True).clamp_min(tiny)
+    matrix = matrix / matrix.abs().amax((1, 2), keepdim=True).clamp_min(tiny)
+    total = (matrix**2).sum((1, 2))
+    if not bool((total > 0).all()):
+        k = int((total > 0).logical_not().nonzero()[0])
+        raise ValueError(
+            f"frames{f' of video {k}' if batched else ''} do not vary after standardise={standardise!r} "
+            "(a constant video): PCT has no component"
+        )
     u, s, vh = _svd(matrix, components)
     maps, eofs = vh, u.transpose(1, 2)
     centred = maps - maps.mean(2, keepdim=True)
-    sign = torch.where((centred**3).sum(2) < 0, -1.0, 1.0).to(video.dtype)  # positive skew
-    variance = s**2 / (matrix**2).sum((1, 2))[:, None]
-    result = PCTResult(
-        (maps * sign[..., None]).reshape(b, components, h, w), eofs * sign[..., None], variance
-    )
+    sign = torch.where((centred**3).sum(2) < 0, -1.0, 1.0).to(matrix.dtype)  # positive skew
+    variance = s**2 / total[:, None]
+    maps = (maps * sign[..., None]).reshape(b, components, h, w)
+    dtype = video.dtype
+    result = PCTResult(maps.to(dtype), (eofs * sign[..., None]).to(dtype), variance.to(dtype))
     return result if batched else _unbatch(result)
 
 
 def _svd(matrix: Tensor, k: int) -> tuple[Tensor, Tensor, Tensor]:
-    """The ``k`` leading singular triplets of ``(B, T, P)`` matrices through the smaller Gram matrix (its
-    eigenvectors in float64: a long recording's Gram matrix is cheaper than the full SVD)."""
+    """The ``k`` leading singular triplets of float64 ``(B, T, P)`` matrices through the smaller Gram
+    matrix (a long recording's Gram matrix is cheaper than the full SVD); a triplet whose singular value is
+    zero to rounding (beyond the rank) is zero."""
     wide = matrix.shape[1] <= matrix.shape[2]
-    a = matrix.to(torch.float64)
+    a = matrix
     gram = a @ a.transpose(1, 2) if wide else a.transpose(1, 2) @ a
     values, vectors = torch.linalg.eigh(gram)
-    values, vectors = values.flip(-1)[:, :k].clamp_min(0), vectors.flip(-1)[:, :, :k]
-    s = values.sqrt()
-    other = (
-        (a.transpose(1, 2) if wide else a) @ vectors / s.clamp_min(torch.finfo(torch.float64).tiny)[:, None]
-    )
+    values, vectors = values.flip(-1)[:, :k], vectors.flip(-1)[:, :, :k]
+    rank = values > values[:, :1] * torch.finfo(torch.float64).eps * max(a.shape[1:])  # above its rounding
+    s = torch.where(rank, values, 0.0).sqrt()
+    vectors = vectors * rank[:, None]
+    other = (a.transpose(1, 2) if wide else a) @ vectors / torch.where(rank, s, 1.0)[:, None]
     u, v = (vectors, other) if wide else (other, vectors)
-    dtype = matrix.dtype
-    return u.to(dtype), s.to(dtype), v.transpose(1, 2).to(dtype)
+    return u, s, v.transpose(1, 2)
 
 
 # ------------------------------------------------------------------------------------------------- PPT
@@ -289,8 +309,8 @@ def ppt(frames: Tensor, dt: float, *, frequencies: int = 8, frames_used: int | N
         :class:`PPTResult`.
 
     Raises:
-        ValueError: bad shapes, non-finite frames, a non-positive ``dt``, more frequencies than
-            ``N / 2``.
+        ValueError: bad shapes, non-finite frames, a ``dt`` that is not positive or outside
+            :data:`~anra_torch.checks.SPACING_RANGE`, more frequencies than ``N / 2``.
 
     Shape:
         as in :class:`PPTResult`.
@@ -298,6 +318,7 @@ def ppt(frames: Tensor, dt: float, *, frequencies: int = 8, frames_used: int | N
     video, batched = _video(frames)
     if isinstance(dt, bool) or not isinstance(dt, int | float) or not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a positive number in s, got {dt!r}")
+    spacing_in_range(float(dt), "dt", "s")
     count = video.shape[1] if frames_used is None else check_int(frames_used, "frames_used", 2)
     if count > video.shape[1]:
         raise ValueError(f"frames_used must be at most the {video.shape[1]} frames, got {count}")

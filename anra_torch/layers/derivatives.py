@@ -201,15 +201,23 @@ def time_derivative(frames: Tensor, dt: float | Tensor, *, family: str = "smooth
 
 
 # ---------------------------------------------------------------------------------------------- space
-def _filter2d(x: Tensor, weight: Tensor, border: str) -> Tensor:
-    """Correlate ``(..., H, W)`` with ``C`` kernels ``(C, kh, kw)``; output ``(..., C, H', W')``."""
+def _filter2d(x: Tensor, weight: Tensor, border: str, taps: list | None = None) -> Tensor:
+    """Correlate ``(..., H, W)`` with ``C`` kernels ``(C, kh, kw)``; output ``(..., C, H', W')``. With
+    ``taps`` (``weight`` as lists), no gradient: shifted slices summed in place (float64 conv2d: 7x slower)"""
     lead = x.shape[:-2]
     flat = x.reshape(-1, 1, *x.shape[-2:])
     kh, kw = weight.shape[-2:]
     mode = BORDERS[border]
     if mode is not None:
         flat = F.pad(flat, (kw // 2, kw // 2, kh // 2, kh // 2), mode=mode)
-    out = F.conv2d(flat, weight.to(x).unsqueeze(1))
+    if taps is None or (flat.requires_grad and torch.is_grad_enabled()):
+        out = F.conv2d(flat, weight.to(x).unsqueeze(1))  # its backward: one transposed convolution
+    else:
+        h, w = flat.shape[-2] - kh + 1, flat.shape[-1] - kw + 1
+        out = flat.new_zeros(flat.shape[0], len(taps), h, w)
+        for c, kernel in enumerate(taps):
+            for i, j, v in ((i, j, v) for i, row in enumerate(kernel) for j, v in enumerate(row) if v):
+                out[:, c].add_(flat[:, 0, i : i + h, j : j + w], alpha=v)
     return out.reshape(*lead, *out.shape[1:])
 
 
@@ -312,6 +320,7 @@ class _SpatialOperator(nn.Module):
         self.size, self.border = size, border
         self.register_buffer("kernels", kernels.clone(), persistent=False)
         self._factors = [_separable_factors(k) for k in kernels]
+        self._taps = kernels.tolist()  # the direct route's shifted slices (see _filter2d)
         n = kernels.shape[-1]
         self.separable = all(2 * n * len(f) < n * n for f in self._factors)
 
@@ -322,7 +331,7 @@ class _SpatialOperator(nn.Module):
 
     def _filter(self, u: Tensor) -> Tensor:
         if not self.separable:
-            return _filter2d(u, self.kernels, self.border)
+            return _filter2d(u, self.kernels, self.border, self._taps)
         mode, r = BORDERS[self.border], self.support // 2
         if mode is not None:
             u = F.pad(u.reshape(-1, 1, *u.shape[-2:]), (r, r, r, r), mode=mode).reshape(

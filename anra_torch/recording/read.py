@@ -11,9 +11,18 @@ resampled and said so, region, calibration, out-of-range samples masked).
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
-from anra_torch.video import ROI, CalibrationTable, PathLike, Video, lazy_video, prepare_video
+from anra_torch.video import (
+    ROI,
+    CalibrationTable,
+    PathLike,
+    SingleFrameError,
+    Video,
+    lazy_video,
+    prepare_video,
+)
 
 __all__ = ["input_record", "open_recording"]
 
@@ -26,6 +35,7 @@ def open_recording(
     roi: ROI | str | None = None,
     calibration: CalibrationTable | PathLike | None = None,
     need_dx: bool = True,
+    need_time: bool = True,
     on_disk_above: int | None = None,
     **objects: float,
 ) -> Video:
@@ -38,6 +48,8 @@ def open_recording(
         roi: analyse only this region ``(x0, y0, width, height)`` px (or ``"X0,Y0,W,H"``).
         calibration: map apparent to true temperatures (a table or a ``true,apparent`` CSV).
         need_dx: require a pixel size (False: the dose features need none).
+        need_time: refuse a single frame, which has no time axis, in one message whether or not ``dt`` is
+            given (False: the dose of one frame held for ``dt`` needs none).
         on_disk_above: leave a ``.npy`` / uncompressed ``.npz`` / FLIR sequence of more pixel values than
             this on disk (0: always; None: never). A region or a calibration always loads the recording.
         **objects: a FLIR recording's object parameters replacing the file's (``emissivity``,
@@ -51,8 +63,33 @@ def open_recording(
         ``frames`` ``(T, H, W)``.
 
     Raises:
-        ValueError: an unreadable file, missing spacing, a bad region or calibration (one line).
+        ValueError: an unreadable file, missing spacing, a bad region or calibration, a single frame with
+            ``need_time`` (one line).
     """
+    single = ValueError(
+        f"{Path(path)}: a single frame has no time axis; this needs frames over time (a video)"
+    )
+    try:
+        video = _open(path, dt, dx, roi, calibration, need_dx, on_disk_above, objects)
+    except SingleFrameError:
+        if need_time:
+            raise single from None
+        raise
+    if need_time and video.frames.shape[0] == 1:
+        raise single
+    return video
+
+
+def _open(
+    path: PathLike,
+    dt: float | None,
+    dx: float | None,
+    roi: ROI | str | None,
+    calibration: CalibrationTable | PathLike | None,
+    need_dx: bool,
+    on_disk_above: int | None,
+    objects: dict[str, float],
+) -> Video:
     if on_disk_above is not None and roi is None and calibration is None:
         lazy = lazy_video(path, dt=dt, dx=dx, **objects)
         if lazy is not None and math.prod(lazy.frames.shape) > on_disk_above:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from anra_torch.checks import write_text
 from anra_torch.report.figures import colormap, format_pm, import_matplotlib, mm_extent, save_figure
 from anra_torch.tissue import DepthFeatures
 
@@ -135,6 +136,4 @@ def write_depth_report(
     ]
     for key in ("parameters_from", "absorption", "geometry", "model", "misfit", "volumetric", "message"):
         lines.append(f"| {key} | {record.get(key)} |")
-    path = out / "depth.md"
-    path.write_text("\n".join(lines) + "\n")
-    return path
+    return write_text(out / "depth.md", "\n".join(lines) + "\n")

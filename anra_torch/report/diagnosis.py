@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from anra_torch.checks import write_text
 from anra_torch.effects import EFFECTS
 from anra_torch.report.figures import colormap, import_matplotlib, mm_extent, save_figure
 from anra_torch.selection import diagnose_terms
@@ -214,9 +215,7 @@ def write_diagnosis_report(
         *_figure_sections(video, when, drawn),
         *(_source_map_section(video, gain, source_map) if source_map is not None else []),
     ]
-    report = out / "report.md"
-    report.write_text("\n".join(lines), encoding="utf-8")
-    return report
+    return write_text(out / "report.md", "\n".join(lines))
 
 
 def _rows(video: Video, diagnosis: Any, gain: Any) -> list[tuple[str, str]]:

@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from anra_torch.balance import MatchedFilters
+from anra_torch.checks import write_text
 from anra_torch.estimation import ANRAEstimator, ANRAResult
 from anra_torch.layers import RTCAttention
 from anra_torch.report.figures import colormap, format_pm, import_matplotlib, mm_extent, save_figure
@@ -266,9 +267,7 @@ def write_estimate_report(
         "than the band: the noise of consecutive time derivatives largely cancels in the global sums.",
         "",
     ]
-    report = out / "report.md"
-    report.write_text("\n".join(lines), encoding="utf-8")
-    return report
+    return write_text(out / "report.md", "\n".join(lines))
 
 
 def _check_inputs(video: Video, result: ANRAResult) -> None:

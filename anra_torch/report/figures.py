@@ -10,6 +10,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from anra_torch.checks import atomic_output
+
 __all__ = ["colormap", "format_pm", "import_matplotlib", "mm_extent", "save_figure"]
 
 DPI = 110
@@ -56,9 +58,10 @@ def mm_extent(h: int, w: int, dx: float) -> tuple[float, float, float, float]:
 
 
 def save_figure(fig: Any, canvas_cls: Any, path: Path) -> None:
-    """Render ``fig`` on a new ``canvas_cls`` canvas and write it to ``path`` at :data:`DPI`."""
+    """Render ``fig`` on a new ``canvas_cls`` canvas and write it to ``path`` at :data:`DPI` (atomically)."""
     canvas_cls(fig)
-    fig.savefig(path, dpi=DPI)
+    with atomic_output(path) as temp:
+        fig.savefig(temp, dpi=DPI)
 
 
 def colormap(name: str) -> Any:

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from anra_torch.checks import write_text
 from anra_torch.report.figures import format_pm, import_matplotlib, save_figure
 from anra_torch.video import Video, hot_spot_signal, measured_frames
 
@@ -136,6 +137,4 @@ def write_phase_report(directory: str | Path, video: Video, phases: list[Any]) -
                 video.unit,
             )
             figures.append(f"![{p.name}: measured, forecasts and residuals]({png})")
-    path = out / "phases.md"
-    path.write_text("\n".join([*lines, "", *figures, ""]))
-    return path
+    return write_text(out / "phases.md", "\n".join([*lines, "", *figures, ""]))

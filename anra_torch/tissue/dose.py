@@ -19,9 +19,9 @@ How a sampled frame history ``T_0 .. T_{N-1}`` (period ``dt``) becomes ``T(t)``,
   step histories: 600 frames at 43 C with ``dt = 1 s`` give 10.0 min.
 * ``"linear"``: ``T(t)`` is the piecewise-linear interpolant of the frames, lasting ``(N - 1) dt``.
   CEM43 and the time above a threshold are integrated exactly on each segment (closed forms, the
-  segment split where it crosses 43 C or the threshold); Omega by composite 8-node Gauss-Legendre with
-  each segment cut into pieces over which ``Ea / (R_gas T_K)`` changes by at most 1 (relative error
-  below 1e-12 per piece).
+  segment split where it crosses 43 C or the threshold); Omega by the closed form of
+  ``integral exp(-Ea / (R_gas T_K)) dT_K`` (an asymptotic series in ``R_gas T_K / Ea``, relative error
+  below 1e-9 up to ``T_K = 0.02 Ea / R_gas``, 1237 C with :data:`SKIN`; beyond, composite Gauss-Legendre).
 
 Non-finite samples (dropped frames, masked pixels) contribute nothing: with ``"hold"`` their frame, with
 ``"linear"`` the segments they end. :func:`count_masked` says how many there were.
@@ -32,6 +32,7 @@ Computation is in float64 whatever the input dtype; gradients flow to the temper
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,10 +69,10 @@ _IMPLAUSIBLE_CELSIUS = 200.0
 i.e. colder than -73 C) was given the wrong unit: living tissue is neither."""
 
 _F64 = torch.float64
-_GL_NODES, _GL_WEIGHTS = (
-    torch.tensor(v, dtype=_F64, device="cpu") for v in np.polynomial.legendre.leggauss(8)
-)
+_GL = tuple(v.tolist() for v in np.polynomial.legendre.leggauss(8))  # nodes, weights on [-1, 1]
 _MAX_EXPONENT_STEP = 1.0  # largest change of Ea / (R T) over one Gauss-Legendre piece
+_SERIES_TERMS = 10  # terms of the Arrhenius antiderivative's series: relative error 11! y^10
+_SERIES_REACH = 0.02  # ... used up to T_K = 0.02 Ea / R_gas (4e-10; 1237 C with the skin constants)
 
 
 @dataclass(frozen=True)
@@ -159,9 +160,11 @@ def to_celsius(temperatures: Tensor, units: str = "C") -> Tensor:
     if units not in UNITS:
         raise ValueError(f"units must be one of {', '.join(map(repr, UNITS))}, got {units!r}")
     x = temperatures.to(_F64)
-    finite = x.detach()[torch.isfinite(x.detach())]
-    if finite.numel():
-        low, high = float(finite.min()), float(finite.max())
+    values = x.detach()
+    finite = torch.isfinite(values)
+    if bool(finite.any()):
+        low = float(torch.where(finite, values, torch.inf).amin())
+        high = float(torch.where(finite, values, -torch.inf).amax())
         zero = -KELVIN_AT_ZERO_CELSIUS if units == "C" else 0.0
         other = "K" if units == "C" else "C"
         if low < zero:
@@ -205,28 +208,43 @@ def _prepare(temperatures: object, dt: object, units: str, rule: str) -> tuple[T
     return to_celsius(x, units), _as_dt(dt, x.shape[0], x.device), shape
 
 
-def _segments(x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Segment ends ``(B, T-1, P)`` with non-finite segments set to 43 and flagged False."""
-    start, end = x[:, :-1], x[:, 1:]
-    ok = torch.isfinite(start) & torch.isfinite(end)
-    return torch.where(ok, start, 43.0), torch.where(ok, end, 43.0), ok
+def _frames(x: Tensor, rule: str, finite: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """Histories with masked samples at 43 C (finite, so that no branch makes a NaN) and the weights (1 or 0)
+    of the frames (``"hold"``) or segments (``"linear"``) that count."""
+    finite = torch.isfinite(x) if finite is None else finite
+    keep = finite if rule == "hold" else finite[:, :-1] & finite[:, 1:]
+    return torch.nan_to_num(x, nan=43.0, posinf=43.0, neginf=43.0), keep.to(_F64)
 
 
-def _phi(z: Tensor) -> Tensor:
-    """``expm1(z) / z`` with its limit 1 at 0."""
-    small = z.abs() < 1e-12
-    return torch.where(small, 1.0 + 0.5 * z, torch.expm1(z) / torch.where(small, 1.0, z))
+Step = Callable[..., Tensor]
+
+
+def _stepper(x: Tensor) -> Step:
+    """``step(t, "mul", y)``: ``t.mul_(y)`` where no gradient is tracked through ``x`` (a pass over memory,
+    ~4x faster than a fresh video-sized float64 tensor on CPU), ``t.mul(y)`` otherwise. Only for
+    temporaries the caller made itself."""
+    inplace = not (torch.is_grad_enabled() and x.requires_grad)
+
+    def step(t: Tensor, name: str, *args: object) -> Tensor:
+        return getattr(t, name + "_")(*args) if inplace else getattr(t, name)(*args)
+
+    return step
+
+
+def _divided(change: Tensor, rise: Tensor, limit: Tensor, scale: float, step: Step) -> Tensor:
+    """``change / rise`` where ``|rise|`` is well above ``scale``, ``limit`` (its value as ``rise -> 0``)
+    well below: ``(change rise + scale^2 limit) / (rise^2 + scale^2)``, smooth, without a branch. Consumes
+    ``change`` and ``limit``."""
+    square = scale * scale
+    top = step(step(change, "mul", rise), "add", step(limit, "mul", square))
+    return step(top, "div", step(rise * rise, "add", square))
 
 
 # ------------------------------------------------------------------------------------------ CEM43
 CEM43_R: tuple[float, float] = (0.5, 0.25)
 """Sapareto-Dewey ``R`` at or above 43 C and below it."""
 _LOG_R_HIGH, _LOG_R_LOW = -math.log(CEM43_R[0]), -math.log(CEM43_R[1])  # R^(43 - T) = exp(c (T - 43))
-
-
-def _cem_rate(x: Tensor) -> Tensor:
-    """``R^(43 - T)`` for T in Celsius."""
-    return torch.exp(_log_r(x) * (x - 43.0))
+_CEM_STEP = 1e-5  # K: segments flatter than this take the mean of their end rates (error below 1e-10)
 
 
 def _log_r(x: Tensor) -> Tensor:
@@ -257,32 +275,121 @@ def cem43(temperatures: Tensor, dt: float | Tensor, *, units: str = "C", rule: s
         >>> float(cem43(torch.full((300,), 44.0), 1.0))  # 5 min at 44 C
         10.0
     """
-    x, step, shape = _prepare(temperatures, dt, units, rule)
+    x, period, shape = _prepare(temperatures, dt, units, rule)
+    return (_cem43(*_frames(x, rule), rule) * period[:, 0] / 60.0).reshape(shape)
+
+
+def _cem43(x: Tensor, weights: Tensor, rule: str, rise: Tensor | None = None) -> Tensor:
+    """CEM43 seconds per unit ``dt`` of Celsius histories ``(B, T, P)`` (see :func:`_frames`; ``rise`` the
+    segments' ``x[:, 1:] - x[:, :-1]`` when known)."""
+    step = _stepper(x)
+    c = step(step((x >= 43.0).to(_F64), "mul", _LOG_R_HIGH - _LOG_R_LOW), "add", _LOG_R_LOW)  # -ln R
+    rate = step(step(x - 43.0, "mul", c), "exp")  # R^(43 - T)
     if rule == "hold":
-        rate = torch.where(torch.isfinite(x), _cem_rate(torch.nan_to_num(x, nan=43.0)), 0.0)
-        seconds = (rate * step).sum(1)
-    else:
-        t0, t1, ok = _segments(x)
-        high0, high1 = t0 >= 43.0, t1 >= 43.0
-        c = _log_r(t0)
-        # Same side of 43 C: exp(c x0) * expm1(c (x1 - x0)) / (c (x1 - x0)), stable for x1 ~ x0.
-        same = _cem_rate(t0) * _phi(c * (t1 - t0))
-
-        def antiderivative(v: Tensor) -> Tensor:  # continuous, 0 at 43 C
-            cv = _log_r(v)
-            return torch.expm1(cv * (v - 43.0)) / cv
-
-        span = torch.where(high0 == high1, 1.0, t1 - t0)  # crossing segments never have t1 == t0
-        crossing = (antiderivative(t1) - antiderivative(t0)) / span
-        mean_rate = torch.where(high0 == high1, same, crossing)
-        seconds = torch.where(ok, mean_rate, 0.0).sum(1) * step[:, 0]
-    return (seconds / 60.0).reshape(shape)
+        return step(rate, "mul", weights).sum(1)
+    # The antiderivative (rate - 1) / c is continuous (0 at 43 C): each segment's mean rate is its change
+    # over the segment's rise, the constant part (1 / c) changing only on segments that cross 43 C.
+    inverse = c.reciprocal()
+    scaled = rate * inverse
+    change = step(step(scaled[:, 1:] - scaled[:, :-1], "sub", inverse[:, 1:]), "add", inverse[:, :-1])
+    rise = x[:, 1:] - x[:, :-1] if rise is None else rise
+    middle = step(rate[:, 1:] + rate[:, :-1], "mul", 0.5)
+    mean = _divided(change, rise, middle, _CEM_STEP, step)
+    return step(mean, "mul", weights).sum(1)
 
 
 # --------------------------------------------------------------------------------------- Arrhenius
+_OMEGA_STEP = 1e-5  # K: segments flatter than this take the slope of P at their start (error 1e-10)
+
+
 def _check_constants(constants: ArrheniusConstants) -> None:
     if not isinstance(constants, ArrheniusConstants):
         raise TypeError(f"constants must be ArrheniusConstants, got {type(constants).__name__}")
+
+
+def _omega_series(kelvin: Tensor, theta: float, terms: int, step: Step) -> Tensor:
+    """``S(y) = sum_n (n + 1)! (-y)^n`` at ``y = T_K / theta`` (Horner), ``terms`` terms."""
+    minus_y = kelvin / -theta
+    total = step(minus_y * float(math.factorial(terms)), "add", float(math.factorial(terms - 1)))
+    for n in range(terms - 2, 0, -1):
+        total = step(step(total, "mul", minus_y), "add", float(math.factorial(n)))
+    return total
+
+
+def _series_terms(hottest: float, theta: float) -> int:
+    """Fewest terms of :func:`_omega_series` whose error ``(N + 1)! y^N`` is below 1e-12 up to ``hottest`` K
+    (8 for the skin constants up to 100 C), at most :data:`_SERIES_TERMS`."""
+    y = hottest / theta
+    for terms in range(2, _SERIES_TERMS):
+        if math.factorial(terms + 1) * y**terms < 1e-12:
+            return terms
+    return _SERIES_TERMS
+
+
+def _omega_segments(x: Tensor, constants: ArrheniusConstants, terms: int, rise: Tensor | None) -> Tensor:
+    """Mean Arrhenius rate (1/s) over the linear segments of Celsius histories ``(B, T, P)``,
+    ``(B, T - 1, P)``, exact to rounding (``rise`` the segments' ``x[:, 1:] - x[:, :-1]`` when known).
+
+    With ``K`` the kelvin temperature and ``theta = Ea / R_gas``, ``integral exp(-theta / K) dK =
+    exp(-theta / K) P(K)``, ``P(K) = K^2 / theta S(K / theta)`` (asymptotic series, relative error
+    ``(N + 1)! y^N`` with ``N`` terms). The mean over a segment from ``K0`` to ``K1 = K0 + d`` is
+    ``(F(K1) - F(K0)) / d``, written without cancellation as ``r0 ((K1 / K0) S(y1) phi(lam) + (P1 - P0) / d)``
+    with ``r0`` the rate at ``K0``, ``lam = theta / K0 - theta / K1`` the change of the exponent,
+    ``phi(z) = expm1(z) / z``, and ``(P1 - P0) / d -> P'(K) = 1 - S(y)`` as ``d -> 0``.
+    """
+    step = _stepper(x)
+    log_a = math.log(constants.frequency)
+    theta = constants.activation_energy / GAS_CONSTANT  # K
+    kelvin = x + KELVIN_AT_ZERO_CELSIUS  # per frame: shared by the segments either side
+    exponent = step(kelvin.reciprocal(), "mul", theta)
+    rate = step(log_a - exponent, "exp")
+    series = _omega_series(kelvin, theta, terms, step)
+    antiderivative = step(step(kelvin * kelvin, "mul", series), "div", theta)  # P(K)
+    lam = exponent[:, :-1] - exponent[:, 1:]
+    # phi(lam) = expm1(lam) / lam, blended into 1 + lam / 2 below |lam| ~ 1e-50 (flat segments: lam = 0).
+    phi = _divided(torch.expm1(lam), lam, step(lam * 0.5, "add", 1.0), 1e-50, step)
+    growth = step(step(kelvin[:, 1:] / kelvin[:, :-1], "mul", series[:, 1:]), "mul", phi)
+    change = antiderivative[:, 1:] - antiderivative[:, :-1]
+    rise = x[:, 1:] - x[:, :-1] if rise is None else rise
+    slope = _divided(change, rise, 1.0 - series[:, :-1], _OMEGA_STEP, step)
+    return step(step(growth, "add", slope), "mul", rate[:, :-1])
+
+
+def _omega_quadrature(t0: Tensor, t1: Tensor, constants: ArrheniusConstants) -> Tensor:
+    """Mean Arrhenius rate over linear segments by composite 8-node Gauss-Legendre, each segment cut into
+    pieces over which ``Ea / (R_gas T_K)`` changes by at most 1: for temperatures beyond the series'
+    reach (:func:`_omega_segments`)."""
+    log_a = math.log(constants.frequency)
+    theta = constants.activation_energy / GAS_CONSTANT  # K
+    k0, k1 = t0 + KELVIN_AT_ZERO_CELSIUS, t1 + KELVIN_AT_ZERO_CELSIUS
+    pieces = torch.ceil(theta * (1.0 / k0 - 1.0 / k1).abs() / _MAX_EXPONENT_STEP).clamp_min(1).flatten()
+    start, delta = t0.flatten(), (t1 - t0).flatten()
+    total = torch.zeros_like(start)
+    gl_nodes, gl_weights = (torch.tensor(v, dtype=_F64, device=t0.device) for v in _GL)
+    nodes, weights = 0.5 * (gl_nodes + 1.0), 0.5 * gl_weights  # on [0, 1]
+    # Piece j of every segment that has more than j pieces; the active set shrinks quickly.
+    active = torch.arange(start.numel(), device=start.device)
+    j = 0
+    while active.numel():
+        n = pieces[active]
+        left = (j + nodes[:, None]) / n  # (8, A) fractions of the segment
+        celsius = start[active] + delta[active] * left
+        rate = torch.exp(log_a - theta / (celsius + KELVIN_AT_ZERO_CELSIUS))
+        total[active] += (weights[:, None] * rate).sum(0) / n
+        j += 1
+        active = active[pieces[active] > j]
+    return total.reshape(t0.shape)
+
+
+def _omega_linear(x: Tensor, constants: ArrheniusConstants, rise: Tensor | None = None) -> Tensor:
+    """Mean Arrhenius rate over the linear segments of Celsius histories ``(B, T, P)``: the closed form
+    where its series is exact, else quadrature (above :data:`_SERIES_REACH` of ``Ea / R_gas`` in kelvin: no
+    tissue with published constants)."""
+    theta = constants.activation_energy / GAS_CONSTANT
+    hottest = float(x.detach().amax()) + KELVIN_AT_ZERO_CELSIUS if x.numel() else theta * _SERIES_REACH
+    if hottest > _SERIES_REACH * theta:
+        return _omega_quadrature(x[:, :-1], x[:, 1:], constants)
+    return _omega_segments(x, constants, _series_terms(hottest, theta), rise)
 
 
 def arrhenius_omega(
@@ -318,35 +425,21 @@ def arrhenius_omega(
         64.15
     """
     _check_constants(constants)
-    x, step, shape = _prepare(temperatures, dt, units, rule)
-    log_a = math.log(constants.frequency)
-    theta = constants.activation_energy / GAS_CONSTANT  # K
+    x, period, shape = _prepare(temperatures, dt, units, rule)
+    return (_omega(*_frames(x, rule), constants, rule) * period[:, 0]).reshape(shape)
 
-    def rate(celsius: Tensor) -> Tensor:
-        return torch.exp(log_a - theta / (celsius + KELVIN_AT_ZERO_CELSIUS))
 
+def _omega(
+    x: Tensor, weights: Tensor, constants: ArrheniusConstants, rule: str, rise: Tensor | None = None
+) -> Tensor:
+    """Omega per unit ``dt`` of Celsius histories ``(B, T, P)`` (see :func:`_frames`)."""
+    step = _stepper(x)
     if rule == "hold":
-        values = torch.where(torch.isfinite(x), rate(torch.nan_to_num(x, nan=0.0)), 0.0)
-        return (values * step).sum(1).reshape(shape)
-    t0, t1, ok = _segments(x)
-    k0, k1 = t0 + KELVIN_AT_ZERO_CELSIUS, t1 + KELVIN_AT_ZERO_CELSIUS
-    pieces = torch.ceil(theta * (1.0 / k0 - 1.0 / k1).abs() / _MAX_EXPONENT_STEP).clamp_min(1)
-    pieces = torch.where(ok, pieces, 0.0).flatten()
-    start, delta = t0.flatten(), (t1 - t0).flatten()
-    total = torch.zeros_like(start)
-    nodes, weights = 0.5 * (_GL_NODES.to(x.device) + 1.0), 0.5 * _GL_WEIGHTS.to(x.device)  # on [0, 1]
-    # Piece j of every segment that has more than j pieces; the active set shrinks quickly.
-    active = torch.nonzero(pieces > 0).flatten()
-    j = 0
-    while active.numel():
-        n = pieces[active]
-        left = (j + nodes[:, None]) / n  # (8, A) fractions of the segment
-        celsius = start[active] + delta[active] * left
-        total[active] += (weights[:, None] * rate(celsius)).sum(0) / n
-        j += 1
-        active = active[pieces[active] > j]
-    mean_rate = total.reshape(t0.shape)
-    return (mean_rate.sum(1) * step[:, 0]).reshape(shape)
+        log_a = math.log(constants.frequency)
+        theta = constants.activation_energy / GAS_CONSTANT
+        exponent = step(step((x + KELVIN_AT_ZERO_CELSIUS).reciprocal(), "mul", -theta), "add", log_a)
+        return step(step(exponent, "exp"), "mul", weights).sum(1)
+    return step(_omega_linear(x, constants, rise), "mul", weights).sum(1)
 
 
 # -------------------------------------------------------------------------------- time above
@@ -373,12 +466,65 @@ def time_above(
     """
     if not (isinstance(threshold, int | float) and math.isfinite(threshold)):
         raise ValueError(f"threshold must be a finite temperature in Celsius, got {threshold!r}")
-    x, step, shape = _prepare(temperatures, dt, units, rule)
+    x, period, shape = _prepare(temperatures, dt, units, rule)
+    return (_above(*_frames(x, rule), (float(threshold),), rule)[0] * period[:, 0]).reshape(shape)
+
+
+def _above(
+    x: Tensor, weights: Tensor, thresholds: tuple[float, ...], rule: str, rise: Tensor | None = None
+) -> list[Tensor]:
+    """Time above each threshold per unit ``dt`` of Celsius histories ``(B, T, P)`` (see :func:`_frames`)."""
+    step = _stepper(x)
     if rule == "hold":
-        above = (torch.isfinite(x) & (x >= threshold)).to(_F64)
-        return (above * step).sum(1).reshape(shape)
-    t0, t1, ok = _segments(x)
-    low, high = torch.minimum(t0, t1), torch.maximum(t0, t1)
-    span = torch.where(high > low, high - low, 1.0)
-    fraction = torch.where(high > low, ((high - threshold) / span).clamp(0, 1), (low >= threshold).to(_F64))
-    return (torch.where(ok, fraction, 0.0).sum(1) * step[:, 0]).reshape(shape)
+        return [step((x >= t).to(_F64), "mul", weights).sum(1) for t in thresholds]
+    rise = x[:, 1:] - x[:, :-1] if rise is None else rise
+    high = torch.maximum(x[:, :-1], x[:, 1:])
+    # The fraction of a segment above t, (high - t) / |rise| clipped to [0, 1]; a flat one is wholly above or
+    # below (1e-30 K, far below a float64 temperature's resolution, settles t itself: above).
+    scale = step(step(rise.abs(), "clamp_min", 1e-30), "reciprocal")
+    scale = step(scale, "mul", weights)
+    return [
+        step(step(step(high - t, "add", 1e-30), "mul", scale), "clamp", 0.0, 1.0).sum(1) for t in thresholds
+    ]
+
+
+# ------------------------------------------------------------------------------------ all doses
+def dose_maps(
+    celsius: Tensor,
+    dt: Tensor,
+    *,
+    thresholds: tuple[float, ...],
+    constants: ArrheniusConstants = SKIN,
+    rule: str = "hold",
+    finite: Tensor | None = None,
+) -> dict[str, Tensor]:
+    """Every dose of checked Celsius histories at once: what :func:`time_above`, :func:`cem43` and
+    :func:`arrhenius_omega` give, sharing one pass over the frames.
+
+    Args:
+        celsius: float64 temperatures in Celsius, non-finite where masked, ``(B, T, H, W)``.
+        finite: the samples that count, ``(B, T, H, W)`` bool (default: the finite ones).
+        dt: frame periods in s, ``(B,)``.
+        thresholds: Celsius thresholds of the times above.
+        constants: Arrhenius constants.
+        rule: ``"hold"`` or ``"linear"``.
+
+    Returns:
+        ``time_above_<t>`` (s, one per threshold, named with ``{t:g}``), ``cem43_minutes`` and ``omega``,
+        each ``(B, H, W)`` float64.
+
+    Shape:
+        ``celsius`` ``(B, T, H, W)``; maps ``(B, H, W)``.
+    """
+    b, t, h, w = celsius.shape
+    mask = None if finite is None else finite.reshape(b, t, h * w)
+    x, weights = _frames(celsius.reshape(b, t, h * w), rule, mask)
+    rise = x[:, 1:] - x[:, :-1] if rule == "linear" else None  # shared by every dose
+    period = dt.to(_F64).reshape(b, 1)
+    maps = {
+        f"time_above_{t:g}": (a * period).reshape(b, h, w)
+        for t, a in zip(thresholds, _above(x, weights, thresholds, rule, rise), strict=True)
+    }
+    maps["cem43_minutes"] = (_cem43(x, weights, rule, rise) * period / 60.0).reshape(b, h, w)
+    maps["omega"] = (_omega(x, weights, constants, rule, rise) * period).reshape(b, h, w)
+    return maps

@@ -36,9 +36,9 @@ tissue is assumed to start at the temperature the loss pulls towards). ``a`` and
 jointly, with the errors-in-variables correction of ``L``, on the frames after each pixel's peak (no
 source acts there in a heating-then-cooling history) within a ``window``; the source is what the balance
 leaves over the whole video. The standard error of each window's ``b``
-(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the measured white noise propagated through the same
-filters and the window's normal equations (first order, :data:`LOSS_REPLICATES` seeded noise videos:
-about 25 % relative precision).
+(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the white noise the estimator measured, propagated
+through the same filters and the window's normal equations (first order, without noise copies:
+:mod:`anra_torch.balance.loss_error`).
 
 Extremes: ``diffusivity_max`` is taken over confident windows only (``confidence >=``
 :data:`MIN_CONFIDENCE`), ``loss_rate_max`` and ``source_max`` over those whose ``b`` is also measured:
@@ -69,8 +69,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from anra_torch.balance import LOSS_REPLICATES, MatchedFilters, estimate_noise_sd, fit_loss_windows
-from anra_torch.checks import as_spacing, as_video, join_messages, one_line
+from anra_torch.balance import MatchedFilters, fit_loss_windows
+from anra_torch.checks import as_spacing, as_video, atomic_output, join_messages, one_line
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.layers import GaussianSmoothing, rtc_attention
 from anra_torch.tissue.depth_features import DEPTH_MAPS, DepthFeatures, depth_features
@@ -81,15 +81,12 @@ from anra_torch.tissue.dose import (
     SKIN,
     UNITS,
     ArrheniusConstants,
-    arrhenius_omega,
-    cem43,
-    time_above,
+    dose_maps,
     to_celsius,
 )
 
 __all__ = [
     "DOSE_MAPS",
-    "LOSS_REPLICATES",
     "MAPS",
     "MAX_LOSS_ERROR",
     "MIN_CONFIDENCE",
@@ -410,15 +407,18 @@ class TissueFeatures(nn.Module):
         """Peak, times above, CEM43 and Omega of the denoised history: no spatial filter needed."""
         h, w = filled.shape[-2:]
         history = self.history_smoother(filled) if self.history_smoothing(h, w) else filled
-        history_masked = torch.where(finite, history, torch.nan)
-        seen = finite.any(1)
-        maps = {"peak_temperature": history.masked_fill(~finite, -torch.inf).amax(1)}
-        maps["peak_temperature"] = torch.where(seen, maps["peak_temperature"], fill)
-        for t in self.thresholds:
-            maps[f"time_above_{t:g}"] = time_above(history_masked, dt, t, rule=self.rule)
-        maps["cem43_minutes"] = cem43(history_masked, dt, rule=self.rule)
-        maps["omega"] = arrhenius_omega(history_masked, dt, constants=self.constants, rule=self.rule)
-        return maps
+        complete = bool(finite.all())  # the common case: no sample masked, no masked copy to make
+        peak = (history if complete else history.masked_fill(~finite, -torch.inf)).amax(1)
+        maps = {"peak_temperature": peak if complete else torch.where(finite.any(1), peak, fill)}
+        doses = dose_maps(
+            history,
+            dt,
+            thresholds=self.thresholds,
+            constants=self.constants,
+            rule=self.rule,
+            finite=None if complete else finite,
+        )
+        return maps | doses
 
     def _spatial(self, video: Tensor, filled: Tensor, dt: Tensor, dx: Tensor | None) -> dict | str:
         """The rate and ANRA maps, the estimator's result and the loss rate's standard error; or why the
@@ -442,7 +442,7 @@ class TissueFeatures(nn.Module):
         field_a = torch.where(result.confidence > 0, result.field, global_a.view(b, 1, 1))
         maps["diffusivity"] = torch.nan_to_num(field_a, nan=0.0)
         maps["confidence"] = result.confidence
-        noise_sd = estimate_noise_sd(filled).reshape(b).to(_F64)
+        noise_sd = result.noise_sd.reshape(b).to(_F64)  # measured once, by the estimator
         fit = fit_loss_windows(self.filters, terms, maps["diffusivity"], noise_sd, dt, dx, window=self.window)
         maps["loss_rate"], maps["source"] = fit.loss_rate, fit.source
         return {"maps": maps, "result": result, "loss_rate_std_error": fit.std_error}
@@ -566,25 +566,28 @@ def feature_summary(
 
 
 def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: float | None) -> str:
-    """Write the maps of one video to ``.npz``: one ``(H, W)`` array per map computed, ``masked``, ``dt``,
-    ``dx`` (when known) and ``units_<name>`` strings; with depth maps also ``depth_mm`` ``(Z,)`` and the
-    profiles ``peak_temperature_depth`` (C), ``peak_temperature_depth_std`` (K), ``omega_depth`` and
-    ``cem43_depth_minutes``, each ``(Z, H, W)``. Returns the path written (``.npz`` appended when missing).
+    """Write the maps of one video to ``.npz`` atomically: one ``(H, W)`` array per map computed, ``masked``,
+    ``dt``, ``dx`` (when known) and ``units_<name>`` strings; with depth maps also ``depth_mm`` ``(Z,)`` and
+    the profiles ``peak_temperature_depth`` (C), ``peak_temperature_depth_std`` (K), ``omega_depth`` (1) and
+    ``cem43_depth_minutes`` (min), each ``(Z, H, W)`` with its ``units_<name>`` too. Returns the path written
+    (``.npz`` appended when missing).
 
     Raises:
         OSError: the file cannot be written.
     """
-
     target = str(path) if str(path).endswith(".npz") else f"{path}.npz"
     arrays = {name: m.detach().cpu().numpy() for name, m in maps.maps.items()}
     arrays["masked"] = maps.masked.cpu().numpy()
-    units = {f"units_{name}": np.array(maps.units[name]) for name in maps.maps}
+    units = {name: maps.units[name] for name in maps.maps}
     spacing = {"dt": np.array(dt)} | ({} if dx is None else {"dx": np.array(dx)})
     profiles = None if maps.depth is None else maps.depth.profiles
     if profiles is not None:
-        names = {"peak": "peak_temperature_depth", "peak_std": "peak_temperature_depth_std"}
-        names |= {"omega": "omega_depth", "cem43": "cem43_depth_minutes"}
-        arrays |= {name: getattr(profiles, key)[0].detach().cpu().numpy() for key, name in names.items()}
+        names = {"peak": ("peak_temperature_depth", "C"), "peak_std": ("peak_temperature_depth_std", "K")}
+        names |= {"omega": ("omega_depth", "1"), "cem43": ("cem43_depth_minutes", "min")}
+        arrays |= {name: getattr(profiles, key)[0].detach().cpu().numpy() for key, (name, _) in names.items()}
         arrays["depth_mm"] = profiles.depths.cpu().numpy()
-    np.savez_compressed(target, **spacing, **arrays, **units)
+        units |= dict(names.values()) | {"depth_mm": "mm"}
+    strings = {f"units_{name}": np.array(unit) for name, unit in units.items()}
+    with atomic_output(target) as temp, open(temp, "wb") as handle:
+        np.savez_compressed(handle, **spacing, **arrays, **strings)
     return target

@@ -25,10 +25,10 @@ from anra_torch.video.calibration import (
     load_calibration,
     to_unit,
 )
-from anra_torch.video.core import PathLike, RawVideo, Truth, Video
+from anra_torch.video.core import PathLike, RawVideo, SingleFrameError, Truth, Video
 from anra_torch.video.formats import FOLDER_REGISTRY, LAZY_REGISTRY, RADIOMETRIC, REGISTRY
 from anra_torch.video.formats.flir_csv import is_flir_csv
-from anra_torch.video.formats.flir_fff import ObjectParameters
+from anra_torch.video.formats.flir_objects import ObjectParameters
 from anra_torch.video.formats.flir_seq import FLIRFrames, SequenceIndex, index_sequence
 from anra_torch.video.formats.numpy_formats import save_npz
 from anra_torch.video.lazy import FrameSource, LazyFrames, decimated, lazy_npz_fields, lazy_video
@@ -55,6 +55,7 @@ __all__ = [
     "RawVideo",
     "STEPS",
     "SequenceIndex",
+    "SingleFrameError",
     "TIMESTAMPS",
     "Truth",
     "Video",

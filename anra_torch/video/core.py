@@ -17,10 +17,16 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["PathLike", "RawVideo", "Truth", "Video", "positive_spacing", "stack_frames"]
+__all__ = ["PathLike", "RawVideo", "SingleFrameError", "Truth", "Video", "positive_spacing", "stack_frames"]
 
 PathLike = str | os.PathLike[str]
 UNIFORM_RTOL = 1e-3  # steps within 0.1 % of their mean count as uniform
+
+
+class SingleFrameError(ValueError):
+    """A recording of one frame where a time axis was needed (a frame period to read, frames to differentiate
+    in time): :func:`anra_torch.recording.open_recording` words it for what the caller wanted."""
+
 
 TRUTH_KEYS = ("a_true", "effects", "noise_sd", "seed")
 """The ``.npz`` keys a simulation stores its truth under (``anra simulate``, ``to_npz``)."""

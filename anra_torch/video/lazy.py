@@ -28,7 +28,7 @@ from torch import Tensor
 from anra_torch.checks import uniform_step
 from anra_torch.video.core import UNIFORM_RTOL, Truth, Video
 from anra_torch.video.formats import LAZY_REGISTRY
-from anra_torch.video.formats.flir_fff import ObjectParameters
+from anra_torch.video.formats.flir_objects import ObjectParameters
 
 __all__ = [
     "FrameSource",

@@ -27,9 +27,17 @@ import torch
 from torch import Tensor
 
 from anra_torch.checks import in_range_values, uniform_step
-from anra_torch.video.core import UNIFORM_RTOL, Loader, PathLike, RawVideo, Video, positive_spacing
+from anra_torch.video.core import (
+    UNIFORM_RTOL,
+    Loader,
+    PathLike,
+    RawVideo,
+    SingleFrameError,
+    Video,
+    positive_spacing,
+)
 from anra_torch.video.formats import FOLDER_REGISTRY, RADIOMETRIC, REGISTRY
-from anra_torch.video.formats.flir_fff import ObjectParameters
+from anra_torch.video.formats.flir_objects import ObjectParameters
 from anra_torch.video.resample import resample_uniform
 
 __all__ = ["TIMESTAMPS", "load_video"]
@@ -64,6 +72,8 @@ def _folder_loader_for(path: Path) -> Loader:
             f"{path}: is a directory without frame files; expected one file per frame "
             f"({', '.join(FOLDER_REGISTRY)}) or a video file"
         )
+    if ".fff" in kinds:  # a camera's raw frames: text beside them (ExifTool's dumps, notes) is no frame
+        kinds = {".fff"}
     loaders = {FOLDER_REGISTRY[k] for k in kinds}
     if len(loaders) > 1:
         raise ValueError(
@@ -115,7 +125,10 @@ def _step_of(t: Tensor, stored: Any, path: Path, timestamps: str, resolution: fl
     """The frame period (s) of timestamps ``t`` (uniform within ``resolution`` s, the clock's) and whether
     to resample them; a ``dt`` stored next to uniform timestamps must agree with their step."""
     if t.numel() < 2:
-        raise ValueError(f"{path}: a single frame has no frame period; pass dt in s (--dt)")
+        raise SingleFrameError(
+            f"{path}: a single frame has no time axis, so no frame period to read; pass dt in s (--dt) where "
+            "one frame is meant"
+        )
     resample = False
     try:
         step = uniform_step(t, rtol=UNIFORM_RTOL, atol=resolution)

@@ -348,3 +348,18 @@ def test_batch_message_column_keeps_warnings(tmp_path: Path, monkeypatch: pytest
     old += ["gain", "noise_floor", "base_rmse", "extended_rmse", "roi", "calibration"]
     new = ["message", "input_stamp", "parameters", "explained", "frames_used", "phase"]
     assert list(BATCH_COLUMNS) == [*old, *new]
+
+
+def test_the_table_is_never_an_input(video_folder: Path, tmp_path: Path) -> None:
+    """A table named as an input is refused; one inside a folder of inputs is left out of them."""
+    with pytest.raises(ValueError, match=r"--out .*x\.csv is the input .*x\.csv"):
+        run_batch([video_folder, video_folder / "x.csv"], video_folder / "x.csv")
+    inside = tmp_path / "videos"
+    inside.mkdir()
+    video = paper_video(size=32, extent=32 * 10 / 224, seed=1)
+    save_npz(inside / "v.npz", video.frames[0], dt=video.dt, dx=video.dx)
+    table = inside / "rows.csv"
+    for _ in range(2):  # the second run finds rows.csv in the folder
+        summary = run_batch([inside], table, progress=False)
+        assert summary.total == 1
+    assert [row["path"] for row in read_table(table)] == [str(inside / "v.npz")]

@@ -4,11 +4,13 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+from commands import assert_clean, run_isolated
 from shared_data import DATA as SHARED_DATA
 
 from anra_torch.cli import main
@@ -168,3 +170,81 @@ def test_help_names_the_outputs_and_units(capsys) -> None:
         word in out
         for word in (".npz", ".h5", ".tif", "START:STOP", "X0,Y0,W,H", "degC", "relative humidity in %")
     )
+
+
+def test_an_output_that_is_the_input_is_refused_and_the_input_kept(tmp_path: Path, capsys) -> None:
+    path = save_npz(
+        tmp_path / "same.npz", np.arange(5 * 4 * 4.0).reshape(5, 4, 4), dt=0.1, dx=0.2, a_true=0.2
+    )
+    before = path.read_bytes()
+    for out in (path, tmp_path / "." / "same.npz"):
+        assert main(["convert", str(path), "-o", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and re.search(r"-o .*same\.npz is the input .*same\.npz", err), err
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["same.npz"]
+
+
+FLIPS = (1, 8, 64)
+"""Bits flipped at random places in the bit-flip cases."""
+
+
+def damaged(rng: np.random.Generator, data: bytes, frames: list[bytes]) -> tuple[str, bytes]:
+    """One damage of a recording: empty, cut, frames shuffled, blocks of bytes swapped, bits flipped."""
+    kind = str(rng.choice(["empty", "cut", "cut", "shuffle", "blocks", "flip", "flip", "flip"]))
+    if kind == "empty":
+        return kind, b""
+    if kind == "cut":
+        return kind, data[: int(rng.integers(1, len(data)))]
+    if kind == "shuffle":
+        return kind, b"".join(frames[k] for k in rng.permutation(len(frames)))
+    if kind == "blocks":
+        cuts = np.sort(rng.choice(len(data), size=3, replace=False))
+        a, b, c = (data[: cuts[0]], data[cuts[0] : cuts[1]], data[cuts[1] : cuts[2]])
+        return kind, a + c + b + data[cuts[2] :]
+    array = np.frombuffer(data, dtype=np.uint8).copy()
+    where = rng.integers(0, array.size, size=int(rng.choice(FLIPS)))
+    array[where] ^= (1 << rng.integers(0, 8, size=where.size)).astype(np.uint8)
+    return kind, array.tobytes()
+
+
+def test_fuzzed_flir_files_convert_or_are_refused_in_one_line(tmp_path: Path) -> None:
+    """``anra convert`` on .fff, .seq and .csq files (uint16, PNG and JPEG-LS counts, both byte orders)
+    emptied, cut, shuffled, with blocks swapped or bits flipped: exit 0 or 2, one line naming the file on
+    error, no Python warning; a written file has finite times and spacing, strict JSON metadata, frames
+    whose only non-finite values are NaN and exactly as many as its warning counts; the input untouched,
+    no temporary file left."""
+    rng = np.random.default_rng(int(os.environ.get("FUZZ_SEED", 45)))
+    counts = counts_for(30 + 5 * rng.random((5, 12, 16)), CAMERA)
+    sources = {}
+    for suffix, encoding, order in ((".seq", "uint16", "<"), (".csq", "jpeg-ls", ">"), (".fff", "png", "<")):
+        frames = []
+        for k, c in enumerate(counts if suffix != ".fff" else counts[:1]):
+            cam = Camera(**{**CAMERA.__dict__, "millis": 40 * k})
+            frames.append(simple_frame(c, cam, order=order, encoding=encoding))
+        sources[suffix] = frames
+    codes = {0: 0, 2: 0}
+    for case in range(int(os.environ.get("FUZZ_CASES", 90))):
+        suffix = str(rng.choice(list(sources)))
+        kind, data = damaged(rng, b"".join(sources[suffix]), sources[suffix])
+        path = tmp_path / f"case{case}{suffix}"
+        path.write_bytes(data)
+        out = tmp_path / f"case{case}{rng.choice(['.npz', '.npz', '.h5', '.tif'])}"
+        code, stdout, err, caught = run_isolated(["convert", str(path), "-o", str(out)])
+        label = f"case {case} ({kind} {suffix}): {err}"
+        assert_clean(label, code, stdout, err, caught)
+        codes[code] += 1
+        assert path.read_bytes() == data, label
+        assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], label
+        if code == 2:
+            assert path.name in err and not out.exists(), label
+            continue
+        if out.suffix != ".npz":
+            continue
+        with np.load(out) as written:
+            frames, meta = written["frames"], json.loads(str(written["meta"]), parse_constant=float)
+            assert np.isfinite(written["t"]).all() and not np.isinf(frames).any(), label
+        nan = int(np.isnan(frames).sum())
+        said = [w for w in meta["warnings"] if "samples masked" in w]
+        assert (nan == 0 and not said) or said[0].startswith(f"{nan} samples masked"), label
+    print(f"fuzz convert: {sum(codes.values())} files, exit 0: {codes[0]}, exit 2: {codes[2]}")
+    assert codes[0] >= 15 and codes[2] >= 15, codes

@@ -276,3 +276,20 @@ def test_cli_estimates_a_flir_folder_and_says_it_resampled(capsys: pytest.Captur
     assert out["frames"] == out["phases"][1]["stop_frame"] - out["phases"][1]["start_frame"]
     assert (out["height"], out["width"]) == (60, 70) and out["input"]["roi"] == [30, 20, 70, 60]
     assert out["dt"] == pytest.approx(4.994, abs=1e-3)
+
+
+def test_a_single_frame_has_no_time_axis_with_or_without_dt(tmp_path: Path, capsys) -> None:
+    """One message, whether or not --dt is given: a frame period would not give it a time axis."""
+    frame = save_npz(tmp_path / "frame.npz", np.random.default_rng(0).random((1, 24, 24)), dt=0.1, dx=0.1)
+    np.savez(tmp_path / "stamp.npz", frames=np.ones((1, 24, 24)), t=np.zeros(1), dx=0.1)
+    for argv in (
+        [frame],
+        [frame, "--dt", "0.1"],
+        [tmp_path / "stamp.npz"],
+        [tmp_path / "stamp.npz", "--dt", "1"],
+    ):
+        for command in ("estimate", "diagnose"):
+            assert_one_line_error(
+                run(capsys, command, *argv),
+                r"(frame|stamp)\.npz: a single frame has no time axis; this needs",
+            )

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from commands import run
+from commands import assert_clean, assert_one_line_error, run, run_isolated
 from depth_scenes import beam_recording
 from reference import A_SKIN, EA_SKIN, R_GAS, cem43_constant, omega_constant
 from shared_data import DATA
@@ -274,6 +274,9 @@ def test_depth_maps_json_and_npz(
         assert str(maps[f"units_{name}"]) == "mm"
     z = maps["depth_mm"]
     assert z[0] == 0.0 and maps["peak_temperature_depth"].shape == maps["omega_depth"].shape == (z.size, h, w)
+    profiles = {"depth_mm": "mm", "peak_temperature_depth": "C", "peak_temperature_depth_std": "K"}
+    profiles |= {"omega_depth": "1", "cem43_depth_minutes": "min"}
+    assert {name: str(maps[f"units_{name}"]) for name in profiles} == profiles
     # The same numbers as the library call, and close to the independent simulator's truth.
     expected = depth_features(depth_burn["frames"], depth_burn["result"].dt, depth_burn["result"].dx)
     np.testing.assert_allclose(
@@ -302,3 +305,93 @@ def test_thickness_is_stated(depth_burn: dict, capsys: pytest.CaptureFixture[str
     code, out, err = run(capsys, "features", depth_burn["video"], "--depth", "--thickness", "8", "--json")
     assert (code, err) == (0, "")
     assert json.loads(out)["depth"]["geometry"].startswith("layer of 8 mm")
+
+
+def test_depth_options_are_checked_at_their_argument(
+    depth_burn: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    video = depth_burn["video"]
+    for value in ("0", "-1", "nan", "inf", "thick", "1e300"):
+        assert_one_line_error(
+            run(capsys, "features", video, "--depth", f"--thickness={value}"),
+            rf"argument --thickness: must be a positive number in mm up to 1000, got '{value}'",
+        )
+    assert_one_line_error(
+        run(capsys, "features", video, "--thickness", "2"), r"--thickness .* pass --depth with it$"
+    )
+    afile = tmp_path / "afile"
+    afile.write_text("notes")
+    err = assert_one_line_error(
+        run(capsys, "features", video, "--depth", "--report", afile),
+        r"--report .*afile must be a folder \(DIR\), got an existing file",
+    )
+    assert "Errno" not in err and afile.read_text() == "notes"
+    thin = save_npz(tmp_path / "thin.npz", depth_burn["frames"].numpy()[:, 2:26:2, 2:26:2], dt=0.1, dx=0.4)
+    assert_one_line_error(
+        run(capsys, "features", thin, "--depth", "--thickness", "0.001"),
+        r"thin\.npz: --thickness must be deeper than the deepest depth \(.* mm\), got 0\.001$",
+    )
+    before = Path(video).read_bytes()
+    for out in (video, str(video)[: -len(".npz")]):
+        assert_one_line_error(
+            run(capsys, "features", video, "--out", out), r"--out .*burn\.npz is the input .*burn\.npz"
+        )
+    assert Path(video).read_bytes() == before
+
+
+THICKNESS = ("2", "0.05", "0", "-1", "nan", "inf", "-inf", "1e300", "1001", "1e-300", "abc", "")
+"""--thickness values the depth fuzz draws from."""
+
+
+def test_fuzzed_depth_options_end_cleanly(depth_burn: dict, tmp_path: Path) -> None:
+    """``features --depth`` with drawn --thickness, --report, --out, --dx and --rule on 12 x 12 px views of
+    the beam (one with depth maps, one flagged as volumetric, one without a pixel size, a constant one):
+    exit 0 or 2, one line on error naming the argument or the file, strict JSON, no infinity in a written
+    map, no temporary file left, the input untouched."""
+    rng = np.random.default_rng(45)
+    frames, dt = depth_burn["frames"].numpy(), depth_burn["result"].dt
+    coarse = frames[:, 2:26:2, 2:26:2]  # 12 x 12 px of 0.4 mm: depth maps made (1.7 s)
+    videos = {
+        "beam": save_npz(tmp_path / "beam.npz", coarse, dt=dt, dx=0.4),
+        "centre": save_npz(tmp_path / "centre.npz", frames[:, 8:20, 8:20], dt=dt, dx=0.2),  # flagged
+        "no_dx": save_npz(tmp_path / "no_dx.npz", coarse, dt=dt, dx=None),
+        "flat": save_npz(tmp_path / "flat.npz", np.full_like(coarse, 37.0), dt=dt, dx=0.4),
+    }
+    (tmp_path / "afile").write_text("notes")
+    outputs = ["maps.npz", "maps", "afile", "INPUT", ".", "/dev/null", "sub/deeper/maps.npz"]
+    codes = {0: 0, 2: 0}
+    for case in range(24):
+        name = str(rng.choice(list(videos), p=[0.25, 0.3, 0.25, 0.2]))
+        argv = ["features", str(videos[name]), "--json"]
+        if rng.random() < 0.85:
+            argv.append("--depth")
+        if rng.random() < 0.6:
+            argv.append(f"--thickness={rng.choice(THICKNESS)}")
+        if rng.random() < 0.2:  # a report draws figures (about 2 s): a few
+            argv += ["--report", str(tmp_path / str(rng.choice(["rep", "afile", "INPUT", "rep/inner"])))]
+        if rng.random() < 0.3:
+            argv += ["--out", str(tmp_path / str(rng.choice(outputs)))]
+        argv = [a.replace(str(tmp_path / "INPUT"), str(videos[name])) for a in argv]
+        if rng.random() < 0.2:
+            argv.append(f"--dx={rng.choice(['0.4', '0', 'nan', '-1', '1e-9'])}")
+        if rng.random() < 0.2:
+            argv += ["--rule", str(rng.choice(["hold", "linear"]))]
+        before = videos[name].read_bytes()
+        code, out, err, caught = run_isolated(argv)
+        label = f"case {case}: {' '.join(argv)}"
+        assert_clean(label, code, out, err, caught)
+        codes[code] += 1
+        assert videos[name].read_bytes() == before, label
+        assert not list(tmp_path.rglob(".*.tmp*")), label
+        if code == 2:
+            assert any(word in err for word in ("--", ".npz", "afile")), f"{label}: names nothing: {err}"
+            continue
+        record = json.loads(out)
+        if record["out"]:
+            with np.load(record["out"]) as maps:
+                for key in maps.files:
+                    values = maps[key]
+                    if values.dtype.kind == "f":
+                        assert not np.isinf(values).any(), f"{label}: {key} holds infinities"
+    print(f"fuzz features --depth: {sum(codes.values())} runs, exit 0: {codes[0]}, exit 2: {codes[2]}")
+    assert codes[0] >= 5 and codes[2] >= 5, codes

@@ -214,3 +214,23 @@ def test_simulate_blobs_preset_with_duration_and_crop(
     with np.load(tmp_path / "b.npz") as data:
         assert data["frames"].shape == (11, 32, 32)
         assert (float(data["a_true"]), float(data["dx"]), int(data["seed"])) == (0.15, 0.5, 3)
+
+
+def test_an_output_that_is_a_device_or_a_folder_is_refused(tmp_path: Path, capsys) -> None:
+    for out, kind in (("/dev/null", "a character device"), (tmp_path, "a folder")):
+        code, stdout, err = run(capsys, "simulate", *SMALL, "-o", out)
+        assert code == 2 and err.count("\n") == 1, err
+        assert f"-o {out} must be a file path, got {kind}" in err
+    assert not Path("/dev/null.npz").exists() and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("preset", "least"), [("blobs", 49), ("hidden", 16)])
+def test_a_size_below_the_scenes_minimum_names_size(preset: str, least: int, tmp_path: Path, capsys) -> None:
+    code, _, err = run(capsys, "simulate", "--preset", preset, "--size", least - 1, "-o", tmp_path / "x.npz")
+    assert code == 2 and f"--size must be at least {least} px for --preset {preset}" in err, err
+    assert "sigma_range_px" not in err and not (tmp_path / "x.npz").exists()
+    code, out, _ = run(
+        capsys, "simulate", "--preset", preset, "--size", least, "--frames", "3", "-o", tmp_path / "x"
+    )
+    assert code == 0 and (tmp_path / "x.npz").exists()
+    assert run(capsys, "simulate", "--help")[1].count(f"{preset} {least}") == 1  # "at least ... blobs 49"

@@ -4,6 +4,8 @@ manifest, list), spacing rules, labels, lazy and picklable reading, one-line err
 
 from __future__ import annotations
 
+import contextlib
+import os
 import pickle
 import shutil
 from pathlib import Path
@@ -212,10 +214,114 @@ def test_errors_are_one_line(tmp_path: Path) -> None:
         ThermalVideoDataset(manifest)
     np.save(tmp_path / "v.npy", np.zeros((8, 20, 20)))
     save_npz(tmp_path / "w.npz", np.zeros((8, 20, 20)), dt=0.1, dx=0.2)
-    no_dt = ThermalVideoDataset([tmp_path / "v.npy"])
+    no_dt = ThermalVideoDataset([tmp_path / "v.npy"], on_error="raise")
     with pytest.raises(ValueError, match=r"v.npy: no frame period: the file has neither 'dt' nor 't'"):
         no_dt[0]
     with pytest.raises(IndexError, match=r"index must be in \[-1, 0\], got 1"):
         no_dt[1]
     with pytest.raises(ValueError, match=r"w.npz: no label 'grade' in the file; it holds frames, dt, dx"):
-        ThermalVideoDataset([tmp_path / "w.npz"], labels=("grade",))[0]
+        ThermalVideoDataset([tmp_path / "w.npz"], labels=("grade",), on_error="raise")[0]
+
+
+# ------------------------------------------------------------------------------------- unreadable files
+def corrupt(folder: Path, kind: str, name: str, rng: np.random.Generator) -> Path:
+    """One file (or folder of frames) that cannot be read as a video, of ``kind``."""
+    good = folder / "good.npz"
+    if kind == "truncated":
+        path = folder / f"{name}.npz"
+        path.write_bytes(good.read_bytes()[: int(rng.integers(1, good.stat().st_size))])
+    elif kind == "bytes":
+        path = folder / f"{name}{rng.choice(['.npz', '.npy', '.h5', '.tif', '.mat', '.fff', '.seq', '.csq'])}"
+        path.write_bytes(rng.bytes(int(rng.integers(0, 4000))))
+    elif kind == "empty":
+        path = folder / f"{name}{rng.choice(['.npz', '.npy', '.fff', '.csq', '.csv'])}"
+        path.write_bytes(b"")
+    elif kind == "shape":
+        path = folder / f"{name}.npz"
+        np.savez(path, frames=np.ones(tuple(int(v) for v in rng.integers(1, 6, size=rng.choice([1, 2, 4])))))
+    elif kind == "all_nan":
+        path = save_npz(folder / f"{name}.npz", np.full((6, 8, 8), np.nan), dt=0.1, dx=0.2)
+    elif kind == "no_dt":
+        path = folder / f"{name}.npy"
+        np.save(path, np.ones((6, 8, 8)))
+    elif kind == "bad_dt":
+        path = folder / f"{name}.npz"
+        np.savez(path, frames=np.ones((6, 8, 8)), dt=rng.choice([0.0, -1.0, np.nan, np.inf]))
+    elif kind == "flir_csv":
+        path = folder / f"{name}.csv"
+        path.write_text(HEADER + "Frame 1,1,2,x\n,3,4\n", encoding="utf-8")
+    else:  # a folder of frames, one of them bad
+        path = folder / name
+        path.mkdir()
+        np.savetxt(path / "f1.txt", np.ones((4, 4)))
+        (path / "f2.txt").write_text("1 2\n3 nope\n")
+    return path
+
+
+def test_an_unreadable_file_is_skipped_said_and_listed_or_raised_when_asked(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    save_npz(tmp_path / "good.npz", diffusing_gaussian(8, 20, 20, 0.1, 0.1, 0.2), dt=0.1, dx=0.2)
+    save_npz(tmp_path / "more.npz", diffusing_gaussian(8, 20, 24, 0.1, 0.1, 0.2), dt=0.1, dx=0.2)
+    bad = corrupt(tmp_path, "truncated", "bad", rng)
+    dataset = ThermalVideoDataset(tmp_path)
+    assert [p.name for p in dataset.sources] == ["bad.npz", "good.npz", "more.npz"]
+    with pytest.warns(RuntimeWarning, match=r"skipped, cannot be read: .*bad\.npz: cannot read as \.npz"):
+        batch = next(iter(DataLoader(dataset, batch_size=3, collate_fn=dataset.collate)))
+    assert len(batch) == 2 and [s.name for s in batch.sources] == ["good.npz", "more.npz"]
+    (skipped,) = batch.skipped
+    assert skipped.path == bad and "\n" not in skipped.reason and skipped.reason.startswith(str(bad))
+    assert dataset.failed == {str(bad): skipped.reason}
+    with pytest.warns(RuntimeWarning):
+        alone = dataset.collate([dataset[0]])
+    assert len(alone) == 0 and alone.skipped[0].path == bad
+    with pytest.raises(ValueError, match=r"the batch holds no video \(skipped: bad\.npz: "):
+        alone.apply(ANRAEstimator())
+    strict = ThermalVideoDataset(tmp_path, on_error="raise")
+    with pytest.raises(ValueError, match=r"bad\.npz: cannot read as \.npz"):
+        next(iter(DataLoader(strict, batch_size=3, collate_fn=strict.collate)))
+    with pytest.raises(ValueError, match=r"on_error must be one of skip, raise, got 'ignore'"):
+        ThermalVideoDataset(tmp_path, on_error="ignore")
+
+
+KINDS = ("truncated", "bytes", "empty", "shape", "all_nan", "no_dt", "bad_dt", "flir_csv", "frames")
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_fuzzed_folders_with_corrupt_files_never_stop_an_epoch(tmp_path: Path, workers: int) -> None:
+    """Folders of good videos (two sizes, a masked sample) among corrupt files of every kind, read through a
+    DataLoader: every item is a video of its batch or listed in ``skipped`` with a one-line reason that
+    names its file; the good ones are all there; no infinity anywhere, NaN only on masked samples and
+    padding; spacing and times finite."""
+    rng = np.random.default_rng(int(os.environ.get("FUZZ_SEED", 45)) + workers)
+    for trial in range(int(os.environ.get("FUZZ_TRIALS", 3 if workers else 6))):
+        folder = tmp_path / f"trial{trial}"
+        folder.mkdir()
+        frames = diffusing_gaussian(8, 20, 20, 0.1, 0.1, 0.2, seed=trial)
+        frames[2, 3, 4] = np.inf  # masked on reading, counted
+        save_npz(folder / "good.npz", frames, dt=0.1, dx=0.2)
+        save_npz(folder / "wide.npz", diffusing_gaussian(6, 20, 26, 0.2, 0.1, 0.2, seed=9), dt=0.1, dx=0.2)
+        bad = {
+            corrupt(folder, str(rng.choice(KINDS)), f"bad{k}", rng).name
+            for k in range(int(rng.integers(2, 6)))
+        }
+        dataset = ThermalVideoDataset(folder)
+        loader = DataLoader(
+            dataset, batch_size=int(rng.integers(1, 4)), num_workers=workers, collate_fn=dataset.collate
+        )
+        with pytest.warns(RuntimeWarning) if workers == 0 else contextlib.nullcontext():
+            batches = list(loader)
+        read = [s.name for b in batches for s in b.sources]
+        skipped = [s for b in batches for s in b.skipped]
+        assert sorted(read + [s.path.name for s in skipped]) == sorted(p.name for p in dataset.sources)
+        assert {"good.npz", "wide.npz"} <= set(read) and {s.path.name for s in skipped} <= bad
+        print(f"fuzz dataset ({workers} workers): {len(read)} read, {len(skipped)} skipped of {len(dataset)}")
+        for s in skipped:
+            assert s.path.name in s.reason and "\n" not in s.reason and "Traceback" not in s.reason
+        for b in batches:
+            if not len(b):
+                continue
+            assert not torch.isinf(b.frames).any() and torch.isfinite(b.dt).all()
+            assert bool(torch.isnan(b.frames[~b.mask]).all())
+            own = torch.isnan(b.frames).sum((1, 2, 3)) - b.padding
+            masked = [m.get("masked_values", {}).get("non_finite", 0) for m in b.meta]
+            assert own.tolist() == masked

@@ -621,6 +621,30 @@ def test_strict_names_the_bad_video_in_a_batch(small_noisy: SyntheticVideo) -> N
     assert abs(float(result.diffusivity[0]) / A_PAPER - 1) < 0.01 and math.isnan(float(result.diffusivity[1]))
 
 
+def test_a_video_without_a_finite_sample_is_flagged_and_the_others_stand(small_noisy: SyntheticVideo) -> None:
+    """Even with ``strict``: the good video's estimate is the one it gets alone; the empty one (all NaN, all
+    +inf, all -inf) says why; alone, or with only empty ones, it is an error."""
+    good = small_noisy.frames[0][:, 16:48, 16:48]
+    alone = ANRAEstimator()(good, small_noisy.dt, small_noisy.dx)
+    for value in (math.nan, math.inf, -math.inf):
+        empty = torch.full_like(good, value)
+        result = ANRAEstimator()(torch.stack([empty, good]), small_noisy.dt, small_noisy.dx)
+        assert result.valid.tolist() == [False, True]
+        assert result.messages[0].startswith(
+            "no finite frame: every sample is NaN, infinite or a dead element"
+        )
+        assert result.messages[1] == alone.messages[0] == ""
+        for key in ("diffusivity", "std_error", "noise_sd"):  # the same, but for the batched sums' rounding
+            torch.testing.assert_close(getattr(result, key)[1], getattr(alone, key), rtol=1e-12, atol=0)
+        assert math.isnan(float(result.diffusivity[0])) and int(result.n_masked[0]) == good.numel()
+        one_line_error(
+            ValueError, r"^no finite frame", ANRAEstimator(), empty, small_noisy.dt, small_noisy.dx
+        )
+        both = torch.stack([empty, empty])
+        one_line_error(ValueError, r"^video 0: no finite frame", ANRAEstimator(), both, 1 / 27, 0.1)
+    assert abs(float(alone.diffusivity) / A_PAPER - 1) < 0.02
+
+
 def test_pure_noise_is_flagged() -> None:
     frames = 30.0 + 0.05 * torch.randn(2, 28, 64, 64, dtype=F64)
     one_line_error(ValueError, r"no thermal activity above the noise", ANRAEstimator(), frames, 1 / 27, 0.1)

@@ -5,6 +5,7 @@ exponential and of a cosine, PCT against NumPy's SVD of the same standardised ma
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -151,3 +152,91 @@ def test_errors() -> None:
         ppt(frames, 0.0)
     with pytest.raises(ValueError, match="frames must be finite"):
         ppt(frames * float("nan"), 0.1)
+
+
+def test_pct_of_a_constant_video_is_an_error_and_beyond_its_rank_zero() -> None:
+    """A video in which nothing varies has no component (never a NaN variance); a rank-one video's second
+    and third components are zero with no variance, its first holds all of it."""
+    flat = torch.full((8, 4, 5), 20.0, dtype=F64)
+    for standardise in ("pixel", "frame", "none"):
+        with pytest.raises(ValueError, match=rf"^frames do not vary after standardise='{standardise}'"):
+            pct(flat, standardise=standardise)
+    varying = 20.0 + torch.rand(8, 4, 5, dtype=F64)
+    with pytest.raises(ValueError, match=r"^frames of video 1 do not vary after standardise='pixel'"):
+        pct(torch.stack([varying, flat]), components=2)
+    with pytest.raises(ValueError, match=r"standardise='frame' needs at least 2 pixels per frame, got 1 x 1"):
+        pct(varying[:, :1, :1], components=1, standardise="frame")
+    rank_one = torch.linspace(1.0, 2.0, 8, dtype=F64)[:, None, None] * (1 + torch.rand(4, 5, dtype=F64))
+    result = pct(rank_one, components=3, standardise="none")
+    torch.testing.assert_close(result.variance, torch.tensor([1.0, 0.0, 0.0], dtype=F64), rtol=0, atol=1e-12)
+    assert bool((result.maps[1:] == 0).all()) and bool((result.time_components[1:] == 0).all())
+    torch.testing.assert_close(result.maps[0].norm(), torch.tensor(1.0, dtype=F64))
+
+
+def degenerate(rng: np.random.Generator, kind: str, shape: tuple[int, int, int]) -> torch.Tensor:
+    """A video that breaks a contrast's assumptions: constant, one pixel constant, frames all alike, rank
+    one, values near float32's limits, or a batch with a constant video."""
+    t, h, w = shape
+    base = 20 + torch.from_numpy(rng.random(shape))
+    if kind == "constant":
+        return torch.full(shape, float(rng.choice([0.0, 20.0, -5.0, 1e30])), dtype=F64)
+    if kind == "frames_alike":
+        return base[:1].expand(shape).clone()
+    if kind == "pixel_constant":
+        base[:, 0, 0] = 5.0
+        return base
+    if kind == "rank_one":
+        return 20 + torch.linspace(1, 2, t, dtype=F64)[:, None, None] * base[0]
+    if kind == "huge":
+        return base * 1e30
+    if kind == "tiny":
+        return base * 1e-30
+    if kind == "batch_constant":
+        return torch.stack([base, torch.full(shape, 3.0, dtype=F64)])
+    return base
+
+
+KINDS = ("constant", "frames_alike", "pixel_constant", "rank_one", "huge", "tiny", "batch_constant", "plain")
+
+
+def test_fuzzed_degenerate_videos_give_finite_contrasts_or_one_line_errors() -> None:
+    """tsr, pct and ppt on degenerate videos (float32 and float64, down to 1 x 1 px and two frames), with
+    drawn times (repeated, reversed, 1e-300 to 1e300 s), baselines (non-finite, huge, maps), dt, degrees,
+    components and standardisations: every output finite, or a one-line ValueError; no warning."""
+    rng = np.random.default_rng(45)
+    errors = 0
+    for case in range(600):
+        kind = str(rng.choice(KINDS))
+        shape = (int(rng.choice([2, 3, 5, 9, 16])), int(rng.choice([1, 2, 5])), int(rng.choice([1, 3, 6])))
+        video = degenerate(rng, kind, shape).to(torch.float32 if rng.random() < 0.5 else F64)
+        name = str(rng.choice(["tsr", "pct", "ppt"]))
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                if name == "tsr":
+                    scale = float(rng.choice([1e-300, 1e-3, 1.0, 1e3, 1e300]))
+                    times = torch.arange(1, shape[0] + 1, dtype=F64) * scale
+                    times = times.flip(0) if rng.random() < 0.2 else times
+                    times = torch.ones(shape[0], dtype=F64) if rng.random() < 0.2 else times
+                    baseline = float(rng.choice([0.0, 19.0, 25.0, math.nan, math.inf, -math.inf, 1e300]))
+                    if rng.random() < 0.2:
+                        baseline = torch.full(shape[1:], baseline, dtype=F64)
+                    r = tsr(video, times, degree=int(rng.choice([1, 2, 3, 7])), baseline=baseline)
+                    outputs = (r.coefficients, r.log_excess, r.first, r.second)
+                elif name == "pct":
+                    standardise = str(rng.choice(["pixel", "frame", "none"]))
+                    r = pct(video, components=int(rng.choice([1, 2, 6])), standardise=standardise)
+                    outputs = (r.maps, r.time_components, r.variance)
+                else:
+                    dt = float(rng.choice([1e-300, 0.01, 1.0, 1e300]))
+                    used = int(rng.choice([2, shape[0]]))
+                    r = ppt(video, dt, frequencies=int(rng.choice([1, 2, 4])), frames_used=used)
+                    outputs = (r.phase, r.amplitude, r.frequencies)
+        except ValueError as err:
+            assert "\n" not in str(err), f"case {case} ({name} {kind}): {err}"
+            errors += 1
+            continue
+        for out in outputs:
+            assert bool(torch.isfinite(out).all()), f"case {case}: {name} of {kind} {shape} {video.dtype}"
+    print(f"fuzz flash: 600 calls, finite results: {600 - errors}, one-line ValueError: {errors}")
+    assert 50 < errors < 550

@@ -360,6 +360,7 @@ def test_spatial_matches_reference_for_every_border(
 def test_separable_path_equals_conv2d(
     kind: str, size: int, separable: bool, border: str, dtype: torch.dtype
 ) -> None:
+    # The separable kernels run as 1-D passes, the others as shifted-slice sums (_filter2d's fast route).
     layer = make_spatial(kind, size, border)
     assert layer.separable is separable
     u = torch.randn(2, 2, 14, 15, dtype=dtype)

@@ -11,7 +11,7 @@ import torch
 from scenes import random_frames
 
 from anra_torch.recording import input_record, open_recording
-from anra_torch.video import CalibrationTable, save_npz
+from anra_torch.video import CalibrationTable, SingleFrameError, save_npz
 
 
 @pytest.fixture
@@ -50,3 +50,16 @@ def test_spacing_arguments_override_the_file_and_errors_are_one_line(recording: 
         open_recording(tmp_path / "bare.npy", on_disk_above=0)
     assert "\n" not in str(info.value)
     assert open_recording(tmp_path / "bare.npy", dt=0.1, need_dx=False).dx is None
+
+
+def test_a_single_frame_is_refused_where_time_is_needed(tmp_path: Path) -> None:
+    one = save_npz(tmp_path / "one.npz", random_frames(1, 10, 14), dt=0.1, dx=0.5)
+    for dt in (None, 0.2):
+        with pytest.raises(ValueError, match=r"one\.npz: a single frame has no time axis; this needs frames"):
+            open_recording(one, dt=dt, on_disk_above=0)
+    assert open_recording(one, need_time=False).frames.shape == (1, 10, 14)
+    np.savez(tmp_path / "stamp.npz", frames=random_frames(1, 10, 14), t=np.zeros(1))
+    with pytest.raises(
+        SingleFrameError, match=r"stamp\.npz: a single frame has no time axis, so no frame period"
+    ):
+        open_recording(tmp_path / "stamp.npz", need_dx=False, need_time=False)

@@ -15,6 +15,7 @@ from anra_torch.tissue.dose import (
     arrhenius_omega,
     cem43,
     count_masked,
+    dose_maps,
     time_above,
     to_celsius,
 )
@@ -104,6 +105,34 @@ def test_omega_linear_matches_quad(jump: bool) -> None:
     assert abs(got / expected - 1) < 1e-9  # measured: far inside the 1e-6 acceptance
 
 
+@pytest.mark.parametrize("step", [0.0, 1e-12, 1e-7, 1e-4, 0.3])
+def test_omega_linear_is_exact_on_flat_and_nearly_flat_segments(step: float) -> None:
+    # The closed form divides by each segment's rise: flat and nearly flat ones take its limit smoothly.
+    samples = np.array([55.0, 55.0 + step, 55.0 + 2 * step, 61.0, 61.0 + step])
+    expected = _quad_linear(_omega_rate, samples, 0.5)
+    got = float(arrhenius_omega(torch.tensor(samples), 0.5, rule="linear"))
+    assert got == pytest.approx(expected, rel=1e-10)
+
+
+def test_omega_linear_matches_quad_for_other_constants_and_beyond_the_series_reach() -> None:
+    # Pig skin (Ea / R_gas = 31 000 K) up to 150 C needs more terms of the closed form's series; a small
+    # activation energy (600 K) puts body temperature beyond its reach: composite Gauss-Legendre there.
+    rng = np.random.default_rng(7)
+    samples = 60.0 + 40.0 * np.sin(np.linspace(0, 4, 25)) + rng.normal(0, 2.0, 25)
+    for a, ea in ((7.39e39, 2.577e5), (2.0, 5.0e3)):
+        constants = ArrheniusConstants(frequency=a, activation_energy=ea)
+        expected = _quad_linear(lambda t, a=a, ea=ea: _omega_rate(t, a, ea), samples, 0.1)
+        got = float(arrhenius_omega(torch.tensor(samples), 0.1, constants=constants, rule="linear"))
+        assert got == pytest.approx(expected, rel=1e-10)
+
+
+def test_gradients_flow_through_the_linear_doses_also_on_flat_segments() -> None:
+    history = torch.tensor([37.0, 52.0, 52.0, 61.5, 44.0, 42.5, 43.0], dtype=torch.float64)
+    history.requires_grad_()
+    for fn in (arrhenius_omega, cem43):
+        assert torch.autograd.gradcheck(lambda v, fn=fn: fn(v, 0.2, rule="linear"), (history,))
+
+
 def test_omega_constants_are_configurable() -> None:
     pig = ArrheniusConstants(frequency=7.39e39, activation_energy=2.577e5)
     history = torch.full((11,), 55.0, dtype=torch.float64)
@@ -132,6 +161,18 @@ def test_time_above_triangle_pulse() -> None:
     assert float(time_above(history, 1.0, 52.0)) == pytest.approx(31.0, rel=1e-12)
 
 
+def test_time_above_a_flat_segment_at_the_threshold_counts() -> None:
+    history = torch.tensor([43.0, 43.0, 43.0, 42.0], dtype=torch.float64)
+    assert float(time_above(history, 1.0, 43.0, rule="linear")) == 2.0
+    assert float(time_above(history, 1.0, 43.0 + 1e-9, rule="linear")) == 0.0
+
+
+def test_cem43_linear_across_43_on_a_tiny_rise_is_the_rate_there() -> None:
+    # A segment crossing 43 C over 2e-9 K: its mean rate is 1 (R^0) to rounding.
+    history = torch.tensor([43.0 - 1e-9, 43.0 + 1e-9], dtype=torch.float64)
+    assert float(cem43(history, 60.0, rule="linear")) == pytest.approx(1.0, rel=1e-8)
+
+
 # --------------------------------------------------------------------------- shapes and masks
 def test_video_shapes_and_per_video_dt(dtype: torch.dtype) -> None:
     video = 37.0 + 20.0 * torch.rand(2, 9, 4, 5, dtype=dtype)
@@ -158,6 +199,29 @@ def test_non_finite_samples_add_nothing_and_are_counted() -> None:
     )
     assert int(count_masked(history)) == 2
     assert torch.isfinite(cem43(history, 1.0, rule="linear"))
+
+
+@pytest.mark.parametrize("rule", ["hold", "linear"])
+def test_dose_maps_equal_the_dose_functions(rule: str) -> None:
+    # One pass for every dose (TissueFeatures' route) gives what each function gives alone, masks included.
+    video = 37.0 + 25.0 * torch.rand(
+        2, 12, 3, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(2)
+    )
+    video[0, 5, 1, 2] = float("nan")
+    dt = torch.tensor([0.1, 0.25], dtype=torch.float64)
+    maps = dose_maps(video, dt, thresholds=(43.0, 50.0), rule=rule)
+    assert list(maps) == ["time_above_43", "time_above_50", "cem43_minutes", "omega"]
+    torch.testing.assert_close(maps["omega"], arrhenius_omega(video, dt, rule=rule), rtol=1e-12, atol=0)
+    torch.testing.assert_close(maps["cem43_minutes"], cem43(video, dt, rule=rule), rtol=1e-12, atol=0)
+    for t in (43.0, 50.0):
+        torch.testing.assert_close(
+            maps[f"time_above_{t:g}"], time_above(video, dt, t, rule=rule), rtol=1e-12, atol=0
+        )
+    # The same samples masked through ``finite`` instead of NaN (their values ignored).
+    filled = torch.nan_to_num(video, nan=99.0)
+    masked = dose_maps(filled, dt, thresholds=(43.0, 50.0), rule=rule, finite=torch.isfinite(video))
+    for name, value in maps.items():
+        torch.testing.assert_close(masked[name], value, rtol=1e-12, atol=0)
 
 
 # ------------------------------------------------------------------------------------ bad input

@@ -4,10 +4,11 @@ Formats (suffix -> module of this package): ``.npz`` / ``.npy`` (``numpy_formats
 writer); ``.csv`` FLIR CSV exports with ``Frame N,`` blocks (``flir_csv``); ``.jpg`` FLIR radiometric JPEG, a
 folder of them is one video (``flir_jpeg``); a folder of per-frame ``.csv`` / ``.txt`` matrices
 (``matrices``); MATLAB ``.mat``, HDF5 ``.h5`` / ``.hdf5``, multi-page TIFF ``.tif`` / ``.tiff``
-(``containers``); FLIR ``.fff`` frames and ``.seq`` / ``.csq`` sequences (``flir_seq``, on ``flir_fff``).
+(``containers``); FLIR ``.fff`` frames and ``.seq`` / ``.csq`` sequences (``flir_seq``, on ``flir_fff``;
+a folder of ``.fff`` frames is one video ordered by capture time).
 
 A new format is one module with a loader ``(Path) -> RawVideo`` and one entry below. A loader in
-:data:`RADIOMETRIC` also takes ``objects`` (:class:`~anra_torch.video.formats.flir_fff.ObjectParameters`);
+:data:`RADIOMETRIC` also takes ``objects`` (:class:`~anra_torch.video.formats.flir_objects.ObjectParameters`);
 one in :data:`LAZY_REGISTRY` opens a recording with its frames left unread (a frame source,
 :class:`~anra_torch.video.lazy.FrameSource`).
 """
@@ -39,11 +40,18 @@ FOLDER_REGISTRY: dict[str, Loader] = {
     ".jpeg": flir_jpeg.load_flir_jpeg_folder,
     ".csv": matrices.load_matrix_folder,
     ".txt": matrices.load_matrix_folder,
+    ".fff": flir_seq.load_flir_folder,
 }
-"""Suffix of the frame files inside a folder (one file per frame) -> loader of the whole folder."""
+"""Suffix of the frame files inside a folder (one file per frame) -> loader of the whole folder. ``.fff``
+files make the folder theirs: text files beside them (ExifTool's dumps, notes) are not frames."""
 
 RADIOMETRIC: frozenset[Loader] = frozenset(
-    {flir_jpeg.load_flir_jpeg, flir_jpeg.load_flir_jpeg_folder, flir_seq.load_flir_sequence}
+    {
+        flir_jpeg.load_flir_jpeg,
+        flir_jpeg.load_flir_jpeg_folder,
+        flir_seq.load_flir_sequence,
+        flir_seq.load_flir_folder,
+    }
 )
 """The loaders of FLIR radiometric recordings: they take ``objects``, the object parameters that replace the
 file's (emissivity, reflected temperature, distance, atmospheric temperature, humidity)."""

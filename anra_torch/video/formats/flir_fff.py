@@ -22,19 +22,20 @@ APP1 segments. The layout is ExifTool's (``Image::ExifTool::FLIR``: ``ProcessFLI
 Counts become temperatures by the Planck formula with the atmosphere's and the IR window's transmission
 as Thermimage's ``raw2temp``, flirpy and flyr compute it (:func:`celsius`). Emissivity, reflected apparent
 temperature, object distance, atmospheric temperature and relative humidity can be replaced after capture
-(:class:`ObjectParameters`); :func:`object_record` states the values used and where each came from.
+(:mod:`~anra_torch.video.formats.flir_objects`, which also states the values used and where each came from).
 """
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from anra_torch.checks import number, one_line
+from anra_torch.checks import one_line
 
 __all__ = [
     "CAMERA_INFO",
@@ -43,12 +44,10 @@ __all__ = [
     "MAGIC",
     "CameraInfo",
     "Frame",
-    "ObjectParameters",
     "RawImage",
     "TruncatedFrame",
     "celsius",
     "decode_counts",
-    "object_record",
     "read_frame",
     "swapped_rougher",
 ]
@@ -250,9 +249,11 @@ def read_frame(read: Reader, start: int = 0, *, where: str = "FFF") -> Frame:
         name for kind, name in ((RAW_DATA, "RawData"), (CAMERA_INFO, "CameraInfo")) if kind not in found
     ]
     if len(read(end - 1, 1)) < 1:
-        raise TruncatedFrame(
-            f"{where}: truncated: the FFF frame at byte {start} runs past the end of the data"
-        )
+        found, end = _whole_records(read, found, [(start + e[2], e[3]) for e in entries], order)
+        if not found:
+            raise TruncatedFrame(
+                f"{where}: truncated: the FFF frame at byte {start} runs past the end of the data"
+            )
     if missing:
         text = f"{where}: the FFF frame at byte {start} has no {' or '.join(missing)} record"
         raise IncompleteFrame(text, end)
@@ -260,6 +261,42 @@ def read_frame(read: Reader, start: int = 0, *, where: str = "FFF") -> Frame:
     creator = header[4:20].split(b"\x00", 1)[0].decode("latin-1")
     version = struct.unpack_from(order + "I", header, 0x14)[0]
     return Frame(start, end, _raw_image(read, *found[RAW_DATA], order, where), camera, creator, version)
+
+
+_PNG_END = b"IEND\xaeB`\x82"  # the IEND chunk and its CRC: the last bytes of a whole PNG
+
+
+def _whole_records(
+    read: Reader, found: dict[int, tuple[int, int]], records: list[tuple[int, int]], frame_order: str
+) -> tuple[dict[int, tuple[int, int]], int]:
+    """A frame cut by the end of the data, kept when what its temperatures need is all there: the
+    CameraInfo record whole and the image whole (a JPEG-LS stream up to its end-of-image marker, a PNG up
+    to its IEND chunk, or every uint16 count), as a last frame whose record was stored shorter than its
+    directory says. Returns ``found`` with the RawData record cut to the image and the end of the data
+    (where the frame ends), or ``({}, 0)`` when the image or the CameraInfo record is cut."""
+    if RAW_DATA not in found or CAMERA_INFO not in found:
+        return {}, 0
+    camera_at, camera_length = found[CAMERA_INFO]
+    if len(read(camera_at, camera_length)) < camera_length:
+        return {}, 0
+    raw_at, raw_length = found[RAW_DATA]
+    data = read(raw_at, raw_length)
+    body = data[0x20:].rstrip(b"\x00")  # zero padding after the image's end
+    if body.startswith(b"\xff\xd8\xff") and body.endswith(b"\xff\xd9"):  # no FF D9 inside JPEG-LS data
+        kept = 0x20 + len(body)
+    elif body.startswith(b"\x89PNG\r\n\x1a\n") and body.endswith(_PNG_END):
+        kept = 0x20 + len(body)
+    elif len(data) >= 6 and 0 < 2 * math.prod(_size(data, frame_order)) <= len(data) - 0x20:
+        kept = len(data)
+    else:
+        return {}, 0
+    end = max(offset + len(read(offset, length)) for offset, length in records)
+    return {**found, RAW_DATA: (raw_at, kept)}, end
+
+
+def _size(head: bytes, frame_order: str) -> tuple[int, int]:
+    """Width and height (px) of a RawData record from its first bytes."""
+    return struct.unpack_from(_record_order(head, frame_order) + "HH", head, 2)
 
 
 def _raw_image(read: Reader, offset: int, length: int, frame_order: str, where: str) -> RawImage:
@@ -425,6 +462,8 @@ def swapped_rougher(counts: np.ndarray) -> bool:
     Shape:
         ``(..., H, W)`` ``uint16``.
     """
+    if counts.shape[-1] < 2:  # one column: no step to judge by
+        return False
     given = np.abs(np.diff(counts.astype(np.int32), axis=-1)).mean()
     other = np.abs(np.diff(counts.byteswap().astype(np.int32), axis=-1)).mean()
     return bool(given >= 16 * max(other, 1.0))
@@ -455,11 +494,16 @@ def celsius(counts: np.ndarray, planck: Mapping[str, Any]) -> np.ndarray:
         >>> round(float(celsius(np.array([[18109]]), p)[0, 0]), 2)
         23.62
     """
+    with np.errstate(all="ignore"):  # damaged constants (an emissivity of 0, ...): NaN, masked below
+        return _celsius(counts, planck)
+
+
+def _celsius(counts: np.ndarray, planck: Mapping[str, Any]) -> np.ndarray:
     ndim = np.ndim(counts)
 
     def value(key: str) -> Any:
         v = np.asarray(planck[key], dtype=np.float64)
-        return v.reshape(v.shape + (1,) * (ndim - v.ndim)) if v.ndim else float(v)
+        return v.reshape(v.shape + (1,) * (ndim - v.ndim)) if v.ndim else np.float64(v)  # numpy: errstate
 
     e, od, rt, at, wt, wtr, rh = (value(k) for k in PLANCK_KEYS[:7])
     r1, b, f, o, r2, a1, a2, b1, b2, x = (value(k) for k in PLANCK_KEYS[7:])
@@ -480,118 +524,10 @@ def celsius(counts: np.ndarray, planck: Mapping[str, Any]) -> np.ndarray:
     # r2 (S + O) with S = counts / (e tau wtr tau) - stray, in one multiply and one subtraction
     signal = np.multiply(counts, r2 / (e * tau * wtr * tau), dtype=np.float64)
     signal -= (stray - o) * r2
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        np.divide(r1, signal, out=signal)
-        signal += f
-        np.log(signal, out=signal)
-        np.divide(b, signal, out=signal)
+    np.divide(r1, signal, out=signal)
+    signal += f
+    np.log(signal, out=signal)
+    np.divide(b, signal, out=signal)
     signal -= _KELVIN
     signal[~((signal >= -_KELVIN) & (signal < np.inf))] = np.nan  # NaN, infinities, below 0 K
     return signal
-
-
-# ------------------------------------------------------------------------------- object parameters
-_OBJECT_FIELDS = {
-    # name: (CameraInfo field, unit, to the CameraInfo unit)
-    "emissivity": ("emissivity", "", 1.0),
-    "reflected_temp": ("reflected_temp", "degC", 1.0),
-    "distance": ("object_distance", "m", 1.0),
-    "atmospheric_temp": ("atmospheric_temp", "degC", 1.0),
-    "humidity": ("relative_humidity", "%", 0.01),
-}
-
-
-_OBJECT_LIMITS: dict[str, tuple[str, Callable[[float], bool]]] = {
-    "emissivity": ("in (0, 1]", lambda v: 0 < v <= 1),
-    "reflected_temp": ("above -273.15", lambda v: v > -_KELVIN),
-    "distance": (">= 0", lambda v: v >= 0),
-    "atmospheric_temp": ("above -273.15", lambda v: v > -_KELVIN),
-    "humidity": ("in [0, 100]", lambda v: 0 <= v <= 100),
-}
-
-
-@dataclass(frozen=True)
-class ObjectParameters:
-    """The object parameters a user may set after capture; None keeps the file's value.
-
-    Attributes:
-        emissivity: in (0, 1].
-        reflected_temp: reflected apparent temperature in degC.
-        distance: object distance in m (>= 0).
-        atmospheric_temp: degC.
-        humidity: relative humidity in % (0-100).
-
-    Shape:
-        Scalars.
-
-    Raises:
-        ValueError: a value outside its range (checked on construction).
-        TypeError: a value that is not a number.
-    """
-
-    emissivity: float | None = None
-    reflected_temp: float | None = None
-    distance: float | None = None
-    atmospheric_temp: float | None = None
-    humidity: float | None = None
-
-    def __post_init__(self) -> None:
-        for item in fields(self):
-            value = getattr(self, item.name)
-            if value is None:
-                continue
-            unit = _OBJECT_FIELDS[item.name][1]
-            value = number(value, item.name, unit or "(a fraction)")
-            need, ok = _OBJECT_LIMITS[item.name]
-            if not ok(value):
-                raise ValueError(f"{item.name} must be {need}{' ' + unit if unit else ''}, got {value:g}")
-            object.__setattr__(self, item.name, value)
-
-    @property
-    def given(self) -> bool:
-        """Whether any parameter is set."""
-        return any(getattr(self, item.name) is not None for item in fields(self))
-
-    def changes(self) -> dict[str, float]:
-        """The set parameters as :data:`PLANCK_KEYS` entries (temperatures degC, humidity a fraction)."""
-        return {
-            field: getattr(self, name) * scale
-            for name, (field, _, scale) in _OBJECT_FIELDS.items()
-            if getattr(self, name) is not None
-        }
-
-    def apply(self, camera: CameraInfo) -> CameraInfo:
-        """``camera`` with the set parameters in place of the file's."""
-        return replace(camera, planck={**camera.planck, **self.changes()})
-
-
-def object_record(
-    camera: CameraInfo, objects: ObjectParameters | None, *, varies: frozenset[str] = frozenset()
-) -> dict[str, dict[str, Any]]:
-    """Which object parameters the temperatures used and where each came from.
-
-    Args:
-        camera: the file's CameraInfo (of the first frame).
-        objects: the user's overrides, or None.
-        varies: names whose file value changes between frames (the first frame's is shown).
-
-    Returns:
-        ``{name: {"value", "unit", "source"}}`` for emissivity, reflected_temp (degC), distance (m),
-        atmospheric_temp (degC), humidity (%); ``source`` is ``"argument"`` or ``"file"`` (``"file (varies
-        by frame; first frame shown)"`` when it changes), and an overridden entry keeps the ``"file"`` value.
-
-    Shape:
-        No tensors.
-    """
-    record = {}
-    for name, (field, unit, scale) in _OBJECT_FIELDS.items():
-        value = camera.planck[field] / scale  # float32 in the file: K to 3e-5, so degC to 4 decimals
-        stored = round(value, 4) if unit == "degC" else float(f"{value:.6g}")
-        given = getattr(objects, name) if objects is not None else None
-        entry: dict[str, Any] = {"value": stored if given is None else given, "unit": unit or None}
-        if given is None:
-            entry["source"] = "file (varies by frame; first frame shown)" if field in varies else "file"
-        else:
-            entry.update(source="argument", file=stored)
-        record[name] = entry
-    return record

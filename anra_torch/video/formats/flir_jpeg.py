@@ -24,14 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from anra_torch.video.core import RawVideo, stack_frames
-from anra_torch.video.formats.flir_fff import (
-    Frame,
-    ObjectParameters,
-    celsius,
-    decode_counts,
-    object_record,
-    read_frame,
-)
+from anra_torch.video.formats.flir_fff import Frame, celsius, decode_counts, read_frame
+from anra_torch.video.formats.flir_objects import ObjectParameters, object_record
 
 __all__ = ["flir_timestamp", "load_flir_jpeg", "load_flir_jpeg_folder"]
 

@@ -39,23 +39,29 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from anra_torch.video.core import RawVideo
+from anra_torch.video.core import RawVideo, stack_frames
 from anra_torch.video.formats.flir_fff import (
     MAGIC,
     PLANCK_KEYS,
     Frame,
     IncompleteFrame,
-    ObjectParameters,
     RawImage,
     TruncatedFrame,
     celsius,
     decode_counts,
-    object_record,
     read_frame,
     swapped_rougher,
 )
+from anra_torch.video.formats.flir_objects import ObjectParameters, object_record
 
-__all__ = ["FLIRFrames", "SequenceIndex", "index_sequence", "load_flir_sequence", "open_flir_sequence"]
+__all__ = [
+    "FLIRFrames",
+    "SequenceIndex",
+    "index_sequence",
+    "load_flir_folder",
+    "load_flir_sequence",
+    "open_flir_sequence",
+]
 
 T_RESOLUTION = 0.001
 """The capture time's resolution in s (CameraInfo stores milliseconds)."""
@@ -177,10 +183,12 @@ def index_sequence(path: str | os.PathLike[str]) -> SequenceIndex:
     path = Path(path)
     try:
         size = path.stat().st_size
+        if size == 0:
+            raise ValueError(f"{path}: the file is empty (0 bytes); expected FLIR FFF frames")
         with path.open("rb") as handle:
             frames, warnings = _walk(path, _reader(handle), size)
             if not frames:
-                raise ValueError(f"{path}: no whole FFF frame in the file ({warnings[0]})")
+                raise ValueError(f"{path}: no whole FFF frame in the file ({'; '.join(warnings)})")
             first = frames[0]
             for k, frame in enumerate(frames):
                 if (frame.raw.height, frame.raw.width) != (first.raw.height, first.raw.width):
@@ -326,7 +334,6 @@ def _meta(index: SequenceIndex, objects: ObjectParameters | None) -> dict[str, A
         k for j, k in enumerate(PLANCK_KEYS) if (index.planck[:, j] != index.planck[0, j]).any()
     )
     t0 = index.ms[0] / 1000.0
-    zone = timedelta(minutes=first.camera.utc_offset_min)
     layouts = sorted({_layout(r) for r in index.raws})
     camera = {
         **first.camera.camera,
@@ -336,17 +343,27 @@ def _meta(index: SequenceIndex, objects: ObjectParameters | None) -> dict[str, A
         "counts_byteswapped": index.swapped,
         "planck": {k: float(v) for k, v in first.camera.planck.items() if k.startswith(("planck_", "alpha"))},
         "constants_vary_by_frame": sorted(varies),
-        "capture_local": datetime.fromtimestamp(t0, timezone(zone)).isoformat(timespec="milliseconds"),
+        "capture_local": _when(t0, first.camera.utc_offset_min),
     }
     return {
         "unit": "degC",
         "format": f"flir_{index.path.suffix.lower().lstrip('.')}",
-        "t0_utc": datetime.fromtimestamp(t0, UTC).isoformat(timespec="milliseconds"),
+        "t0_utc": _when(t0, 0),
         "t_resolution": T_RESOLUTION,
         "object_parameters": object_record(first.camera, objects, varies=varies),
         "camera": camera,
         "input_warnings": list(index.warnings),
     }
+
+
+def _when(seconds: float, zone_minutes: int) -> str | None:
+    """A capture time (Unix s) as ISO text in a time zone (minutes east of UTC); None when the header's
+    values are no date (a damaged frame: a year past 9999, a zone of a day or more)."""
+    try:
+        zone = UTC if zone_minutes == 0 else timezone(timedelta(minutes=zone_minutes))
+        return datetime.fromtimestamp(seconds, zone).isoformat(timespec="milliseconds")
+    except (ValueError, OverflowError, OSError):
+        return None
 
 
 def open_flir_sequence(path: Path, objects: ObjectParameters | None = None) -> RawVideo:
@@ -381,3 +398,56 @@ def load_flir_sequence(path: Path, objects: ObjectParameters | None = None) -> R
     raw = open_flir_sequence(path, objects)
     raw.frames = raw.frames[0 : len(raw.frames)]
     return raw
+
+
+def load_flir_folder(folder: Path, objects: ObjectParameters | None = None) -> RawVideo:
+    """A folder of FLIR ``.fff`` files (a camera streaming one FFF frame per file) as one video, its frames
+    ordered by their capture times (names may be in any order); files of other kinds beside them (ExifTool's
+    text dumps, notes) are ignored. Read whole (the frames are decoded as they are read).
+
+    Args:
+        folder: the folder.
+        objects: object parameters that replace the files'.
+
+    Returns:
+        A :class:`~anra_torch.video.core.RawVideo` as :func:`open_flir_sequence`'s, ``meta["files"]`` the
+        first and last file in time order and ``meta["ignored"]`` how many other files were left alone.
+
+    Shape:
+        ``frames`` ``(T, H, W)`` float32 degC; ``t`` ``(T,)``.
+
+    Raises:
+        ValueError: a file that is not an FFF recording, frames of different sizes, or two frames captured
+            at the same millisecond (each names its files).
+    """
+    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    frames = [p for p in files if p.suffix.lower() == ".fff"]
+    indexes = [index_sequence(p) for p in frames]
+    order = sorted((int(ms), k, j) for k, index in enumerate(indexes) for j, ms in enumerate(index.ms))
+    for (ms, k, j), (before, k0, j0) in zip(order[1:], order, strict=False):
+        if ms == before:
+            raise ValueError(
+                f"{folder}: duplicate timestamps: {_name(frames, indexes, k, j)} and "
+                f"{_name(frames, indexes, k0, j0)} were captured at the same millisecond; one folder must "
+                "hold one video"
+            )
+    views = [FLIRFrames(index, objects) for index in indexes]
+    decoded = [views[k][j : j + 1][0] for _, k, j in order]
+    names = [frames[k] for _, k, _ in order]
+    whole = SequenceIndex(  # the frames of every file in time order, for the metadata
+        folder,
+        [indexes[k].raws[j] for _, k, j in order],
+        np.stack([indexes[k].planck[j] for _, k, j in order]),
+        np.array([ms for ms, _, _ in order], dtype=np.int64),
+        indexes[order[0][1]].first,
+        [f"{p.name}: {w}" for p, i in zip(frames, indexes, strict=True) for w in i.warnings],
+    )
+    meta = _meta(whole, objects)
+    meta.update(format="flir_fff_folder", files=f"{names[0].name} .. {names[-1].name}")
+    meta["ignored"] = len(files) - len(frames)
+    return RawVideo(frames=stack_frames(decoded, names, folder), t=whole.t, meta=meta)
+
+
+def _name(files: list[Path], indexes: list[SequenceIndex], k: int, j: int) -> str:
+    """A frame's file name (and its place in the file when the file holds several)."""
+    return files[k].name + (f" (frame {j})" if len(indexes[k].raws) > 1 else "")

@@ -10,7 +10,6 @@ through it.
 
 from __future__ import annotations
 
-import os
 import pickle
 import zipfile
 import zlib
@@ -20,7 +19,7 @@ from typing import Any
 import numpy as np
 from torch import Tensor
 
-from anra_torch.checks import one_line
+from anra_torch.checks import atomic_output, check_output, one_line
 from anra_torch.video.core import PathLike, RawVideo, Truth, positive_spacing
 
 __all__ = ["load_npy", "load_npz", "save_npz"]
@@ -146,11 +145,12 @@ def save_npz(
         ``frames`` ``(T, H, W)`` (or ``(B, T, H, W)`` with ``batch``); ``t`` ``(T,)``.
 
     Raises:
-        ValueError: wrong frames shape, non-positive ``dt`` or ``dx``, or ``t`` of the wrong length.
+        ValueError: wrong frames shape, non-positive ``dt`` or ``dx``, ``t`` of the wrong length, or a path
+            that is a folder or a device (``/dev/null``).
     """
-    path = Path(path)
+    path = check_output(path, name="path")
     if path.suffix.lower() != ".npz":
-        path = path.with_name(path.name + ".npz")
+        path = check_output(path.with_name(path.name + ".npz"), name="path")
     array = frames.detach().cpu().numpy() if isinstance(frames, Tensor) else np.asarray(frames)
     if array.ndim != 3 and not (batch and array.ndim == 4):
         shapes = "(T, H, W) or (B, T, H, W)" if batch else "(T, H, W)"
@@ -169,12 +169,6 @@ def save_npz(
         data["t"] = stamps.astype(np.float64)
     for key, value in extra.items():
         data[key] = value.detach().cpu().numpy() if isinstance(value, Tensor) else np.asarray(value)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(path.name + ".part")
-    try:
-        with open(partial, "wb") as handle:
-            np.savez(handle, **data)
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
+    with atomic_output(path) as temp, open(temp, "wb") as handle:
+        np.savez(handle, **data)
     return path

@@ -13,7 +13,8 @@ from shared_data import DATA as SHARED_DATA
 
 from anra_torch.cli import main
 from anra_torch.video import load_video, save_npz
-from anra_torch.video.formats.flir_fff import ObjectParameters, decode_counts, read_frame
+from anra_torch.video.formats.flir_fff import decode_counts, read_frame
+from anra_torch.video.formats.flir_objects import ObjectParameters
 from anra_torch.video.formats.flir_seq import index_sequence
 from experiments.fff_writer import (
     Camera,

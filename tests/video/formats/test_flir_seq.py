@@ -5,11 +5,13 @@ lazy reading through the chunked estimator."""
 from __future__ import annotations
 
 import json
+import struct
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from shared_data import DATA as SHARED_DATA
 
 from anra_torch.cli import main
 from anra_torch.estimation import estimate_chunked
@@ -273,3 +275,109 @@ def test_flirframes_views_and_bad_requests(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"0 <= start <= stop <= 6"):
         FLIRFrames(frames.index, start=4, stop=9)
     assert torch.as_tensor(frames[0:0]).shape == (0, 5, 5)
+
+
+def test_an_empty_file_is_one_line(tmp_path: Path) -> None:
+    for suffix in (".fff", ".seq", ".csq"):
+        path = tmp_path / f"empty{suffix}"
+        path.write_bytes(b"")
+        with pytest.raises(ValueError, match=rf"^\S*empty\{suffix}: the file is empty \(0 bytes\)"):
+            load_video(path, dt=0.1)
+
+
+def test_a_last_csq_frame_stored_shorter_than_its_record_is_read_when_its_image_is_whole(
+    tmp_path: Path,
+) -> None:
+    """A real camera's last frame: the CameraInfo record first, then the RawData record whose directory
+    length counts padding that the file does not hold; the JPEG-LS stream ends with its end-of-image marker.
+    Cut one byte into the stream, the frame is left out and said."""
+    counts = counts_for(gaussian(4, 16, 20), BLACKBODY)
+
+    def csq_frame(k: int, padding: int) -> bytes:
+        raw = raw_record(counts[k], "<", "jpeg-ls") + bytes(padding)
+        return frame([(0x20, camera_record(stamps(BLACKBODY, 0.1 * k), "<")), (0x01, raw)], "<")
+
+    blobs = [csq_frame(k, 512) for k in range(4)]
+    whole = b"".join(blobs)
+    path = tmp_path / "rec.csq"
+    path.write_bytes(whole[:-512])  # the last record's padding is not in the file
+    video = load_video(path)
+    assert video.frames.shape == (4, 16, 20) and video.meta["input_warnings"] == []
+    np.testing.assert_array_equal(FLIRFrames(index_sequence(path)).counts(slice(3, 4))[0], counts[3])
+    path.write_bytes(whole[: -512 - 1])  # the end-of-image marker cut
+    video = load_video(path)
+    assert video.frames.shape == (3, 16, 20)
+    (line,) = video.meta["input_warnings"]
+    assert line.startswith("input: frame 3 (from byte ") and line.endswith(
+        "cut off at the end of the file (" + (f"{len(blobs[3]) - 513} bytes): left out")
+    )
+
+
+def fff_folder(folder: Path, counts: np.ndarray, seconds: list[float], names: list[str]) -> Path:
+    folder.mkdir()
+    for c, t, name in zip(counts, seconds, names, strict=True):
+        (folder / name).write_bytes(simple_frame(c, stamps(BLACKBODY, t)))
+    return folder
+
+
+def test_a_folder_of_fff_frames_is_one_video_in_capture_order(tmp_path: Path) -> None:
+    """Names that sort against the capture times, an ExifTool text dump and a note beside the frames."""
+    counts = counts_for(gaussian(5, 10, 12), BLACKBODY)
+    times = [0.0, 0.1, 0.2, 0.3, 0.4]
+    names = ["e.fff", "d.fff", "c.FFF", "b.fff", "a.fff"]
+    folder = fff_folder(tmp_path / "frames", counts, times, names)
+    (folder / "a.exiftool.txt").write_text("ExifTool Version Number : 12.40\nCamera Model : Test\n")
+    (folder / "notes.md").write_text("bench 2\n")
+    video = load_video(folder)
+    assert video.frames.shape == (5, 10, 12) and video.dt == pytest.approx(0.1)
+    assert video.meta["format"] == "flir_fff_folder" and video.meta["files"] == "e.fff .. a.fff"
+    assert video.meta["ignored"] == 2
+    expected = np.array([[planck_celsius(float(c[3, 4]), BLACKBODY)] for c in counts])[:, 0]
+    np.testing.assert_allclose(video.frames[:, 3, 4].numpy(), expected, atol=2e-4)
+    assert main(["convert", str(folder), "-o", str(tmp_path / "v.npz")]) == 0
+    with np.load(tmp_path / "v.npz") as data:
+        np.testing.assert_array_equal(data["t"], times)
+
+
+def test_a_folder_of_fff_frames_refuses_a_repeated_time_and_two_sizes_by_name(tmp_path: Path) -> None:
+    counts = counts_for(gaussian(3, 8, 8), BLACKBODY)
+    folder = fff_folder(tmp_path / "dup", counts, [0.0, 0.1, 0.1], ["f0.fff", "f1.fff", "f2.fff"])
+    with pytest.raises(
+        ValueError, match=r"dup: duplicate timestamps: f2\.fff and f1\.fff were captured at the"
+    ):
+        load_video(folder)
+    other = tmp_path / "sizes"
+    other.mkdir()
+    (other / "a.fff").write_bytes(simple_frame(counts[0], BLACKBODY))
+    (other / "b.fff").write_bytes(simple_frame(np.zeros((8, 9), np.uint16) + 17000, stamps(BLACKBODY, 1.0)))
+    with pytest.raises(ValueError, match=r"sizes: mixed frame sizes: b\.fff is 8 x 9 px, a\.fff is 8 x 8 px"):
+        load_video(other)
+
+
+REAL = SHARED_DATA / "flir_fff"
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason=f"measured data folder {REAL} is absent")
+def test_a_folder_of_real_fff_frames_streams_as_one_video(tmp_path: Path) -> None:
+    """The real 640 x 512 frame copied three times with its capture time moved (the record's own bytes,
+    little-endian inside the big-endian frame), named against their order, ExifTool's text beside them;
+    the shared folder itself holds two cameras' frames of two sizes: one line naming both."""
+    data = (REAL / "frame_000000.fff").read_bytes()
+    seconds = 1541416483  # 2018-11-05 11:14:43 UTC, ms 84 (ExifTool's DateTimeOriginal)
+    at = data.index(struct.pack("<I", seconds))
+    assert struct.unpack_from("<I", data, at + 4)[0] & 0xFFFF == 84
+    folder = tmp_path / "stream"
+    folder.mkdir()
+    for name, ms in (("z.fff", 84), ("y.fff", 117), ("x.fff", 150)):
+        (folder / name).write_bytes(data[:at] + struct.pack("<II", seconds, ms) + data[at + 8 :])
+    (folder / "frame_000000.exiftool.txt").write_bytes((REAL / "frame_000000.exiftool.txt").read_bytes())
+    video = load_video(folder, timestamps="keep")
+    assert video.frames.shape == (3, 512, 640) and video.t.tolist() == pytest.approx([0.0, 0.033, 0.066])
+    assert video.meta["files"] == "z.fff .. x.fff" and video.meta["t0_utc"].startswith(
+        "2018-11-05T11:14:43.084"
+    )
+    assert 9.5 < float(video.frames.min()) < float(video.frames.max()) < 12.7
+    with pytest.raises(
+        ValueError, match=r"flir_fff: mixed frame sizes: frame_000000_le\.fff is 240 x 320 px"
+    ):
+        load_video(REAL)
