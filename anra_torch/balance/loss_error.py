@@ -34,6 +34,7 @@ __all__ = ["loss_rate_error"]
 _FIELDS = ("uL", "zL", "mL", "uR", "zR", "mR")  # pushed time derivative, rise, average of each lever
 _KIND = {"u": "P", "z": "P", "m": "L"}  # their spatial filter: the Gaussian's (P) or the Laplacian's (L)
 _CORRELATIONS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_BLOCK_VALUES = 1 << 18  # values per block of the per-pixel work (1 MiB of float32: stays in the cache)
 
 
 def loss_rate_error(
@@ -61,7 +62,14 @@ def loss_rate_error(
     # Float32 sums over the frames (relative error ~1e-6); combined in float64, where the two levers'
     # coefficients may nearly cancel (by at most 1 / 0.05: the fit's conditioning bound).
     lap, rise = (lever.to(torch.float32) for lever in levers)
-    sums = _window_sums(filters, _time_products(filters, {"L": lap, "R": rise}), window)
+    # Per-pixel sums over the frames in blocks of rows whose temporaries stay in the cache.
+    rows = max(1, _BLOCK_VALUES // max(lap.shape[0] * lap.shape[1] * lap.shape[-1], 1))
+    blocks = [
+        _time_products(filters, {"L": lap[..., r : r + rows, :], "R": rise[..., r : r + rows, :]})
+        for r in range(0, lap.shape[-2], rows)
+    ]
+    products = {key: torch.cat([block[key] for block in blocks], -2) for key in blocks[0]}
+    sums = _window_sums(filters, products, window)
     variance = _combine({k: v.to(torch.float64) for k, v in sums.items()}, coefficients)
     variance = variance + _slope_part(filters, {"L": lap, "R": rise}, coefficients, window)
     total = variance.clamp_min(0.0)
@@ -186,22 +194,32 @@ def _slope_part(
     spread = {a: _box(_box(pos * pos.expand(h, w), -2, half), -1, half) / count - centre[a] ** 2
               for a, pos in (("y", ys), ("x", xs))}  # fmt: skip
     taps = filters.time.pair.tolist()
-    pushed = {}
+    slopes = {}
     for name, lever in levers.items():
-        rows = _box(lever, -1, half)  # along x first: shared by both slopes
-        total = _box(rows, -2, half)
-        pushed["y" + name] = _push(
-            (_box(rows * ys, -2, half) - centre["y"] * total) / (spread["y"] * count), taps
-        )
-        pushed["x" + name] = _push(
-            (_box(_box(lever * xs, -1, half), -2, half) - centre["x"] * total) / (spread["x"] * count), taps
-        )
+        along = {"y": [], "x": []}
+        frames = max(1, _BLOCK_VALUES // max(lever.shape[0] * h * w, 1))
+        for k in range(0, lever.shape[1], frames):  # frame by frame (blocks that stay in the cache)
+            part = lever[:, k : k + frames]
+            rows = _box(part, -1, half)  # along x first: shared by both slopes
+            total = _box(rows, -2, half)
+            along["y"].append((_box(rows * ys, -2, half) - centre["y"] * total) / (spread["y"] * count))
+            along["x"].append(
+                (_box(_box(part * xs, -1, half), -2, half) - centre["x"] * total) / (spread["x"] * count)
+            )
+        slopes |= {a + name: torch.cat(parts, 1) for a, parts in along.items()}
+    rows = max(1, _BLOCK_VALUES // max(some.shape[0] * some.shape[1] * w, 1))
+    products: dict[str, list[Tensor]] = {}
+    for r in range(0, h, rows):  # pushed through the time average and multiplied, in blocks of rows
+        pushed = {key: _push(value[..., r : r + rows, :], taps) for key, value in slopes.items()}
+        for i, j in (("L", "L"), ("L", "R"), ("R", "R")):
+            for a in "yx":
+                products.setdefault(a + i + j, []).append((pushed[a + i] * pushed[a + j]).sum(1))
     moments = _slope_moments(filters, window, (h, w))
     out = None
     for i, j in (("L", "L"), ("L", "R"), ("R", "R")):
         weight = coefficients[f"m{i}"] * coefficients[f"m{j}"] * (1.0 if i == j else 2.0)
         for a in "yx":
-            term = (pushed[a + i] * pushed[a + j]).sum(1).to(torch.float64) * moments[a + a].to(weight)
+            term = torch.cat(products[a + i + j], -2).to(torch.float64) * moments[a + a].to(weight)
             out = weight * term if out is None else out + weight * term
     assert out is not None
     return out
