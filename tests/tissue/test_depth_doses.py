@@ -51,8 +51,24 @@ def test_cem43_across_43_c_is_exact() -> None:
     )
     doses.add(x[:, :3])
     doses.add(x[:, 3:])
-    # 40 -> 45: 3/5 of the segment below 43 at ln 4 per K, 2/5 above at ln 2 per K, and so on.
-    assert float(doses.cem43) == pytest.approx(float(cem43(x.view(7), 1.0, rule="linear")), rel=1e-12)
+
+    # 40 -> 45: 3/5 of the segment below 43 at ln 4 per K, 2/5 above at ln 2 per K, and so on: each
+    # segment's mean rate in closed form (cem43's own is 1e-10 exact by design, this one to rounding).
+    def integral(low: float, high: float) -> float:  # of R^(43 - T) dT from low to high, both on one side
+        c = math.log(2.0) if low >= 43.0 else math.log(4.0)
+        return (math.exp(c * (high - 43.0)) - math.exp(c * (low - 43.0))) / c
+
+    exact = 0.0
+    values = x.view(7).tolist()
+    for u, v in zip(values[:-1], values[1:], strict=True):
+        low, high = min(u, v), max(u, v)
+        if low == high:
+            exact += math.exp((low - 43.0) * (math.log(2.0) if low >= 43.0 else math.log(4.0)))
+            continue
+        cut = min(max(43.0, low), high)
+        exact += (integral(low, cut) + integral(cut, high)) / (high - low)
+    assert float(doses.cem43) == pytest.approx(exact / 60.0, rel=1e-14)
+    assert float(cem43(x.view(7), 1.0, rule="linear")) == pytest.approx(exact / 60.0, rel=1e-10)
 
 
 def test_noise_lag_sum_is_the_double_sum() -> None:
