@@ -19,7 +19,13 @@ Shape:
 """
 
 from anra_torch.balance.artefacts import Artefacts, find_artefacts, stuck_pixels
-from anra_torch.balance.batch_noise import BatchNoise, PreparedBatch, batch_noise, prepare_batch
+from anra_torch.balance.batch_noise import (
+    BatchNoise,
+    PreparedBatch,
+    batch_noise,
+    concat_prepared,
+    prepare_batch,
+)
 from anra_torch.balance.filters import MatchedFilters
 from anra_torch.balance.loss import fit_loss_windows
 from anra_torch.balance.moments import Moments, TermNoise, accumulate
@@ -47,6 +53,7 @@ __all__ = [
     "TermNoise",
     "accumulate",
     "batch_noise",
+    "concat_prepared",
     "estimate_noise_sd",
     "find_artefacts",
     "fit_loss_windows",

@@ -27,6 +27,7 @@ __all__ = ["LossFit", "fit_loss_windows"]
 
 _F64 = torch.float64
 _MIN_DECORRELATION = 0.05  # 1 - corr(L, T - T_0)^2 below this: a and b cannot be told apart
+_BLOCK_VALUES = 1 << 18  # values per block of the per-pixel sums (2 MiB of float64: stays in the cache)
 
 
 @dataclass(frozen=True)
@@ -106,12 +107,24 @@ def fit_loss_windows(
     # The noise of U and L (rise's is left uncorrected: it enters b only through its own energy).
     covariance = torch.zeros(len(noise_sd), 3, 3, dtype=_F64, device=noise_sd.device)
     covariance[:, :2, :2] = filters.noise_covariance(("U", "L"), noise_sd**2, dt, dx)
-    per_pixel = accumulate(
-        {"U": rate, "L": lap, "R": rise},
-        ("U", "L", "R"),
-        dims=(1,),
-        weights=cooling,
-        noise=TermNoise(covariance),
+    # Each pixel's sums over its frames, in blocks of rows whose products stay in the cache.
+    rows = max(1, _BLOCK_VALUES // max(rate.shape[0] * rate.shape[1] * rate.shape[-1], 1))
+    blocks = [
+        accumulate(
+            {
+                "U": rate[..., r : r + rows, :],
+                "L": lap[..., r : r + rows, :],
+                "R": rise[..., r : r + rows, :],
+            },
+            ("U", "L", "R"),
+            dims=(1,),
+            weights=cooling[..., r : r + rows, :],
+            noise=TermNoise(covariance),
+        )
+        for r in range(0, rate.shape[-2], rows)
+    ]
+    per_pixel = Moments(
+        blocks[0].names, torch.cat([m.raw for m in blocks], 1), torch.cat([m.noise for m in blocks], 1)
     ).map(lambda x: x.movedim((-2, -1), (1, 2)))  # (B, 3, 3, H, W)
     # Whole video first (the fallback), then each window.
     a_video, b_video, ok_video = _solve(*_sums(per_pixel.map(lambda x: x.sum((-2, -1), keepdim=True))))
@@ -123,8 +136,8 @@ def fit_loss_windows(
     b_local = torch.where(s_tt > 0, -(s_ut - a_video * s_lt) / torch.where(s_tt > 0, s_tt, 1.0), b_video)
     a = torch.where(ok, a, a_video.expand_as(a))
     b = torch.where(ok, b, b_local)
-    residual = rate - a.unsqueeze(1) * lap + b.unsqueeze(1) * rise
-    source = residual.sum(1) * dt.view(-1, 1, 1)
+    # What the balance leaves, summed over the frames: U - a L + b R, from each term's sum.
+    source = (rate.sum(1) - a * lap.sum(1) + b * rise.sum(1)) * dt.view(-1, 1, 1)
     levers = (lap, rise, cooling)
     error = _loss_error(filters, levers, (a, b), ok, (s_ll, s_lt, s_tt), noise_sd, dt, dx, window)
     return LossFit(b, source, error)
