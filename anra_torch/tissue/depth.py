@@ -13,11 +13,15 @@ How it is solved (chosen by measuring, see ``experiments/damage_depth.py``): the
 (under a spot 1-2.5 mm wide heat leaves sideways as well as downwards), so the frame is the boundary of a
 3-D problem. With uniform ``a`` and ``b`` it separates exactly:
 
-* laterally, the frame's cosine modes (DCT-II: zero flux through the frame's edges), each with its own
-  decay ``c = a |k|^2 + b`` (``k = pi (p / H, q / W) / dx``, the continuous wavenumbers);
+* laterally, the cosine modes (DCT-II) of the frame, or of the frame continued ``margin`` mm beyond its
+  edges (:func:`~anra_torch.tissue.depth_solver.widen`: the frame is a window, and its edges then neither
+  hold the heat in nor invent it), each with its own decay ``c = a |k|^2 + b`` (``k = pi (p / H, q / W) /
+  dx``, the continuous wavenumbers); a node at depth ``z`` takes the modes with ``|k| z < 9.2`` (the
+  others reach it below 1e-4 of their surface amplitude);
 * in depth, the second-order finite-difference operator on nodes ``0 = z_0 < z_1 < ...`` whose spacing
   grows geometrically from :data:`FIRST_STEP` (the profiles broaden with depth), down to a bottom so deep
-  that no heat reaches it in the record (or the layer's);
+  that no heat reaches it in the record (or a shallower layer's: the grid stops where the heat does,
+  whatever the thickness);
 * in time, each mode (lateral x depth eigenmode) is integrated EXACTLY between frames for a surface that
   varies linearly between them (an exponential integrator: ``phi_1``, ``phi_2``), so the frame rate sets no
   stability limit and the only errors are the depth grid's and the surface's sampling.
@@ -27,12 +31,14 @@ pixel's and mode's state), and the physical temperatures of a block of frames ar
 Everything runs on the input's device in its dtype (constants built once in float64 and cached) and is
 differentiable with respect to the frames, ``a`` and ``b``.
 
-Damage in depth (:func:`damage_in_depth`): Omega and CEM43 of every depth node's history through
-:func:`~anra_torch.tissue.arrhenius_omega` and :func:`~anra_torch.tissue.cem43`, the peak-temperature profile,
-the damage depth (the deepest point with ``Omega >= 1``: ``ln Omega`` interpolated linearly between nodes) and
-the depth of a CEM43 threshold, each with a standard error propagated from the standard errors of ``a``
-and ``b`` and from the noise (one extra solve each: the linearised propagation), with the frames' sampling
-in time (the two dose rules' difference).
+Damage in depth (:func:`damage_in_depth`): Omega and CEM43 of every depth node's history
+(:class:`~anra_torch.tissue.depth_doses.DoseAccumulator`, the rules of :mod:`~anra_torch.tissue.dose`), the
+peak-temperature profile, the damage depth (the deepest point with ``Omega >= 1``: ``ln Omega``
+interpolated linearly between nodes) and the depth of a CEM43 threshold, each with a standard error
+propagated from the standard errors of ``a`` and ``b`` (one extra solve each: the linearised propagation),
+from the frames' noise (analytically: :mod:`~anra_torch.tissue.depth_errors`) and from the frames'
+sampling in time (the two dose rules' difference). Memory is flat in the number of frames: the march
+forms the temperatures a block of frames at a time.
 
 Units: mm, s, C, mm^2/s, 1/s.
 """
@@ -45,6 +51,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.checks import number
@@ -83,6 +90,7 @@ CEM43_THRESHOLD = 240.0
 _BLOCK_VALUES = 2**22  # temperatures formed per block of frames (32 MiB in float64)
 _COARSE_GROWTH = 1.15  # the depth grid of the pass that finds how deep the heat goes
 _F64 = torch.float64
+_TINY = 1e-300  # a dose floor for logarithms
 
 
 def _nodes_with(wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -281,7 +289,7 @@ def _reach(
     reach = 7.0 * math.sqrt(float(a.max()) * duration) + 0.1  # where an erfc tail falls below 1e-6
     if thickness is not None:
         reach = min(reach, float(thickness) * (1.0 - 1e-9))
-    reported = depth_nodes(max(reach, 2 * FIRST_STEP), growth=_COARSE_GROWTH)
+    reported = _above(depth_nodes(max(reach, 2 * FIRST_STEP), growth=_COARSE_GROWTH), thickness)
     nodes = solver_nodes(reported, bottom_depth(thickness, float(reported[-1]), a, duration))
     factor = max(1, math.ceil(max(rise.shape[-2:]) / 32))
     coarse = rise.detach()
@@ -299,6 +307,14 @@ def _reach(
     warm = (peak > floor.view(-1, 1)).any(0)
     deepest = int(torch.nonzero(warm).max()) if bool(warm.any()) else 0
     return float(reported[min(deepest + 1, len(reported) - 1)])
+
+
+def _above(nodes: np.ndarray, thickness: object) -> np.ndarray:
+    """``nodes`` above a layer's bottom (the grid passes its last depth by up to one spacing)."""
+    if thickness is None:
+        return nodes
+    kept = nodes[nodes < number(thickness, "thickness", "mm", positive=True)]
+    return kept if len(kept) >= 2 else nodes[:2]
 
 
 def _parameters(values: dict[str, object], like: Tensor) -> list[Tensor]:
@@ -331,6 +347,7 @@ def damage_in_depth(
     growth: float = GROWTH,
     lateral: bool = True,
     margin: float = 0.0,
+    coarse: int = 1,
 ) -> DepthMaps:
     """Omega, CEM43 and the peak temperature at every depth node under every pixel, the damage depth and
     the depth of a CEM43 threshold, each with its standard error.
@@ -358,11 +375,12 @@ def damage_in_depth(
         max_depth: deepest node (mm); default one coarse node below the deepest point where the peak
             exceeds :data:`DOSE_FLOOR` (a coarse pass with ``a + 2 diffusivity_std``).
         growth: ratio of consecutive depth spacings (:data:`GROWTH`; from :data:`FIRST_STEP` at the surface).
-        lateral: False solves each pixel's column on its own (per-pixel 1-D, no heat sideways): a
-            comparison, too deep under small spots.
+        lateral: False: each pixel's column on its own (1-D, no heat sideways; too deep under small spots).
         margin: mm by which the frames are continued beyond every edge
             (:func:`anra_torch.tissue.depth_solver.widen`) so that heat crosses the frame's edges as in the
             tissue (0: the frame's edges hold it in); the maps are the frame's.
+        coarse: the perturbed solves (``a + se``, ``b + se``) on the frames' ``coarse x coarse`` px means
+            (their changes vary smoothly across pixels; 2 halves the work), the base at full resolution.
 
     Returns:
         :class:`DepthMaps`; differentiable with respect to ``frames``, ``diffusivity`` and ``loss_rate``.
@@ -385,7 +403,7 @@ def damage_in_depth(
     pixels = math.ceil(number(margin, "margin", "mm", minimum=0.0) / float(dx_.min()) - 1e-9)
     rise = widen(rise, pixels) if pixels else rise
     nodes, reported = _grid(rise, dt_, dx_, (a, b), errors, body, (thickness, max_depth, growth))
-    settings = (rule, constants, cem43_threshold, lateral)
+    settings = (rule, constants, cem43_threshold, lateral, int(number(coarse, "coarse", "px", minimum=1)))
     maps = _solve(rise, dt_, dx_, body, (a, b), errors, nodes, reported, settings)
     maps = maps.cropped(pixels) if pixels else maps
     return maps if batched else maps.unbatched()
@@ -404,6 +422,7 @@ def _grid(
     reported = depth_nodes(
         max(number(max_depth, "max_depth", "mm", minimum=0.0), 2 * FIRST_STEP), growth=growth
     )
+    reported = _above(reported, thickness) if max_depth < float(thickness or math.inf) else reported
     duration = float(dt.max()) * (rise.shape[1] - 1)
     bottom = bottom_depth(thickness, float(reported[-1]), a + 2 * errors[0], duration)
     return solver_nodes(reported, bottom), len(reported)
@@ -420,41 +439,52 @@ def _solve(
     reported: int,
     settings: tuple,
 ) -> DepthMaps:
-    """The march of the base problem and its perturbed copies, their doses and the maps with their spread."""
-    rule, constants, cem43_threshold, lateral = settings
+    """The march of the base problem and its perturbed copies (on ``coarse x coarse`` pixel means), their
+    doses and the maps with their spread."""
+    rule, constants, cem43_threshold, lateral, coarse = settings
     a, b = rates
-    batch = rise.shape[0]
-    stacked, diffusivities, losses, weights = perturbed_copies(rise, a, b, errors[:2])
+    batch, (h, w) = rise.shape[0], rise.shape[-2:]
+    span = (nodes, reported)
     depths = torch.tensor(nodes[:reported], dtype=_F64, device="cpu").to(rise.device)
-    variance, rho = noise_correlation(depths, a, b, dt, dx, tuple(rise.shape[-2:]), errors[2])
-    doses = _march_doses(stacked, (dt, dx, body), (diffusivities, losses), rho, settings, (nodes, reported))
-    omega, cem43_, peak_ = doses.omega, doses.cem43, doses.peak
+    variance, rho = noise_correlation(depths, a, b, dt, dx, (h, w), errors[2])
+    if coarse > 1:  # the base at full resolution, the copies' changes on pixel means
+        doses = copies = _march_doses(rise, (dt, dx, body), (a, b), rho, settings, span)
+        pooled = F.avg_pool2d(rise.reshape(-1, 1, h, w), coarse, coarse, ceil_mode=True)
+        pooled = pooled.reshape(batch, -1, *pooled.shape[-2:])
+        stacked, diffusivities, losses, weights = perturbed_copies(pooled, a, b, errors[:2])
+        if len(weights):
+            per_video = (dt, dx * coarse, body)
+            copies = _march_doses(stacked, per_video, (diffusivities, losses), rho[:0], settings, span)
+    else:
+        stacked, diffusivities, losses, weights = perturbed_copies(rise, a, b, errors[:2])
+        doses = copies = _march_doses(stacked, (dt, dx, body), (diffusivities, losses), rho, settings, span)
     node_variance = variance.view(batch, -1, 1, 1)
-    damage, damage_std = spread(
-        threshold_depth(omega, depths, 1.0), weights, threshold_depth(doses.other("omega"), depths, 1.0)
-    )
-    damage_std = torch.sqrt(
-        damage_std**2 + _threshold_noise(omega[:batch], doses.variance["omega"] * node_variance, depths, 1.0)
-    )
-    dose_depth, dose_std = spread(
-        threshold_depth(cem43_, depths, cem43_threshold),
-        weights,
-        threshold_depth(doses.other("cem43"), depths, cem43_threshold),
-    )
-    cem43_noise = _threshold_noise(
-        cem43_[:batch], doses.variance["cem43"] * node_variance, depths, cem43_threshold
-    )
-    peak, peak_std = spread(peak_, weights)
+    maps = {}
+    for name, threshold in (("omega", 1.0), ("cem43", cem43_threshold)):
+        dose = getattr(doses, name)[:batch]
+        value = threshold_depth(dose, depths, threshold)
+        if coarse == 1:  # the copies' own depths
+            parameters = spread(threshold_depth(getattr(copies, name), depths, threshold), weights)[1] ** 2
+        else:  # the copies' change of ln D at every node, interpolated to the pixels, at the base's crossing
+            log = torch.log(getattr(copies, name).clamp_min(_TINY))  # (V B, Z, H', W')
+            cold = (log <= math.log(_TINY)).reshape(-1, batch, *log.shape[1:]).any(0)  # never hot: no rate
+            change = _upsampled(spread(log, weights)[1].masked_fill(cold, 0.0), h, w)
+            parameters = _threshold_noise(dose, change.to(dose.dtype) ** 2 * dose**2, depths, threshold)
+        sampling = 0.5 * (threshold_depth(doses.other(name), depths, threshold) - value)
+        noise = _threshold_noise(dose, doses.variance[name] * node_variance, depths, threshold)
+        maps[name] = (value, torch.sqrt(parameters + sampling**2 + noise).to(value.dtype))
+    peak_std = spread(copies.peak, weights)[1]
+    peak = doses.peak[:batch]
     return DepthMaps(
         depths=depths,
         peak=peak,
-        peak_std=torch.sqrt(peak_std**2 + node_variance.to(peak_std.dtype)),
-        omega=omega[:batch],
-        cem43=cem43_[:batch],
-        damage_depth=damage,
-        damage_depth_std=damage_std.to(damage.dtype),
-        cem43_depth=dose_depth,
-        cem43_depth_std=torch.sqrt(dose_std**2 + cem43_noise).to(dose_depth.dtype),
+        peak_std=torch.sqrt(_upsampled(peak_std, h, w) ** 2 + node_variance.to(peak.dtype)),
+        omega=doses.omega[:batch],
+        cem43=doses.cem43[:batch],
+        damage_depth=maps["omega"][0],
+        damage_depth_std=maps["omega"][1],
+        cem43_depth=maps["cem43"][0],
+        cem43_depth_std=maps["cem43"][1],
         cem43_threshold=cem43_threshold,
         diffusivity=a,
         diffusivity_std=errors[0],
@@ -462,8 +492,18 @@ def _solve(
         loss_rate_std=errors[1],
         noise_sd=errors[2],
         body_temperature=body,
-        truncated=omega[:batch, -1] >= 1.0,
+        truncated=doses.omega[:batch, -1] >= 1.0,
     )
+
+
+def _upsampled(x: Tensor, h: int, w: int) -> Tensor:
+    """``(B, Z, H', W')`` values at the centres of blocks of ``ceil(H / H')`` px, interpolated bilinearly to
+    the ``(B, Z, H, W)`` pixels (the same tensor when ``H' = H``)."""
+    if x.shape[-2:] == (h, w):
+        return x
+    factor = math.ceil(h / x.shape[-2])
+    size = (x.shape[-2] * factor, x.shape[-1] * factor)
+    return F.interpolate(x, size=size, mode="bilinear", align_corners=False)[..., :h, :w]
 
 
 def _march_doses(
@@ -476,15 +516,16 @@ def _march_doses(
 ) -> DoseAccumulator:
     """Peak, Omega and CEM43 at the reported nodes of the stacked ``(V B, T, H, W)`` rises (the base videos
     first), and for the base videos the doses by the other rule and their noise variance.
-    ``per_video``: ``dt``, ``dx`` and the body temperature, ``(B,)`` each; ``rho`` ``(B, Z)``."""
-    rule, constants, _, lateral = settings
+    ``per_video``: ``dt``, ``dx`` and the body temperature, ``(B,)`` each; ``rho`` ``(B, Z)`` (``(0, Z)``:
+    no video gets the other rule nor the noise)."""
+    rule, constants, _, lateral, _ = settings
     nodes, reported = nodes
     n, (h, w) = stacked.shape[0], stacked.shape[-2:]
     batch = per_video[0].numel()
     index = (torch.arange(n, device="cpu") % batch).to(stacked.device)
     spacing, size, warm = (x[index] for x in per_video)
     problem = frame_problem(stacked, spacing, size, *rates, nodes, reported, lateral=lateral)
-    doses = DoseAccumulator(stacked, (n, reported, h, w), spacing, rule, constants, batch, rho)
+    doses = DoseAccumulator(stacked, (n, reported, h, w), spacing, rule, constants, len(rho), rho)
     offset = warm.view(-1, 1, 1, 1, 1)
     block = max(1, _BLOCK_VALUES // (n * reported * h * w))
     for start, states in march(problem, block):

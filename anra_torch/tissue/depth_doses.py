@@ -72,7 +72,7 @@ class DoseAccumulator:
         }
         self.variance = {name: torch.zeros((base, *shape[1:]), **zeros) for name in ("omega", "cem43")}
         self.filtered = {name: torch.zeros((base, *shape[1:]), **zeros) for name in ("omega", "cem43")}
-        self.rho = rho.to(device=like.device, dtype=_F64).view(base, -1, 1, 1)
+        self.rho = rho.to(device=like.device, dtype=_F64).reshape(base, shape[1], 1, 1)
         self.dt, self.rule, self.constants, self.base = dt, rule, constants, base
         self._theta = constants.activation_energy / GAS_CONSTANT  # K
         self._log_a = math.log(constants.frequency)
@@ -116,13 +116,14 @@ class DoseAccumulator:
                     continue
                 dose = dose.to(_F64)
                 videos = len(x) if rule == self.rule else self.base
+                if not videos:
+                    continue
                 total = self.doses[name, rule]
                 total = total.reshape(len(total), -1).index_add(1, hot, dose[:videos]).reshape(total.shape)
                 self.doses[name, rule] = total
-            slopes = (
-                rate[: self.base, fresh:] * self._slope(name, x[: self.base, fresh:]) * dt[: self.base, None]
-            )
-            self._noise(name, slopes, hot)
+            if self.base:  # the base videos' noise
+                slope = self._slope(name, x[: self.base, fresh:])
+                self._noise(name, rate[: self.base, fresh:] * slope * dt[: self.base, None], hot)
 
     def _rate(self, name: str, x: Tensor) -> tuple[Tensor, Tensor]:
         """The dose rate's exponent and the rate (Omega: 1/s; CEM43: per s, in equivalent s at 43 C)."""

@@ -34,6 +34,10 @@ MAP_MARGIN = 0.8
 MAP_GROWTH = 1.06
 """Ratio of consecutive depth spacings of the maps' nodes: 6 % per node moves the damage depth (``ln Omega``
 interpolated between nodes) by under 2e-4 mm from the 3 % grid on the validation scenes, at half the work."""
+MAP_COARSE = 2
+"""The maps' perturbed solves (``a + se``, ``b + se``: the parameters' part of the standard errors) on the
+frames' ``2 x 2`` px means (:func:`anra_torch.tissue.damage_in_depth`'s ``coarse``): the base at full
+resolution, the copies' changes vary smoothly across pixels."""
 PRIOR: dict[str, tuple[float, float]] = {"diffusivity": (0.14, 0.03), "loss_rate": (0.005, 0.005)}
 """Textbook skin values with wide standard errors (value, standard error) for a recording whose cooling
 cannot be fitted (none recorded, or nothing above the noise): ``a`` 0.14 mm^2/s (0.08-0.20 within two
@@ -78,8 +82,8 @@ class DepthFeatures:
             if self.thickness is None
             else f"layer of {self.thickness:g} mm over tissue held at the body temperature",
             "model": "dT/dt = a (d_xx + d_yy + d_zz) T - b (T - T_body) under the frame, the frames as the "
-            "surface temperature, continued beyond the frame's edges (odd reflection about the edge value), "
-            "in equilibrium with the first",
+            "surface temperature, continued beyond the frame's edges (a straight line through each edge's "
+            "last pixels), in equilibrium with the first",
             "diffusivity_mm2_s": value(self.used_parameters["diffusivity"]),
             "diffusivity_std_mm2_s": value(self.used_parameters["diffusivity_std"]),
             "loss_rate_per_s": value(self.used_parameters["loss_rate"]),
@@ -154,6 +158,7 @@ def depth_features(
             thickness=thickness,
             growth=MAP_GROWTH,
             margin=MAP_MARGIN,
+            coarse=MAP_COARSE,
             **{k: v[pick] for k, v in chosen.items()},
         )
         for name, field_name in _SOURCES.items():

@@ -16,13 +16,15 @@ where ``S`` keeps the cosine modes (of the frame and a margin) below ``3.7 / SMO
 stands above the noise, Gaussian-weighted (``exp(-k^2 s^2 / 2)``, the same on both sides).
 
 The frame is a window, not the world: the heat crosses its edges. The frames are continued
-``MARGIN`` mm beyond every edge (:func:`anra_torch.tissue.depth_solver.widen`: odd reflection about the
-edge value) so that the heat leaves through them as it does in the tissue, the cooling evolves freely
-there, and the residual is read only inside the frame, away from its edges.
+``MARGIN`` mm beyond every edge (:func:`anra_torch.tissue.depth_solver.widen`: a straight line through
+each edge's last pixels) so that the heat leaves through them as it does in the tissue, the cooling evolves
+freely there, and the residual is read only inside the frame, away from its edges.
 
-Standard errors: the measured white noise of the frames forecast, through the residual's linear operator
-(analytic, first order), and the jackknife over the residual's four quadrants (one linearised step each:
-quadrants that disagree about ``a`` show the model's own error); the larger of the two per parameter.
+Standard errors: the larger of the measured white noise's (through the residual's linear operators,
+analytic, first order: the measured side and the forecast's state) and the jackknife's over rings of the
+window by distance from the edges and halves of the cooling (one linearised step each: parts that
+disagree about ``a`` show the model's own error), and in quadrature the edges' part: the change of the fit
+when the frames are continued beyond the window with their curvature mirrored instead of straight.
 
 Volumetric heating (a near-infrared laser deposits its heat below the surface) breaks the model: heat
 keeps rising from below after the switch-off and no ``(a, b, beta)`` forecasts the cooling.
@@ -203,13 +205,15 @@ def _window_basis(h: int, w: int, margin: int, inner: int, like: Tensor, py: int
     return (ch[:, None, :, None] * cw[None, :, None, :]).reshape(py * px, -1)
 
 
-def _cooling(rise: Tensor, dx: Tensor, dt: Tensor, noise: Tensor, start: Tensor) -> _Cooling:
+def _cooling(
+    rise: Tensor, dx: Tensor, dt: Tensor, noise: Tensor, start: Tensor, *, mirrored: bool = False
+) -> _Cooling:
     """The modes, weights, frames and the measured side of the residual of a batch ``(B, T, H, W)``."""
     b, t, h, w = rise.shape
     step = float(dx.max())
     margin = max(1, math.ceil(MARGIN / step - 1e-9))
     inner = min(max(1, round(EDGE / step)), (min(h, w) - 1) // 2)
-    wide = widen(rise, margin)
+    wide = widen(rise, margin, mirrored=mirrored, noise=noise)
     hh, ww = wide.shape[-2:]
     ky = math.pi * torch.arange(hh, dtype=_F64, device=rise.device) / hh
     kx = math.pi * torch.arange(ww, dtype=_F64, device=rise.device) / ww
@@ -448,6 +452,11 @@ def fit_depth_parameters(
         theta, r, jac = _levenberg_marquardt(c, _start(c))
         se = _errors(c, theta, r, jac, noise)
         misfit = _misfit(c, r, noise)
+        # The edges' part: the frames continued with their curvature mirrored instead (the other plausible
+        # continuation beyond the window) move the fit by about what the continuation can err.
+        mirrored = _cooling(rise, dx_, dt_, noise, start, mirrored=True)
+        other, _, _ = _levenberg_marquardt(mirrored, theta, iterations=6)
+        se = torch.sqrt(se**2 + (other - theta) ** 2)
     return _result(theta, se, noise, start, misfit, valid, cooling, used, batched)
 
 

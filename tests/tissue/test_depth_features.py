@@ -15,7 +15,7 @@ from anra_torch.tissue import (
     damage_in_depth,
     depth_features,
 )
-from anra_torch.tissue.depth_features import MAP_GROWTH, MAP_MARGIN, PRIOR
+from anra_torch.tissue.depth_features import MAP_COARSE, MAP_GROWTH, MAP_MARGIN, PRIOR
 
 
 @pytest.fixture(scope="module")
@@ -38,6 +38,7 @@ def test_without_cooling_the_maps_use_the_stated_prior(burn: tuple[torch.Tensor,
         dx,
         growth=MAP_GROWTH,
         margin=MAP_MARGIN,
+        coarse=MAP_COARSE,
         diffusivity=0.14,
         loss_rate=0.005,
         diffusivity_std=0.03,
