@@ -163,6 +163,8 @@ class TissueFeatureMaps:
             parameters (:class:`anra_torch.tissue.DepthFeatures`, batched even for a single video); the
             :data:`anra_torch.tissue.DEPTH_MAPS` are also in ``maps`` (NaN for a video without a usable fit,
             with the reason in ``messages``).
+        cooling_diffusivity: ``a`` (mm^2/s) fitted with ``loss_rate`` on each window's cooling frames, where
+            no source biases it (the video's where ``a``, ``b`` can't be told apart), ``(B, H, W)``; or None.
     """
 
     maps: dict[str, Tensor]
@@ -174,6 +176,7 @@ class TissueFeatureMaps:
     loss_rate_std_error: Tensor | None = None
     absent: dict[str, str] = field(default_factory=dict)
     depth: DepthFeatures | None = None
+    cooling_diffusivity: Tensor | None = None
 
     def stack(self, names: Sequence[str] | None = None) -> Tensor:
         """The maps as channels, ``(B, F, H, W)`` (or ``(F, H, W)``), in the order of ``names``."""
@@ -188,7 +191,7 @@ class TissueFeatureMaps:
 
     def unbatched(self) -> TissueFeatureMaps:
         """The same result with the batch dimension of size 1 removed."""
-        error = self.loss_rate_std_error
+        error, cooling = self.loss_rate_std_error, self.cooling_diffusivity
         return replace(
             self,
             maps={k: v[0] for k, v in self.maps.items()},
@@ -196,6 +199,7 @@ class TissueFeatureMaps:
             masked=self.masked[0],
             valid=self.valid[0],
             loss_rate_std_error=None if error is None else error[0],
+            cooling_diffusivity=None if cooling is None else cooling[0],
         )
 
 
@@ -387,7 +391,8 @@ class TissueFeatures(nn.Module):
         why = {name: depth_reason for name in DEPTH_MAPS}
         absent = {name: why.get(name, reason) for name in self.map_names if name not in maps}
         error = None if reason else spatial["loss_rate_std_error"]
-        out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent, depth)
+        cooling = None if reason else spatial["cooling_diffusivity"]
+        out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent, depth, cooling)
         return out if batched else out.unbatched()
 
     def _depth_maps(self, filled: Tensor, dt: Tensor, dx: Tensor | None) -> tuple[DepthFeatures | None, str]:
@@ -446,7 +451,8 @@ class TissueFeatures(nn.Module):
         noise_sd = estimate_noise_sd(filled).reshape(b).to(_F64)
         fit = fit_loss_windows(self.filters, terms, maps["diffusivity"], noise_sd, dt, dx, window=self.window)
         maps["loss_rate"], maps["source"] = fit.loss_rate, fit.source
-        return {"maps": maps, "result": result, "loss_rate_std_error": fit.std_error}
+        fitted = {"loss_rate_std_error": fit.std_error, "cooling_diffusivity": fit.diffusivity}
+        return {"maps": maps, "result": result, **fitted}
 
     def _summary(self, maps: dict[str, Tensor], masked: Tensor, spatial: dict | None, span: Tensor) -> dict:
         """Per-video values ``(B,)``: map maxima (the ANRA maps' over confident windows) and the rest."""
