@@ -11,16 +11,23 @@
 - :mod:`~anra_torch.balance.batch_noise`: the noise context of a batch of videos;
 - :mod:`~anra_torch.balance.spectral`: the balance's ``U`` and ``L`` through the frames' spectra, shared
   by every smoothing candidate, and the standard error's pushed-back lever by Parseval;
-- :mod:`~anra_torch.balance.loss`: the windowed loss-rate fit of the tissue features.
+- :mod:`~anra_torch.balance.loss`: the windowed loss-rate fit of the tissue features, and
+  :mod:`~anra_torch.balance.loss_error` its standard error, propagated from the noise without copies.
 
 Shape:
     Videos ``(B, T, H, W)``; a single video ``(T, H, W)``.
 """
 
 from anra_torch.balance.artefacts import Artefacts, find_artefacts, stuck_pixels
-from anra_torch.balance.batch_noise import BatchNoise, PreparedBatch, batch_noise, prepare_batch
+from anra_torch.balance.batch_noise import (
+    BatchNoise,
+    PreparedBatch,
+    batch_noise,
+    concat_prepared,
+    prepare_batch,
+)
 from anra_torch.balance.filters import MatchedFilters
-from anra_torch.balance.loss import LOSS_REPLICATES, fit_loss_windows
+from anra_torch.balance.loss import fit_loss_windows
 from anra_torch.balance.moments import Moments, TermNoise, accumulate
 from anra_torch.balance.noise import NoiseModel, estimate_noise_sd, measure_noise
 from anra_torch.balance.spectral import (
@@ -37,7 +44,6 @@ __all__ = [
     "BalanceSystem",
     "BatchNoise",
     "Fit",
-    "LOSS_REPLICATES",
     "MatchedFilters",
     "Moments",
     "SpectralStage",
@@ -47,6 +53,7 @@ __all__ = [
     "TermNoise",
     "accumulate",
     "batch_noise",
+    "concat_prepared",
     "estimate_noise_sd",
     "find_artefacts",
     "fit_loss_windows",

@@ -41,13 +41,21 @@ whole video (:data:`OUTLIER_Z`), far above what Gaussian noise reaches in a came
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from anra_torch.balance.noise import robust_sd, row_medians, sampled_fourth_difference
+from anra_torch.balance.robust import (
+    PixelStats,
+    pixel_stats,
+    robust_sd,
+    row_medians,
+    sampled_fourth_difference,
+)
 
 __all__ = ["OUTLIER_Z", "PIXEL_EFFECTS_FRAMES", "RESOLUTION", "Artefacts", "find_artefacts", "stuck_pixels"]
 
@@ -144,7 +152,7 @@ def _bad_pixels(frames: Tensor, finite: Tensor | None, floor: float = 0.0) -> Te
     t = frames.shape[0]
     if finite is None or bool(finite.all()):  # the usual case: no masked copies of the video
         never = torch.zeros(frames.shape[1:], dtype=torch.bool, device=frames.device)
-        low, high = torch.aminmax(frames, dim=0)
+        low, high = frames.amin(0), frames.amax(0)  # two reductions: 10x faster than aminmax(dim=0)
         constant = high == low
         mean = frames.sum(0) / t
     else:
@@ -163,11 +171,16 @@ def _bad_pixels(frames: Tensor, finite: Tensor | None, floor: float = 0.0) -> Te
     # impulse are pulled by it, but their range holds it).
     padded = F.pad(mean[None, None], (2, 2, 2, 2), mode="replicate")
     excess = mean - F.conv2d(padded, _QUADRATIC_PREDICTOR.to(mean)[None, None])[0, 0]
-    patches = F.unfold(padded, 5)[0]  # (25, H W)
-    patches = torch.cat([patches[:12], patches[13:]]).reshape(24, *mean.shape)
-    spread = patches.amax(0) - patches.amin(0)
     scale = robust_sd(excess[good], sample=None)
-    big = (excess.abs() > max(OUTLIER_Z * scale, floor)) & (excess.abs() > 0.5 * spread)
+    big = excess.abs() > max(OUTLIER_Z * scale, floor)
+    if bool(big.any()):  # the neighbourhoods' ranges of the few candidates only
+        rows, cols = big.nonzero(as_tuple=True)
+        five = torch.arange(5, device=mean.device)
+        patches = padded[0, 0][(rows[:, None] + five)[:, :, None], (cols[:, None] + five)[:, None, :]]
+        patches = torch.cat([patches.reshape(-1, 25)[:, :12], patches.reshape(-1, 25)[:, 13:]], 1)
+        spread = torch.zeros_like(mean)
+        spread[rows, cols] = patches.amax(1) - patches.amin(1)
+        big = big & (excess.abs() > 0.5 * spread)
     hot = big if scale > 0 else ~good
     return never | constant | (hot & good)
 
@@ -218,11 +231,12 @@ def _quantile(flat: Tensor, q: float) -> float:
     """``torch.quantile(flat, q)`` (linear interpolation) by selection instead of a full sort."""
     position = q * (flat.numel() - 1)
     below = int(position)
-    low = float(flat.kthvalue(below + 1).values)
-    if below + 1 >= flat.numel():
-        return low
-    high = float(flat.kthvalue(below + 2).values)
-    return low + (position - below) * (high - low)
+    values = flat.detach().cpu().numpy()
+    ranks = [below, below + 1] if below + 1 < values.shape[0] else [below]
+    chosen = np.partition(values, ranks)[ranks]
+    if len(ranks) == 1:
+        return float(chosen[0])
+    return float(chosen[0]) + (position - below) * (float(chosen[1]) - float(chosen[0]))
 
 
 def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
@@ -238,11 +252,13 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
     none = torch.zeros(0, 3, dtype=torch.long, device=frames.device), frames.new_zeros(0)
     if t < 5:
         return none
-    second = frames[1:-1] - 0.5 * (frames[:-2] + frames[2:])
+    second = torch.add(frames[:-2], frames[2:]).mul_(-0.5).add_(frames[1:-1])  # one temporary
     scale = robust_sd(second, nonzero=True)
     if scale == 0:
         return none
     threshold = max(OUTLIER_Z * scale, floor)
+    if not float(torch.linalg.vector_norm(second, ord=float("inf"))) > threshold:
+        return none  # the usual case, told by one pass: no sample is a candidate
     over = second.abs() > threshold
     flagged = over.nonzero()
     if flagged.numel() == 0:
@@ -273,22 +289,22 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
     return torch.stack([k, i, j], 1)[spike], without[spike]
 
 
-def _fixed_pattern(frames: Tensor, floor: float = 0.0) -> tuple[bool, float]:
+def _fixed_pattern(frames: Tensor, floor: float = 0.0, stats: PixelStats | None = None) -> tuple[bool, float]:
     """Whether the time-mean frame is spatially rough compared with a single frame's deviation from it
     (a static pattern), and the pattern's sd (data units).
 
     Spatial fourth differences remove the smooth thermal field; what is left in the time-mean frame is
     the static pattern plus the temporal noise averaged over the frames (at most about ``sqrt(pi / 2)``
     of one frame's, when the noise is correlated over many frames; ``sqrt(pi / 2T)`` for white noise).
+    ``stats``: the frames' :class:`~anra_torch.balance.robust.PixelStats` when the caller has them.
     """
     t = frames.shape[0]
     if t < 5 or min(frames.shape[1:]) < 5:
         return False, 0.0
-    mean = frames.mean(0)
     # Over the quieter half of the pixels: a camera's pattern covers the whole sensor, while the static
     # structure of the scene (a heated spot, a source) sits where the temperature changes.
-    power = (frames - mean).pow(2).mean(0)
-    quiet = power <= row_medians(power.reshape(1, -1))[0]
+    stats = pixel_stats(frames) if stats is None else stats
+    mean, quiet = stats.mean, stats.quiet
 
     def roughness(x: Tensor) -> float:
         axes = []
@@ -308,7 +324,7 @@ def _steps(frames: Tensor, floor: float = 0.0) -> tuple[tuple[int, ...], tuple[f
     t = frames.shape[0]
     if t < 8:
         return (), ()
-    stride = max(1, int((frames[0].numel() / 20_000) ** 0.5))  # 20,000 pixels tell a global jump
+    stride = max(1, math.ceil((frames[0].numel() / 20_000) ** 0.5 - 1e-9))  # 20,000 pixels or fewer
     sub = frames[:, ::stride, ::stride]
     change = row_medians((sub[1:] - sub[:-1]).flatten(1))  # (T - 1,)
     padded = F.pad(change[None, None], (3, 3), mode="replicate")[0, 0]
@@ -321,15 +337,18 @@ def _steps(frames: Tensor, floor: float = 0.0) -> tuple[tuple[int, ...], tuple[f
     return tuple(k + 1 for k in index), tuple(float(jump[k]) for k in index)
 
 
-def find_artefacts(frames: Tensor) -> tuple[Tensor, Artefacts]:
+def find_artefacts(frames: Tensor, *, stats: PixelStats | None = None) -> tuple[Tensor, Artefacts]:
     """Find the camera artefacts of one video, repair what can be repaired, and say what was done.
 
     Args:
         frames: temperatures ``(T, H, W)`` (any real dtype; computed in the frames' floating dtype).
+        stats: the frames' :class:`~anra_torch.balance.robust.PixelStats`, where the caller has them
+            (:func:`~anra_torch.balance.robust.pixel_stats`; used while nothing is repaired).
 
     Returns:
         The repaired frames (non-finite samples, dead and hot elements and spikes replaced; finite
-        everywhere) and :class:`Artefacts` (with the fixed effects the balance must use).
+        everywhere; ``frames`` itself, not a copy, where nothing was repaired) and :class:`Artefacts`
+        (with the fixed effects the balance must use).
 
     Shape:
         ``frames`` ``(T, H, W)``; output the same.
@@ -350,13 +369,12 @@ def find_artefacts(frames: Tensor) -> tuple[Tensor, Artefacts]:
         repaired[spike_at[:, 0], spike_at[:, 1], spike_at[:, 2]] = without
     bad = _bad_pixels(repaired, torch.isfinite(repaired) if non_finite else None, floor)
     repaired = _repair_pixels(repaired, bad)
-    repaired = video.clone() if repaired is video else repaired  # the caller owns what it gets
     # Samples still non-finite in good pixels: their pixel's mean.
     holes = None if everywhere else ~torch.isfinite(repaired)
     if holes is not None and bool(holes.any()):
         local = repaired.nanmean(0, keepdim=True).expand_as(repaired)
         repaired = torch.where(holes, local, repaired).nan_to_num(float(repaired.nanmean()))
-    pattern, pattern_sd = _fixed_pattern(repaired, floor)
+    pattern, pattern_sd = _fixed_pattern(repaired, floor, stats if repaired is frames else None)
     steps, sizes = _steps(repaired, floor)
     rows, cols = bad.nonzero(as_tuple=True)
     found = Artefacts(
@@ -381,7 +399,8 @@ def stuck_pixels(video: Tensor, finite: Tensor | None) -> Tensor:
     pixels (a noiseless static background) are left alone. ``finite`` None: every sample is finite.
     """
     if finite is None:
-        low, high = torch.aminmax(video.detach(), dim=1)
+        detached = video.detach()
+        low, high = detached.amin(1), detached.amax(1)
         constant = high == low
     else:
         big = torch.finfo(video.dtype).max

@@ -20,12 +20,13 @@ from torch import Tensor
 from anra_torch.balance.artefacts import Artefacts, find_artefacts, stuck_pixels
 from anra_torch.balance.moments import within
 from anra_torch.balance.noise import NoiseModel, estimate_noise_sd, measure_noise
+from anra_torch.balance.robust import pixel_stats
 from anra_torch.balance.spectral import pushed_back, pushed_norm
 
 if TYPE_CHECKING:
     from anra_torch.balance.filters import MatchedFilters
 
-__all__ = ["BatchNoise", "PreparedBatch", "batch_noise", "prepare_batch"]
+__all__ = ["BatchNoise", "PreparedBatch", "batch_noise", "concat_prepared", "prepare_batch"]
 
 _F64 = torch.float64
 
@@ -104,17 +105,25 @@ class BatchNoise:
         return out
 
     def pushed_spread(
-        self, filters: MatchedFilters, lever: Tensor, a: Tensor, dt: Tensor, dx: Tensor, size: tuple[int, int]
+        self,
+        filters: MatchedFilters,
+        lever: Tensor,
+        a: Tensor,
+        dt: Tensor,
+        dx: Tensor,
+        size: tuple[int, int],
+        *,
+        frames: int | None = None,
     ) -> Tensor:
         """:meth:`spread` of ``A_U^T lever - a A_L^T lever`` without the pushed-back field where the noise is
-        white (:func:`~anra_torch.balance.spectral.pushed_norm`); the field of the others only, ``(B,)``.
+        white (:func:`~anra_torch.balance.spectral.pushed_norm`, ``frames`` as there); the field of the
+        others only, ``(B,)``.
 
         Shape:
             ``lever`` ``(B, K, h, w)``; ``a``, ``dt``, ``dx`` ``(B,)``.
         """
-        out = (self.sd.to(_F64) * pushed_norm(filters, lever, a, dt, dx, size).clamp_min(0).sqrt()).to(
-            self.sd
-        )
+        norm = pushed_norm(filters, lever, a, dt, dx, size, frames=frames)
+        out = (self.sd.to(_F64) * norm.clamp_min(0).sqrt()).to(self.sd)
         for b in range(len(self.models)):  # the few videos with correlated noise: their field
             model = self.balanced(b)
             if not model.white:
@@ -151,14 +160,18 @@ def _batch_noise(video: Tensor, finite: Tensor | None, *, noise_sd: float | None
     cleaned, artefacts, models = [], [], []
     for index in range(b):  # artefacts and noise are properties of each recording
         one = video[index] if finite is None else torch.where(finite[index], video[index], torch.nan)
-        repaired, found = find_artefacts(one.detach())
+        one = one.detach()
+        stats = pixel_stats(one) if finite is None and one.is_floating_point() else None  # read once
+        repaired, found = find_artefacts(one, stats=stats)
         cleaned.append(repaired.to(video.dtype))
         artefacts.append(found)
         if white is None:
             models.append(NoiseModel(float(noise_sd)))
-        else:  # nothing repaired: the white estimate of the repaired video is the batch's
-            known = None if found.any else float(white[index])
-            models.append(measure_noise(repaired, static_pattern=found.fixed_pattern, white_sd=known))
+        else:  # nothing repaired: the white estimate and the pixels' statistics are the video's
+            known, same = (None, None) if found.any else (float(white[index]), stats)
+            models.append(
+                measure_noise(repaired, static_pattern=found.fixed_pattern, white_sd=known, stats=same)
+            )
     if white is None:
         sd = torch.full((b,), float(noise_sd), dtype=video.dtype, device=device)
     else:
@@ -188,6 +201,7 @@ class PreparedBatch:
         noise: the batch's noise context (:func:`batch_noise`).
         changing: whether each video's good samples change at all, ``(B,)`` bool.
         masked: samples left out of each video (non-finite or dead), ``(B,)``.
+        offset: the mean subtracted from each video, ``(B,)`` (``video + offset`` is in the frames' units).
     """
 
     video: Tensor
@@ -195,6 +209,34 @@ class PreparedBatch:
     noise: BatchNoise
     changing: Tensor
     masked: Tensor
+    offset: Tensor
+
+    def repaired(self, index: int) -> Tensor:
+        """Video ``index`` with its artefacts repaired and every sample finite, in the frames' units:
+        what :func:`~anra_torch.balance.find_artefacts` returns for it, ``(T, H, W)``."""
+        return self.noise.cleaned[index].detach() + self.offset[index].to(self.noise.cleaned.dtype)
+
+
+def concat_prepared(parts: Sequence[PreparedBatch]) -> PreparedBatch:
+    """Prepared batches of same-shaped videos as one batch, in order."""
+    if len(parts) == 1:
+        return parts[0]
+    good = None
+    if any(p.good is not None for p in parts):
+        good = torch.cat(
+            [torch.ones_like(p.video, dtype=torch.bool) if p.good is None else p.good for p in parts]
+        )
+    noises = [p.noise for p in parts]
+    noise = BatchNoise(
+        torch.cat([n.cleaned for n in noises]),
+        torch.cat([n.sd for n in noises]),
+        tuple(m for n in noises for m in n.models),
+        torch.cat([n.pixel for n in noises]),
+        torch.cat([n.frame for n in noises]),
+        tuple(a for n in noises for a in n.artefacts),
+    )
+    cat = [torch.cat([getattr(p, name) for p in parts]) for name in ("video", "changing", "masked", "offset")]
+    return PreparedBatch(cat[0], good, noise, cat[1], cat[2], cat[3])
 
 
 def prepare_batch(video: Tensor, *, noise_sd: float | None = None) -> PreparedBatch:
@@ -214,10 +256,13 @@ def prepare_batch(video: Tensor, *, noise_sd: float | None = None) -> PreparedBa
     stuck = stuck_pixels(video, finite)
     if finite is None and not bool(stuck.any()):
         # Remove each video's mean (derivatives ignore it): keeps float32 precise on e.g. 300 K scenes.
-        centred = video - video.sum((1, 2, 3), keepdim=True) / video[0].numel()
+        offset = video.sum((1, 2, 3), keepdim=True) / video[0].numel()
+        centred = video - offset
         noise = batch_noise(centred, None, noise_sd=noise_sd)
-        low, high = torch.aminmax(noise.cleaned.detach().flatten(1), dim=1)
-        return PreparedBatch(noise.cleaned, None, noise, high > low, video.new_zeros(b, dtype=torch.long))
+        flat = noise.cleaned.detach().flatten(1)
+        changing = flat.amax(1) > flat.amin(1)
+        zeros = video.new_zeros(b, dtype=torch.long)
+        return PreparedBatch(noise.cleaned, None, noise, changing, zeros, offset.detach().reshape(b))
     finite = (torch.isfinite(video) if finite is None else finite) & ~stuck
     # ... and fills masked pixels with a neutral value.
     counts = finite.sum((1, 2, 3)).clamp_min(1)
@@ -231,4 +276,5 @@ def prepare_batch(video: Tensor, *, noise_sd: float | None = None) -> PreparedBa
     video = torch.where(finite | repaired, noise.cleaned, video)
     low = torch.where(finite, video, torch.full_like(video, torch.inf)).amin((1, 2, 3))
     changing = torch.where(finite, video, torch.full_like(video, -torch.inf)).amax((1, 2, 3)) > low
-    return PreparedBatch(video, finite | repaired, noise, changing, (~finite).sum((1, 2, 3)))
+    masked = (~finite).sum((1, 2, 3))
+    return PreparedBatch(video, finite | repaired, noise, changing, masked, mean.detach())

@@ -5,65 +5,39 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from anra_torch.balance.robust import (
+    _GAIN,
+    _MAD_TO_SD,
+    _TAPS,
+    PixelStats,
+    _fourth_difference,
+    _robust_var,
+    _taps_sum,
+    fourth_difference,
+    pixel_stats,
+    robust_sd,
+    row_medians,
+)
 from anra_torch.checks import as_video
 
-__all__ = ["NoiseModel", "estimate_noise_sd", "measure_noise", "row_medians", "sampled_fourth_difference"]
+__all__ = ["NoiseModel", "estimate_noise_sd", "measure_noise"]
 
-# Fourth difference [1, -4, 6, -4, 1]: annihilates cubics, so smooth thermal fields barely leak in.
-_TAPS = (1.0, -4.0, 6.0, -4.0, 1.0)
-_GAIN = math.sqrt(sum(t * t for t in _TAPS))  # white-noise gain sqrt(70)
-_MAD_TO_SD = 1.0 / 0.6744897501960817
-
-
-def _taps_sum(x: Tensor, dim: int, stride: int) -> Tensor:
-    """``sum_i _TAPS[i] x[i stride + k]`` along ``dim``, accumulated in place: one temporary instead of nine
-    (at 48 MB each, fresh mappings whose page faults dominated a 120-frame noise model)."""
-    n = x.shape[dim] - 4 * stride
-    out = x.narrow(dim, 0, n) * _TAPS[0]
-    for i, tap in enumerate(_TAPS[1:], start=1):
-        out.add_(x.narrow(dim, i * stride, n), alpha=tap)
-    return out
-
-
-def row_medians(x: Tensor, valid: Tensor | None = None) -> Tensor:
-    """The lower median of each row's ``valid`` values: ``torch.median`` (``nanmedian`` with NaN at the
-    invalid values; NaN for a row without any), exactly.
-
-    On the CPU by NumPy's selection (``np.partition`` on the values alone): 8x faster than torch's, which
-    selects (value, index) pairs. Not differentiable (noise levels are measured on detached frames).
-
-    Shape:
-        ``x`` ``(R, N)``, ``valid`` ``(R, N)`` bool or None; output ``(R,)``.
-    """
-    if x.device.type != "cpu" or x.numel() == 0:
-        return x.median(1).values if valid is None else torch.where(valid, x, torch.nan).nanmedian(1).values
-    values = x.detach() if valid is None else torch.where(valid, x.detach(), torch.inf)  # invalid: last
-    count = torch.full((x.shape[0],), x.shape[1], device="cpu") if valid is None else valid.sum(1)
-    rank = ((count - 1).clamp_min(0) // 2).numpy()
-    chosen = np.partition(values.numpy(), np.unique(rank), axis=1)[np.arange(x.shape[0]), rank]
-    out = torch.from_numpy(np.ascontiguousarray(chosen)).to(x.dtype)
-    return out if valid is None else torch.where(count > 0, out, torch.nan)
-
-
-def _fourth_difference(x: Tensor, finite: Tensor, dim: int) -> tuple[Tensor, Tensor]:
-    n = x.shape[dim] - 4
-    out = _taps_sum(x, dim, 1)
-    ok = finite.narrow(dim, 0, n)
-    for i in range(1, 5):
-        ok = ok & finite.narrow(dim, i, n)
-    return out, ok
+_NOISE_SAMPLE = 2**20
+"""Values behind each axis' median of :func:`estimate_noise_sd` (a video holding more is read in evenly
+spaced frames or rows): the median absolute deviation of a million values is within 0.1 % of its limit,
+far inside the level's own error over a real recording."""
 
 
 def estimate_noise_sd(frames: Tensor, *, mask: Tensor | None = None) -> Tensor:
     """Robust estimate of white sensor noise (units of the data), per video.
 
     The median absolute fourth difference along x, y and t (each scaled to a standard deviation by the
-    filter gain and the normal MAD constant); the median of the three axis estimates is returned, so one
+    filter gain and the normal MAD constant), over at most about :data:`_NOISE_SAMPLE` values per axis
+    (evenly spaced frames, or rows for t); the median of the three axis estimates is returned, so one
     axis dominated by fast signal (e.g. a slow frame rate) does not inflate it. Non-finite pixels and
     ``mask == False`` pixels are ignored.
 
@@ -91,10 +65,15 @@ def estimate_noise_sd(frames: Tensor, *, mask: Tensor | None = None) -> Tensor:
     for dim in (1, 2, 3):
         if video.shape[dim] < 5:
             continue
+        # Evenly spaced whole frames (rows, for the time axis) holding about _NOISE_SAMPLE values: what the
+        # median needs, read as contiguous slices.
+        step = max(1, math.ceil(clean[0].numel() / _NOISE_SAMPLE))
+        index = (slice(None),) * (2 if dim == 1 else 1) + (slice(None, None, step),)
+        part, part_finite = clean[index], None if finite is None else finite[index]
         if everywhere:  # no NaN to skip: the plain median is the same number, without a masked copy
-            median = row_medians(_taps_sum(clean, dim, 1).abs_().flatten(1))
+            median = row_medians(_taps_sum(part, dim, 1).abs_().flatten(1))
         else:
-            diff, ok = _fourth_difference(clean, finite, dim)
+            diff, ok = _fourth_difference(part, part_finite, dim)
             median = row_medians(diff.abs().flatten(1), ok.flatten(1))
         estimates.append(median * (_MAD_TO_SD / _GAIN))
     if not estimates:
@@ -276,74 +255,21 @@ def _gain(stride: int, length: float) -> float:
     return 70 - 112 * rho[1] + 56 * rho[2] - 16 * rho[3] + 2 * rho[4]
 
 
-def fourth_difference(x: Tensor, dim: int, stride: int = 1) -> Tensor:
-    """Fourth difference ``[1, -4, 6, -4, 1]`` of ``x`` along ``dim`` at ``stride`` (valid part: shorter by
-    ``4 stride``); it annihilates cubics, so a smooth thermal field barely leaks into it."""
-    return _taps_sum(x, dim, stride)
-
-
-def sampled_fourth_difference(
-    x: Tensor, dim: int, *, where: Tensor | None = None, sample: int = 50_000
-) -> Tensor:
-    """The values of ``fourth_difference(x, dim)`` (at the ``where`` pixels, a mask on its last two dims:
-    ``[..., where]``) that :func:`robust_sd` with ``sample`` takes, computed at those points only: every
-    ``n // sample``-th of the ``n`` values, in their order, each from its five samples of ``x``.
-
-    Shape:
-        ``x`` ``(..., H, W)``; ``where`` like the difference's last two dims; output ``(m,)``, ``m`` at
-        most about ``sample``.
-    """
-    dim = dim % x.ndim
-    shape = list(x.shape)
-    shape[dim] -= 4
-    if where is None:
-        n = math.prod(shape)
-        index = torch.arange(0, n, max(1, n // sample), device=x.device)
-        coords = list(torch.unravel_index(index, shape))
-    else:
-        pixels = where.nonzero()  # (P, 2)
-        n = math.prod(shape[:-2]) * pixels.shape[0]
-        index = torch.arange(0, n, max(1, n // sample), device=x.device)
-        lead = list(torch.unravel_index(index // pixels.shape[0], shape[:-2])) if x.ndim > 2 else []
-        coords = [*lead, *pixels[index % pixels.shape[0]].unbind(1)]
-    steps = [math.prod(x.shape[i + 1 :]) for i in range(x.ndim)]  # row-major, as take() reads
-    linear = sum(c * step for c, step in zip(coords, steps, strict=True))
-    out = x.take(linear) * _TAPS[0]  # as _taps_sum accumulates
-    for i, weight in enumerate(_TAPS[1:], start=1):
-        out.add_(x.take(linear + i * steps[dim]), alpha=weight)
-    return out
-
-
-def robust_sd(x: Tensor, *, sample: int | None = 50_000, nonzero: bool = False) -> float:
-    """Normal-consistent median absolute deviation of the finite values of ``x`` (0 when there are none),
-    over at most ``sample`` evenly spaced values (None: all of them), without exact zeros if ``nonzero``."""
-    flat = x.reshape(-1)
-    if sample is not None:
-        flat = flat[:: max(1, flat.numel() // sample)]
-    flat = flat[torch.isfinite(flat) & (flat != 0)] if nonzero else flat[torch.isfinite(flat)]
-    if flat.numel() == 0:
-        return 0.0
-    centre = row_medians(flat[None])
-    return float(row_medians((flat - centre).abs()[None])[0]) * _MAD_TO_SD
-
-
-def _robust_var(x: Tensor) -> float:
-    return robust_sd(x) ** 2
-
-
 _QUIET_SAMPLE = 50_000
 """Values behind each robust variance of :func:`measure_noise`: its relative error is then about 1 %, far
 below the tenth of the variance that tells a correlated component from white noise."""
 
 
-def _quiet_var(frames: Tensor, quiet: Tensor, dim: int, stride: int) -> float:
+def _quiet_var(frames: Tensor, quiet: Tensor, dim: int, stride: int, *, mean: Tensor | None = None) -> float:
     """:func:`_robust_var` of the stride-``stride`` fourth difference of ``frames`` (``(T, H, W)``) along
     ``dim`` at the ``quiet`` pixels (``(H, W)``, centred on the difference), over evenly spaced frames
-    holding about :data:`_QUIET_SAMPLE` values (each frame's difference is its own: no other is computed)."""
+    holding about :data:`_QUIET_SAMPLE` values (each frame's difference is its own: no other is computed).
+    With ``mean`` (``(H, W)``), of the deviations ``frames - mean`` of those frames, in ``mean``'s dtype."""
     n = frames.shape[dim] - 4 * stride
     centre = quiet.narrow(dim, 2 * stride, n)
     step = max(1, frames.shape[0] * int(centre.sum()) // _QUIET_SAMPLE)
-    return robust_sd(fourth_difference(frames[::step], dim, stride)[:, centre], sample=None) ** 2
+    chosen = frames[::step] if mean is None else frames[::step].to(mean.dtype) - mean
+    return robust_sd(fourth_difference(chosen, dim, stride)[:, centre], sample=None) ** 2
 
 
 _QUIET_WINDOW = 9  # px: the window over which a pixel's deviation power is averaged
@@ -362,24 +288,63 @@ def _quiet_pixels(power: Tensor) -> Tensor:
     return local <= row_medians(local.reshape(1, -1))[0]
 
 
+def _high_pass(
+    deviation: Tensor, quiet: Tensor, stride: int, sample: int | None, mean: Tensor | None = None
+) -> Tensor:
+    """Stride-``stride`` fourth differences along y and x of ``deviation`` (``(T, H, W)``) at the ``quiet``
+    pixels, every frame: ``(T, N)``. With ``sample``, in evenly spaced rows holding about that many quiet
+    pixels per axis (whole rows: contiguous reads), where ``deviation`` may be the frames themselves and
+    ``mean`` their time mean (``(H, W)``), subtracted from each difference."""
+    if sample is None:
+        parts = []
+        for dim in (-2, -1):
+            h = fourth_difference(deviation, dim, stride)
+            parts.append(h[:, quiet.narrow(dim, 2 * stride, h.shape[dim])])
+        return torch.cat(parts, 1)
+    t, height, width = deviation.shape
+    reach = 2 * stride
+    fraction = max(float(quiet.float().mean()), 1.0 / quiet.numel())
+    parts = []
+    for dim in (-2, -1):
+        first, last = (reach, height - reach) if dim == -2 else (0, height)
+        count = max(1, min(last - first, math.ceil(sample / (fraction * width))))
+        rows = torch.arange(first, last, max(1, (last - first) // count), device=deviation.device)
+        if dim == -2:  # the five rows of each difference, whole
+            taps = [deviation[:, rows + (i - 2) * stride] for i in range(5)]
+            level = None if mean is None else fourth_difference(mean, -2, stride)[rows - reach]
+            keep = quiet[rows]
+        else:
+            inner = width - 2 * reach
+            taps = [deviation[:, rows, i * stride : i * stride + inner] for i in range(5)]
+            level = None if mean is None else fourth_difference(mean[rows], -1, stride)
+            keep = quiet[rows, reach : reach + inner]
+        out = taps[0] * _TAPS[0]
+        for tap, values in zip(_TAPS[1:], taps[1:], strict=True):
+            out.add_(values, alpha=tap)
+        if level is not None:  # the time mean's own difference, the same at every frame
+            out.sub_(level.to(out.dtype))
+        parts.append(out[:, keep])
+    return torch.cat(parts, 1)
+
+
 def _time_correlation(
-    deviation: Tensor, quiet: Tensor, *, stride: int = 1, white_ratio: float = 0.0
+    deviation: Tensor,
+    quiet: Tensor,
+    *,
+    stride: int = 1,
+    white_ratio: float = 0.0,
+    sample: int | None = None,
+    mean: Tensor | None = None,
 ) -> tuple[float, ...]:
     """``rho_t(1 .. m)`` of the correlated noise, from a spatial high-pass: temporal autocorrelation of
     stride-``stride`` fourth differences along x and y (they remove the smooth thermal field) of the
     frames' ``deviation`` from their pixel's time mean, over the ``quiet`` pixels (where the thermal field
-    does not leak in). ``white_ratio`` is a white component's variance over the correlated one's in that
-    high-pass of the deviations: it adds to lag 0 alone, and the time mean removes ``1 / t`` of it from
-    every lag."""
+    does not leak in), or about ``sample`` of them per axis (``mean``: see :func:`_high_pass`).
+    ``white_ratio`` is a white component's variance over the correlated one's in that high-pass of the
+    deviations: it adds to lag 0 alone, and the time mean removes ``1 / t`` of it from every lag."""
     t = deviation.shape[0]
     lags = min(_MAX_TIME_LAG, t // 4)
-    parts = []
-    for dim in (-2, -1):
-        h = fourth_difference(deviation, dim, stride)
-        centre = quiet.narrow(dim, 2 * stride, h.shape[dim])
-        parts.append(h[:, centre])
-    h = torch.cat(parts, 1)
-    flat = h.reshape(t, -1)
+    flat = _high_pass(deviation, quiet, stride, sample, mean)
     zero = float(torch.tensordot(flat, flat))
     if zero == 0 or lags < 1:
         return ()
@@ -407,7 +372,11 @@ def _time_correlation(
 
 
 def measure_noise(
-    frames: Tensor, *, static_pattern: bool = False, white_sd: float | None = None
+    frames: Tensor,
+    *,
+    static_pattern: bool = False,
+    white_sd: float | None = None,
+    stats: PixelStats | None = None,
 ) -> NoiseModel:
     """The noise model of one (artefact-free) video, measured from the video itself.
 
@@ -420,15 +389,19 @@ def measure_noise(
     everywhere), unless the video has a static pattern (``static_pattern``), which the spatial differences
     of :func:`estimate_noise_sd` would count as noise: then the level comes from the deviations alone, and
     the pattern's parts from :func:`_static_parts`. ``white_sd`` is that white estimate when the caller
-    has it already (one full pass over the video less).
+    has it already (one full pass over the video less), ``stats`` the frames'
+    :class:`~anra_torch.balance.robust.PixelStats` likewise. A sampled screen (:func:`_clearly_white`) settles
+    the common case, white noise, before any full-size copy.
 
     Shape:
         ``frames`` ``(T, H, W)``.
     """
-    video = frames.double()
-    t, h, w = video.shape
+    t, h, w = frames.shape
+    short = t < 8 or min(h, w) < 12 or (t < _MIN_CORRELATED_FRAMES and not static_pattern)
+    white_only = short or (not static_pattern and _clearly_white(frames, stats))
+    video = frames if white_only and white_sd is not None else frames.double()
     white = NoiseModel(float(estimate_noise_sd(video)) if white_sd is None else float(white_sd))
-    if t < 8 or min(h, w) < 12 or (t < _MIN_CORRELATED_FRAMES and not static_pattern):
+    if white_only:
         return white
     deviation = video - video.mean(0)
     # Over the quieter half of the pixels (the least thermal signal in their deviations): ranked pixel by
@@ -442,6 +415,33 @@ def measure_noise(
         return model
     local = _model_over(video, deviation, _quiet_pixels(power), white, static_pattern)
     return model if local.white else local
+
+
+_SCREEN_SAMPLE = 4096
+"""Quiet pixels per axis whose high-pass the screen correlates in time, every frame: about 2 x 4096 x T
+values, a lag correlation to about 0.003 for 28 frames."""
+_SCREEN_CORRELATION = 0.06  # rho_t(1) under this: clearly white in time (the rule is _CORRELATED, 0.1)
+
+
+def _clearly_white(frames: Tensor, stats: PixelStats | None = None) -> bool:
+    """Whether :func:`_model_over` on the pixel-ranked quiet half would find white noise, told without a
+    full-size copy: the spatial components from the same differences of the same frames (the deviations
+    computed at those frames only), and the time correlation over :data:`_SCREEN_SAMPLE` quiet pixels per
+    axis instead of all of them, with a margin (:data:`_SCREEN_CORRELATION`) far beyond the sample's
+    error. False sends the video to the full model; a correlated component in space always does."""
+    video = frames if frames.is_floating_point() else frames.double()
+    t, h, w = video.shape
+    stats = pixel_stats(video) if stats is None else stats
+    mean, quiet = stats.mean64, stats.quiet
+    v = [[_quiet_var(video, quiet, d, s, mean=mean) for d in (-2, -1)] for s in (1, 2)]
+    rounding = 100 * torch.finfo(torch.float64).eps * float(video.abs().amax())
+    if min(v[0]) <= 70 * rounding**2:
+        return True  # noiseless: white, as the full model finds
+    v.append([_quiet_var(video, quiet, d, 3, mean=mean) for d in (-2, -1)] if min(h, w) >= 24 else v[1])
+    if _components(*(sum(x) / 2 for x in v))[2] > 0:
+        return False
+    rho = _time_correlation(video, quiet, stride=1, sample=_SCREEN_SAMPLE, mean=mean.to(video.dtype))
+    return not rho or rho[0] < _SCREEN_CORRELATION
 
 
 def _model_over(
@@ -494,26 +494,34 @@ def _components(v1: float, v2: float, v3: float) -> tuple[float, float, float]:
     """Variances of a white and a Gaussian-correlated component and the latter's length (px) from the
     variances of fourth differences at strides 1, 2 and 3 (``70 white + gain_s(length) correlated``).
 
-    Least squares over a grid of lengths; a correlated component under a tenth of the total, or a length
-    under half a pixel (its correlation at one pixel under 0.14), is counted as white (length 0).
+    Least squares over a grid of lengths (:func:`_best_fit`); a correlated component under a tenth of the
+    total, or a length under half a pixel (its correlation at one pixel under 0.14), is counted as white
+    (length 0).
     """
+    fit = _best_fit(v1, v2, v3)
+    if fit is None or fit[1] < 0.1 * (fit[0] + fit[1]):
+        return v1 / 70, 0.0, 0.0
+    return fit
+
+
+def _best_fit(v1: float, v2: float, v3: float) -> tuple[float, float, float] | None:
+    """The white and correlated variances and the length of the best fit of :func:`_components`, before
+    its rule; None where no fit is finite."""
     observed = torch.tensor([v1, v2, v3], dtype=torch.float64, device="cpu")
-    lengths = [0.05 * k for k in range(10, 61)]
-    design = torch.tensor(
-        [[[70.0, _gain(s, length)] for s in (1, 2, 3)] for length in lengths],
-        dtype=torch.float64,
-        device="cpu",
-    )  # (lengths, 3, 2): every length's least squares in one batched solve
-    solution = torch.linalg.lstsq(design, observed.expand(len(lengths), 3)[..., None]).solution[..., 0]
+    design = _DESIGN
+    solution = torch.linalg.lstsq(design, observed.expand(len(_LENGTHS), 3)[..., None]).solution[..., 0]
     solution = solution.clamp_min(0)
     residual = (((design @ solution[..., None])[..., 0] - observed) / observed).pow(2).sum(-1)
     best = int(residual.argmin())  # the first of equal residuals, as a scan would keep
     if not float(residual[best]) < float("inf"):
-        return v1 / 70, 0.0, 0.0
-    white, correlated, length = float(solution[best, 0]), float(solution[best, 1]), lengths[best]
-    if correlated < 0.1 * (white + correlated):
-        return v1 / 70, 0.0, 0.0
-    return white, correlated, length
+        return None
+    return float(solution[best, 0]), float(solution[best, 1]), _LENGTHS[best]
+
+
+_LENGTHS = [0.05 * k for k in range(10, 61)]
+_DESIGN = torch.tensor(
+    [[[70.0, _gain(s, length)] for s in (1, 2, 3)] for length in _LENGTHS], dtype=torch.float64, device="cpu"
+)  # (lengths, 3, 2): every length's least squares in one batched solve
 
 
 def _static_parts(video: Tensor, quiet: Tensor, averaged: float) -> dict[str, float]:

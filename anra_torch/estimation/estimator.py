@@ -30,6 +30,7 @@ from torch import Tensor, nn
 from anra_torch.balance import (
     BatchNoise,
     MatchedFilters,
+    PreparedBatch,
     SpectralStage,
     TermNoise,
     accumulate,
@@ -47,6 +48,7 @@ from anra_torch.checks import (
     poor_fit,
     verdicts,
 )
+from anra_torch.estimation.result import ANRAResult, concat_results
 from anra_torch.layers import RTCAttention, UniformAttention
 
 __all__ = ["ANRAEstimator", "ANRAResult", "MODES", "AUTO_SMOOTHING", "POOR_FIT"]
@@ -56,6 +58,14 @@ AUTO_SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
 """Spatial smoothing candidates (px) tried by ``smoothing="auto"``."""
 
 _MIN_VALID_PX = 8  # a candidate smoothing must leave at least this many pixels per side
+_PILOT_SHARE = 6  # the pilot that chooses the smoothing holds one output frame in this many ...
+_PILOT_MIN = 3  # ... and at least this many
+_PILOT_BLOCKS = 2  # ... in this many blocks of consecutive frames
+_PILOT_MARGIN = 1.03
+"""Smoothing candidates whose pilot standard error is within this factor of the smallest are computed on
+every frame, and the smallest there wins: the pilot's extrapolation errs by a few per cent on videos whose
+signal changes fast (measured up to 25 % on a blob decaying within its 60 frames), and near ties then
+decide on the whole video, as without a pilot."""
 
 
 _NAMES = ("U", "L")  # the plain balance dT/dt = a Lap T
@@ -66,130 +76,9 @@ _SLICE_ELEMENTS = 2**21  # pixel values per slice of a batch (8 MiB in float32):
 _NO_FINITE = "no finite frame: every sample is NaN, infinite or a dead element; no diffusivity estimated"
 
 
-def _concat(parts: list[ANRAResult]) -> ANRAResult:
-    """Results of consecutive slices of a batch as one batched result."""
-    changes = {}
-    for f in fields(ANRAResult):
-        values = [getattr(p, f.name) for p in parts]
-        if isinstance(values[0], tuple):  # messages, warnings, noise, artefacts: one entry per video
-            changes[f.name] = tuple(m for v in values for m in v)
-        elif values[0] is not None:
-            changes[f.name] = torch.cat(values)
-    return replace(parts[0], **changes)
-
-
 def _reliability(den: Tensor, energy: Tensor) -> Tensor:
     """Fraction of the regressor energy that is signal (0 where there is no energy)."""
     return torch.where(energy > 0, den / energy.clamp_min(1e-300), torch.zeros_like(den))
-
-
-@dataclass(frozen=True)
-class ANRAResult:
-    """Output of :class:`ANRAEstimator` (batched: leading ``B``; a single video drops it).
-
-    Attributes:
-        diffusivity: global ``a`` per video, mm^2/s (units of dx^2/dt), shape ``(B,)``; NaN only where
-            ``valid`` is False, with the reason in ``messages``.
-        std_error: standard error of ``diffusivity`` propagated from the estimated white noise, ``(B,)``.
-        per_frame: ``a[k]`` per frame, ``(B, K)`` with ``K = T - L + 1``.
-        frame_times: instant (s after the first frame) each ``a[k]`` applies to, ``(B, K)``.
-        noise_sd: noise standard deviation used (units of the data), ``(B,)``.
-        smoothing: spatial Gaussian sigma used (px), ``(B,)``.
-        reliability: fraction of the regressor energy that is signal, not noise (1 is noiseless), ``(B,)``.
-        explained: share of ``dT/dt`` (its weighted energy above the noise) that ``a Lap T`` explains, in
-            [0, 1], ``(B,)``: the noise-corrected ``R^2`` of the plain heat equation. Below
-            :data:`POOR_FIT` the estimate is flagged (a term the plain model misses dominates); NaN in
-            ``"ratio"`` mode.
-        valid: False for a video without measurable thermal activity, ``(B,)``.
-        n_masked: number of pixel values masked (non-finite, or dead elements constant in every frame
-            while the scene changes), ``(B,)``.
-        field: windowed diffusivity map aligned with the input frames, ``(B, H, W)`` (NaN where
-            ``confidence == 0``: the border the filters cannot reach, or windows without signal), or None.
-        confidence: reliability of each window in [0, 1], ``(B, H, W)``, or None.
-        messages: one line per video: the reason when not valid, else empty (a valid video's flags are in
-            ``warnings``; the value is kept).
-        warnings: per video, the plausibility flags of a valid estimate
-            (:func:`anra_torch.checks.diffusivity_warnings`): significantly negative (a source dominates),
-            or outside every known material (with the likely unit mix-up of dt or dx); empty when none.
-        noise: per video, the measured noise model as a record (``"sd"``, ``"time_correlation"``,
-            ``"space_length_px"``, ``"white"``; :meth:`NoiseModel.describe
-            <anra_torch.balance.NoiseModel.describe>`).
-        artefacts: per video, the camera artefacts found and what was done
-            (:meth:`Artefacts.to_record <anra_torch.balance.Artefacts.to_record>`).
-    """
-
-    diffusivity: Tensor
-    std_error: Tensor
-    per_frame: Tensor
-    frame_times: Tensor
-    noise_sd: Tensor
-    smoothing: Tensor
-    reliability: Tensor
-    explained: Tensor
-    valid: Tensor
-    n_masked: Tensor
-    field: Tensor | None
-    confidence: Tensor | None
-    messages: tuple[str, ...]
-    warnings: tuple[tuple[str, ...], ...] = ()
-    noise: tuple[dict, ...] = ()
-    artefacts: tuple[dict, ...] = ()
-
-    def unbatched(self) -> ANRAResult:
-        """The same result with the batch dimension of size 1 removed."""
-        changes = {
-            f.name: getattr(self, f.name)[0]
-            for f in fields(self)
-            if isinstance(getattr(self, f.name), Tensor)
-        }
-        return replace(self, **changes)
-
-    def to_record(self, index: int = 0, *, unit: str = "data units") -> dict[str, object]:
-        """The numbers of one video as a JSON-ready record (``anra estimate --json``, batch rows, reports).
-
-        Args:
-            index: the video in a batched result (0 for an unbatched one).
-            unit: the data's temperature unit, for ``noise_sd``.
-
-        Returns:
-            ``{"diffusivity", "std_error"`` (mm^2/s, None when not finite), ``"valid"``, ``"message"``,
-            ``"warnings"`` (a list of lines: implausible or negative diffusivity; empty when none),
-            ``"smoothing_px"`` (px), ``"noise_sd"`` (``unit``), ``"reliability"``, ``"n_masked"``,
-            ``"units"}`` (key -> unit), ``"noise"`` (the measured noise model, ``unit``) and
-            ``"artefacts"`` (what was found and masked).
-
-        Shape:
-            Tensors ``(B,)`` or unbatched scalars; the record holds Python numbers.
-
-        Raises:
-            ValueError: ``index`` outside the batch.
-        """
-        size = self.diffusivity.shape[0] if self.diffusivity.ndim else 1
-        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < size:
-            raise ValueError(f"index must be an integer in [0, {size}) for this result, got {index!r}")
-
-        def pick(values: Tensor) -> Tensor:
-            return values[index] if values.ndim else values
-
-        def finite(values: Tensor) -> float | None:  # JSON has no NaN: no estimate is null
-            value = pick(values)
-            return float(value) if bool(torch.isfinite(value)) else None
-
-        return {
-            "diffusivity": finite(self.diffusivity),
-            "std_error": finite(self.std_error),
-            "valid": bool(pick(self.valid)),
-            "message": self.messages[index],
-            "warnings": list(self.warnings[index]) if index < len(self.warnings) else [],
-            "smoothing_px": float(pick(self.smoothing)),
-            "noise_sd": float(pick(self.noise_sd)),
-            "reliability": float(pick(self.reliability)),
-            "explained": finite(self.explained),
-            "n_masked": int(pick(self.n_masked)),
-            "units": {"diffusivity": "mm^2/s", "std_error": "mm^2/s", "smoothing_px": "px", "noise_sd": unit},
-            "noise": self.noise[index] if index < len(self.noise) else None,
-            "artefacts": self.artefacts[index] if index < len(self.artefacts) else None,
-        }
 
 
 @dataclass
@@ -376,6 +265,7 @@ class ANRAEstimator(nn.Module):
         with_error: bool = True,
         back_at: Tensor | None = None,
         stage: SpectralStage | None = None,
+        frames: int | None = None,
     ) -> _Candidate:
         """The sums of smoothing candidate ``index`` over a centred ``(B, T, H, W)`` batch.
 
@@ -419,7 +309,7 @@ class ANRAEstimator(nn.Module):
             a = (estimate if back_at is None else back_at.to(estimate)).detach()
             pushed = (filters, lever, a, dt.detach(), dx.detach(), stage.size)
             if back_at is None:  # Parseval: the spread without the pushed-back field
-                spread = noise.pushed_spread(*pushed)
+                spread = noise.pushed_spread(*pushed, frames=frames)
             else:
                 back = pushed_back(*pushed)
             std_error = spread / total.abs().clamp_min(torch.finfo(rate.dtype).tiny)
@@ -451,7 +341,14 @@ class ANRAEstimator(nn.Module):
         return F.pad(m, (margin, margin, margin, margin)) if margin else m
 
     # -------------------------------------------------------------------------------- forward
-    def forward(self, frames: Tensor, dt: float | Tensor, dx: float | Tensor) -> ANRAResult:
+    def forward(
+        self,
+        frames: Tensor,
+        dt: float | Tensor,
+        dx: float | Tensor,
+        *,
+        prepared: PreparedBatch | None = None,
+    ) -> ANRAResult:
         """Estimate the diffusivity of each video.
 
         Args:
@@ -460,6 +357,8 @@ class ANRAEstimator(nn.Module):
                 in every frame (dead elements), are masked and counted in ``n_masked``.
             dt: frame period in s, float or ``(B,)``.
             dx: pixel size in mm, float or ``(B,)``.
+            prepared: ``frames`` as :func:`~anra_torch.balance.prepare_batch` measured them already (their
+                artefacts, noise and masks), where the caller has it: nothing is measured again.
 
         Returns:
             :class:`ANRAResult` (unbatched for a single ``(T, H, W)`` video).
@@ -474,12 +373,17 @@ class ANRAEstimator(nn.Module):
         dx_ = as_spacing(dx, name="dx", unit="mm", batch=b, like=video)
         # Videos are independent: a batch too big for the caches runs in slices of whole videos (on CPU a
         # 32 x 224 x 224 x 28 batch in one piece was measured ~3x slower per video than one at a time).
-        step = max(1, _SLICE_ELEMENTS // video[0].numel())
+        step = max(1, _SLICE_ELEMENTS // video[0].numel()) if prepared is None else b
+        if prepared is not None and tuple(prepared.video.shape) != tuple(video.shape):
+            raise ValueError(
+                f"prepared must be of these frames, of shape {tuple(video.shape)}, "
+                f"got {tuple(prepared.video.shape)}"
+            )
         parts = [
-            self._estimate(video[i : i + step], dt_[i : i + step], dx_[i : i + step])
+            self._estimate(video[i : i + step], dt_[i : i + step], dx_[i : i + step], prepared)
             for i in range(0, b, step)
         ]
-        result = parts[0] if len(parts) == 1 else _concat(parts)
+        result = parts[0] if len(parts) == 1 else concat_results(parts)
         empty = result.n_masked >= video[0].numel()  # nothing finite to measure: said so per video
         if bool(empty.any()):
             flagged = zip(result.messages, empty.tolist(), strict=True)
@@ -491,17 +395,31 @@ class ANRAEstimator(nn.Module):
             raise ValueError(f"{where}{result.messages[bad]}")
         return result if batched else result.unbatched()
 
-    def _estimate(self, video: Tensor, dt_: Tensor, dx_: Tensor) -> ANRAResult:
+    def _estimate(
+        self, video: Tensor, dt_: Tensor, dx_: Tensor, prepared: PreparedBatch | None = None
+    ) -> ANRAResult:
         """:meth:`forward` on a checked ``(B, T, H, W)`` batch with ``(B,)`` spacings; never raises on
         videos without activity (they come back flagged)."""
         b, t, h, w = video.shape
-        prepared = prepare_batch(video, noise_sd=self.noise_sd)
+        prepared = prepare_batch(video, noise_sd=self.noise_sd) if prepared is None else prepared
         video, good, noise = prepared.video, prepared.good, prepared.noise
         noise_sd = noise.sd
         usable = self.usable(h, w)
-        stage = spectral_stage(self.filters[0], video, dt_)  # one time filter for every candidate
-        candidates = [self.candidate_sums(i, video, good, dt_, dx_, noise, stage=stage) for i in usable]
-        chosen, measured, choice = self._choose(candidates)
+        rate, average = self.time.with_average(video, dt_)  # one time filter for every candidate
+        contenders = self._pilot(rate, average, good, dt_, dx_, noise, usable)
+        stage = SpectralStage(torch.fft.rfft2(rate), torch.fft.rfft2(average), (h, w))
+        del rate, average
+        if contenders is None:  # every candidate on every frame
+            contenders = torch.ones(b, len(usable), dtype=torch.bool, device="cpu")
+        picked = contenders.any(0).nonzero()[:, 0].tolist()
+        candidates = [
+            self.candidate_sums(usable[i], video, good, dt_, dx_, noise, stage=stage) for i in picked
+        ]
+        chosen, measured, position = self._choose(candidates, contenders[:, picked].to(video.device))
+        choice = torch.tensor(picked, device=video.device)[position]
+        if not bool(measured.all()) and len(picked) < len(usable):  # the pilot missed: all of them
+            candidates = [self.candidate_sums(i, video, good, dt_, dx_, noise, stage=stage) for i in usable]
+            chosen, measured, choice = self._choose(candidates)
         num, den, energy, ratio = chosen.num, chosen.den, chosen.energy, chosen.ratio
         total_den = den.sum(1)
         reliability = _reliability(total_den, energy.sum(1))
@@ -542,13 +460,18 @@ class ANRAEstimator(nn.Module):
             artefacts=tuple(a.to_record() for a in noise.artefacts),
         )
 
-    def _choose(self, candidates: list[_Candidate]) -> tuple[_Candidate, Tensor, Tensor]:
-        """Per video, the candidate with the smallest standard error among the measurable ones: its sums,
-        whether it is measurable ``(B,)`` and its index ``(B,)``."""
+    def _choose(
+        self, candidates: list[_Candidate], allowed: Tensor | None = None
+    ) -> tuple[_Candidate, Tensor, Tensor]:
+        """Per video, the candidate with the smallest standard error among the measurable ones (and those
+        ``allowed``, ``(B, C)``, where given): its sums, whether it is measurable ``(B,)`` and its index
+        ``(B,)``."""
         # A candidate without measurable signal (e.g. all of its pixels masked) must not win on a zero error.
         measurable = torch.stack([c.measurable(self.mode) for c in candidates], dim=1)
         errors = torch.stack([c.std_error for c in candidates], dim=1)  # (B, C)
         errors = torch.where(measurable, torch.nan_to_num(errors, nan=torch.inf), torch.inf)
+        if allowed is not None:
+            errors = torch.where(allowed, errors, torch.inf)
         choice = errors.argmin(dim=1)
         b = choice.shape[0]
 
@@ -561,6 +484,66 @@ class ANRAEstimator(nn.Module):
 
         chosen = _Candidate(**{f.name: pick(f.name) for f in fields(_Candidate)})
         return chosen, measurable.gather(1, choice[:, None])[:, 0], choice
+
+    def _pilot(
+        self,
+        rate: Tensor,
+        average: Tensor,
+        good: Tensor | None,
+        dt: Tensor,
+        dx: Tensor,
+        noise: BatchNoise,
+        usable: list[int],
+    ) -> Tensor | None:
+        """Per video, the smoothing candidates (``(B, len(usable))`` bool) worth computing on every frame:
+        those whose standard error on a pilot of the time-filtered frames ``rate``, ``average``
+        (``(B, K, H, W)``) is within :data:`_PILOT_MARGIN` of the smallest.
+
+        The pilot is :data:`_PILOT_BLOCKS` blocks of consecutive output frames spread over the video, one
+        frame in :data:`_PILOT_SHARE` in all. Each block's noise norm is extrapolated lag by lag to the
+        frames it stands for (:func:`~anra_torch.balance.spectral.pushed_norm`), so that the block's ends
+        (where the time derivative's noise does not cancel) weigh as little as the video's do. None where
+        no pilot applies: one candidate, ``"ratio"`` mode, too few frames, fixed effects or correlated
+        noise, or a video whose pilot measures nothing.
+        """
+        b, k, h, w = rate.shape
+        length, n = self.time.length, _PILOT_BLOCKS
+        m = max(_PILOT_MIN, -(-k // (_PILOT_SHARE * n)))  # consecutive output frames per block
+        if len(usable) < 2 or self.mode != "lsq" or k < 2 * m * n or any(map(noise.special, range(b))):
+            return None
+        starts = torch.linspace(0, k - m, n + 2, device="cpu").round().long().tolist()[1:-1]
+
+        def blocks(x: Tensor, size: int) -> Tensor:  # each video's blocks as videos of their own
+            return torch.stack([x[:, i : i + size] for i in starts], 1).reshape(b * n, size, *x.shape[2:])
+
+        stage = SpectralStage(torch.fft.rfft2(blocks(rate, m)), torch.fft.rfft2(blocks(average, m)), (h, w))
+        finite = None if good is None else blocks(good, m + length - 1)
+        pilot_noise = BatchNoise(
+            rate.new_zeros(0),
+            noise.sd.repeat_interleave(n),
+            tuple(model for model in noise.models for _ in range(n)),
+            noise.pixel.repeat_interleave(n),
+            noise.frame.repeat_interleave(n),
+            tuple(a for a in noise.artefacts for _ in range(n)),
+        )
+        spacing = (dt.repeat_interleave(n), dx.repeat_interleave(n))
+        scale, variance_error = k / (n * m), noise.variance_error.cpu()
+        variances = []
+        for i in usable:
+            sums = self.candidate_sums(i, rate, finite, *spacing, pilot_noise, stage=stage, frames=k / n)
+            totals = (x.double().reshape(b, -1).sum(1).cpu() for x in (sums.num, sums.den, sums.energy))
+            num, den, energy = totals
+            noise_var = sums.spread.double().pow(2).reshape(b, n).sum(1).cpu()  # the whole video's
+            safe = torch.where(den > 0, den, torch.ones_like(den))
+            correction = (energy - den) * variance_error * num / safe
+            variance = torch.where(den > 0, (noise_var / scale**2 + correction**2) / safe**2, torch.inf)
+            significant = (num / safe).abs() >= MIN_SIGNIFICANCE * variance.sqrt()
+            variances.append(torch.where((den > MIN_RELIABILITY * energy) & significant, variance, torch.inf))
+        stacked = torch.stack(variances, 1)  # (B, C)
+        best = stacked.amin(1, keepdim=True)
+        if not bool(torch.isfinite(best).all()):
+            return None
+        return stacked <= best * _PILOT_MARGIN**2
 
     @staticmethod
     def _field(chosen: _Candidate) -> tuple[Tensor, Tensor]:

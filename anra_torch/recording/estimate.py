@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import torch
 
+from anra_torch.balance import PreparedBatch, concat_prepared, prepare_batch
 from anra_torch.checks import POOR_FIT, depth_bias, join_messages, one_line
 from anra_torch.estimation import (
     CHUNKED_VALUES,
@@ -42,6 +42,7 @@ from anra_torch.estimation import (
     estimate_chunked,
     small_box_estimate,
 )
+from anra_torch.recording.parallel import side_by_side
 from anra_torch.recording.phases import (
     MIN_PHASE_FRAMES,
     SOURCE_FREE,
@@ -96,6 +97,8 @@ class PhaseEstimate:
         chunked: ``chunk_frames``, ``frames_used`` and ``pilot`` of a chunked estimate.
         depth_aware: the depth-aware record (or ``{"error": ...}``) where it was fitted.
         seconds: wall time of this phase's estimate (its share of a batched call), s.
+        prepared: the phase's frames as the estimator prepares them, measured once with the phases
+            (a recording of one phase read whole), or None.
     """
 
     phase: Phase
@@ -107,6 +110,7 @@ class PhaseEstimate:
     chunked: dict[str, Any] | None = None
     depth_aware: dict[str, Any] | None = None
     seconds: float = 0.0
+    prepared: PreparedBatch | None = field(default=None, repr=False)
 
     def estimate_record(self) -> dict[str, Any]:
         """The estimate's own record: :meth:`ANRAResult.to_record` or the small-box record."""
@@ -284,19 +288,32 @@ _Plan = tuple[list[PhaseEstimate], bool]
 """A recording's phases with their routes, and whether it has several."""
 
 
-def _plan(video: Video, est: ANRAEstimator, precision: float | None) -> _Plan:
-    """Every phase of ``video`` with its route, and whether it has several phases."""
-    chunked = reads_in_chunks(video, est, precision)
+def _plan(video: Video, est: ANRAEstimator, precision: float | None, dtype: torch.dtype | None) -> _Plan:
+    """Every phase of ``video`` with its route, and whether it has several phases. A recording read whole
+    is measured once (:func:`~anra_torch.balance.prepare_batch`): the phases are searched in its repaired
+    frames, and a recording of one phase is estimated on that measurement."""
+    chunked, prepared, frames = reads_in_chunks(video, est, precision), None, video.frames
+    whole = _route(video, est, chunked) == "whole" and isinstance(frames, torch.Tensor) and frames.ndim == 3
+    if whole and frames.shape[0] >= est.time.length:
+        frames = frames.to(est.time.taps.device, dtype or frames.dtype)
+        prepared = prepare_batch(frames[None], noise_sd=est.noise_sd) if frames.is_floating_point() else None
     # With a precision target the recording is one phase: finding phases would read all of it.
     phases = (
         []
         if precision is not None
-        else find_phases(video.frames, video.t, dt=video.dt, measured_t=video.meta.get("measured_t"))
+        else find_phases(
+            video.frames,
+            video.t,
+            dt=video.dt,
+            measured_t=video.meta.get("measured_t"),
+            repaired_frames=None if prepared is None else prepared.repaired(0),
+        )
     )
     several = len(phases) > 1
     if not several:  # the recording is estimated whole, named after its one phase
         phase = phases[0] if phases else whole_recording(video)
-        return [PhaseEstimate(phase, video, _route(video, est, chunked))], False
+        route = _route(video, est, chunked)
+        return [PhaseEstimate(phase, video, route, prepared=prepared if route == "whole" else None)], False
     out = []
     for phase in phases:
         part = video.span(phase.start, phase.stop)
@@ -350,15 +367,17 @@ def _estimate_whole(members: list[PhaseEstimate], est: ANRAEstimator, dtype: tor
     start = time.perf_counter()
     device = est.time.taps.device  # the frames follow the estimator
     frames = [torch.as_tensor(p.part.loaded().frames).to(device) for p in members]
+    kind = dtype or frames[0].dtype
+    measured = [p.prepared for p in members]
+    prepared = None if any(m is None for m in measured) else concat_prepared(measured)  # type: ignore[arg-type]
     if len(members) == 1 and dtype is None:
-        result = est(frames[0], members[0].part.dt, members[0].part.dx)
+        result = est(frames[0][None], members[0].part.dt, members[0].part.dx, prepared=prepared).unbatched()
         members[0].result, members[0].index = result, 0
     else:
-        kind = dtype or frames[0].dtype
         stacked = torch.stack([f.to(kind) for f in frames])
         dt = torch.tensor([p.part.dt for p in members], dtype=torch.float64)
         dx = torch.tensor([p.part.dx for p in members], dtype=torch.float64)
-        result = est(stacked, dt, dx)
+        result = est(stacked, dt, dx, prepared=prepared)
         for i, p in enumerate(members):
             p.result, p.index = result, i
     share = (time.perf_counter() - start) / len(members)
@@ -402,32 +421,6 @@ def _described(phases: list[PhaseEstimate], several: bool) -> PhaseEstimate:
     return chosen
 
 
-def _chunked_side_by_side(
-    tasks: list[PhaseEstimate], run: Any
-) -> Iterator[tuple[PhaseEstimate, BaseException | None]]:
-    """Run ``run(task)`` on each chunked task: several at once, one per torch thread, each on one thread
-    (their medians and memory-bound passes then use every core: ``experiments/bench_batch.py``)."""
-
-    def one(task: PhaseEstimate) -> tuple[PhaseEstimate, BaseException | None]:
-        try:
-            run(task)
-        except (ValueError, TypeError, OSError, RuntimeError) as err:
-            return task, err
-        return task, None
-
-    threads = torch.get_num_threads()
-    workers = min(len(tasks), threads)
-    if workers < 2:
-        yield from map(one, tasks)
-        return
-    torch.set_num_threads(1)
-    try:
-        with ThreadPoolExecutor(workers) as pool:
-            yield from pool.map(one, tasks)
-    finally:
-        torch.set_num_threads(threads)
-
-
 def estimate_recordings(
     videos: Sequence[Video],
     estimator: ANRAEstimator | None = None,
@@ -438,8 +431,9 @@ def estimate_recordings(
 ) -> list[RecordingEstimate | ValueError]:
     """Estimate many recordings, each as :func:`estimate_recording` does, sharing estimator calls.
 
-    Same-shaped phases estimated whole go through one estimator call; recordings read in chunks run side by
-    side, one per torch thread. A recording that fails gets its one-line ``ValueError`` (naming the file)
+    Each recording is measured and its phases found side by side with the others, one per torch thread;
+    same-shaped small phases estimated whole then go through one estimator call, camera-sized ones
+    (:data:`CAMERA_SIZED`) and recordings read in chunks run side by side. A recording that fails gets its one-line ``ValueError`` (naming the file)
     in its place; the others go on.
 
     Args:
@@ -459,12 +453,26 @@ def estimate_recordings(
     if precision is not None and (est.mode != "lsq" or est.window is not None):
         raise ValueError("--precision reads the recording in chunks: it needs --mode lsq without --window")
     plans: list[_Plan | ValueError] = []
-    for video in videos:
-        try:
-            plans.append(_plan(video, est, precision))
-        except (ValueError, TypeError, OSError) as err:
-            plans.append(ValueError(f"{video.source}: {one_line(err)}"))
+    for video, plan, err in side_by_side(videos, lambda v: _plan(v, est, precision, dtype)):
+        plans.append(plan if err is None else ValueError(f"{video.source}: {one_line(err)}"))
     return _run(videos, plans, est, precision, dtype, progress)
+
+
+def _whole_groups(plans: list[_Plan | ValueError]) -> list[list[PhaseEstimate]]:
+    """The phases estimated whole, in groups that share an estimator call: same-shaped phases of different
+    recordings (a recording's own phases never share one: each is estimated as it would be alone), each
+    camera-sized one on its own (the estimator would take it alone anyway; alone, it runs beside another)."""
+    groups: dict[tuple, list[PhaseEstimate]] = {}
+    for plan in (plan for plan in plans if not isinstance(plan, ValueError)):
+        for k, p in enumerate(p for p in plan[0] if p.route == "whole"):
+            shape = tuple(p.part.frames.shape)
+            alone = math.prod(shape) >= CAMERA_SIZED
+            groups.setdefault((k, *shape, id(p) if alone else 0), []).append(p)
+    return list(groups.values())
+
+
+CAMERA_SIZED = 2**20
+"""Pixel values from which a phase estimated whole gets an estimator call of its own."""
 
 
 def _run(
@@ -490,27 +498,17 @@ def _run(
         except (ValueError, TypeError, RuntimeError) as err:
             fail(p, err)
     chunked = [p for p in tasks if p.route == "chunked"]
-    for p, err in _chunked_side_by_side(
-        chunked, lambda p: _estimate_chunked(p, est, precision, dtype, progress)
-    ):
+    for p, _, err in side_by_side(chunked, lambda p: _estimate_chunked(p, est, precision, dtype, progress)):
         if err is not None:
             fail(p, err)
-    # Same-shaped phases of different recordings share a call (a recording's own phases never do: each is
-    # estimated as it would be alone).
-    groups: dict[tuple, list[PhaseEstimate]] = {}
-    for plan in (plan for plan in plans if not isinstance(plan, ValueError)):
-        whole = [p for p in plan[0] if p.route == "whole"]
-        for k, p in enumerate(whole):
-            groups.setdefault((k, *p.part.frames.shape), []).append(p)
-    for members in groups.values():
-        try:
-            _estimate_whole(members, est, dtype)
-        except (ValueError, TypeError, RuntimeError):
-            for p in members:  # something in the batch is wrong: one by one, for exact messages
-                try:
-                    _estimate_whole([p], est, dtype)
-                except (ValueError, TypeError, RuntimeError, OSError) as err:
-                    fail(p, err)
+    retry = []
+    for members, _, err in side_by_side(_whole_groups(plans), lambda m: _estimate_whole(m, est, dtype)):
+        retry += members if err is not None and len(members) > 1 else []
+        if err is not None and len(members) == 1:
+            fail(members[0], err)
+    for p, _, err in side_by_side(retry, lambda p: _estimate_whole([p], est, dtype)):
+        if err is not None:  # something in its batch was wrong: one by one, for exact messages
+            fail(p, err)
     out: list[RecordingEstimate | ValueError] = []
     for i, plan in enumerate(plans):
         if isinstance(plan, ValueError) or i in failed:
@@ -570,7 +568,7 @@ def phase_diffusivities(video: Video) -> tuple[list[dict[str, Any]], dict[str, A
         ValueError: one line naming the file, when a phase cannot be estimated.
     """
     est = ANRAEstimator(strict=False)
-    plan = _plan(video, est, None)
+    plan = _plan(video, est, None, None)
     if not plan[1]:
         return [], None
     (done,) = _run([video], [plan], est, None, None, False)

@@ -62,6 +62,7 @@ def find_phases(
     *,
     dt: float | None = None,
     measured_t: Sequence[float] | Tensor | None = None,
+    repaired_frames: Tensor | None = None,
 ) -> list[Phase]:
     """:func:`~anra_torch.video.recording_phases` of the frames with their camera artefacts repaired
     (:func:`~anra_torch.balance.find_artefacts`): a spike or a hot element is not a heat source.
@@ -74,16 +75,19 @@ def find_phases(
         dt: frame period in s, for the phases' times when ``t`` is None.
         measured_t: for resampled frames, the measured samples' times in s: each phase keeps only the
             frames interpolated from its own samples (:func:`~anra_torch.video.measured_part`).
+        repaired_frames: the frames with their artefacts repaired already (the estimator's preparation,
+            :meth:`~anra_torch.balance.PreparedBatch.repaired`): the search is not run again.
 
     Shape:
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
     """
+    if t is None and dt is not None:
+        t = torch.arange(frames.shape[0], dtype=_F64) * dt
+    if repaired_frames is not None:
+        return recording_phases_of(repaired_frames, t, measured_t)
     if not isinstance(frames, Tensor) or math.prod(frames.shape) > CHUNKED_VALUES:
         frames = decimated(frames, PHASE_COPY_VALUES)  # a camera-sized recording is never held whole
-    video = torch.as_tensor(frames)
-    if t is None and dt is not None:
-        t = torch.arange(video.shape[0], dtype=_F64) * dt
-    return recording_phases_of(repaired(video), t, measured_t)
+    return recording_phases_of(repaired(torch.as_tensor(frames)), t, measured_t)
 
 
 def recording_phases_of(

@@ -46,7 +46,6 @@ from anra_torch.tissue.dose import (
 )
 from anra_torch.tissue.features import (
     DOSE_MAPS,
-    LOSS_REPLICATES,
     MAPS,
     MAX_LOSS_ERROR,
     MIN_CONFIDENCE,
@@ -69,7 +68,6 @@ __all__ = [
     "DepthMaps",
     "DepthParameters",
     "GAS_CONSTANT",
-    "LOSS_REPLICATES",
     "LearnedTissueModel",
     "MAPS",
     "MAX_LOSS_ERROR",

@@ -36,9 +36,9 @@ tissue is assumed to start at the temperature the loss pulls towards). ``a`` and
 jointly, with the errors-in-variables correction of ``L``, on the frames after each pixel's peak (no
 source acts there in a heating-then-cooling history) within a ``window``; the source is what the balance
 leaves over the whole video. The standard error of each window's ``b``
-(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the measured white noise propagated through the same
-filters and the window's normal equations (first order, :data:`LOSS_REPLICATES` seeded noise videos:
-about 25 % relative precision).
+(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the white noise the estimator measured, propagated
+through the same filters and the window's normal equations (first order, without noise copies:
+:mod:`anra_torch.balance.loss_error`).
 
 Extremes: ``diffusivity_max`` is taken over confident windows only (``confidence >=``
 :data:`MIN_CONFIDENCE`), ``loss_rate_max`` and ``source_max`` over those whose ``b`` is also measured:
@@ -62,14 +62,14 @@ Everything is computed in float64 without gradient tracking.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from anra_torch.balance import LOSS_REPLICATES, MatchedFilters, estimate_noise_sd, fit_loss_windows
+from anra_torch.balance import MatchedFilters, fit_loss_windows
 from anra_torch.checks import as_spacing, as_video, atomic_output, join_messages, one_line
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.layers import GaussianSmoothing, rtc_attention
@@ -87,7 +87,6 @@ from anra_torch.tissue.dose import (
 
 __all__ = [
     "DOSE_MAPS",
-    "LOSS_REPLICATES",
     "MAPS",
     "MAX_LOSS_ERROR",
     "MIN_CONFIDENCE",
@@ -203,14 +202,23 @@ class TissueFeatureMaps:
         )
 
 
-def _fill(celsius: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def _fill(celsius: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
     """Non-finite samples filled with the pixel's mean of its finite frames (37 C for a pixel never seen):
-    ``(filled (B, T, H, W), finite (B, T, H, W), per-pixel fill (B, H, W))``."""
+    ``(filled (B, T, H, W), finite (B, T, H, W), per-pixel fill (B, H, W) or None if all are finite)``."""
     finite = torch.isfinite(celsius)
+    if bool(finite.all()):
+        return celsius, finite, None
     count = finite.sum(1, keepdim=True)
     fill = torch.where(finite, celsius, 0.0).sum(1, keepdim=True) / count.clamp_min(1)
     fill = torch.where(count > 0, fill, 37.0)  # a pixel never seen: body temperature, counted as masked
     return torch.where(finite, celsius, fill), finite, fill[:, 0]
+
+
+def _by_frames(fn: Callable[[Tensor], object], video: Tensor, overlap: int = 0) -> list:
+    """``fn`` of blocks of frames whose intermediates stay in the cache (2 MiB of float64), consecutive ones
+    sharing ``overlap`` frames (a filter's support in time): the blocks' outputs, in order."""
+    step = max(1, (1 << 18) // max(video.shape[0] * video.shape[-2] * video.shape[-1], 1))
+    return [fn(video[:, k : k + step + overlap]) for k in range(0, max(video.shape[1] - overlap, 1), step)]
 
 
 def _max_over(m: Tensor, where: Tensor | None) -> Tensor:
@@ -409,46 +417,41 @@ class TissueFeatures(nn.Module):
             return None, one_line(err)
         return found, ""
 
-    def _dose_maps(self, filled: Tensor, finite: Tensor, fill: Tensor, dt: Tensor) -> dict[str, Tensor]:
+    def _dose_maps(self, filled: Tensor, finite: Tensor, fill: Tensor | None, dt: Tensor) -> dict:
         """Peak, times above, CEM43 and Omega of the denoised history: no spatial filter needed."""
         h, w = filled.shape[-2:]
-        history = self.history_smoother(filled) if self.history_smoothing(h, w) else filled
-        complete = bool(finite.all())  # the common case: no sample masked, no masked copy to make
+        smoothed = self.history_smoothing(h, w)  # the Gaussian frame by frame
+        history = torch.cat(_by_frames(self.history_smoother, filled), 1) if smoothed else filled
+        complete = fill is None  # the common case: no sample masked, no masked copy to make
         peak = (history if complete else history.masked_fill(~finite, -torch.inf)).amax(1)
-        maps = {"peak_temperature": peak if complete else torch.where(finite.any(1), peak, fill)}
-        doses = dose_maps(
-            history,
-            dt,
-            thresholds=self.thresholds,
-            constants=self.constants,
-            rule=self.rule,
-            finite=None if complete else finite,
-        )
-        return maps | doses
+        maps = {"peak_temperature": peak if fill is None else torch.where(finite.any(1), peak, fill)}
+        rules = {"thresholds": self.thresholds, "constants": self.constants, "rule": self.rule}
+        return maps | dose_maps(history, dt, finite=None if complete else finite, **rules)
 
     def _spatial(self, video: Tensor, filled: Tensor, dt: Tensor, dx: Tensor | None) -> dict | str:
         """The rate and ANRA maps, the estimator's result and the loss rate's standard error; or why the
         frames do not allow them (the filters' own one-line requirement)."""
         if dx is None:
             return "no pixel size (pass dx, --dx in mm)"
-        b, _, h, w = video.shape
+        b, t, h, w = video.shape
+        names = ("U", "L", "T")
         try:
             result = self.estimator(video, dt, dx)  # the strictest size and length requirement
-            terms = self.filters.terms(filled, dt, dx, ("U", "L", "T"))  # each (B, K, H, W)
+            blocks = _by_frames(lambda v: self.filters.terms(v, dt, dx, names), filled, self.time.length - 1)
         except ValueError as err:
             return one_line(err)
-        rate = terms["U"]
-        maps = {
-            "heating_rate": rate.amax(1).clamp_min(0) + 0.0,
-            "cooling_rate": (-rate).amax(1).clamp_min(0) + 0.0,
-        }
-        attention = rtc_attention(rate, sharpness=self.sharpness, unit_invariant=True)
-        maps["rtc_attention"] = attention.mean(1) * (h * w)
+        terms = {name: torch.cat([block[name] for block in blocks], 1) for name in names}
+        rate = terms["U"]  # (B, K, H, W)
+        low, high = torch.aminmax(rate, dim=1)
+        maps = {"heating_rate": high.clamp_min(0) + 0.0, "cooling_rate": (-low).clamp_min(0) + 0.0}
+        rtc = {"sharpness": self.sharpness, "unit_invariant": True}  # each frame's attention on its pixels
+        attention = sum(rtc_attention(block["U"], **rtc).sum(1) for block in blocks)
+        maps["rtc_attention"] = attention / rate.shape[1] * (h * w)
         global_a = torch.where(result.valid, result.diffusivity, torch.zeros_like(result.diffusivity))
         field_a = torch.where(result.confidence > 0, result.field, global_a.view(b, 1, 1))
         maps["diffusivity"] = torch.nan_to_num(field_a, nan=0.0)
         maps["confidence"] = result.confidence
-        noise_sd = estimate_noise_sd(filled).reshape(b).to(_F64)
+        noise_sd = result.noise_sd.reshape(b).to(_F64)  # measured once, by the estimator
         fit = fit_loss_windows(self.filters, terms, maps["diffusivity"], noise_sd, dt, dx, window=self.window)
         maps["loss_rate"], maps["source"] = fit.loss_rate, fit.source
         fitted = {"loss_rate_std_error": fit.std_error, "cooling_diffusivity": fit.diffusivity}

@@ -30,7 +30,6 @@ from anra_torch.balance import (
     spectral_terms,
     stuck_pixels,
 )
-from anra_torch.balance.noise import fourth_difference, row_medians, sampled_fourth_difference
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.simulation import gaussian_blob
 
@@ -142,29 +141,6 @@ def test_standard_error_is_the_sandwich_of_the_slice_route(frames: torch.Tensor)
     tol = 256 * torch.finfo(frames.dtype).eps
     torch.testing.assert_close(result.diffusivity.double(), a, rtol=tol, atol=0)
     torch.testing.assert_close(result.std_error.double(), se, rtol=max(tol, 1e-9), atol=0)
-
-
-def test_row_medians_are_torch_medians(dtype: torch.dtype) -> None:
-    x = torch.randn(3, 200_001, dtype=dtype).abs()
-    x[1, ::7] = 0.5  # ties
-    assert torch.equal(row_medians(x), x.median(1).values)
-    valid = torch.rand(3, 200_001) > 0.4
-    valid[2] = False  # a row without any value: NaN, as nanmedian
-    got, expected = row_medians(x, valid), torch.where(valid, x, torch.nan).nanmedian(1).values
-    assert torch.equal(got[:2], expected[:2]) and bool(got[2].isnan()) and bool(expected[2].isnan())
-
-
-def test_sampled_fourth_differences_are_the_full_ones_sampled(dtype: torch.dtype) -> None:
-    x = torch.randn(17, 60, 70, dtype=dtype)
-    for dim in (0, -2, -1):
-        full = fourth_difference(x, dim).reshape(-1)
-        assert torch.equal(sampled_fourth_difference(x, dim, sample=5000), full[:: full.numel() // 5000])
-    quiet = torch.rand(60, 70) > 0.5
-    for dim in (-2, -1):
-        centre = quiet.narrow(dim, 2, x.shape[dim] - 4)
-        full = fourth_difference(x, dim)[..., centre].reshape(-1)
-        got = sampled_fourth_difference(x, dim, where=centre, sample=5000)
-        assert torch.equal(got, full[:: full.numel() // 5000])
 
 
 def test_constant_weights_factor_out_of_the_moments(dtype: torch.dtype) -> None:

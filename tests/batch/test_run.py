@@ -5,6 +5,7 @@ interrupted runs, regions and calibration, recordings read in chunks, diagnosis 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -50,13 +51,37 @@ def test_same_shaped_videos_share_one_estimator_call(video_folder: Path, tmp_pat
     calls: list[tuple[int, ...]] = []
     forward = ANRAEstimator.forward
 
-    def spy(self, frames, dt, dx):
+    def spy(self, frames, dt, dx, **kwargs):
         calls.append(tuple(frames.shape))
-        return forward(self, frames, dt, dx)
+        return forward(self, frames, dt, dx, **kwargs)
 
     monkeypatch.setattr(ANRAEstimator, "forward", spy)
     run_batch([video_folder / "p*.npz", video_folder / "sub"], tmp_path / "r.csv", progress=False)
     assert sorted(calls) == [(1, 28, 72, 72), (3, 28, 64, 64)]
+
+
+def test_each_file_is_measured_once(video_folder: Path, tmp_path: Path, monkeypatch) -> None:
+    """The artefact search, the white noise level and the noise model run once per file: the phases are
+    searched in the measured recording's repairs, and the estimator takes the measurement as it is."""
+    counts = {"find_artefacts": 0, "estimate_noise_sd": 0, "measure_noise": 0}
+
+    def counted(module, name: str) -> None:  # noqa: ANN001 - a module
+        original = getattr(module, name)
+
+        def spy(frames, *args, **kwargs):  # noqa: ANN001, ANN202
+            counts[name] += 1 if frames.ndim == 3 else frames.shape[0]
+            return original(frames, *args, **kwargs)
+
+        monkeypatch.setattr(module, name, spy)
+
+    modules = [sys.modules[f"anra_torch.{m}"] for m in ("balance.batch_noise", "recording.phases")]
+    for module in modules:
+        for name in counts:
+            if hasattr(module, name):
+                counted(module, name)
+    run_batch([video_folder / "p*.npz", video_folder / "sub"], tmp_path / "r.csv", progress=False)
+    assert counts == {"find_artefacts": 4, "estimate_noise_sd": 4, "measure_noise": 4}
+    assert [r["status"] for r in read_table(tmp_path / "r.csv")] == ["ok"] * 4
 
 
 def test_float32_default_agrees_with_float64(video_folder: Path, tmp_path: Path) -> None:

@@ -38,7 +38,14 @@ def test_a_region_or_a_calibration_always_loads_the_recording(recording: Path) -
     assert not doubled.on_disk
     torch.testing.assert_close(doubled.frames, 2 * torch.as_tensor(random_frames(12, 10, 14)))
     record = input_record(doubled)
-    assert set(record) == {"timestamps", "resampled", "roi", "calibration", "masked_values", "object_parameters"}
+    assert set(record) == {
+        "timestamps",
+        "resampled",
+        "roi",
+        "calibration",
+        "masked_values",
+        "object_parameters",
+    }
     assert record["calibration"]["table"] == "t" and record["roi"] is None
 
 

@@ -178,9 +178,9 @@ def test_loss_rate_std_error_matches_the_spread_over_noise_draws() -> None:
     measured = torch.isfinite(error).all(0) & (out.maps["confidence"] > 0.5).all(0)
     assert int(measured.sum()) > 100
     ratio = (error.median(0).values / spread)[measured]
-    # 24 draws: the spread itself is known to ~15 % per window, the Monte Carlo error to ~25 %; their
-    # median over the windows to a few %.
-    assert 0.8 < float(ratio.median()) < 1.25  # measured 0.96
+    # 24 draws: the spread itself is known to ~15 % per window; the median over the windows to a few %. The
+    # propagated error is conservative on the spot, whose Laplacian turns over within a window.
+    assert 0.8 < float(ratio.median()) < 1.25  # measured 1.20
 
 
 def test_a_one_dimensional_trace_is_a_one_pixel_video() -> None:
