@@ -162,8 +162,7 @@ class TissueFeatureMaps:
             parameters (:class:`anra_torch.tissue.DepthFeatures`, batched even for a single video); the
             :data:`anra_torch.tissue.DEPTH_MAPS` are also in ``maps`` (NaN for a video without a usable fit,
             with the reason in ``messages``).
-        cooling_diffusivity: ``a`` (mm^2/s) fitted with ``loss_rate`` on each window's cooling frames, where
-            no source biases it (the video's where ``a``, ``b`` can't be told apart), ``(B, H, W)``; or None.
+        cooling_diffusivity: ``a`` (mm^2/s) fitted with ``loss_rate`` on cooling frames, no source biasing it.
     """
 
     maps: dict[str, Tensor]
@@ -190,15 +189,14 @@ class TissueFeatureMaps:
 
     def unbatched(self) -> TissueFeatureMaps:
         """The same result with the batch dimension of size 1 removed."""
-        error, cooling = self.loss_rate_std_error, self.cooling_diffusivity
+        optional = {k: getattr(self, k) for k in ("loss_rate_std_error", "cooling_diffusivity")}
         return replace(
             self,
             maps={k: v[0] for k, v in self.maps.items()},
             summary={k: v[0] for k, v in self.summary.items()},
             masked=self.masked[0],
             valid=self.valid[0],
-            loss_rate_std_error=None if error is None else error[0],
-            cooling_diffusivity=None if cooling is None else cooling[0],
+            **{k: None if v is None else v[0] for k, v in optional.items()},
         )
 
 
@@ -398,8 +396,7 @@ class TissueFeatures(nn.Module):
         valid = torch.zeros(b, dtype=torch.bool, device=video.device) if result is None else result.valid
         why = {name: depth_reason for name in DEPTH_MAPS}
         absent = {name: why.get(name, reason) for name in self.map_names if name not in maps}
-        error = None if reason else spatial["loss_rate_std_error"]
-        cooling = None if reason else spatial["cooling_diffusivity"]
+        error, cooling = [None if reason else spatial[k] for k in ("loss_rate_std_error", "cooling")]
         out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent, depth, cooling)
         return out if batched else out.unbatched()
 
@@ -454,7 +451,7 @@ class TissueFeatures(nn.Module):
         noise_sd = result.noise_sd.reshape(b).to(_F64)  # measured once, by the estimator
         fit = fit_loss_windows(self.filters, terms, maps["diffusivity"], noise_sd, dt, dx, window=self.window)
         maps["loss_rate"], maps["source"] = fit.loss_rate, fit.source
-        fitted = {"loss_rate_std_error": fit.std_error, "cooling_diffusivity": fit.diffusivity}
+        fitted = {"loss_rate_std_error": fit.std_error, "cooling": fit.diffusivity}
         return {"maps": maps, "result": result, **fitted}
 
     def _summary(self, maps: dict[str, Tensor], masked: Tensor, spatial: dict | None, span: Tensor) -> dict:
