@@ -260,7 +260,7 @@ class LearnedDose(MapsHead):
         c = self.constants()
         k = len(c["t60"])
         omega = omega_with_constants(  # "hold": Omega is dt times the sum, so each pixel's own dt scales it
-            temperatures.expand(k, *temperatures.shape).unsqueeze(-1),
+            temperatures.unsqueeze(-1),  # one history (T, P, 1) under the K prototypes' constants
             1.0,
             log_frequency=c["log_frequency"].view(k, 1, 1),
             activation_energy=c["activation_energy"].view(k, 1, 1),

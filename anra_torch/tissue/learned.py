@@ -240,18 +240,19 @@ def omega_with_constants(
     """Arrhenius Omega ``integral exp(ln A - Ea / (R_gas T_K)) dt`` with per-pixel, differentiable constants.
 
     :func:`anra_torch.tissue.arrhenius_omega` (the dose of :class:`anra_torch.tissue.TissueFeatures`) takes
-    one pair of constants as numbers. Here ``ln A`` and ``Ea`` are tensors broadcast over the pixels, and
+    one pair of constants as numbers. Here ``ln A`` and ``Ea`` are tensors broadcast with the pixels, and
     the gradient flows to them (and to the temperatures): the history goes through ``arrhenius_omega`` as
     the equivalent temperature ``T*`` whose rate under :data:`anra_torch.tissue.SKIN` is the pixel's rate,
     ``1 / T* = (Ea / T_K - R_gas ln A + R_gas ln A_skin) / Ea_skin``. With ``rule="hold"`` the result is
     exact; with ``"linear"`` the frames' equivalent temperatures are joined by straight lines (not the
     frames): a relative difference of order ``(dT / T)^2`` per segment, below 1e-4 for tissue
-    histories sampled every 0.5 s (``tests/tissue/test_learned.py``).
+    histories sampled every 0.5 s (``tests/tissue/test_learned.py``). Constants with a leading axis of
+    their own evaluate one history ``(T, H, W)`` under several pairs at once (e.g. ``(K, 1, 1)``).
 
     Args:
         temperatures: video in ``units``.
         dt: frame period in s, a number or ``(B,)``.
-        log_frequency: ``ln A`` with ``A`` in 1/s, a number or a tensor broadcastable to the output.
+        log_frequency: ``ln A`` with ``A`` in 1/s, a number or a tensor that broadcasts with the output.
         activation_energy: ``Ea`` in J/mol (> 0), likewise.
         units: ``"C"`` or ``"K"``.
         rule: ``"hold"`` (default) or ``"linear"`` (:data:`anra_torch.tissue.RULES`).
@@ -264,33 +265,37 @@ def omega_with_constants(
             or so far from the skin constants that an equivalent temperature is not positive.
 
     Shape:
-        ``temperatures`` ``(T, H, W)`` or ``(B, T, H, W)``; constants broadcastable to the output ``(H, W)``
-        or ``(B, H, W)``; output like :func:`~anra_torch.tissue.arrhenius_omega`.
+        ``temperatures`` ``(T, H, W)`` or ``(B, T, H, W)``; constants broadcast with ``(H, W)`` or
+        ``(B, H, W)``; output their broadcast shape (at most 3 dimensions), e.g. ``(B, H, W)``.
     """
     if getattr(temperatures, "ndim", None) not in (3, 4):
         shape = tuple(getattr(temperatures, "shape", ()))
         raise ValueError(f"temperatures must have shape (T, H, W) or (B, T, H, W), got {shape}")
     kelvin = to_celsius(temperatures, units) + 273.15
-    out_shape = (*kelvin.shape[:-3], *kelvin.shape[-2:])
-    constants = []
-    for name, value in (("log_frequency", log_frequency), ("activation_energy", activation_energy)):
-        c = torch.as_tensor(value, dtype=_F64, device=kelvin.device)
+    pixels = (*kelvin.shape[:-3], *kelvin.shape[-2:])
+    given = {"log_frequency": log_frequency, "activation_energy": activation_energy}
+    constants = {k: torch.as_tensor(v, dtype=_F64, device=kelvin.device) for k, v in given.items()}
+    for name, c in constants.items():
         try:
-            fits = torch.broadcast_shapes(c.shape, out_shape) == torch.Size(out_shape)
+            fits = len(torch.broadcast_shapes(pixels, c.shape)) <= 3
         except RuntimeError:
             fits = False
         if not fits:
-            raise ValueError(f"{name} must broadcast to the output shape {out_shape}, got {tuple(c.shape)}")
+            raise ValueError(
+                f"{name} must broadcast with the pixels {pixels} (3 dimensions at most), got {tuple(c.shape)}"
+            )
         if not bool(torch.isfinite(c.detach()).all()):
             raise ValueError(f"{name} must be finite, got {c.detach().flatten()[:4].tolist()}")
-        constants.append(c.unsqueeze(-3) if c.ndim >= 2 else c)  # broadcast over the time axis
-    log_a, energy = constants
+    # The time axis: constants (..., H, W) -> (..., 1, H, W).
+    log_a, energy = (c.unsqueeze(-3) if c.ndim >= 2 else c for c in constants.values())
     if bool((energy.detach() <= 0).any()):
         raise ValueError(f"activation_energy must be > 0 J/mol, got min {float(energy.detach().min()):g}")
-    denominator = energy / kelvin - GAS_CONSTANT * (log_a - math.log(SKIN.frequency))
-    if bool((denominator.detach() <= 0).any()):
+    excess = GAS_CONSTANT * (log_a - math.log(SKIN.frequency))
+    # The denominator falls as T rises: its smallest value is at each pixel's hottest frame.
+    hottest = torch.where(torch.isfinite(kelvin), kelvin, 0.0).amax(-3, keepdim=True).detach()
+    if bool((energy.detach() / hottest - excess.detach() <= 0).any()):
         raise ValueError(
             "log_frequency and activation_energy are too far from the skin constants for an equivalent "
             "temperature at these temperatures (ln A - Ea / (R_gas T_K) must stay below ln A_skin)"
         )
-    return arrhenius_omega(SKIN.activation_energy / denominator, dt, units="K", rule=rule)
+    return arrhenius_omega(SKIN.activation_energy / (energy / kelvin - excess), dt, units="K", rule=rule)

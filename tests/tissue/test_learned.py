@@ -104,6 +104,14 @@ def test_omega_with_constants_per_pixel_and_per_video() -> None:
     )
     second = arrhenius_omega(history + 3.0, 0.5, constants=ArrheniusConstants(*TISSUE_CONSTANTS[1]))
     torch.testing.assert_close(batched[1], second, rtol=1e-12, atol=0)
+    # One history under several pairs at once: constants with a leading axis of their own, (K, 1, 1).
+    several = omega_with_constants(
+        history, 0.5, log_frequency=log_a[:3].view(3, 1, 1), activation_energy=energy[:3].view(3, 1, 1)
+    )
+    assert several.shape == (3, 2, 2)
+    for k, (frequency, e) in enumerate(TISSUE_CONSTANTS):
+        alone = arrhenius_omega(history, 0.5, constants=ArrheniusConstants(frequency, e))
+        torch.testing.assert_close(several[k], alone, rtol=1e-12, atol=0)
 
 
 @pytest.mark.parametrize("rule", ["hold", "linear"])
@@ -124,7 +132,7 @@ def test_omega_with_constants_refuses_bad_constants() -> None:
     history = burn_history(frames=8)
     with pytest.raises(ValueError, match="activation_energy must be > 0 J/mol"):
         omega_with_constants(history, 0.5, log_frequency=90.0, activation_energy=0.0)
-    with pytest.raises(ValueError, match=r"log_frequency must broadcast to the output shape \(2, 2\)"):
+    with pytest.raises(ValueError, match=r"log_frequency must broadcast with the pixels \(2, 2\)"):
         omega_with_constants(history, 0.5, log_frequency=torch.zeros(3, 3), activation_energy=2e5)
     with pytest.raises(ValueError, match="activation_energy must be finite"):
         omega_with_constants(history, 0.5, log_frequency=90.0, activation_energy=torch.tensor(math.nan))
