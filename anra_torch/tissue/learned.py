@@ -27,11 +27,11 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
-from anra_torch.checks import as_video
+from anra_torch.checks import as_spacing, as_video
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.selection import diagnose_terms
 from anra_torch.simulation import simulate_tissue
-from anra_torch.tissue.dose import GAS_CONSTANT, SKIN, arrhenius_omega, to_celsius
+from anra_torch.tissue.dose import GAS_CONSTANT, KELVIN_AT_ZERO_CELSIUS, SKIN, arrhenius_omega, to_celsius
 
 __all__ = ["LearnedTissueModel", "omega_with_constants", "relative_error"]
 
@@ -241,12 +241,13 @@ def omega_with_constants(
 
     :func:`anra_torch.tissue.arrhenius_omega` (the dose of :class:`anra_torch.tissue.TissueFeatures`) takes
     one pair of constants as numbers. Here ``ln A`` and ``Ea`` are tensors broadcast with the pixels, and
-    the gradient flows to them (and to the temperatures): the history goes through ``arrhenius_omega`` as
-    the equivalent temperature ``T*`` whose rate under :data:`anra_torch.tissue.SKIN` is the pixel's rate,
-    ``1 / T* = (Ea / T_K - R_gas ln A + R_gas ln A_skin) / Ea_skin``. With ``rule="hold"`` the result is
-    exact; with ``"linear"`` the frames' equivalent temperatures are joined by straight lines (not the
-    frames): a relative difference of order ``(dT / T)^2`` per segment, below 1e-4 for tissue
-    histories sampled every 0.5 s (``tests/tissue/test_learned.py``). Constants with a leading axis of
+    the gradient flows to them (and to the temperatures). With ``rule="hold"`` the frames' rates are summed
+    as ``arrhenius_omega`` sums them (frames that are not finite left out), exact. With ``"linear"`` the
+    history goes through ``arrhenius_omega`` as the equivalent temperature ``T*`` whose rate under
+    :data:`anra_torch.tissue.SKIN` is the pixel's rate, ``1 / T* = (Ea / T_K - R_gas ln A + R_gas ln A_skin)
+    / Ea_skin``, the frames' equivalent temperatures joined by straight lines (not the frames): a relative
+    difference of order ``(dT / T)^2`` per segment, below 1e-4 for tissue histories sampled every 0.5 s
+    (``tests/tissue/test_learned.py``). Constants with a leading axis of
     their own evaluate one history ``(T, H, W)`` under several pairs at once (e.g. ``(K, 1, 1)``).
 
     Args:
@@ -292,10 +293,16 @@ def omega_with_constants(
         raise ValueError(f"activation_energy must be > 0 J/mol, got min {float(energy.detach().min()):g}")
     excess = GAS_CONSTANT * (log_a - math.log(SKIN.frequency))
     # The denominator falls as T rises: its smallest value is at each pixel's hottest frame.
-    hottest = torch.where(torch.isfinite(kelvin), kelvin, 0.0).amax(-3, keepdim=True).detach()
+    finite = torch.isfinite(kelvin)
+    hottest = torch.where(finite, kelvin, 0.0).amax(-3, keepdim=True).detach()
     if bool((energy.detach() / hottest - excess.detach() <= 0).any()):
         raise ValueError(
             "log_frequency and activation_energy are too far from the skin constants for an equivalent "
             "temperature at these temperatures (ln A - Ea / (R_gas T_K) must stay below ln A_skin)"
         )
+    if rule == "hold":  # one exp per frame and pair (the equivalent temperature's three passes saved)
+        period = as_spacing(dt, name="dt", unit="s", batch=math.prod(kelvin.shape[:-3]), like=kelvin)
+        safe = torch.where(finite, kelvin, KELVIN_AT_ZERO_CELSIUS + 43.0).to(_F64)  # no NaN in a branch
+        rate = torch.where(finite, torch.exp(log_a - energy / (GAS_CONSTANT * safe)), 0.0)
+        return rate.sum(-3) * (period.view(-1, 1, 1) if kelvin.ndim == 4 else period.view(()))
     return arrhenius_omega(SKIN.activation_energy / (energy / kelvin - excess), dt, units="K", rule=rule)

@@ -104,6 +104,14 @@ def test_omega_with_constants_per_pixel_and_per_video() -> None:
     )
     second = arrhenius_omega(history + 3.0, 0.5, constants=ArrheniusConstants(*TISSUE_CONSTANTS[1]))
     torch.testing.assert_close(batched[1], second, rtol=1e-12, atol=0)
+    # A frame that is not finite is left out as arrhenius_omega leaves it out (float32 in, float64 out).
+    gappy = history.clone()
+    gappy[10, 0, 1] = math.nan
+    given = {"log_frequency": log_a.view(2, 2), "activation_energy": energy.view(2, 2)}
+    with_gap = omega_with_constants(gappy.float(), torch.tensor([0.5]), **given)
+    assert with_gap.dtype == F64 and bool(torch.isfinite(with_gap).all())
+    second_pixel = arrhenius_omega(gappy.float(), 0.5, constants=ArrheniusConstants(*TISSUE_CONSTANTS[1]))
+    assert float(with_gap[0, 1]) == pytest.approx(float(second_pixel[0, 1]), rel=1e-12)
     # One history under several pairs at once: constants with a leading axis of their own, (K, 1, 1).
     several = omega_with_constants(
         history, 0.5, log_frequency=log_a[:3].view(3, 1, 1), activation_energy=energy[:3].view(3, 1, 1)
