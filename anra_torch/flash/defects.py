@@ -47,7 +47,7 @@ _ODD = 0.3  # |ln tau - ln plate| beyond this: another depth (the lateral fit's 
 _CONTRAST = 0.2  # ln(plate / tau) a defect pixel exceeds (d / L < 0.9) ...
 _SIGNIFICANCE = 3.0  # ... at this many standard deviations of its own fit
 _SCATTER = 4.0  # a defect's peak contrast exceeds this many robust sd of the sound pixels' contrast
-_MIN_PIXELS = 9
+_MIN_PIXELS = math.ceil(math.pi * _SIGMA_LATERAL**2)  # smaller than the lateral derivatives' footprint
 _EDGE_RINGS = 10
 _ROUNDS = 3
 
@@ -318,8 +318,8 @@ def _standard_error(log_tau: Tensor, sound: Tensor) -> float:
     return float(medians.std() / math.sqrt(len(medians)))
 
 
-def _edge_scatter(contrast: Tensor) -> Tensor:
-    """Per pixel, the robust sd of the contrast over the pixels as far from the frame's edge (up to
+def _edge_scatter(contrast: Tensor, sound: Tensor) -> Tensor:
+    """Per pixel, the robust sd of the contrast over the sound pixels as far from the frame's edge (up to
     :data:`_EDGE_RINGS` px; the lateral derivatives are one-sided and noisier near the edge)."""
     height, width = contrast.shape
     rows = torch.arange(height, device=contrast.device)[:, None]
@@ -328,7 +328,9 @@ def _edge_scatter(contrast: Tensor) -> Tensor:
     ring = ring.clamp(max=_EDGE_RINGS)
     spread = torch.zeros(_EDGE_RINGS + 1, dtype=contrast.dtype, device=contrast.device)
     for k in range(int(ring.max()) + 1):  # a few rings, each whole
-        values = contrast[ring == k]
+        values = contrast[(ring == k) & sound]
+        if len(values) < _MIN_PIXELS:
+            values = contrast[ring == k]
         spread[k] = 1.4826 * (values - values.median()).abs().median()
     return spread[ring]
 
@@ -360,7 +362,7 @@ def _finish(
     contrast = plate - log_tau
     scatter = 1.4826 * (contrast[sound] - contrast[sound].median()).abs().median()  # the sound plate's
     least = max(_CONTRAST, _SCATTER * float(scatter))
-    candidate = (contrast > _CONTRAST) & (contrast > _SCATTER * _edge_scatter(contrast)) & (z > _SIGNIFICANCE)
+    candidate = (contrast > _CONTRAST) & (contrast > _SCATTER * _edge_scatter(contrast, sound)) & (z > _SIGNIFICANCE)
     labels, count = components(candidate)
     mask = torch.zeros_like(sound)
     fraction = torch.full_like(contrast, math.nan)
