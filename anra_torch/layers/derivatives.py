@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from anra_torch.checks import as_spacing, number
 from anra_torch.layers import stencils
 
 __all__ = [
@@ -54,18 +55,13 @@ def _per_leading(spacing: float | Tensor, x: Tensor, extra_dims: int) -> Tensor 
     return float(spacing)
 
 
-def _check_spacing_batch(spacing: float | Tensor, name: str, x: Tensor) -> None:
-    if isinstance(spacing, Tensor) and spacing.numel() > 1 and (x.ndim < 3 or spacing.numel() != x.shape[0]):
-        raise ValueError(
-            f"{name} must be a number or have one value per video ({x.shape[0] if x.ndim > 2 else 1},), "
-            f"got shape {tuple(spacing.shape)}"
-        )
-
-
-def _check_spacing(spacing: float | Tensor, name: str, unit: str) -> None:
-    values = spacing if isinstance(spacing, Tensor) else torch.tensor(float(spacing), device="cpu")
-    if not bool(torch.isfinite(values).all()) or bool((values <= 0).any()):
-        raise ValueError(f"{name} must be a positive finite number in {unit}, got {spacing!r}")
+def _check_spacing(spacing: float | Tensor, name: str, unit: str, x: Tensor) -> None:
+    """The one spacing check (:func:`~anra_torch.checks.as_spacing`): positive, finite, one value or one
+    per video of ``x`` (its leading dim when it has more than two)."""
+    if isinstance(spacing, Tensor) and spacing.numel() > 1:
+        as_spacing(spacing, name=name, unit=unit, batch=x.shape[0] if x.ndim > 2 else 1, like=x)
+    else:
+        number(spacing, name, unit, positive=True)
 
 
 # ----------------------------------------------------------------------------------------------- time
@@ -145,8 +141,7 @@ class TimeDerivative(nn.Module):
                 f"got {video.shape[1]}"
             )
         if dt is not None:
-            _check_spacing(dt, "dt", "s")
-            _check_spacing_batch(dt, "dt", video)
+            _check_spacing(dt, "dt", "s", video)
         return video
 
     def _filter(self, frames: Tensor, taps: Tensor, dt: float | Tensor | None) -> Tensor:
@@ -366,8 +361,7 @@ class _SpatialOperator(nn.Module):
 
     def _operate(self, u: Tensor, dx: float | Tensor) -> Tensor:
         _check_spatial(u, self.support, self.border)
-        _check_spacing(dx, "dx", "mm")
-        _check_spacing_batch(dx, "dx", u)
+        _check_spacing(dx, "dx", "mm", u)
         out = self._filter(u)
         if self.order == 0:  # unitless smoothing: no division (and no copy of a cropped view)
             return out

@@ -16,7 +16,9 @@
   :mod:`~anra_torch.simulation.plate` (conduction into a plate below the surface, exact);
   :mod:`~anra_torch.simulation.bioheat_reference` (:func:`simulate_bioheat`, 3-D Pennes bioheat by finite
   volumes with the Arrhenius damage in depth) and its scenes, :mod:`~anra_torch.simulation.bioheat_scenes`
-  (:func:`random_scene`); :mod:`~anra_torch.simulation.plate_reference` (:func:`reference_plate_video`, a 3-D
+  (:func:`random_scene`); :mod:`~anra_torch.simulation.bioheat_green` (:func:`simulate_spot`, a Gaussian
+  spot on a half-space by its Green's function: no grid, the frame a window onto an unbounded tissue);
+  :mod:`~anra_torch.simulation.plate_reference` (:func:`reference_plate_video`, a 3-D
   anisotropic flash-thermography plate by finite volumes on an irregular mesh, with defects of any shape).
 
 :func:`anra_torch.effects.simulate_effects` and :func:`anra_torch.forecast.refine_model` integrate their
@@ -24,6 +26,7 @@ right-hand sides with the same :func:`integrate`. Units: mm, s, mm^2/s.
 """
 
 from anra_torch.simulation.analytic import SPECTRAL_BOUNDARIES, gaussian_blob, gaussian_blobs, heat_spectral
+from anra_torch.simulation.bioheat_green import GreenResult, GreenScene, simulate_spot, spot_peak
 from anra_torch.simulation.bioheat_reference import (
     BioheatResult,
     BioheatScene,
@@ -75,6 +78,8 @@ __all__ = [
     "Contact",
     "Continuum",
     "Defect",
+    "GreenResult",
+    "GreenScene",
     "DepthGrid",
     "HeatRHS",
     "MovingSource",
@@ -103,6 +108,8 @@ __all__ = [
     "simulate_bioheat",
     "simulate_continuum",
     "simulate_heat",
+    "simulate_spot",
+    "spot_peak",
     "simulate_tissue",
     "stable_substeps",
     "with_depth",

@@ -14,7 +14,9 @@ below the surface.
 - :mod:`~anra_torch.tissue.depth_features`: both together, the maps of ``TissueFeatures(depth=True)`` and
   ``anra features --depth`` (:func:`depth_features`);
 - :mod:`~anra_torch.tissue.depth_solver`: the engine the others share (depth grid, operator, the march);
-- :mod:`~anra_torch.tissue.depth_errors`: the maps' standard errors (perturbed copies, :data:`NOISE_DRAWS`).
+- :mod:`~anra_torch.tissue.depth_errors`: the maps' standard errors (perturbed copies, the noise's analytic
+  part);
+- :mod:`~anra_torch.tissue.depth_doses`: the doses of the depth march and the noise carried through them.
 """
 
 from anra_torch.tissue.depth import (
@@ -26,7 +28,6 @@ from anra_torch.tissue.depth import (
     surface_heat_input,
     threshold_depth,
 )
-from anra_torch.tissue.depth_errors import NOISE_DRAWS
 from anra_torch.tissue.depth_features import DEPTH_MAPS, DepthFeatures, depth_features
 from anra_torch.tissue.depth_fit import DepthParameters, fit_depth_parameters
 from anra_torch.tissue.depth_solver import depth_nodes
@@ -61,7 +62,6 @@ __all__ = [
     "CEM43_THRESHOLD",
     "DEPTH_MAPS",
     "DOSE_FLOOR",
-    "NOISE_DRAWS",
     "DOSE_MAPS",
     "DepthFeatures",
     "DepthMaps",

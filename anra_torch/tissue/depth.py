@@ -13,11 +13,15 @@ How it is solved (chosen by measuring, see ``experiments/damage_depth.py``): the
 (under a spot 1-2.5 mm wide heat leaves sideways as well as downwards), so the frame is the boundary of a
 3-D problem. With uniform ``a`` and ``b`` it separates exactly:
 
-* laterally, the frame's cosine modes (DCT-II: zero flux through the frame's edges), each with its own
-  decay ``c = a |k|^2 + b`` (``k = pi (p / H, q / W) / dx``, the continuous wavenumbers);
+* laterally, the cosine modes (DCT-II) of the frame, or of the frame continued ``margin`` mm beyond its
+  edges (:func:`~anra_torch.tissue.depth_solver.widen`: the frame is a window, and its edges then neither
+  hold the heat in nor invent it), each with its own decay ``c = a |k|^2 + b`` (``k = pi (p / H, q / W) /
+  dx``, the continuous wavenumbers); a node at depth ``z`` takes the modes with ``|k| z < 9.2`` (the
+  others reach it below 1e-4 of their surface amplitude);
 * in depth, the second-order finite-difference operator on nodes ``0 = z_0 < z_1 < ...`` whose spacing
   grows geometrically from :data:`FIRST_STEP` (the profiles broaden with depth), down to a bottom so deep
-  that no heat reaches it in the record (or the layer's);
+  that no heat reaches it in the record (or a shallower layer's: the grid stops where the heat does,
+  whatever the thickness);
 * in time, each mode (lateral x depth eigenmode) is integrated EXACTLY between frames for a surface that
   varies linearly between them (an exponential integrator: ``phi_1``, ``phi_2``), so the frame rate sets no
   stability limit and the only errors are the depth grid's and the surface's sampling.
@@ -27,12 +31,14 @@ pixel's and mode's state), and the physical temperatures of a block of frames ar
 Everything runs on the input's device in its dtype (constants built once in float64 and cached) and is
 differentiable with respect to the frames, ``a`` and ``b``.
 
-Damage in depth (:func:`damage_in_depth`): Omega and CEM43 of every depth node's history through
-:func:`~anra_torch.tissue.arrhenius_omega` and :func:`~anra_torch.tissue.cem43`, the peak-temperature profile,
-the damage depth (the deepest point with ``Omega >= 1``: ``ln Omega`` interpolated linearly between nodes) and
-the depth of a CEM43 threshold, each with a standard error propagated from the standard errors of ``a``
-and ``b`` and from the noise (one extra solve each: the linearised propagation), with the frames' sampling
-in time (the two dose rules' difference).
+Damage in depth (:func:`damage_in_depth`): Omega and CEM43 of every depth node's history
+(:class:`~anra_torch.tissue.depth_doses.DoseAccumulator`, the rules of :mod:`~anra_torch.tissue.dose`), the
+peak-temperature profile, the damage depth (the deepest point with ``Omega >= 1``: ``ln Omega``
+interpolated linearly between nodes) and the depth of a CEM43 threshold, each with a standard error
+propagated from the standard errors of ``a`` and ``b`` (one extra solve each: the linearised propagation),
+from the frames' noise (analytically: :mod:`~anra_torch.tissue.depth_errors`) and from the frames'
+sampling in time (the two dose rules' difference). Memory is flat in the number of frames: the march
+forms the temperatures a block of frames at a time.
 
 Units: mm, s, C, mm^2/s, 1/s.
 """
@@ -45,10 +51,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.checks import number
-from anra_torch.tissue.depth_errors import perturbed_copies, spread
+from anra_torch.tissue.depth_doses import DOSE_FLOOR, OMEGA_FLOOR, DoseAccumulator
+from anra_torch.tissue.depth_errors import noise_correlation, perturbed_copies, spread
 from anra_torch.tissue.depth_solver import (
     FIRST_STEP,
     GROWTH,
@@ -62,8 +70,9 @@ from anra_torch.tissue.depth_solver import (
     node_temperatures,
     solver_nodes,
     surface_rise,
+    widen,
 )
-from anra_torch.tissue.dose import RULES, SKIN, ArrheniusConstants, arrhenius_omega, cem43
+from anra_torch.tissue.dose import RULES, SKIN, ArrheniusConstants
 
 __all__ = [
     "CEM43_THRESHOLD",
@@ -78,10 +87,10 @@ __all__ = [
 
 CEM43_THRESHOLD = 240.0
 """Default CEM43 threshold (min) of :attr:`DepthMaps.cem43_depth`: thermal necrosis of most tissues."""
-_GROUP = 4  # copies (base and perturbed) of the videos marched together: their modal operators' memory
 _BLOCK_VALUES = 2**22  # temperatures formed per block of frames (32 MiB in float64)
 _COARSE_GROWTH = 1.15  # the depth grid of the pass that finds how deep the heat goes
 _F64 = torch.float64
+_TINY = 1e-300  # a dose floor for logarithms
 
 
 def _nodes_with(wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -160,14 +169,6 @@ def subsurface_temperature(
 
 
 # ------------------------------------------------------------------------------------------ damage
-OMEGA_FLOOR = 45.0
-"""C: a node never hotter than this gets no Omega (the skin's rate there is 4.5e-5 1/s: under 0.003 in a
-minute, against the threshold of 1)."""
-DOSE_FLOOR = 40.0
-"""C: a node whose temperature never exceeds this gets no CEM43 (1/64 min per min there), and nodes are
-reported down to where the peak falls below it."""
-
-
 @dataclass(frozen=True)
 class DepthMaps:
     """Output of :func:`damage_in_depth` (batched: leading ``B``; a single video drops it).
@@ -212,6 +213,13 @@ class DepthMaps:
         keep = ("depths", "cem43_threshold")
         return replace(self, **{k: v[0] for k, v in self.__dict__.items() if k not in keep})
 
+    def cropped(self, margin: int) -> DepthMaps:
+        """The maps without ``margin`` pixels on every side (a widened frame's own)."""
+        inner = (..., slice(margin, -margin), slice(margin, -margin))
+        return replace(
+            self, **{k: v[inner] for k, v in self.__dict__.items() if isinstance(v, Tensor) and v.ndim >= 3}
+        )
+
 
 def threshold_depth(values: Tensor, depths: Tensor, threshold: float | Tensor) -> Tensor:
     """Deepest point where ``values >= threshold`` along the depth axis, ``log(values)`` interpolated
@@ -248,73 +256,32 @@ def threshold_depth(values: Tensor, depths: Tensor, threshold: float | Tensor) -
     return torch.where(last >= 0, depth, torch.zeros_like(depth)).squeeze(-3)
 
 
-class _Doses:
-    """Running peak (C), Omega and CEM43 (float64) of every node of a batch, block by block, by ``rule`` and,
-    for the first ``base`` videos, by the other rule too (the time-sampling term of the errors); each dose
-    only over the nodes some video's block takes above its floor (:data:`OMEGA_FLOOR`,
-    :data:`DOSE_FLOOR`), gathered and added back."""
-
-    def __init__(
-        self,
-        like: Tensor,
-        shape: tuple[int, ...],
-        dt: Tensor,
-        rule: str,
-        constants: ArrheniusConstants,
-        base: int,
-    ):
-        self.peak = torch.full(shape, -torch.inf, device=like.device, dtype=like.dtype)
-        zeros = {"device": like.device, "dtype": _F64}
-        self.doses = {
-            (name, r): torch.zeros(shape if r == rule else (base, *shape[1:]), **zeros)
-            for name in ("omega", "cem43")
-            for r in RULES
-        }
-        self.dt, self.rule, self.constants, self.base = dt, rule, constants, base
-        self.previous: Tensor | None = None
-
-    @property
-    def omega(self) -> Tensor:
-        return self.doses["omega", self.rule]
-
-    @property
-    def cem43(self) -> Tensor:
-        return self.doses["cem43", self.rule]
-
-    def other(self, name: str) -> Tensor:
-        """The base videos' ``name`` by the other rule."""
-        return self.doses[name, next(r for r in RULES if r != self.rule)]
-
-    def add(self, celsius: Tensor) -> None:
-        """Add a block ``(B, L, Z, H, W)`` of temperatures (C)."""
-        self.peak = torch.maximum(self.peak, celsius.amax(1))
-        joined = celsius if self.previous is None else torch.cat([self.previous, celsius], 1)
-        self.previous = celsius[:, -1:]  # linear segments join consecutive blocks
-        warmest = joined.detach().amax(1).amax(0).flatten()  # over the block and the batch
-        for floor, name in ((DOSE_FLOOR, "cem43"), (OMEGA_FLOOR, "omega")):
-            hot = torch.nonzero(warmest > floor).flatten()
-            if not hot.numel():
-                continue
-            for rule in RULES:
-                history = celsius if rule == "hold" else joined
-                if history.shape[1] < 2 and rule == "linear":
-                    continue
-                videos = len(history) if rule == self.rule else self.base
-                picked = history[:videos].flatten(2).index_select(2, hot).unsqueeze(-1)  # (B, L, P, 1)
-                if name == "omega":
-                    dose = arrhenius_omega(picked, self.dt[:videos], constants=self.constants, rule=rule)
-                else:
-                    dose = cem43(picked, self.dt[:videos], rule=rule)
-                total = self.doses[name, rule]
-                total = total.reshape(videos, -1).index_add(1, hot, dose[..., 0]).reshape(total.shape)
-                self.doses[name, rule] = total
+def _threshold_noise(values: Tensor, variance: Tensor, depths: Tensor, threshold: float) -> Tensor:
+    """The variance (mm^2) of :func:`threshold_depth` from the dose's noise variance ``variance`` at every
+    node: ``Var(ln D)`` interpolated to the crossing, over the squared slope of ``ln D`` there."""
+    z = depths.to(device=values.device, dtype=values.dtype)
+    n = values.shape[-3]
+    index = torch.arange(n, device=values.device).view(-1, 1, 1)
+    last = torch.where(values >= threshold, index, -1).amax(-3, keepdim=True)
+    here = last.clamp_min(0)
+    below = (here + 1).clamp_max(n - 1)
+    log_here = torch.log(values.gather(-3, here).clamp_min(1e-300) / threshold)
+    log_below = torch.log(values.gather(-3, below).clamp_min(1e-300) / threshold)
+    span = (log_here - log_below).clamp_min(1e-12)
+    fraction = (log_here / span).clamp(0.0, 1.0)
+    relative = variance / values.clamp_min(1e-300) ** 2  # Var(ln D) at every node
+    mixed = (1 - fraction) * relative.gather(-3, here) + fraction * relative.gather(-3, below)
+    slope = span / (z[below] - z[here]).clamp_min(1e-12)
+    out = torch.where((last >= 0) & (below > here), mixed / slope**2, torch.zeros_like(mixed))
+    return out.squeeze(-3)
 
 
 def _reach(
     rise: Tensor, dt: Tensor, dx: Tensor, a: Tensor, b: Tensor, body: Tensor, thickness: object
 ) -> float:
     """Deepest depth (mm) where any video's peak exceeds :data:`DOSE_FLOOR`, one coarse node deeper: the
-    3-D solve on a coarse depth grid (spacings growing :data:`_COARSE_GROWTH`-fold), peak only."""
+    3-D solve on a coarse depth grid (spacings growing :data:`_COARSE_GROWTH`-fold) of the frames averaged
+    over blocks of pixels (at most 32 x 32 of them), peak only."""
     floor = DOSE_FLOOR - body  # K, (B,)
     if not bool((rise.detach().flatten(1).amax(1) > floor).any()):
         return 0.0
@@ -322,16 +289,32 @@ def _reach(
     reach = 7.0 * math.sqrt(float(a.max()) * duration) + 0.1  # where an erfc tail falls below 1e-6
     if thickness is not None:
         reach = min(reach, float(thickness) * (1.0 - 1e-9))
-    reported = depth_nodes(max(reach, 2 * FIRST_STEP), growth=_COARSE_GROWTH)
+    reported = _above(depth_nodes(max(reach, 2 * FIRST_STEP), growth=_COARSE_GROWTH), thickness)
     nodes = solver_nodes(reported, bottom_depth(thickness, float(reported[-1]), a, duration))
-    problem = frame_problem(rise.detach(), dt, dx, a.detach(), b.detach(), nodes, len(reported))
+    factor = max(1, math.ceil(max(rise.shape[-2:]) / 32))
+    coarse = rise.detach()
+    if factor > 1:  # block means: a spot's peak at depth is smooth across pixels
+        b_, t, h, w = coarse.shape
+        coarse = torch.nn.functional.avg_pool2d(
+            coarse.reshape(b_ * t, 1, h, w), factor, factor, ceil_mode=True
+        )
+        coarse = coarse.reshape(b_, t, *coarse.shape[-2:])
+    problem = frame_problem(coarse, dt, dx * factor, a.detach(), b.detach(), nodes, len(reported))
     peak = torch.full((rise.shape[0], len(reported)), -torch.inf, device=rise.device, dtype=rise.dtype)
-    block = max(1, _BLOCK_VALUES // rise[:, 0].numel() // len(reported))
+    block = max(1, _BLOCK_VALUES // coarse[:, 0].numel() // len(reported))
     for start, states in march(problem, block):
-        peak = torch.maximum(peak, node_temperatures(rise, problem, start, states).amax((1, 3, 4)))
+        peak = torch.maximum(peak, node_temperatures(coarse, problem, start, states).amax((1, 3, 4)))
     warm = (peak > floor.view(-1, 1)).any(0)
     deepest = int(torch.nonzero(warm).max()) if bool(warm.any()) else 0
     return float(reported[min(deepest + 1, len(reported) - 1)])
+
+
+def _above(nodes: np.ndarray, thickness: object) -> np.ndarray:
+    """``nodes`` above a layer's bottom (the grid passes its last depth by up to one spacing)."""
+    if thickness is None:
+        return nodes
+    kept = nodes[nodes < number(thickness, "thickness", "mm", positive=True)]
+    return kept if len(kept) >= 2 else nodes[:2]
 
 
 def _parameters(values: dict[str, object], like: Tensor) -> list[Tensor]:
@@ -363,25 +346,28 @@ def damage_in_depth(
     max_depth: float | None = None,
     growth: float = GROWTH,
     lateral: bool = True,
-    seed: int = 0,
+    margin: float = 0.0,
+    coarse: int = 1,
 ) -> DepthMaps:
     """Omega, CEM43 and the peak temperature at every depth node under every pixel, the damage depth and
     the depth of a CEM43 threshold, each with its standard error.
 
-    The standard errors propagate those of ``a`` and ``b`` and the noise to first order: one extra solve
-    with ``a + diffusivity_std``, one with ``b + loss_rate_std``, :data:`NOISE_DRAWS` with seeded white-noise
-    videos of sd ``noise_sd`` added to the frames; the error is the root sum of squares of the first two
-    changes, of the draws' root mean square change and of the frames' sampling in time (half the difference
-    between the depths by the two integration rules of :data:`anra_torch.tissue.RULES`).
+    The standard errors propagate those of ``a`` and ``b`` to first order (one extra solve with ``a +
+    diffusivity_std``, one with ``b + loss_rate_std``: the root sum of squares of the changes), the frames'
+    white noise of sd ``noise_sd`` analytically (:mod:`anra_torch.tissue.depth_errors`: no noise copies)
+    and the frames' sampling in time (half the difference between the depths by the two integration rules
+    of :data:`anra_torch.tissue.RULES`), added in quadrature.
 
     Args:
-        frames: surface temperatures in ``units`` (finite), ``(T, H, W)`` or ``(B, T, H, W)``.
+        frames: surface temperatures in ``units`` (finite), ``(T, H, W)`` or ``(B, T, H, W)``; the solve
+            runs in their dtype (float32 is within the error budget: 1e-5 K).
         dt: frame period in s; dx: pixel size in mm (numbers or ``(B,)``).
         diffusivity: ``a`` (mm^2/s); loss_rate: ``b`` (1/s); numbers or ``(B,)``.
         diffusivity_std, loss_rate_std: their standard errors (0: not propagated).
         noise_sd: the frames' white-noise sd in K (0: not propagated).
         body_temperature: C; default the median of each video's first frame.
-        thickness: None for a half-space, else a layer's thickness (mm) over tissue at ``T_body``.
+        thickness: None for a half-space, else a layer's thickness (mm) over tissue at ``T_body`` (a layer
+            deeper than the heat reaches in the record is solved as the half-space it is then).
         units: ``"C"`` or ``"K"``.
         constants: Arrhenius constants (default skin).
         rule: how each node's history is integrated (:data:`anra_torch.tissue.RULES`).
@@ -389,9 +375,12 @@ def damage_in_depth(
         max_depth: deepest node (mm); default one coarse node below the deepest point where the peak
             exceeds :data:`DOSE_FLOOR` (a coarse pass with ``a + 2 diffusivity_std``).
         growth: ratio of consecutive depth spacings (:data:`GROWTH`; from :data:`FIRST_STEP` at the surface).
-        lateral: False solves each pixel's column on its own (per-pixel 1-D, no heat sideways): a
-            comparison, too deep under small spots.
-        seed: seed of the noise video.
+        lateral: False: each pixel's column on its own (1-D, no heat sideways; too deep under small spots).
+        margin: mm by which the frames are continued beyond every edge
+            (:func:`anra_torch.tissue.depth_solver.widen`) so that heat crosses the frame's edges as in the
+            tissue (0: the frame's edges hold it in); the maps are the frame's.
+        coarse: the perturbed solves (``a + se``, ``b + se``) on the frames' ``coarse x coarse`` px means
+            (their changes vary smoothly across pixels; 2 halves the work), the base at full resolution.
 
     Returns:
         :class:`DepthMaps`; differentiable with respect to ``frames``, ``diffusivity`` and ``loss_rate``.
@@ -411,19 +400,32 @@ def damage_in_depth(
     rise, batched, dt_, dx_, body = surface_rise(frames, dt, dx, units, body_temperature)
     given = {"diffusivity": diffusivity, "loss_rate": loss_rate, "diffusivity_std": diffusivity_std}
     a, b, *errors = _parameters(given | {"loss_rate_std": loss_rate_std, "noise_sd": noise_sd}, rise)
+    pixels = math.ceil(number(margin, "margin", "mm", minimum=0.0) / float(dx_.min()) - 1e-9)
+    rise = widen(rise, pixels) if pixels else rise
+    nodes, reported = _grid(rise, dt_, dx_, (a, b), errors, body, (thickness, max_depth, growth))
+    settings = (rule, constants, cem43_threshold, lateral, int(number(coarse, "coarse", "px", minimum=1)))
+    maps = _solve(rise, dt_, dx_, body, (a, b), errors, nodes, reported, settings)
+    maps = maps.cropped(pixels) if pixels else maps
+    return maps if batched else maps.unbatched()
+
+
+def _grid(
+    rise: Tensor, dt: Tensor, dx: Tensor, rates: tuple, errors: list, body: Tensor, settings: tuple
+) -> tuple[tuple[float, ...], int]:
+    """The solver's depth nodes and how many of them are reported: down to ``max_depth`` (default where the
+    peak with ``a + 2 se`` exceeds :data:`DOSE_FLOOR`), then to a bottom no heat reaches in the record."""
+    thickness, max_depth, growth = settings
+    a, b = rates
     if max_depth is None:
         bounds = (a.detach() + 2 * errors[0], (b.detach() - 2 * errors[1]).clamp_min(0.0))
-        max_depth = _reach(rise, dt_, dx_, *bounds, body, thickness)
+        max_depth = _reach(rise, dt, dx, *bounds, body, thickness)
     reported = depth_nodes(
         max(number(max_depth, "max_depth", "mm", minimum=0.0), 2 * FIRST_STEP), growth=growth
     )
-    duration = float(dt_.max()) * (rise.shape[1] - 1)
+    reported = _above(reported, thickness) if max_depth < float(thickness or math.inf) else reported
+    duration = float(dt.max()) * (rise.shape[1] - 1)
     bottom = bottom_depth(thickness, float(reported[-1]), a + 2 * errors[0], duration)
-    settings = (rule, constants, cem43_threshold, lateral, seed)
-    maps = _solve(
-        rise, dt_, dx_, body, (a, b), errors, solver_nodes(reported, bottom), len(reported), settings
-    )
-    return maps if batched else maps.unbatched()
+    return solver_nodes(reported, bottom), len(reported)
 
 
 def _solve(
@@ -437,41 +439,52 @@ def _solve(
     reported: int,
     settings: tuple,
 ) -> DepthMaps:
-    """The march of the base problem and its perturbed copies, their doses and the maps with their spread."""
-    rule, constants, cem43_threshold, lateral, seed = settings
+    """The march of the base problem and its perturbed copies (on ``coarse x coarse`` pixel means), their
+    doses and the maps with their spread."""
+    rule, constants, cem43_threshold, lateral, coarse = settings
     a, b = rates
-    batch = rise.shape[0]
-    stacked, diffusivities, losses, weights = perturbed_copies(rise, a, b, errors, seed)
-    step, span = _GROUP * batch, (nodes, reported)
-    groups = [
-        _march_doses(
-            stacked, (dt, dx, body), (diffusivities, losses), slice(start, start + step), settings, span
-        )
-        for start in range(0, (len(weights) + 1) * batch, step)
-    ]
-    omega, cem43_, peak_ = (torch.cat([g[k] for g in groups]) for k in ("omega", "cem43", "peak"))
-    first = groups[0]
+    batch, (h, w) = rise.shape[0], rise.shape[-2:]
+    span = (nodes, reported)
     depths = torch.tensor(nodes[:reported], dtype=_F64, device="cpu").to(rise.device)
-    other_omega, other_cem43 = first["other_omega"][:batch], first["other_cem43"][:batch]
-    damage, damage_std = spread(
-        threshold_depth(omega, depths, 1.0), weights, threshold_depth(other_omega, depths, 1.0)
-    )
-    dose_depth, dose_std = spread(
-        threshold_depth(cem43_, depths, cem43_threshold),
-        weights,
-        threshold_depth(other_cem43, depths, cem43_threshold),
-    )
-    peak, peak_std = spread(peak_, weights)
+    variance, rho = noise_correlation(depths, a, b, dt, dx, (h, w), errors[2])
+    if coarse > 1:  # the base at full resolution, the copies' changes on pixel means
+        doses = copies = _march_doses(rise, (dt, dx, body), (a, b), rho, settings, span)
+        pooled = F.avg_pool2d(rise.reshape(-1, 1, h, w), coarse, coarse, ceil_mode=True)
+        pooled = pooled.reshape(batch, -1, *pooled.shape[-2:])
+        stacked, diffusivities, losses, weights = perturbed_copies(pooled, a, b, errors[:2])
+        if len(weights):
+            per_video = (dt, dx * coarse, body)
+            copies = _march_doses(stacked, per_video, (diffusivities, losses), rho[:0], settings, span)
+    else:
+        stacked, diffusivities, losses, weights = perturbed_copies(rise, a, b, errors[:2])
+        doses = copies = _march_doses(stacked, (dt, dx, body), (diffusivities, losses), rho, settings, span)
+    node_variance = variance.view(batch, -1, 1, 1)
+    maps = {}
+    for name, threshold in (("omega", 1.0), ("cem43", cem43_threshold)):
+        dose = getattr(doses, name)[:batch]
+        value = threshold_depth(dose, depths, threshold)
+        if coarse == 1:  # the copies' own depths
+            parameters = spread(threshold_depth(getattr(copies, name), depths, threshold), weights)[1] ** 2
+        else:  # the copies' change of ln D at every node, interpolated to the pixels, at the base's crossing
+            log = torch.log(getattr(copies, name).clamp_min(_TINY))  # (V B, Z, H', W')
+            cold = (log <= math.log(_TINY)).reshape(-1, batch, *log.shape[1:]).any(0)  # never hot: no rate
+            change = _upsampled(spread(log, weights)[1].masked_fill(cold, 0.0), h, w)
+            parameters = _threshold_noise(dose, change.to(dose.dtype) ** 2 * dose**2, depths, threshold)
+        sampling = 0.5 * (threshold_depth(doses.other(name), depths, threshold) - value)
+        noise = _threshold_noise(dose, doses.variance[name] * node_variance, depths, threshold)
+        maps[name] = (value, torch.sqrt(parameters + sampling**2 + noise).to(value.dtype))
+    peak_std = spread(copies.peak, weights)[1]
+    peak = doses.peak[:batch]
     return DepthMaps(
         depths=depths,
         peak=peak,
-        peak_std=peak_std,
-        omega=omega[:batch],
-        cem43=cem43_[:batch],
-        damage_depth=damage,
-        damage_depth_std=damage_std,
-        cem43_depth=dose_depth,
-        cem43_depth_std=dose_std,
+        peak_std=torch.sqrt(_upsampled(peak_std, h, w) ** 2 + node_variance.to(peak.dtype)),
+        omega=doses.omega[:batch],
+        cem43=doses.cem43[:batch],
+        damage_depth=maps["omega"][0],
+        damage_depth_std=maps["omega"][1],
+        cem43_depth=maps["cem43"][0],
+        cem43_depth_std=maps["cem43"][1],
         cem43_threshold=cem43_threshold,
         diffusivity=a,
         diffusivity_std=errors[0],
@@ -479,43 +492,45 @@ def _solve(
         loss_rate_std=errors[1],
         noise_sd=errors[2],
         body_temperature=body,
-        truncated=omega[:batch, -1] >= 1.0,
+        truncated=doses.omega[:batch, -1] >= 1.0,
     )
+
+
+def _upsampled(x: Tensor, h: int, w: int) -> Tensor:
+    """``(B, Z, H', W')`` values at the centres of blocks of ``ceil(H / H')`` px, interpolated bilinearly to
+    the ``(B, Z, H, W)`` pixels (the same tensor when ``H' = H``)."""
+    if x.shape[-2:] == (h, w):
+        return x
+    factor = math.ceil(h / x.shape[-2])
+    size = (x.shape[-2] * factor, x.shape[-1] * factor)
+    return F.interpolate(x, size=size, mode="bilinear", align_corners=False)[..., :h, :w]
 
 
 def _march_doses(
     stacked: Tensor,
     per_video: tuple[Tensor, Tensor, Tensor],
     rates: tuple[Tensor, Tensor],
-    part: slice,
+    rho: Tensor,
     settings: tuple,
     nodes: tuple[tuple, int],
-) -> dict[str, Tensor]:
-    """Peak, Omega and CEM43 at the reported nodes of the problems ``part`` of the stacked ``(V B, T, H, W)``
-    rises (``_GROUP`` copies of the ``B`` videos at a time: the modal operators of every problem marched
-    together are held at once), and, for those problems, the doses by the other rule (``other_omega``,
-    ``other_cem43``). ``per_video``: ``dt``, ``dx`` and the body temperature, ``(B,)`` each."""
+) -> DoseAccumulator:
+    """Peak, Omega and CEM43 at the reported nodes of the stacked ``(V B, T, H, W)`` rises (the base videos
+    first), and for the base videos the doses by the other rule and their noise variance.
+    ``per_video``: ``dt``, ``dx`` and the body temperature, ``(B,)`` each; ``rho`` ``(B, Z)`` (``(0, Z)``:
+    no video gets the other rule nor the noise)."""
     rule, constants, _, lateral, _ = settings
     nodes, reported = nodes
-    rises = stacked[part]
-    n, (h, w) = rises.shape[0], rises.shape[-2:]
+    n, (h, w) = stacked.shape[0], stacked.shape[-2:]
     batch = per_video[0].numel()
-    index = (torch.arange(part.start, part.start + n, device="cpu") % batch).to(rises.device)
+    index = (torch.arange(n, device="cpu") % batch).to(stacked.device)
     spacing, size, warm = (x[index] for x in per_video)
-    a, b = (r[part] for r in rates)
-    problem = frame_problem(rises, spacing, size, a, b, nodes, reported, lateral=lateral)
-    doses = _Doses(rises, (n, reported, h, w), spacing, rule, constants, n)
+    problem = frame_problem(stacked, spacing, size, *rates, nodes, reported, lateral=lateral)
+    doses = DoseAccumulator(stacked, (n, reported, h, w), spacing, rule, constants, len(rho), rho)
     offset = warm.view(-1, 1, 1, 1, 1)
     block = max(1, _BLOCK_VALUES // (n * reported * h * w))
     for start, states in march(problem, block):
-        doses.add(offset + node_temperatures(rises, problem, start, states))
-    return {
-        "omega": doses.omega,
-        "cem43": doses.cem43,
-        "peak": doses.peak,
-        "other_omega": doses.other("omega"),
-        "other_cem43": doses.other("cem43"),
-    }
+        doses.add(offset + node_temperatures(stacked, problem, start, states))
+    return doses
 
 
 def surface_heat_input(

@@ -1,48 +1,47 @@
-"""The standard errors of the depth maps: the perturbed copies of a depth problem (``a + se``, ``b + se``,
-seeded noise videos) and the spread of their results.
+"""The standard errors of the depth maps: the perturbed copies of a depth problem (``a + se``, ``b + se``),
+the spread of their results, and the frames' noise propagated analytically to every depth node.
 
-The maps are solved for the base problem and every copy at once (:func:`anra_torch.tissue.damage_in_depth`);
-the standard error is the root sum of squares of the copies' changes, the noise draws' entering as their
-mean square.
+The maps are solved for the base problem and its copies at once (:func:`anra_torch.tissue.damage_in_depth`);
+the parameters' part of a standard error is the root sum of squares of the copies' changes (one linearised
+solve each). The noise's part needs no copy: a white surface noise of sd ``sigma`` (per pixel and frame)
+reaches depth ``z`` through each lateral cosine mode ``k`` as ``H_k(z, w) = exp(-z sqrt((a |k|^2 + b + i w)
+/ a))`` (the half-space's transfer function at angular frequency ``w``), so the temperature noise at a node
+has the variance ``C_0(z) = sigma^2 / N sum_k dt / (2 pi) int |H_k|^2 sinc^4(w dt / 2) dw`` (``N`` pixels;
+the frames joined by straight lines, all aliases)
+and the zero-frequency power ``S(z) = sigma^2 / N sum_k |H_k(z, 0)|^2`` (the sum of its autocovariance over
+all lags, in frames). :func:`noise_correlation` returns ``C_0`` and the frame-to-frame correlation ``rho``
+of the exponential autocovariance with both: ``S = C_0 (1 + rho) / (1 - rho)``;
+:class:`anra_torch.tissue.depth_doses.DoseAccumulator` carries them through the doses.
 """
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
-__all__ = ["NOISE_DRAWS", "perturbed_copies", "spread"]
+__all__ = ["noise_correlation", "perturbed_copies", "spread"]
 
 _F64 = torch.float64
-
-NOISE_DRAWS = 8
-"""Seeded white-noise videos whose changes give the noise's part of the standard errors (their mean square):
-one draw gives a standard error with one degree of freedom, whose +-2 band holds the truth only 70 % of the
-time (``2 / pi * atan(2)``) where the noise dominates; eight give about 92 % (Student's t, 8 degrees)."""
+_BINS = 48  # radial bins of |k|^2 (the transfer function depends on |k| only)
+_FREQUENCIES = 512  # quadrature points over |w| < _ALIASES pi / dt
+_ALIASES = 8
 
 
 def perturbed_copies(
-    rise: Tensor, a: Tensor, b: Tensor, errors: tuple[Tensor, Tensor, Tensor], seed: int
-) -> tuple[Tensor, Tensor, Tensor, int]:
-    """The base problem and the perturbed copies of each non-zero standard error (``a + se``, ``b + se``, the
-    surface plus :data:`NOISE_DRAWS` seeded noise videos of the measured sd), stacked along the batch:
-    ``(rise, a, b, weights)``, ``weights`` (``V - 1``) the weight of each copy's squared change in the
-    variance (1 for ``a`` and ``b``, ``1 / NOISE_DRAWS`` for each noise draw: their mean square)."""
-    sa, sb, sn = errors
-    rises, rates, losses, weights = [rise], [a], [b], []
+    rise: Tensor, a: Tensor, b: Tensor, errors: tuple[Tensor, Tensor]
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The base problem and the perturbed copies of each non-zero standard error (``a + se``, ``b + se``),
+    stacked along the batch: ``(rise, a, b, weights)``, ``weights`` ``(V - 1,)`` (1 each)."""
+    sa, sb = errors
+    rises, rates, losses = [rise], [a], [b]
     if bool((sa > 0).any()):
-        rises, rates, losses, weights = [*rises, rise], [*rates, a + sa], [*losses, b], [*weights, 1.0]
+        rises, rates, losses = [*rises, rise], [*rates, a + sa], [*losses, b]
     if bool((sb > 0).any()):
-        rises, rates, losses, weights = [*rises, rise], [*rates, a], [*losses, b + sb], [*weights, 1.0]
-    if bool((sn > 0).any()):
-        generator = torch.Generator().manual_seed(seed)
-        shape = (NOISE_DRAWS, *rise.shape)
-        noise = torch.randn(shape, generator=generator, dtype=_F64, device="cpu").to(rise.device, rise.dtype)
-        rises.extend(rise + sn.view(-1, 1, 1, 1) * noise)
-        rates, losses = [*rates, *[a] * NOISE_DRAWS], [*losses, *[b] * NOISE_DRAWS]
-        weights = [*weights, *[1.0 / NOISE_DRAWS] * NOISE_DRAWS]
-    as_tensor = torch.tensor(weights, dtype=_F64, device="cpu").to(rise.device, rise.dtype)
-    return torch.cat(rises), torch.cat(rates), torch.cat(losses), as_tensor
+        rises, rates, losses = [*rises, rise], [*rates, a], [*losses, b + sb]
+    weights = torch.ones(len(rises) - 1, dtype=_F64, device="cpu").to(rise.device, rise.dtype)
+    return torch.cat(rises), torch.cat(rates), torch.cat(losses), weights
 
 
 def spread(values: Tensor, weights: Tensor, other: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -57,3 +56,46 @@ def spread(values: Tensor, weights: Tensor, other: Tensor | None = None) -> tupl
     if other is not None:
         variance = variance + (0.5 * (other - base)) ** 2
     return base, variance.sqrt()
+
+
+def noise_correlation(
+    depths: Tensor, a: Tensor, b: Tensor, dt: Tensor, dx: Tensor, size: tuple[int, int], noise: Tensor
+) -> tuple[Tensor, Tensor]:
+    """The temperature noise a white surface noise puts at each depth: its variance (K^2) and its
+    frame-to-frame correlation, each ``(B, Z)`` (float64; see the module docstring).
+
+    Args:
+        depths: node depths (mm), ``(Z,)``.
+        a, b, dt, dx, noise: diffusivity (mm^2/s), loss rate (1/s), frame period (s), pixel size (mm) and
+            the frames' noise sd (K), each ``(B,)``.
+        size: the frame ``(H, W)`` (its cosine modes).
+
+    Shape:
+        ``(Z,)`` -> ``(B, Z)``, ``(B, Z)``.
+    """
+    like = {"device": a.device, "dtype": _F64}
+    a, b, dt, dx, noise = (x.detach().to(**like).view(-1, 1, 1, 1) for x in (a, b, dt, dx, noise))
+    h, w = size
+    ky = (math.pi / h) * torch.arange(h, **like)
+    kx = (math.pi / w) * torch.arange(w, **like)
+    k2 = (ky[:, None] ** 2 + kx[None, :] ** 2).flatten() / dx.view(-1, 1) ** 2  # (B, N)
+    edges = torch.linspace(0.0, 1.0, _BINS + 1, **like) ** 2 * k2.amax(1, keepdim=True) * (1 + 1e-9)
+    index = torch.searchsorted(edges.contiguous(), k2.contiguous(), right=True).clamp(1, _BINS) - 1
+    count = torch.zeros(k2.shape[0], _BINS, **like).scatter_add(1, index, torch.ones_like(k2))
+    total = torch.zeros_like(count).scatter_add(1, index, k2)
+    centre = (total / count.clamp_min(1.0)).view(-1, _BINS, 1, 1)  # (B, bins, 1, 1)
+    weight = (count / (h * w)).view(-1, _BINS, 1, 1)
+    z = depths.detach().to(**like).view(1, 1, -1, 1)
+    # The frames joined by straight lines: the noise's spectrum is sigma^2 dt sinc^4(w dt / 2) at every w
+    # (its aliases included), integrated here up to 8 times the frames' Nyquist frequency.
+    fraction = (torch.arange(_FREQUENCIES, **like) + 0.5) / _FREQUENCIES * _ALIASES
+    omega = (math.pi * fraction / dt.view(-1, 1)).view(-1, 1, 1, _FREQUENCIES)
+    hat = torch.sinc(fraction / 2) ** 4 * _ALIASES  # sinc(x) = sin(pi x) / (pi x)
+    rate = (a * centre + b) / a  # 1/mm^2
+    root = torch.sqrt(torch.complex(rate.expand_as(omega + rate), omega / a))  # (B, bins, 1, F)
+    power = torch.exp(-2.0 * z * root.real) * hat  # |H|^2 sinc^4, (B, bins, Z, F)
+    variance = noise.view(-1, 1) ** 2 * (weight * power.mean(-1, keepdim=True)).sum(1)[..., 0]
+    variance = torch.where(z.view(1, -1) == 0, noise.view(-1, 1) ** 2, variance)  # the frames themselves
+    zero = noise.view(-1, 1) ** 2 * (weight * torch.exp(-2.0 * z * rate.sqrt())).sum(1)[..., 0]
+    rho = ((zero - variance) / (zero + variance).clamp_min(1e-300)).clamp(0.0, 1.0 - 1e-9)
+    return variance, rho

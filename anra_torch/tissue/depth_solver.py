@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.checks import as_spacing, as_video, number
@@ -31,13 +32,16 @@ __all__ = [
     "depth_nodes",
     "depth_operator",
     "frame_problem",
+    "free_surface_operator",
     "heat_input",
     "march",
     "modal_problem",
     "node_temperatures",
     "solver_nodes",
+    "state_at",
     "surface_rise",
     "wavenumbers",
+    "widen",
 ]
 
 FIRST_STEP = 0.01
@@ -48,6 +52,7 @@ depth ``z`` is resolved to about ``0.03 z``)."""
 DEEP_GROWTH = 1.25
 """Ratio of consecutive spacings below the reported nodes, down to a bottom no heat reaches."""
 _F64 = torch.float64
+_BLOCK = 2**22  # values of a closed-form sum over frames held at once
 
 
 def depth_nodes(max_depth: float, *, first: float = FIRST_STEP, growth: float = GROWTH) -> np.ndarray:
@@ -121,6 +126,30 @@ def depth_operator(nodes: tuple[float, ...], reported: int) -> dict[str, Tensor]
     return {k: torch.from_numpy(v) for k, v in arrays.items()}
 
 
+@lru_cache(maxsize=64)
+def free_surface_operator(nodes: tuple[float, ...], beta: float) -> dict[str, Tensor]:
+    """The depth operator on ``nodes`` with the surface node free, losing ``a beta theta`` (``beta = h / k``,
+    1/mm: air), diagonalised (float64, CPU): the cooling after the switch-off, no source acting.
+
+    The surface node's half cell ``h_0 / 2`` balances the flux from below against the loss; interior nodes
+    as in :func:`depth_operator`, the bottom held at 0. Keys: ``lam`` ``(M,)`` (1/mm^2), ``to_modes``
+    ``(M, M)`` (node values, surface first, to modal coefficients), ``surface`` ``(M,)`` (modes to the
+    surface node)."""
+    z = np.asarray(nodes)
+    h = np.diff(z)
+    w = np.concatenate([[0.5 * h[0]], 0.5 * (h[:-1] + h[1:])])
+    inverse = 1.0 / h
+    diagonal = -(inverse[:-1] + inverse[1:])
+    diagonal = np.concatenate([[-inverse[0] - beta], diagonal])
+    scale = 1.0 / np.sqrt(w)
+    symmetric = np.diag(diagonal * scale**2)
+    off = inverse[:-1] * scale[:-1] * scale[1:]
+    symmetric += np.diag(off, 1) + np.diag(off, -1)
+    lam, q = np.linalg.eigh(symmetric)
+    arrays = {"lam": lam, "to_modes": q.T * np.sqrt(w)[None, :], "surface": q[0] * scale[0]}
+    return {k: torch.from_numpy(v) for k, v in arrays.items()}
+
+
 @lru_cache(maxsize=16)
 def dct_matrix(n: int) -> Tensor:
     """Orthonormal DCT-II matrix ``(n, n)`` (float64, CPU): ``C[p, i] = s_p cos(pi p (i + 1/2) / n)``."""
@@ -137,7 +166,9 @@ class ModalProblem:
 
     ``spectrum`` ``(B, T, K)``: the surface rise (K) in ``K`` lateral cosine modes; ``dt``, ``a``, ``b``
     ``(B,)``; ``operator``: :func:`depth_operator`'s tensors; ``decay`` ``(B, K, M)``: ``-mu = a |k|^2 + b - a
-    lambda`` (1/s) of every lateral x depth mode."""
+    lambda`` (1/s) of every lateral x depth mode; ``depths`` the reported nodes (mm) and ``step`` the
+    largest pixel (mm) when the modes are the frame's cosine modes (0 otherwise): a node at depth ``z`` then
+    takes the modes with ``|k| < MODE_REACH / z`` only (the others fall below ``exp(-MODE_REACH)`` there)."""
 
     spectrum: Tensor
     dt: Tensor
@@ -145,6 +176,8 @@ class ModalProblem:
     b: Tensor
     operator: dict[str, Tensor]
     decay: Tensor
+    depths: tuple[float, ...] = ()
+    step: float = 0.0
 
 
 def modal_problem(
@@ -158,7 +191,7 @@ def modal_problem(
     }
     lateral = a[:, None] * k2 + b[:, None]
     decay = lateral[..., None] - a[:, None, None] * operator["lam"]
-    return ModalProblem(spectrum, dt, a, b, operator, decay)
+    return ModalProblem(spectrum, dt, a, b, operator, decay, tuple(nodes[:reported]))
 
 
 def wavenumbers(h: int, w: int, dx: Tensor) -> Tensor:
@@ -191,7 +224,8 @@ def frame_problem(
     ch, cw = dct_matrices(rise)
     spectrum = (ch @ rise @ cw.T).flatten(2)
     k2 = wavenumbers(*rise.shape[-2:], dx)
-    return modal_problem(spectrum, k2 if lateral else torch.zeros_like(k2), dt, a, b, nodes, reported)
+    problem = modal_problem(spectrum, k2 if lateral else torch.zeros_like(k2), dt, a, b, nodes, reported)
+    return replace(problem, step=float(dx.detach().max()) if lateral else 0.0)
 
 
 def phi_functions(z: Tensor) -> tuple[Tensor, Tensor]:
@@ -231,16 +265,129 @@ def march(problem: ModalProblem, block: int) -> Iterator[tuple[int, Tensor]]:
         yield start, torch.stack(states, 1)
 
 
+def state_at(problem: ModalProblem, last: Tensor, *, start: Tensor | None = None) -> Tensor:
+    """The modal state ``(B, K, M)`` of :func:`march` at frame ``last`` ``(B,)`` of each video, in closed
+    form: ``w_N = E^N w_0 + old . sum_L E^L g_(N-1-L) + new . sum_L E^L g_(N-L)`` (no loop over frames).
+
+    ``start`` ``(B, K)``: the first frame's surface whose steady state is ``w_0`` (default the spectrum's
+    first frame)."""
+    p = problem
+    z = -p.decay * p.dt.view(-1, 1, 1)
+    phi1, phi2 = phi_functions(z)
+    gain = (p.a * p.dt).view(-1, 1, 1) * p.operator["forcing"]
+    first = p.spectrum[:, 0] if start is None else start
+    steady = p.a.view(-1, 1, 1) * p.operator["forcing"] * first.unsqueeze(-1) / p.decay
+    n = int(last.max()) + 1
+    lag = torch.arange(n, device=z.device)
+    frame = last.view(-1, 1) - lag.view(1, -1)  # (B, L): frame N - L
+    valid = (frame >= 1).to(z.dtype).unsqueeze(-1)  # lags L < N
+    index = frame.clamp_min(0).unsqueeze(-1).expand(-1, -1, p.spectrum.shape[2])
+    newer = p.spectrum.gather(1, index) * valid  # g_(N-L), (B, L, K)
+    older = p.spectrum.gather(1, (index - 1).clamp_min(0)) * valid  # g_(N-1-L)
+    totals = [torch.zeros_like(z), torch.zeros_like(z)]
+    chunk = min(n, max(1, _BLOCK // max(1, z.numel())))
+    powers = torch.exp(z.unsqueeze(-1) * lag[:chunk].to(z.dtype))  # (B, K, M, L): E^L, one chunk
+    across = torch.exp(z * chunk).unsqueeze(-1)  # E^chunk: from one chunk to the next
+    for at in range(0, n, chunk):
+        here = powers[..., : min(chunk, n - at)]
+        for i, g in enumerate((older, newer)):
+            totals[i] = totals[i] + torch.einsum("bkml,blk->bkm", here, g[:, at : at + chunk])
+        powers = powers * across
+    decayed = torch.exp(z * last.view(-1, 1, 1).to(z.dtype)) * steady
+    return decayed + gain * (phi1 - phi2) * totals[0] + gain * phi2 * totals[1]
+
+
 def node_temperatures(rise: Tensor, problem: ModalProblem, start: int, states: Tensor) -> Tensor:
     """Rise (K) at the reported nodes, surface first, of a block of states of every cosine mode of
-    ``rise`` ``(B, T, H, W)``: ``(B, L, Z, H, W)``."""
+    ``rise`` ``(B, T, H, W)``: ``(B, L, Z, H, W)`` (each node from the modes that reach it)."""
     h, w = rise.shape[-2:]
     ch, cw = dct_matrices(rise)
-    inner = states @ problem.operator["to_nodes"].T  # (B, L, K, Z - 1)
-    inner = inner.transpose(2, 3).reshape(*inner.shape[:2], -1, h, w)
-    inner = ch.T @ inner @ cw
-    surface = rise[:, start : start + states.shape[1]]
-    return torch.cat([surface.unsqueeze(2), inner], 2)
+    inner = torch.matmul(problem.operator["to_nodes"], states.transpose(-1, -2))  # (B, L, Z - 1, K)
+    grid = inner.view(*inner.shape[:3], h, w)
+    parts = [rise[:, start : start + states.shape[1]].unsqueeze(2)]
+    for low, high, p, q in _bands(problem.depths[1:], h, w, problem.step):
+        parts.append(ch[:p].T @ grid[:, :, low:high, :p, :q] @ cw[:q])
+    return torch.cat(parts, 2)
+
+
+MODE_REACH = 9.2
+"""A lateral mode ``k`` reaches depth ``z`` at most as ``exp(-|k| z)`` (the steady state): a node takes the
+modes with ``|k| z < MODE_REACH`` (the others below 1e-4 of their surface amplitude there)."""
+
+
+@lru_cache(maxsize=64)
+def _bands(depths: tuple[float, ...], h: int, w: int, step: float) -> tuple[tuple[int, int, int, int], ...]:
+    """Groups of consecutive interior nodes ``[low, high)`` with the ``p x q`` lowest cosine modes they take
+    (all of them when ``step`` is 0)."""
+    out: list[list[int]] = []
+    for j, z in enumerate(depths):
+        p, q = h, w
+        if step > 0 and z > 0:
+            reach = MODE_REACH / z * step / math.pi  # |k| < reach pi / step, k = pi p / (n step)
+            p, q = min(h, math.ceil(reach * h) + 1), min(w, math.ceil(reach * w) + 1)
+        if out and out[-1][2:] == [p, q]:
+            out[-1][1] = j + 1
+        else:
+            out.append([j, j + 1, p, q])
+    return tuple(tuple(band) for band in out)
+
+
+_FIT_PIXELS = 6  # the edge's value and slope: a least-squares line through its last pixels
+
+
+def widen(rise: Tensor, margin: int, *, mirrored: bool = False, noise: Tensor | None = None) -> Tensor:
+    """The frames continued ``margin`` px beyond every edge: the frame is a window, not the world.
+
+    Each row (then each column) is continued by the straight line fitted (least squares) to its last
+    :data:`_FIT_PIXELS` values of the frames' 5 x 5 px means (the frame's edge replicated for them, which
+    flattens the line's slope: a spot's tail falls more slowly beyond the frame than at its edge), kept
+    between 0 (the body temperature) and the frame's largest rise. No curvature is guessed: a spot wider than
+    the frame or off its centre keeps falling outside as it falls at the edge, a cold edge stays cold.
+    Inside the frame, the frames themselves (chosen by measuring, ``experiments/damage_depth.py``). With
+    ``mirrored`` the curvature at the edge is continued mirrored (odd reflection about the edge value,
+    ``2 g_e - g_(e-s)``): the other plausible continuation, whose difference bounds the edges' part of an
+    error. With ``noise`` (the frames' white-noise sd, K, ``(B,)`` for ``(B, ..., H, W)``), an edge whose
+    mean stands less than half of it above the body temperature (3.5 times the noise of that mean) is
+    continued by 0: a cold edge's noise, continued and kept above 0, would put heat where there is none.
+    Shape: ``(..., H, W)`` -> ``(..., H + 2 m, W + 2 m)``."""
+    shape = rise.shape
+    h, w = shape[-2:]
+    flat = rise.reshape(-1, 1, h, w)
+    out = F.avg_pool2d(F.pad(flat, (2, 2, 2, 2), mode="replicate"), 5, 1).reshape(shape)
+    top = rise.amax((-2, -1), keepdim=True).unsqueeze(-1)
+    floor = None if noise is None else 0.5 * noise.reshape(-1, *[1] * (rise.ndim - 1)).unsqueeze(-1)
+    for dim in (-1, -2):
+        x = out.movedim(dim, -1)
+        sides = [
+            _continue(x.flip(-1), margin, top, mirrored).flip(-1),
+            x,
+            _continue(x, margin, top, mirrored),
+        ]
+        if floor is not None:
+            for i, edge in ((0, x[..., :1]), (2, x[..., -1:])):
+                sides[i] = torch.where(edge > floor.squeeze(-1), sides[i], torch.zeros_like(sides[i]))
+        out = torch.cat(sides, -1).movedim(-1, dim)
+    out = out.clone()
+    out[..., margin : margin + h, margin : margin + w] = rise
+    return out
+
+
+def _continue(x: Tensor, margin: int, top: Tensor, mirrored: bool) -> Tensor:
+    """``margin`` values beyond the last of ``x`` ``(..., N)`` on its fitted line (or odd reflection), in
+    ``[0, top]``."""
+    ahead = torch.arange(1, margin + 1, dtype=x.dtype, device=x.device)
+    if mirrored:
+        reach = min(margin, x.shape[-1] - 1)
+        values = 2 * x[..., -1:] - x[..., -1 - reach : -1].flip(-1)
+        values = torch.cat([values, values[..., -1:].expand(*values.shape[:-1], margin - reach)], -1)
+    else:
+        n = min(_FIT_PIXELS, x.shape[-1])
+        s = torch.arange(1 - n, 1, dtype=x.dtype, device=x.device)  # the last pixels' offsets, the edge at 0
+        centred = s - s.mean()
+        tail = x[..., -n:]
+        slope = (tail * centred).sum(-1, keepdim=True) / (centred**2).sum().clamp_min(1e-12)
+        values = tail.mean(-1, keepdim=True) - slope * s.mean() + slope * ahead
+    return torch.minimum(values.clamp_min(0.0), top.squeeze(-1))
 
 
 # ------------------------------------------------------------------------------------------ inputs
@@ -292,17 +439,19 @@ def surface_rise(
 
 
 def bottom_depth(thickness: object, deepest: float, a: Tensor, duration: float) -> float:
-    """The bottom node (mm): the layer's ``thickness``, or deep enough that no heat reaches it in the record
-    (``7 sqrt(a t)`` below the deepest reported node: an erfc tail under 1e-6), rounded up to whole mm so
-    that a small change of ``a`` keeps the grid (and the gradient is the fixed grid's)."""
+    """The bottom node (mm): deep enough that no heat reaches it in the record (``7 sqrt(a t)`` below the
+    deepest reported node: an erfc tail under 1e-6), rounded up to whole mm so that a small change of ``a``
+    keeps the grid (and the gradient is the fixed grid's); a layer's ``thickness`` where it is shallower
+    (a deeper layer is, over the record, the half-space: the grid stops where the heat does)."""
+    free = float(math.ceil(deepest + 7.0 * math.sqrt(float(a.detach().max()) * duration) + 0.1))
     if thickness is not None:
         thickness = number(thickness, "thickness", "mm", positive=True)
         if thickness <= deepest:
             raise ValueError(
                 f"thickness must be deeper than the deepest depth ({deepest:g} mm), got {thickness:g}"
             )
-        return thickness
-    return float(math.ceil(deepest + 7.0 * math.sqrt(float(a.detach().max()) * duration) + 0.1))
+        return min(thickness, free)
+    return free
 
 
 # ------------------------------------------------------------------------------------------ heat input

@@ -39,6 +39,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from anra_torch.checks import as_spacing
+
 __all__ = [
     "CEM43_R",
     "GAS_CONSTANT",
@@ -124,22 +126,6 @@ def _as_history(temperatures: object) -> tuple[Tensor, tuple[int, ...]]:
     )
 
 
-def _as_dt(dt: object, batch: int, device: torch.device) -> Tensor:
-    """Frame period(s) as a ``(B, 1, 1)`` float64 tensor on ``device``."""
-    try:
-        step = torch.as_tensor(dt.detach() if isinstance(dt, Tensor) else dt, dtype=_F64, device=device)
-        step = step.reshape(-1)
-    except (TypeError, ValueError, RuntimeError) as err:
-        raise ValueError(f"dt must be a positive number in s, got {dt!r}") from err
-    if step.numel() == 1:
-        step = step.expand(batch)
-    if step.numel() != batch:
-        raise ValueError(f"dt must be a number or have shape ({batch},), got shape {tuple(step.shape)}")
-    if not bool(torch.isfinite(step).all()) or bool((step <= 0).any()):
-        raise ValueError(f"dt must be a positive finite number in s, got {step.tolist()}")
-    return step.reshape(batch, 1, 1)
-
-
 def to_celsius(temperatures: Tensor, units: str = "C") -> Tensor:
     """Temperatures in Celsius (float64), after checking that ``units`` fits the values.
 
@@ -209,7 +195,8 @@ def _prepare(temperatures: object, dt: object, units: str, rule: str) -> tuple[T
         raise ValueError(
             f"rule={rule!r} needs at least {2 if rule == 'linear' else 1} frames, got {x.shape[1]}"
         )
-    return to_celsius(x, units), _as_dt(dt, x.shape[0], x.device), shape
+    step = as_spacing(dt, name="dt", unit="s", batch=x.shape[0], like=x)  # the one spacing check
+    return to_celsius(x, units), step.reshape(-1, 1, 1), shape
 
 
 def _frames(x: Tensor, rule: str, finite: Tensor | None = None) -> tuple[Tensor, Tensor | None]:

@@ -9,6 +9,7 @@ cropped to the central 112/96/80 px to keep the tests fast.
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -730,3 +731,26 @@ def test_estimator_slices_of_a_big_batch_equal_the_whole(monkeypatch) -> None:
     assert sliced.messages == whole.messages and not bool(sliced.valid[3])
     with pytest.raises(ValueError, match=r"^video 3: frames show no thermal activity"):
         ANRAEstimator()(frames, video.dt, video.dx)
+
+
+def test_the_pilot_computes_fewer_candidates_and_keeps_a_clear_choice(monkeypatch) -> None:
+    t = torch.arange(60, dtype=torch.float64) / 27  # room for the pilot's blocks
+    clean = gaussian_blob(t, shape=(96, 96), dx=0.1, a=0.2, peak=3.0, sigma=0.8)
+    noise = torch.randn(clean.shape, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+    frames = (clean + 0.02 * noise).float()
+    video = SimpleNamespace(dt=1 / 27, dx=0.1)
+    calls: list[int] = []
+    full = ANRAEstimator.candidate_sums
+
+    def spy(self, index, frames_, *args, **kwargs):  # noqa: ANN001, ANN202
+        calls.append(frames_.shape[1] if kwargs.get("frames") is None else 0)
+        return full(self, index, frames_, *args, **kwargs)
+
+    monkeypatch.setattr(ANRAEstimator, "candidate_sums", spy)
+    every = ANRAEstimator()(frames, video.dt, video.dx)
+    on_every_frame = sum(1 for c in calls if c)
+    calls.clear()
+    piloted = ANRAEstimator(pilot=True)(frames, video.dt, video.dx)
+    assert 0 < sum(1 for c in calls if c) < on_every_frame
+    assert float(piloted.smoothing) == float(every.smoothing)
+    torch.testing.assert_close(piloted.diffusivity, every.diffusivity, rtol=0, atol=0)

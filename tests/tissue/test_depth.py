@@ -107,6 +107,22 @@ def test_standard_errors_follow_the_parameters(burn: tuple[torch.Tensor, float, 
     assert 0.0 < float((up - base)[10, 10]) < 0.05 * float(base[10, 10])
 
 
+def test_coarse_copies_keep_the_map_and_its_parameter_spread(burn: tuple[torch.Tensor, float, float]) -> None:
+    """``coarse=2``: the base map unchanged, the parameters' part of its standard error from copies on
+    2 x 2 px means within 10 % of the full copies' where the damage is deep (the spread is smooth)."""
+    frames, dt, dx = burn
+    args = {"diffusivity": A, "loss_rate": 0.003, "body_temperature": BODY}
+    args |= {"diffusivity_std": 0.014, "loss_rate_std": 0.002}
+    full = damage_in_depth(frames, dt, dx, **args)
+    coarse = damage_in_depth(frames, dt, dx, coarse=2, **args)
+    torch.testing.assert_close(coarse.damage_depth, full.damage_depth, rtol=1e-9, atol=1e-12)
+    deep = full.damage_depth > 0.2
+    ratio = coarse.damage_depth_std[deep] / full.damage_depth_std[deep]
+    assert 0.9 < float(ratio.min()) and float(ratio.max()) < 1.1
+    with pytest.raises(ValueError, match="coarse"):
+        damage_in_depth(frames, dt, dx, coarse=0, **args)
+
+
 def test_gradients_flow_to_frames_and_parameters() -> None:
     frames = (BODY + 20 * torch.rand(3, 2, 2, dtype=F64)).requires_grad_()
     a = torch.tensor(A, dtype=F64, requires_grad=True)
@@ -161,3 +177,21 @@ def test_errors_name_the_argument(burn: tuple[torch.Tensor, float, float]) -> No
         damage_in_depth(frames, dt, dx, diffusivity=torch.tensor([A, A]))
     with pytest.raises(TypeError, match="diffusivity must be a number in mm\\^2/s"):
         damage_in_depth(frames, dt, dx, diffusivity="fast")
+
+
+def test_a_layer_deeper_than_the_heat_reaches_is_the_half_space(
+    burn: tuple[torch.Tensor, float, float],
+) -> None:
+    """The grid stops where the heat does: ``thickness=1e300`` (and 10 mm) give the half-space's maps on the
+    same nodes (no grid growing with the thickness); a shallow layer is its own problem."""
+    frames, dt, dx = burn
+    args = {"diffusivity": A, "body_temperature": BODY}
+    free = damage_in_depth(frames, dt, dx, **args)
+    for thickness in (10.0, 1e300):
+        layer = damage_in_depth(frames, dt, dx, thickness=thickness, **args)
+        torch.testing.assert_close(layer.depths, free.depths)
+        torch.testing.assert_close(layer.damage_depth, free.damage_depth)
+    shallow = damage_in_depth(frames, dt, dx, thickness=1.5, **args)
+    n = shallow.depths.numel()
+    assert float(shallow.depths[-1]) < 1.5 and torch.equal(shallow.depths, free.depths[:n])
+    assert float(shallow.peak[-1, 10, 10]) < float(free.peak[n - 1, 10, 10]) - 0.1  # held at 37 C at 1.5 mm

@@ -15,7 +15,7 @@ from anra_torch.tissue import (
     damage_in_depth,
     depth_features,
 )
-from anra_torch.tissue.depth_features import PRIOR
+from anra_torch.tissue.depth_features import MAP_COARSE, MAP_GROWTH, MAP_MARGIN, PRIOR
 
 
 @pytest.fixture(scope="module")
@@ -33,9 +33,12 @@ def test_without_cooling_the_maps_use_the_stated_prior(burn: tuple[torch.Tensor,
     assert record["parameters_from"].startswith("textbook prior")
     assert (record["diffusivity_mm2_s"], record["diffusivity_std_mm2_s"]) == PRIOR["diffusivity"]
     maps = damage_in_depth(
-        frames[:18],
+        frames[:18].float(),  # the maps' settings: float32, the MAP_GROWTH grid
         dt,
         dx,
+        growth=MAP_GROWTH,
+        margin=MAP_MARGIN,
+        coarse=MAP_COARSE,
         diffusivity=0.14,
         loss_rate=0.005,
         diffusivity_std=0.03,

@@ -13,7 +13,7 @@ from depth_scenes import (
     reference_scene,
 )
 
-from anra_torch.simulation import camera_frames, simulate_bioheat
+from anra_torch.simulation import GreenScene, camera_frames, simulate_bioheat, simulate_spot
 from anra_torch.tissue import (
     DEPTH_MAPS,
     damage_in_depth,
@@ -83,3 +83,24 @@ def test_no_cooling_means_no_fit(burn: tuple[torch.Tensor, float, float]) -> Non
     fit = fit_depth_parameters(frames[:18], dt, dx)  # ends at the switch-off
     assert not bool(fit.valid) and math.isnan(float(fit.diffusivity))
     assert "frames after the switch-off" in fit.messages
+
+
+@pytest.fixture(scope="module")
+def window_spot():
+    """A spot wider than the frame and off its centre (the Green's-function reference: no edges), switched
+    off between frames, at 10 frames/s with 0.3 K noise."""
+    scene = GreenScene(0.17, 0.0, 0.03, (2.2, 3.9), 2.2, 80.0, 0.5, 5.47, 11.0, 10.0, (40, 40), 0.15)
+    result = simulate_spot(scene, damage=False)
+    noise = 0.3 * np.random.default_rng(7).standard_normal(result.frames.shape)
+    return result, torch.from_numpy(result.frames + noise)
+
+
+def test_a_spot_wider_than_the_frame_gives_a(window_spot) -> None:
+    result, frames = window_spot
+    fit = fit_depth_parameters(frames, result.dt, result.dx)
+    assert bool(fit.valid) and not bool(fit.volumetric)
+    assert float(fit.diffusivity) == pytest.approx(0.17, rel=0.05)
+    assert abs(float(fit.diffusivity) - 0.17) < 3 * float(fit.diffusivity_std)
+    assert (
+        float(fit.loss_rate) < 0.01
+    )  # the frame's cosine modes alone read 0.04 1/s into the heat leaving it

@@ -23,6 +23,15 @@ from anra_torch.tissue import (
     subsurface_temperature,
     surface_heat_input,
 )
+from anra_torch.tissue.depth_solver import (
+    depth_nodes,
+    frame_problem,
+    free_surface_operator,
+    march,
+    solver_nodes,
+    state_at,
+    widen,
+)
 
 
 def test_step_of_the_surface_gives_the_erfc_profile(dtype: torch.dtype) -> None:
@@ -104,3 +113,47 @@ def test_heat_input_of_a_constant_flux_grows_linearly() -> None:
     heat = surface_heat_input(frames, dt, 0.2, diffusivity=A, body_temperature=BODY)[:, 0, 0]
     # The first interval's sqrt(t) is sampled by a straight line: 0.1 K mm early, 0.5 % late.
     np.testing.assert_allclose(heat.numpy(), (q * time).numpy(), rtol=0.006, atol=0.12)
+
+
+def test_widen_continues_a_slope_and_keeps_the_frame() -> None:
+    x = torch.arange(10, dtype=F64).expand(12, 10)
+    ramp = 20.0 + 0.5 * x  # rises to the right edge
+    wide = widen(ramp.expand(2, 3, 12, 10), 4)
+    assert wide.shape == (2, 3, 20, 18) and torch.equal(wide[1, 2, 4:-4, 4:-4], ramp)
+    left = wide[0, 0, 8, :4]  # falls on to the left, by the edge's slope flattened by the 5 x 5 means
+    steps = left.diff()
+    assert bool((steps > 0.25).all()) and bool((steps < 0.5).all())
+    assert torch.equal(
+        wide[0, 0, 8, -4:], torch.full((4,), float(ramp.max()), dtype=F64)
+    )  # kept below the max
+    y, x = torch.meshgrid(torch.arange(12, dtype=F64), torch.arange(10, dtype=F64), indexing="ij")
+    spot = torch.exp(-((x - 4.5) ** 2 + (y - 5.5) ** 2) / 8)  # a bump: its continuation falls to 0, not below
+    wide = widen(spot, 6)
+    assert (
+        torch.equal(wide[6:-6, 6:-6], spot)
+        and float(wide.min()) == 0.0
+        and float(wide.max()) == float(spot.max())
+    )
+
+
+def test_the_free_surface_operator_conserves_heat_without_loss() -> None:
+    """With no loss to the air the only exit is the far bottom: the slowest mode's decay tends to
+    ``(pi / 2 L)^2`` (a layer held at 0 at depth L, insulated at the top), and a loss speeds every mode."""
+    nodes = solver_nodes(depth_nodes(1.0, growth=1.1), 20.0)
+    free = free_surface_operator(nodes, 0.0)
+    assert float(-free["lam"].max()) == pytest.approx((math.pi / (2 * 20.0)) ** 2, rel=0.02)
+    lossy = free_surface_operator(nodes, 0.5)
+    assert bool((lossy["lam"].sort().values < free["lam"].sort().values + 1e-12).all())
+    # modes to nodes and back: the surface row of the inverse is ``surface``
+    torch.testing.assert_close(torch.linalg.inv(free["to_modes"])[0], free["surface"])
+
+
+def test_the_closed_form_state_is_the_march() -> None:
+    rise = torch.randn(2, 9, 4, 5, dtype=F64, generator=torch.Generator().manual_seed(1))
+    a, b = torch.tensor([0.1, 0.2], dtype=F64), torch.tensor([0.0, 0.01], dtype=F64)
+    dt, dx = torch.tensor([0.1, 0.2], dtype=F64), torch.tensor([0.1, 0.1], dtype=F64)
+    nodes = solver_nodes(depth_nodes(0.5, growth=1.1), 5.0)
+    problem = frame_problem(rise, dt, dx, a, b, nodes, 2)
+    states = torch.cat([s for _, s in march(problem, 4)], 1)  # (B, T, K, M)
+    last = torch.tensor([8, 5])
+    torch.testing.assert_close(state_at(problem, last), states[torch.arange(2), last])
