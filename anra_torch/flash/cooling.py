@@ -158,11 +158,18 @@ def time_bins(frames: int, dt: float, first: float, *, start: int = 3, ratio: fl
     while edges[-1] < frames:
         t = first + edges[-1] * dt
         edges.append(min(frames, max(edges[-1] + 1, math.ceil((t * ratio - first) / dt))))
-    sizes = torch.tensor(edges).diff()
-    index = torch.cat([torch.full((start,), -1), torch.repeat_interleave(torch.arange(len(sizes)), sizes)])
+    cpu = torch.device("cpu")  # a few numbers, moved to the frames' device where they are used
+    sizes = torch.tensor(edges, device=cpu).diff()
+    index = torch.cat(
+        [
+            torch.full((start,), -1, device=cpu),
+            torch.repeat_interleave(torch.arange(len(sizes), device=cpu), sizes),
+        ]
+    )
     counts = sizes.to(torch.float64)
-    times = first + torch.arange(frames, dtype=torch.float64) * dt
+    times = first + torch.arange(frames, dtype=torch.float64, device=cpu) * dt
     elapsed = (
-        torch.zeros(len(sizes), dtype=torch.float64).index_add_(0, index[start:], times[start:]) / counts
+        torch.zeros(len(sizes), dtype=torch.float64, device=cpu).index_add_(0, index[start:], times[start:])
+        / counts
     )
     return TimeBins(index, counts, elapsed)

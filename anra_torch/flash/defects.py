@@ -50,6 +50,9 @@ _SCATTER = 4.0  # a defect's peak contrast exceeds this many robust sd of the so
 _MIN_PIXELS = math.ceil(math.pi * _SIGMA_LATERAL**2)  # smaller than the lateral derivatives' footprint
 _EDGE_RINGS = 10
 _ROUNDS = 3
+_BOUNDS = torch.tensor([[-9.2, -3.0], [3.4, 1.6]], device="cpu")
+"""The globals' search box: ``ln`` of how far ``T_ref`` lies below the coolest pixel over the cooling's
+span (1e-4 to 30), ``ln`` of the first frame's time since the flash in frame periods (0.05 to 5)."""
 
 
 @dataclass(frozen=True)
@@ -158,8 +161,21 @@ def _trimmed_rss(cooling: _Cooling, a: Tensor, pixels: Tensor, point: Tensor) ->
     t_ref = cooling.low - cooling.span * math.exp(float(point[0]))
     logs, integrals, weights, elapsed = cooling.series(t_ref, cooling.dt * math.exp(float(point[1])), pixels)
     grid = tau_grid(elapsed)
-    best = profile_rss(logs - torch.einsum("i,ipn->pn", a, integrals), weights, grid.curves).min(1).values
+    rss = profile_rss(logs - torch.einsum("i,ipn->pn", a, integrals), weights, grid.curves)
+    # -2 ln(likelihood) of the temperatures, not of ln u: the variances' logs in T, ln(u^2 / w), change
+    # with T_ref too (without them a T_ref far below the frames flattens ln u and fits it at any noise)
+    best = _smooth_minimum(rss) + (2 * logs - weights.log()).sum(1)
     return float(best.sort().values[: max(1, int(0.7 * len(best)))].sum())
+
+
+def _smooth_minimum(rss: Tensor) -> Tensor:
+    """Each row's minimum over the grid of ``ln tau``, refined by a parabola through it and its two
+    neighbours (a continuous function of the data: the grid's own minimum jumps between points)."""
+    k = rss[:, :-1].argmin(1).clamp(1, rss.shape[1] - 3)[:, None]
+    r0, r1, r2 = rss.gather(1, k - 1)[:, 0], rss.gather(1, k)[:, 0], rss.gather(1, k + 1)[:, 0]
+    curvature = (r0 - 2 * r1 + r2).clamp_min(torch.finfo(rss.dtype).tiny)
+    refined = r1 - (r0 - r2) ** 2 / (8 * curvature)
+    return torch.minimum(refined.clamp_min(0), rss.min(1).values)
 
 
 def _fit_globals(cooling: _Cooling, a: Tensor, start: tuple[float, float] | None) -> tuple[float, float]:
@@ -169,18 +185,26 @@ def _fit_globals(cooling: _Cooling, a: Tensor, start: tuple[float, float] | None
     device = cooling.value.device
     pixels = torch.arange(height * width, device=device).view(height, width)[1::3, 1::3].flatten()
 
+    low, high = _BOUNDS.to(_F64)
+
     def loss(point: Tensor) -> float:
-        return _trimmed_rss(cooling, a, pixels, point)
+        return _trimmed_rss(cooling, a, pixels, torch.maximum(torch.minimum(point, high), low))
 
     if start is None:
-        guesses = [(math.log(s), math.log(q)) for s in (0.003, 0.01, 0.03, 0.1, 0.3) for q in (0.3, 1.0, 3.0)]
+        # T_ref is the sharp direction: a fine grid along it
+        below = torch.linspace(math.log(1e-3), math.log(10.0), 33, device="cpu").tolist()
+        guesses = [(s, math.log(q)) for s in below for q in (0.25, 0.5, 1.0, 2.0, 4.0)]
     else:
-        below = max((cooling.low - start[0]) / cooling.span, 0.003)
-        guesses = [(math.log(below), math.log(start[1] / cooling.dt))]
-    points = [torch.tensor(g, dtype=_F64) for g in guesses]
+        guesses = [
+            (math.log(max((cooling.low - start[0]) / cooling.span, 1e-4)), math.log(start[1] / cooling.dt))
+        ]
+    points = [
+        torch.maximum(torch.minimum(torch.tensor(g, dtype=_F64, device="cpu"), high), low) for g in guesses
+    ]
     values = [loss(p) for p in points]
     best = points[min(range(len(points)), key=values.__getitem__)]
-    point = _nelder_mead(loss, best, min(values), step=0.3, tolerance=0.01, iterations=30)
+    point = _nelder_mead(loss, best, min(values), step=0.3, tolerance=0.001, iterations=200)
+    point = torch.maximum(torch.minimum(point, high), low)
     return cooling.low - cooling.span * math.exp(float(point[0])), cooling.dt * math.exp(float(point[1]))
 
 
@@ -190,8 +214,8 @@ def _nelder_mead(
     """A two-parameter Nelder-Mead from ``start`` (its loss ``value``) with simplex edges ``step``."""
     simplex = [
         start,
-        start + torch.tensor([step, 0.0], dtype=_F64),
-        start + torch.tensor([0.0, step], dtype=_F64),
+        start + torch.tensor([step, 0.0], dtype=_F64, device="cpu"),
+        start + torch.tensor([0.0, step], dtype=_F64, device="cpu"),
     ]
     values = [value, loss(simplex[1]), loss(simplex[2])]
     for _ in range(iterations):
@@ -362,7 +386,9 @@ def _finish(
     contrast = plate - log_tau
     scatter = 1.4826 * (contrast[sound] - contrast[sound].median()).abs().median()  # the sound plate's
     least = max(_CONTRAST, _SCATTER * float(scatter))
-    candidate = (contrast > _CONTRAST) & (contrast > _SCATTER * _edge_scatter(contrast, sound)) & (z > _SIGNIFICANCE)
+    candidate = (
+        (contrast > _CONTRAST) & (contrast > _SCATTER * _edge_scatter(contrast, sound)) & (z > _SIGNIFICANCE)
+    )
     labels, count = components(candidate)
     mask = torch.zeros_like(sound)
     fraction = torch.full_like(contrast, math.nan)

@@ -89,7 +89,7 @@ def local_quadratic(frames: Tensor, sigma: float, dx: float) -> tuple[Tensor, Te
 def value_noise_gain(sigma: float) -> float:
     """The standard deviation of :func:`local_quadratic`'s value in the frame's interior over that of
     white noise in the frames."""
-    like = torch.zeros((), dtype=torch.float64)
+    like = torch.zeros((), dtype=torch.float64, device="cpu")
     radius = int(math.ceil(3 * sigma))
     size = 2 * radius + 1
     inverse = _inverse_gram(sigma, (size, size), like)[0, :, radius, radius]  # (6,)

@@ -131,7 +131,9 @@ def flash_maps(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None =
     found = defect_map(cooling, dt, dx, noise_sd=noise_sd)
     times = found.first_time + dt * torch.arange(len(cooling), dtype=torch.float64, device=video.device)
     reconstruction = tsr(cooling.double(), times, baseline=found.t_ref)
-    picks = torch.unique(torch.round(torch.logspace(0, math.log10(len(cooling)), TSR_FRAMES) - 1).long())
+    picks = torch.unique(
+        torch.round(torch.logspace(0, math.log10(len(cooling)), TSR_FRAMES, device=video.device) - 1).long()
+    )
     picks = picks.to(video.device)
     phase = ppt(cooling, dt)
     return FlashMaps(
