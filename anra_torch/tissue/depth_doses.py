@@ -92,17 +92,21 @@ class DoseAccumulator:
 
     def add(self, celsius: Tensor) -> None:
         """Add a block ``(N, L, Z, H, W)`` of temperatures (C)."""
-        self.peak = torch.maximum(self.peak, celsius.amax(1))
-        joined = celsius if self.previous is None else torch.cat([self.previous, celsius], 1)
-        self.previous = celsius[:, -1:]  # linear segments join consecutive blocks
-        fresh = joined.shape[1] - celsius.shape[1]  # 1 when the previous block's last frame leads
-        warmest = joined.detach().amax(1).amax(0).flatten()  # over the block and the batch
+        warmest = celsius.amax(1)
+        self.peak = torch.maximum(self.peak, warmest)
+        previous, self.previous = self.previous, celsius[:, -1:]  # linear segments join consecutive blocks
+        if previous is not None:
+            warmest = torch.maximum(warmest, previous[:, 0])
+        warmest = warmest.detach().amax(0).flatten()  # over the block, the frame before it and the batch
+        fresh = 0 if previous is None else 1  # the previous block's last frame leads
         for floor, name in ((DOSE_FLOOR, "cem43"), (OMEGA_FLOOR, "omega")):
             hot = torch.nonzero(warmest > floor).flatten()
             if not hot.numel():
                 self.filtered[name] = self.filtered[name] * self.rho ** celsius.shape[1]
                 continue
-            x = joined.flatten(2).index_select(2, hot)  # (N, L', P), in the temperatures' dtype
+            x = celsius.flatten(2)[:, :, hot]  # (N, L, P), in the temperatures' dtype
+            if previous is not None:
+                x = torch.cat([previous.flatten(2)[:, :, hot], x], 1)
             exponent, rate = self._rate(name, x)
             dt = self.dt.view(-1, 1).to(_F64) / (60.0 if name == "cem43" else 1.0)  # CEM43 in minutes
             mean = {
@@ -112,14 +116,12 @@ class DoseAccumulator:
                 else None,
             }
             for rule, dose in mean.items():
-                if dose is None:
-                    continue
-                dose = dose.to(_F64)
                 videos = len(x) if rule == self.rule else self.base
-                if not videos:
+                if dose is None or not videos:
                     continue
                 total = self.doses[name, rule]
-                total = total.reshape(len(total), -1).index_add(1, hot, dose[:videos]).reshape(total.shape)
+                dose = dose[:videos].to(_F64)
+                total = total.reshape(len(total), -1).index_add(1, hot, dose).reshape(total.shape)
                 self.doses[name, rule] = total
             if self.base:  # the base videos' noise
                 slope = self._slope(name, x[: self.base, fresh:])
@@ -150,8 +152,9 @@ class DoseAccumulator:
         decay = rho.reshape(self.base, -1).gather(1, nodes.expand(self.base, -1))
         state, gained = flat_y.index_select(1, hot), torch.zeros_like(slopes[:, 0])
         for t in range(length):
-            state = decay * state + slopes[:, t]
-            gained = gained + slopes[:, t] * (2.0 * state - slopes[:, t])
+            slope = slopes[:, t]
+            state = torch.addcmul(slope, decay, state)
+            gained.addcmul_(slope, state - 0.5 * slope, value=2.0)  # f' (2 y - f')
         self.filtered[name] = (
             (y * rho**length).reshape(self.base, -1).index_copy(1, hot, state).reshape(shape)
         )
@@ -165,9 +168,8 @@ def _cem_log_r(x: Tensor) -> Tensor:
 
 
 def _mean_rate(r0: Tensor, x: Tensor) -> Tensor:
-    """``int_0^1 r0 e^(s x) ds`` (``expm1(x) / x``: no cancellation)."""
-    zero = x == 0
-    return r0 * torch.where(zero, 1.0, torch.expm1(x) / torch.where(zero, 1.0, x))
+    """``int_0^1 r0 e^(s x) ds`` (``expm1(x) / x``: no cancellation; 1 at ``x = 0``)."""
+    return r0 * torch.nan_to_num(torch.expm1(x) / x, nan=1.0)
 
 
 def _bend(r0: Tensor, r1: Tensor, x: Tensor) -> Tensor:

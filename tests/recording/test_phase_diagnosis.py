@@ -16,9 +16,8 @@ import numpy as np
 import pytest
 import torch
 from scenes import DT, DX, A, heated_then_cooled, quasi_steady_box, short_heating_phases
-from shared_data import DATA, needs_data
+from shared_data import DATA, load, needs_data
 
-import experiments.real_data as real_data
 from anra_torch.cli import main
 from anra_torch.recording import diagnose_recording
 from anra_torch.video import load_video
@@ -220,7 +219,7 @@ def test_effects_that_do_not_forecast_or_sit_outside_the_frame_are_flagged() -> 
 @needs_data
 def test_csv_recording_gets_its_phases_and_gains_from_the_library_default() -> None:
     """Sample2 RT M1: baseline, heating and cooling found; the small-box family; a held-out gain in each."""
-    video = real_data.load(DATA / "flir_csv" / "Sample2 RT M1.csv")
+    video = load(DATA / "flir_csv" / "Sample2 RT M1.csv")
     phases = diagnose_recording(video.frames, video.dt, video.dx, video.t)
     assert [p.phase.name for p in phases] == ["baseline", "heating", "cooling"]
     assert 1070 <= phases[2].phase.start <= 1085  # the source notes: switched off at roughly frame 1,080
@@ -239,7 +238,7 @@ def test_laser_heating_source_map_is_chosen_inside_the_fit_frames() -> None:
     """Nov19_2 heating: the split inside the fit frames prefers the measured beam map, with its input decaying
     like a flux into a half-space (t^-1/2: the beam heats 2 cm of liquid), to the Gaussian spot and to the
     stationary map; on the held-out frames it beats the plain model by more than either."""
-    video = real_data.load(DATA / "laser_silicone" / "Nov19_2")
+    video = load(DATA / "laser_silicone" / "Nov19_2")
     heating = diagnose_recording(video.frames, video.dt, video.dx, video.t)[0]
     assert heating.phase.name == "heating" and heating.family == "balance"
     assert heating.effects[0]["name"] == "source" and heating.model == "source_map_t^-0.5"
@@ -257,7 +256,7 @@ def test_laser_cooling_phases_are_analysed_with_conduction_into_depth() -> None:
     would (+0.49). Nov19 cooling's choice (its map released like t^-1) gains too (+0.38)."""
     phases = {}
     for name in ("Nov19", "Nov19_2"):
-        video = real_data.load(DATA / "laser_silicone" / name)
+        video = load(DATA / "laser_silicone" / name)
         cooling = diagnose_recording(video.frames, video.dt, video.dx, video.t)[1]
         assert cooling.phase.name == "cooling" and cooling.reason is None, cooling.reason
         phases[name] = cooling
