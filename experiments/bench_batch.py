@@ -225,7 +225,8 @@ def report(result: dict) -> str:
         "| comparison | anra (s) | peer (s) | anra | peer | ratio anra/peer | target | "
         "median abs(a - 0.2)/0.2 anra, peer |",
         "|---|---|---|---|---|---|---|---|",
-        f"| `anra batch` (default, one thread) vs peer over the files | {b['anra_s']:.2f} | {b['peer_s']:.2f} | "
+        f"| `anra batch` (default, one thread) vs peer over the files | {b['anra_s']:.2f} | "
+        f"{b['peer_s']:.2f} | "
         f"{b['anra_frames_per_s']:.0f} frames/s | {b['peer_frames_per_s']:.0f} frames/s | "
         f"{b['ratio_median']:.2f} ({b['ratio_min']:.2f}-{b['ratio_max']:.2f}) | >= 1.2 | "
         f"{b['anra_error']:.2e}, {b['peer_error']:.2e} |",
@@ -236,8 +237,8 @@ def report(result: dict) -> str:
         f"{e['anra_error']:.2e}, {e['peer_error']:.2e} |",
     ]
     if bt := result.get("batch_threads"):
-        lines.insert(5, f"| `anra batch` (default, the threads it chooses) vs the same | {bt['anra_s']:.2f} | "
-                     f"{bt['peer_s']:.2f} | {bt['anra_frames_per_s']:.0f} frames/s | "
+        lines.insert(5, f"| `anra batch` (default, the threads it chooses) vs the same | "
+                     f"{bt['anra_s']:.2f} | {bt['peer_s']:.2f} | {bt['anra_frames_per_s']:.0f} frames/s | "
                      f"{bt['peer_frames_per_s']:.0f} frames/s | {bt['ratio_median']:.2f} "
                      f"({bt['ratio_min']:.2f}-{bt['ratio_max']:.2f}) | - | "
                      f"{bt['anra_error']:.2e}, {bt['peer_error']:.2e} |")  # fmt: skip
@@ -280,7 +281,8 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true", help="add a torch.profiler table")
     parser.add_argument("--short", type=int, default=28, help="frames of the short estimator comparison")
     parser.add_argument(
-        "--skip", choices=["batch", "batch_threads", "estimator", "estimator_short"], action="append", default=[],
+        "--skip", choices=["batch", "batch_threads", "estimator", "estimator_short"], action="append",
+        default=[],
         help="leave a comparison out (repeatable)",
     )  # fmt: skip
     parser.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
