@@ -16,9 +16,10 @@ plate's ``L^2 / a_z`` error; each true defect's depth fraction against the found
 most; what the diagnosis names (``depth_conduction``, ``delamination`` and where, effects with a gain
 ``<= 0`` or centred outside the frame) and which defects the map lists.
 
-Run: ``python -m experiments.flash_defect_map [--out DIR] [--plates 1,2,...]`` (about 40 minutes on a
-loaded 2-core machine; a plate whose result is in ``DIR`` is not run again). It prints one line per plate
-and the Markdown table of docs/results/flash.md.
+Run: ``python -m experiments.flash_defect_map [--map-only] [--out DIR] [--plates 1,2,...]``. With
+``--map-only`` (the map that ``--maps`` writes, without the diagnosis) about 6 minutes on a loaded 2-core
+machine; with the diagnosis from 2 to more than 35 minutes a plate there. A plate whose result is in
+``DIR`` is not run again. It prints one line per plate and the Markdown table of docs/results/flash.md.
 """
 
 from __future__ import annotations
