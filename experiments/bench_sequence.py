@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from anra_torch.video import FLIRFrames, index_sequence
-from experiments.fff_writer import Camera, counts_for, simple_frame  # one writer for the tests and this
+from tests.fff_writer import Camera, counts_for, simple_frame  # one writer for the tests and this
 
 H, W, FPS, DX, A, NOISE = 512, 640, 30.0, 0.1, 0.2, 0.05
 CAMERA = Camera(emissivity=1.0, distance=0.0)

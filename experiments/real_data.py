@@ -40,12 +40,9 @@ import torch
 from anra_torch.estimation.estimator import ANRAEstimator
 from anra_torch.recording import PhaseDiagnosis, diagnose_recording
 from anra_torch.report.phases import forecast_figure, timeline_figure
-from anra_torch.video import Video, prepare_video
-from anra_torch.video.calibration import PixelSize
+from anra_torch.video import Video
+from tests.shared_data import CSV_DT, CSV_DX, DATA, LASER_DX, load  # the tests read the files the same way
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-LASER_DX = PixelSize(0.55, 0.5, 0.6)  # mm/px, C3-X 41 x 31 deg over 128 x 96 px at about 10 cm
-CSV_DT, CSV_DX = 0.1, 0.25  # s, mm: the source's assumptions, not documented facts
 PDMS = (0.10, 0.15)  # mm^2/s, literature
 
 CAUSES = {
@@ -64,19 +61,6 @@ def recordings(quick: bool) -> list[tuple[str, Path]]:
     runs = [("Nov19", laser / "Nov19"), ("Nov19_2", laser / "Nov19_2")]
     runs += [(p.stem, p) for p in sorted((DATA / "flir_csv").glob("* *.csv"))]
     return [runs[0], runs[2]] if quick else runs
-
-
-def load(path: Path) -> Video:
-    """``prepare_video`` with what a user passes on the command line for these files."""
-    if path.is_dir():
-        return prepare_video(path, dx=LASER_DX.value, timestamps="resample")
-    return prepare_video(
-        path,
-        dt=CSV_DT,
-        dx=CSV_DX,
-        timestamps="resample",
-        calibration=DATA / "flir_csv" / "calibration_og.csv",
-    )
 
 
 def phase_row(video: Video, found: PhaseDiagnosis) -> dict[str, Any]:

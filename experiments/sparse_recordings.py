@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from anra_torch.cli import main
-from experiments.depth_references import conduct  # the same explicit 3-D solver
+from tests.depth_references import conduct  # the same explicit 3-D solver
 
 H, W, DEPTH = 96, 128, 24
 DX = 0.5  # mm, lateral and depth cells

@@ -6,7 +6,8 @@ from; the subpackages form layers and every import runs down them; no two module
 directly or around a circle (the experiments' scripts included); no module hides an import of the package
 inside a function; the ODE solver is called in one place; an effect lives in its own module and nothing
 else branches on its name or keeps a table of names; the top-level surface stays small; the tests mirror
-the package, every module with its test file.
+the package, every module with its test file; the package's tests import neither the experiments nor the
+benchmarks.
 """
 
 from __future__ import annotations
@@ -254,6 +255,20 @@ def test_the_experiments_import_each_other_without_a_circle_or_a_path_edit() -> 
 
 def test_the_package_never_imports_the_experiments() -> None:
     importing = [module_name(p) for p in MODULES if _experiment_imports(p)]
+    assert not importing
+
+
+def test_the_package_tests_never_import_the_experiments_or_benchmarks() -> None:
+    """Only the experiments' own tests (``tests/experiments/``) import them: a helper that a test and a script
+    both need lives under ``tests/`` (the scripts import it as ``tests.NAME``)."""
+    importing = []
+    for path in sorted(TESTS.rglob("*.py")):
+        if path.relative_to(TESTS).parts[0] == "experiments":
+            continue
+        for node in _imports(path):
+            names = [node.module or ""] if isinstance(node, ast.ImportFrom) else [a.name for a in node.names]
+            if any(name.split(".")[0] in ("experiments", "benchmarks") for name in names):
+                importing.append(f"{path.relative_to(TESTS)}:{node.lineno}")
     assert not importing
 
 

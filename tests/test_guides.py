@@ -19,11 +19,11 @@ import pytest
 import torch
 from commands import run
 from depth_scenes import burn_video
+from fff_writer import Camera, counts_for, simple_frame
 from shared_data import DATA
 
 from anra_torch.simulation import blobs_video, flash_plate_video
 from anra_torch.video import save_npz
-from experiments.fff_writer import Camera, counts_for, simple_frame
 
 ROOT = Path(__file__).resolve().parents[1]
 GUIDES = sorted((ROOT / "docs" / "guides").glob("*.md")) + [ROOT / "docs" / "getting-started.md"]

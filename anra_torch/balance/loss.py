@@ -39,11 +39,14 @@ class LossFit:
         source: ``sum_k (U - a L + b R) dt`` in K (data units).
         std_error: standard error of ``b`` in 1/s; inf where the window never cools (``b`` is the
             video's there).
+        diffusivity: ``a`` in mm^2/s of the same joint fit on the cooling frames (the video's where the
+            window is ill-conditioned): the diffusivity measured where no source acts.
     """
 
     loss_rate: Tensor
     source: Tensor
     std_error: Tensor
+    diffusivity: Tensor
 
 
 def _solve(
@@ -140,7 +143,7 @@ def fit_loss_windows(
     source = (rate.sum(1) - a * lap.sum(1) + b * rise.sum(1)) * dt.view(-1, 1, 1)
     levers = (lap, rise, cooling)
     error = _loss_error(filters, levers, (a, b), ok, (s_ll, s_lt, s_tt), noise_sd, dt, dx, window)
-    return LossFit(b, source, error)
+    return LossFit(b, source, error, a)
 
 
 def _loss_error(

@@ -75,7 +75,7 @@ class RegionOfInterest:
     def __call__(self, video: Video) -> Video:
         _, height, width = video.frames.shape
         out = crop(video.loaded(), self.roi)  # type: ignore[arg-type]
-        x0, y0, w, h = self.roi  # type: ignore[misc]
+        x0, y0, w, h = self.roi  # type: ignore[str-unpack]
         labels = {
             k: v[..., y0 : y0 + h, x0 : x0 + w] if _per_pixel(v, height, width) else v
             for k, v in (video.meta.get("labels") or {}).items()

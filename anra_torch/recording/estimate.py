@@ -433,8 +433,8 @@ def estimate_recordings(
 
     Each recording is measured and its phases found side by side with the others, one per torch thread;
     same-shaped small phases estimated whole then go through one estimator call, camera-sized ones
-    (:data:`CAMERA_SIZED`) and recordings read in chunks run side by side. A recording that fails gets its one-line ``ValueError`` (naming the file)
-    in its place; the others go on.
+    (:data:`CAMERA_SIZED`) and recordings read in chunks run side by side. A recording that fails gets its
+    one-line ``ValueError`` (naming the file) in its place; the others go on.
 
     Args:
         videos: the recordings (frames in memory or on disk).

@@ -138,7 +138,7 @@ def bad_elements(
 def _range(value: object, name: str) -> tuple[float, float]:
     """``(low, high)`` with ``0 <= low <= high`` (K)."""
     try:
-        low, high = (number(v, name, "K", minimum=0.0) for v in value)  # type: ignore[union-attr]
+        low, high = (number(v, name, "K", minimum=0.0) for v in value)  # type: ignore[attr-defined]
     except (TypeError, ValueError) as err:
         raise ValueError(f"{name} must be (low, high) with 0 <= low <= high in K, got {value!r}") from err
     if low > high:

@@ -227,7 +227,7 @@ def blobs_video(
 # ------------------------------------------------------------------------------------- validation
 def _check_range(value: object, name: str, unit: str, *, minimum: float) -> tuple[float, float]:
     try:
-        low, high = (float(v) for v in value)  # type: ignore[union-attr]
+        low, high = (float(v) for v in value)  # type: ignore[attr-defined]
     except (TypeError, ValueError) as err:
         raise ValueError(f"{name} must be a pair (low, high) in {unit}, got {value!r}") from err
     if not (math.isfinite(low) and math.isfinite(high)) or low > high or low < minimum:

@@ -3,7 +3,8 @@ below the surface.
 
 - :mod:`~anra_torch.tissue.dose`: CEM43 and the Arrhenius damage integral of temperature histories;
 - :mod:`~anra_torch.tissue.features`: :class:`TissueFeatures`, per-pixel maps for damage classification;
-- :mod:`~anra_torch.tissue.learned`: :class:`LearnedTissueModel`, fitted end to end through the simulator;
+- :mod:`~anra_torch.tissue.learned`: :class:`LearnedTissueModel`, fitted end to end through the simulator,
+  and :func:`omega_with_constants`, the Arrhenius dose with per-pixel constants that learn;
 - :mod:`~anra_torch.tissue.depth`: the subsurface temperature under every pixel from the measured surface
   (:func:`subsurface_temperature`), the heat that entered through it (:func:`surface_heat_input`), Omega,
   CEM43 and the peak temperature in depth with the damage depth and its standard error
@@ -54,7 +55,7 @@ from anra_torch.tissue.features import (
     feature_summary,
     save_feature_maps,
 )
-from anra_torch.tissue.learned import LearnedTissueModel, relative_error
+from anra_torch.tissue.learned import LearnedTissueModel, omega_with_constants, relative_error
 
 __all__ = [
     "ArrheniusConstants",
@@ -84,6 +85,7 @@ __all__ = [
     "depth_nodes",
     "feature_summary",
     "fit_depth_parameters",
+    "omega_with_constants",
     "relative_error",
     "save_feature_maps",
     "subsurface_temperature",

@@ -162,6 +162,7 @@ class TissueFeatureMaps:
             parameters (:class:`anra_torch.tissue.DepthFeatures`, batched even for a single video); the
             :data:`anra_torch.tissue.DEPTH_MAPS` are also in ``maps`` (NaN for a video without a usable fit,
             with the reason in ``messages``).
+        cooling_diffusivity: ``a`` (mm^2/s) fitted with ``loss_rate`` on cooling frames, no source biasing it.
     """
 
     maps: dict[str, Tensor]
@@ -173,6 +174,7 @@ class TissueFeatureMaps:
     loss_rate_std_error: Tensor | None = None
     absent: dict[str, str] = field(default_factory=dict)
     depth: DepthFeatures | None = None
+    cooling_diffusivity: Tensor | None = None
 
     def stack(self, names: Sequence[str] | None = None) -> Tensor:
         """The maps as channels, ``(B, F, H, W)`` (or ``(F, H, W)``), in the order of ``names``."""
@@ -187,14 +189,14 @@ class TissueFeatureMaps:
 
     def unbatched(self) -> TissueFeatureMaps:
         """The same result with the batch dimension of size 1 removed."""
-        error = self.loss_rate_std_error
+        optional = {k: getattr(self, k) for k in ("loss_rate_std_error", "cooling_diffusivity")}
         return replace(
             self,
             maps={k: v[0] for k, v in self.maps.items()},
             summary={k: v[0] for k, v in self.summary.items()},
             masked=self.masked[0],
             valid=self.valid[0],
-            loss_rate_std_error=None if error is None else error[0],
+            **{k: None if v is None else v[0] for k, v in optional.items()},
         )
 
 
@@ -394,8 +396,8 @@ class TissueFeatures(nn.Module):
         valid = torch.zeros(b, dtype=torch.bool, device=video.device) if result is None else result.valid
         why = {name: depth_reason for name in DEPTH_MAPS}
         absent = {name: why.get(name, reason) for name in self.map_names if name not in maps}
-        error = None if reason else spatial["loss_rate_std_error"]
-        out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent, depth)
+        error, cooling = [None if reason else spatial[k] for k in ("loss_rate_std_error", "cooling")]
+        out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent, depth, cooling)
         return out if batched else out.unbatched()
 
     def _depth_maps(self, filled: Tensor, dt: Tensor, dx: Tensor | None) -> tuple[DepthFeatures | None, str]:
@@ -449,7 +451,8 @@ class TissueFeatures(nn.Module):
         noise_sd = result.noise_sd.reshape(b).to(_F64)  # measured once, by the estimator
         fit = fit_loss_windows(self.filters, terms, maps["diffusivity"], noise_sd, dt, dx, window=self.window)
         maps["loss_rate"], maps["source"] = fit.loss_rate, fit.source
-        return {"maps": maps, "result": result, "loss_rate_std_error": fit.std_error}
+        fitted = {"loss_rate_std_error": fit.std_error, "cooling": fit.diffusivity}
+        return {"maps": maps, "result": result, **fitted}
 
     def _summary(self, maps: dict[str, Tensor], masked: Tensor, spatial: dict | None, span: Tensor) -> dict:
         """Per-video values ``(B,)``: map maxima (the ANRA maps' over confident windows) and the rest."""

@@ -13,6 +13,9 @@ frame: a smooth, positive field with few parameters), initialised from ANRA's di
 (:class:`anra_torch.estimation.ANRAEstimator` windowed field for ``a``, the loss-rate map of
 :class:`anra_torch.tissue.TissueFeatures` for ``b``), and :meth:`LearnedTissueModel.fit` trains them by
 back-propagating the frame misfit through the ODE solver.
+
+:func:`omega_with_constants` is the layer's Arrhenius dose with constants that vary per pixel and carry
+gradients: a model that learns a tissue's damage threshold trains its constants through it.
 """
 
 from __future__ import annotations
@@ -24,12 +27,13 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
-from anra_torch.checks import as_video
+from anra_torch.checks import as_spacing, as_video
 from anra_torch.estimation import ANRAEstimator
 from anra_torch.selection import diagnose_terms
 from anra_torch.simulation import simulate_tissue
+from anra_torch.tissue.dose import GAS_CONSTANT, KELVIN_AT_ZERO_CELSIUS, SKIN, arrhenius_omega, to_celsius
 
-__all__ = ["LearnedTissueModel", "relative_error"]
+__all__ = ["LearnedTissueModel", "omega_with_constants", "relative_error"]
 
 _F64 = torch.float64
 _SPAN = math.log(10.0)  # learned fields stay within a factor 10 of their start (keeps RK4 steps bounded)
@@ -222,3 +226,83 @@ def relative_error(estimate: Tensor, truth: Tensor, mask: Tensor | None = None) 
     """Median of ``|estimate / truth - 1|`` over ``mask`` (all pixels by default)."""
     ratio = (estimate / truth - 1).abs()
     return float(ratio[mask].median() if mask is not None else ratio.median())
+
+
+def omega_with_constants(
+    temperatures: Tensor,
+    dt: float | Tensor,
+    *,
+    log_frequency: float | Tensor,
+    activation_energy: float | Tensor,
+    units: str = "C",
+    rule: str = "hold",
+) -> Tensor:
+    """Arrhenius Omega ``integral exp(ln A - Ea / (R_gas T_K)) dt`` with per-pixel, differentiable constants.
+
+    :func:`anra_torch.tissue.arrhenius_omega` (the dose of :class:`anra_torch.tissue.TissueFeatures`) takes
+    one pair of constants as numbers. Here ``ln A`` and ``Ea`` are tensors broadcast with the pixels, and
+    the gradient flows to them (and to the temperatures). With ``rule="hold"`` the frames' rates are summed
+    as ``arrhenius_omega`` sums them (frames that are not finite left out), exact. With ``"linear"`` the
+    history goes through ``arrhenius_omega`` as the equivalent temperature ``T*`` whose rate under
+    :data:`anra_torch.tissue.SKIN` is the pixel's rate, ``1 / T* = (Ea / T_K - R_gas ln A + R_gas ln A_skin)
+    / Ea_skin``, the frames' equivalent temperatures joined by straight lines (not the frames): a relative
+    difference of order ``(dT / T)^2`` per segment, below 1e-4 for tissue histories sampled every 0.5 s
+    (``tests/tissue/test_learned.py``). Constants with a leading axis of
+    their own evaluate one history ``(T, H, W)`` under several pairs at once (e.g. ``(K, 1, 1)``).
+
+    Args:
+        temperatures: video in ``units``.
+        dt: frame period in s, a number or ``(B,)``.
+        log_frequency: ``ln A`` with ``A`` in 1/s, a number or a tensor that broadcasts with the output.
+        activation_energy: ``Ea`` in J/mol (> 0), likewise.
+        units: ``"C"`` or ``"K"``.
+        rule: ``"hold"`` (default) or ``"linear"`` (:data:`anra_torch.tissue.RULES`).
+
+    Returns:
+        Omega (dimensionless, float64).
+
+    Raises:
+        ValueError: bad shapes, ``dt``, ``rule`` or ``units``; constants that are not finite, ``Ea <= 0``,
+            or so far from the skin constants that an equivalent temperature is not positive.
+
+    Shape:
+        ``temperatures`` ``(T, H, W)`` or ``(B, T, H, W)``; constants broadcast with ``(H, W)`` or
+        ``(B, H, W)``; output their broadcast shape (at most 3 dimensions), e.g. ``(B, H, W)``.
+    """
+    if getattr(temperatures, "ndim", None) not in (3, 4):
+        shape = tuple(getattr(temperatures, "shape", ()))
+        raise ValueError(f"temperatures must have shape (T, H, W) or (B, T, H, W), got {shape}")
+    kelvin = to_celsius(temperatures, units) + 273.15
+    pixels = (*kelvin.shape[:-3], *kelvin.shape[-2:])
+    given = {"log_frequency": log_frequency, "activation_energy": activation_energy}
+    constants = {k: torch.as_tensor(v, dtype=_F64, device=kelvin.device) for k, v in given.items()}
+    for name, c in constants.items():
+        try:
+            fits = len(torch.broadcast_shapes(pixels, c.shape)) <= 3
+        except RuntimeError:
+            fits = False
+        if not fits:
+            raise ValueError(
+                f"{name} must broadcast with the pixels {pixels} (3 dimensions at most), got {tuple(c.shape)}"
+            )
+        if not bool(torch.isfinite(c.detach()).all()):
+            raise ValueError(f"{name} must be finite, got {c.detach().flatten()[:4].tolist()}")
+    # The time axis: constants (..., H, W) -> (..., 1, H, W).
+    log_a, energy = (c.unsqueeze(-3) if c.ndim >= 2 else c for c in constants.values())
+    if bool((energy.detach() <= 0).any()):
+        raise ValueError(f"activation_energy must be > 0 J/mol, got min {float(energy.detach().min()):g}")
+    excess = GAS_CONSTANT * (log_a - math.log(SKIN.frequency))
+    # The denominator falls as T rises: its smallest value is at each pixel's hottest frame.
+    finite = torch.isfinite(kelvin)
+    hottest = torch.where(finite, kelvin, 0.0).amax(-3, keepdim=True).detach()
+    if bool((energy.detach() / hottest - excess.detach() <= 0).any()):
+        raise ValueError(
+            "log_frequency and activation_energy are too far from the skin constants for an equivalent "
+            "temperature at these temperatures (ln A - Ea / (R_gas T_K) must stay below ln A_skin)"
+        )
+    if rule == "hold":  # one exp per frame and pair (the equivalent temperature's three passes saved)
+        period = as_spacing(dt, name="dt", unit="s", batch=math.prod(kelvin.shape[:-3]), like=kelvin)
+        safe = torch.where(finite, kelvin, KELVIN_AT_ZERO_CELSIUS + 43.0).to(_F64)  # no NaN in a branch
+        rate = torch.where(finite, torch.exp(log_a - energy / (GAS_CONSTANT * safe)), 0.0)
+        return rate.sum(-3) * (period.view(-1, 1, 1) if kelvin.ndim == 4 else period.view(()))
+    return arrhenius_omega(SKIN.activation_energy / (energy / kelvin - excess), dt, units="K", rule=rule)

@@ -79,6 +79,8 @@ def test_terms_that_obey_the_balance_give_its_loss_rate_everywhere() -> None:
     # What the balance leaves is the source: nothing here.
     assert float(fit.source.abs().max()) < 1e-10
     assert bool((fit.std_error == 0).all())  # no noise, no error
+    # The diffusivity fitted with it is the balance's too.
+    torch.testing.assert_close(fit.diffusivity, torch.full((1, 9, 9), A, dtype=F64), rtol=1e-10, atol=1e-12)
 
 
 @pytest.mark.parametrize("window", [3, 5])

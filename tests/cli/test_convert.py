@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from commands import assert_clean, run_isolated
+from fff_writer import Camera, counts_for, planck_celsius, simple_frame
 from shared_data import DATA as SHARED_DATA
 
 from anra_torch.cli import main
 from anra_torch.video import load_video, save_npz
 from anra_torch.video.lazy import LazyFrames
-from experiments.fff_writer import Camera, counts_for, planck_celsius, simple_frame
 
 pytest.importorskip("imagecodecs", reason="the formats extra (imagecodecs) is not installed")
 DATA = SHARED_DATA / "flir_fff"

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from depth_references import A, beam_heated_slab, half_space_gaussian
 
 from anra_torch.cli import main
 from anra_torch.estimation.estimator import ANRAEstimator
 from anra_torch.selection.depth_aware import MAX_RATES, depth_aware_diffusivity
 from anra_torch.video import save_npz
-from experiments.depth_references import A, beam_heated_slab, half_space_gaussian
 
 
 @pytest.mark.slow

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from depth_references import conduct
 from scenes import heated_then_cooled, spot_video
 from shared_data import DATA, needs_data
 
@@ -70,8 +71,6 @@ def test_a_heating_and_cooling_30_s_apart_are_two_phases() -> None:
     """Frames 30 s apart of a beam on a thick body (independent explicit 3-D conduction): the frame mean's
     steps are all signal, so its noise is bounded by one pixel's (before, the steps' 'noise' hid the heating
     and the recording read as one steady phase)."""
-    from experiments.depth_references import conduct
-
     y, x = np.mgrid[:96, :96] * 0.5
     flux = 0.5 / (2 * np.pi * 2.0**2) * np.exp(-((x - 20) ** 2 + (y - 24) ** 2) / (2 * 2.0**2))  # W/mm^2
     u, frames, rng = np.full((24, 96, 96), 22.0), [], np.random.default_rng(0)

@@ -9,14 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from shared_data import DATA as SHARED_DATA
-
-from anra_torch.cli import main
-from anra_torch.video import load_video, save_npz
-from anra_torch.video.formats.flir_fff import decode_counts, read_frame
-from anra_torch.video.formats.flir_objects import ObjectParameters
-from anra_torch.video.formats.flir_seq import index_sequence
-from experiments.fff_writer import (
+from fff_writer import (
     Camera,
     camera_record,
     counts_for,
@@ -25,6 +18,13 @@ from experiments.fff_writer import (
     raw_record,
     simple_frame,
 )
+from shared_data import DATA as SHARED_DATA
+
+from anra_torch.cli import main
+from anra_torch.video import load_video, save_npz
+from anra_torch.video.formats.flir_fff import decode_counts, read_frame
+from anra_torch.video.formats.flir_objects import ObjectParameters
+from anra_torch.video.formats.flir_seq import index_sequence
 
 pytest.importorskip("imagecodecs", reason="the formats extra (imagecodecs) is not installed")
 DATA = SHARED_DATA / "flir_fff"

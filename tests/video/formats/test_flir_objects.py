@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from fff_writer import Camera, simple_frame
 
 from anra_torch.video.formats.flir_fff import read_frame
 from anra_torch.video.formats.flir_objects import ObjectParameters, object_record
-from experiments.fff_writer import Camera, simple_frame
 
 
 def camera_info(cam: Camera):

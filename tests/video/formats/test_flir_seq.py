@@ -11,14 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from shared_data import DATA as SHARED_DATA
-
-from anra_torch.cli import main
-from anra_torch.estimation import estimate_chunked
-from anra_torch.video import input_warnings, load_video, prepare_video
-from anra_torch.video.formats.flir_seq import FLIRFrames, index_sequence
-from anra_torch.video.lazy import FrameSource, frame_span, in_memory, lazy_video
-from experiments.fff_writer import (
+from fff_writer import (
     Camera,
     camera_record,
     counts_for,
@@ -27,6 +20,13 @@ from experiments.fff_writer import (
     raw_record,
     simple_frame,
 )
+from shared_data import DATA as SHARED_DATA
+
+from anra_torch.cli import main
+from anra_torch.estimation import estimate_chunked
+from anra_torch.video import input_warnings, load_video, prepare_video
+from anra_torch.video.formats.flir_seq import FLIRFrames, index_sequence
+from anra_torch.video.lazy import FrameSource, frame_span, in_memory, lazy_video
 
 pytest.importorskip("imagecodecs", reason="the formats extra (imagecodecs) is not installed")
 
