@@ -4,11 +4,12 @@
 run on it; their top-level keys and columns are compared with the first column of the page's tables, both
 ways; ``anra features --depth --out --report --json`` on a tiny 3-D scene adds the depth keys and the
 ``--out`` file's entries (with those of a plain ``--out``), compared both ways too. ``anra diagnose --json``
-runs once on a small advection video (with ``--source-map`` and ``--roi``, so that the keys those add appear
-too): its top-level keys and those of an effect, a phase, ``noise`` and ``artefacts`` are compared the same
-way (a documented key whose meaning begins with "only" may be absent), the keys of ``base``, ``extended``,
-``raw``, ``source_map`` and ``input`` must be named in their row's meaning, and the effects' parameter table
-is compared with the effects' registry.
+runs once on a small advection video (with ``--source-map``, ``--roi`` and ``--maps``, so that the keys those
+add appear too): its top-level keys and those of an effect, a phase, ``noise``, ``artefacts`` and
+``defect_map`` (and the ``--maps`` file's entries) are compared the same way (a documented key whose
+meaning begins with "only" may be absent), the keys of ``base``, ``extended``, ``raw``, ``source_map`` and
+``input`` must be named in their row's meaning, and the effects' parameter table is compared with the
+effects' registry.
 """
 
 from __future__ import annotations
@@ -145,6 +146,7 @@ PARTS: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {
     f"{DIAGNOSE}: a phase": lambda d: d["phases"][0],
     f"{DIAGNOSE}: `noise`": lambda d: d["noise"],
     f"{DIAGNOSE}: `artefacts`": lambda d: d["artefacts"],
+    f"{DIAGNOSE}: `defect_map`": lambda d: d["defect_map"],
 }
 
 
@@ -156,14 +158,16 @@ def diagnosed(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(simulate) == 0
     out = io.StringIO()
+    maps = path.with_name("maps.npz")
+    argv = ["diagnose", str(path), "--json", "--source-map", "--roi", "1,1,30,30", "--maps", str(maps)]
     with contextlib.redirect_stdout(out):
-        assert main(["diagnose", str(path), "--json", "--source-map", "--roi", "1,1,30,30"]) == 0
-    return json.loads(out.getvalue())
+        assert main(argv) == 0
+    return {**json.loads(out.getvalue()), "maps file": npz_entries(str(maps))}
 
 
 @pytest.mark.parametrize("heading", PARTS)
 def test_diagnose_keys_are_documented(heading: str, diagnosed: dict[str, Any]) -> None:
-    keys = set(PARTS[heading](diagnosed))
+    keys = set(PARTS[heading](diagnosed)) - {"maps file"}
     page = documented(heading)
     assert keys - page == set(), f"emitted, not documented: {sorted(keys - page)}"
     missing = page - keys - optional(heading)
@@ -189,3 +193,9 @@ def test_effect_parameters_match_the_registry() -> None:
     assert set(rows) == set(EFFECTS)
     for name, spec in EFFECTS.items():
         assert rows[name] == set(spec.params) | set(spec.derived_units), name
+
+
+def test_diagnose_maps_entries_are_documented(diagnosed: dict[str, Any]) -> None:
+    entries, page = diagnosed["maps file"], documented("`anra diagnose --maps`")
+    assert entries - page == set(), f"written, not documented: {sorted(entries - page)}"
+    assert page - entries == set(), f"documented, not written: {sorted(page - entries)}"

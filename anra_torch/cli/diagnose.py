@@ -10,7 +10,9 @@ copy (``input.decimated``, above 2^22 pixel values unless --full-resolution); ``
 empty when all is well: input samples masked, the final model's diffusivity negative or outside every known
 material, "the model does not explain the data" when its forecast RMSE stays above 3 noise floors (with the
 ratio), a number not finite and reported as null; ``phase`` (the described phase's kind) and ``phases``
-(every phase's record). Every key with its unit: docs/reference/outputs.md. On failure: ``{"path", "error"}``.
+(every phase's record); ``defect_map`` with ``--maps FILE`` (a flash recording's plate time, lateral
+diffusivities and defects; the maps themselves go to FILE, an ``.npz``). Every key with its unit:
+docs/reference/outputs.md. On failure: ``{"path", "error"}``.
 """
 
 from __future__ import annotations
@@ -19,9 +21,10 @@ import argparse
 import json
 from typing import Any
 
+import numpy as np
 import torch
 
-from anra_torch.checks import check_output, one_line
+from anra_torch.checks import atomic_output, check_output, one_line
 from anra_torch.cli.arguments import (
     add_device_argument,
     add_video_arguments,
@@ -33,11 +36,16 @@ from anra_torch.cli.arguments import (
     object_parameters,
     print_input,
 )
-from anra_torch.recording import diagnose_video, open_for_diagnosis
-from anra_torch.report import write_diagnosis_report, write_phase_report
+from anra_torch.flash import FlashMaps, flash_maps
+from anra_torch.recording import diagnose_video, open_for_diagnosis, open_recording
+from anra_torch.report import write_diagnosis_report, write_flash_report, write_phase_report
 from anra_torch.video import Video
 
-__all__ = ["add_parser", "run"]
+__all__ = ["MAP_VALUES", "add_parser", "run"]
+
+MAP_VALUES = 2**25
+"""``--maps`` reads a recording of up to this many pixel values whole; a larger one is mapped on the
+diagnosis' block-averaged copy."""
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -96,6 +104,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="also fit a stationary source map dT/dt = a Lap T - b T + q(x, y) on the same frames (a "
         "measured beam that is not a Gaussian spot) and report its forecast RMSE and gain ('source_map')",
     )
+    parser.add_argument(
+        "--maps",
+        metavar="FILE",
+        help="a flash recording: also map per pixel the through-thickness time constant of the cooling "
+        "(lateral conduction taken off) and the defects it shows, and write to FILE (.npz) defect_score, "
+        "defect_mask, depth_fraction, depth_time and the contrasts tsr_d2, pct, ppt; the JSON gets "
+        "'defect_map' (the plate's L^2/a_z, the defects), the report flash.md",
+    )
     parser.set_defaults(run=run)
 
 
@@ -117,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
         if args.report is not None:
             check_output(args.report, [args.video], name="--report", folder=True)
+        if args.maps is not None:
+            check_output(args.maps, [args.video], name="--maps")
         recording, decimated = open_for_diagnosis(
             args.video,
             dt=args.dt,
@@ -136,11 +154,16 @@ def run(args: argparse.Namespace) -> int:
             decimated=decimated,
         )
         summary = done.to_record()
+        maps = None if args.maps is None else _flash_maps(args, recording, decimated is not None)
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
             print(json.dumps({"path": str(args.video), "error": one_line(err)}))
         raise
     video, result = done.video, done.result
+    if maps is not None:
+        summary["defect_map"] = maps.record()
+        with atomic_output(args.maps) as temp, open(temp, "wb") as handle:
+            np.savez_compressed(handle, **maps.arrays())
     if args.json:
         print(json_line(summary))
     else:
@@ -152,6 +175,8 @@ def run(args: argparse.Namespace) -> int:
         _print_phases(shown)
         if result is not None:
             _print_balance(video, shown, result)
+        if maps is not None:
+            _print_maps(shown["defect_map"], args.maps)
         for line in shown["warnings"]:
             print(f"  warning: {line}")
     if args.report is not None:
@@ -162,9 +187,45 @@ def run(args: argparse.Namespace) -> int:
                     args.report, video, result.diagnosis, result, source_map=done.source_map
                 )
             )
+        if maps is not None:
+            written.append(write_flash_report(args.report, maps, recording.dx))
         if not args.json:
             print(f"  report: {', '.join(str(p) for p in written)}")
     return 0
+
+
+def _flash_maps(args: argparse.Namespace, recording: Video, decimated: bool) -> FlashMaps:
+    """The flash maps of the recording read whole (up to :data:`MAP_VALUES`), else of the diagnosed copy."""
+    source = recording
+    if decimated:
+        whole = open_recording(
+            args.video,
+            dt=args.dt,
+            dx=args.dx,
+            roi=args.roi,
+            calibration=args.calibration,
+            on_disk_above=MAP_VALUES,
+            **object_parameters(args),
+        )
+        source = recording if whole.on_disk else whole
+    frames = torch.as_tensor(source.frames).to(args.device)
+    return flash_maps(frames, source.dt, source.dx)
+
+
+def _print_maps(record: dict[str, Any], path: str) -> None:
+    """The defect map's summary: the plate's time constant and each defect."""
+    se = record["plate_time_std_error"]
+    reached = "" if record["back_wall_reached"] else " (back wall not reached: a lower bound)"
+    print(
+        f"  defect map ({path}): plate L^2/a_z = {_n(record['plate_time'])} +- {_n(se, '.2g')} s{reached}; "
+        f"{len(record['defects'])} defect(s)"
+    )
+    for d in record["defects"]:
+        edge = ", runs out of the frame" if d["touches_edge"] else ""
+        print(
+            f"    at ({d['x']:.2f}, {d['y']:.2f}) mm, {d['area']:.3g} mm^2, depth fraction "
+            f"{d['depth_fraction']:.2f}{edge}"
+        )
 
 
 def _n(value: float | None, spec: str = ".4g") -> str:

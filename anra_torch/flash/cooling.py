@@ -1,0 +1,175 @@
+"""A plate's surface cooling after a flash, fitted per pixel for its through-thickness time constant.
+
+After an instantaneous flash ``Q`` on an insulated plate of thickness ``L`` the surface excess is
+
+    T - T_ref = Q / L (1 + 2 sum_n exp(-n^2 pi^2 t / tau))
+              = Q / sqrt(pi a_z t) (1 + 2 sum_n exp(-n^2 tau / t)),    tau = L^2 / a_z
+
+(the two sums are one function by Poisson summation; each converges in a few terms on its side of
+``t = tau / 4``). In the second form the constant ``ln (Q / sqrt(a_z))`` does not depend on ``tau``, so a
+fit of ``ln (T - T_ref)`` by ``c + g(t; tau)`` over a grid of ``tau`` profiles ``c`` out in closed form
+and leaves one weighted residual per pixel and grid point (:func:`profile_rss`). Above a defect at depth
+``d`` (no heat crosses it) the layer is a thinner plate: its ``tau`` is ``d^2 / a_z``. ``tau = inf`` is
+the half-space (the back wall beyond the recording).
+
+:func:`time_bins` averages the frames over bins that grow geometrically (the cooling is a function of
+``ln t``), with each bin's weight from the noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+__all__ = ["TauGrid", "TimeBins", "log_surface", "profile_rss", "refine_minimum", "tau_grid", "time_bins"]
+
+_TERMS = 8  # each series' terms on its side of t = tau / 4: the first left out is below exp(-39)
+
+
+def log_surface(elapsed: Tensor, tau: Tensor) -> Tensor:
+    """``g(t; tau) = -ln(pi t) / 2 + ln(1 + 2 sum_n exp(-n^2 tau / t))``: the log surface excess of an
+    insulated plate after a flash, less ``ln (Q / sqrt(a_z))``; ``tau = inf`` gives the half-space.
+
+    Args:
+        elapsed: times since the flash in s, positive, ``(N,)``.
+        tau: time constants ``L^2 / a_z`` in s, positive or ``inf``, ``(K,)``.
+
+    Returns:
+        ``(K, N)``, on ``elapsed``'s device and dtype.
+    """
+    tau = tau.to(elapsed)
+    s = elapsed[None, :] / tau[:, None]  # t / tau: 0 for tau = inf
+    n = torch.arange(1, _TERMS + 1, dtype=elapsed.dtype, device=elapsed.device)
+    early = s < 0.25
+    s_early = torch.where(early, s, torch.ones_like(s))
+    s_late = torch.where(early, torch.ones_like(s), s)
+    dual = torch.log1p(2 * torch.exp(-(n**2) / s_early[..., None]).sum(-1))  # 0 for the half-space
+    direct = torch.log1p(2 * torch.exp(-(n**2) * math.pi**2 * s_late[..., None]).sum(-1))
+    # the direct series is the dual one times sqrt(pi t / tau): back to the dual form's constant
+    direct = direct + 0.5 * torch.log(math.pi * s_late)
+    return -0.5 * torch.log(math.pi * elapsed)[None, :] + torch.where(early, dual, direct)
+
+
+@dataclass(frozen=True)
+class TauGrid:
+    """Time constants and their log surface curves.
+
+    Attributes:
+        taus: ``K`` log-spaced time constants in s, then ``inf``, ``(K + 1,)``.
+        curves: :func:`log_surface` at the bins' times, ``(K + 1, N)``.
+    """
+
+    taus: Tensor
+    curves: Tensor
+
+
+def tau_grid(elapsed: Tensor, *, points: int = 160) -> TauGrid:
+    """``points`` time constants from half the first time to 30 times the last, and ``inf``.
+
+    Shape:
+        ``elapsed`` ``(N,)``; ``taus`` ``(points + 1,)``; ``curves`` ``(points + 1, N)``.
+    """
+    lo, hi = math.log10(max(float(elapsed[0]) * 0.5, 1e-9)), math.log10(float(elapsed[-1]) * 30)
+    finite = torch.logspace(lo, hi, points, dtype=elapsed.dtype, device=elapsed.device)
+    taus = torch.cat([finite, torch.full((1,), math.inf, dtype=elapsed.dtype, device=elapsed.device)])
+    return TauGrid(taus, log_surface(elapsed, taus))
+
+
+def profile_rss(y: Tensor, w: Tensor, curves: Tensor) -> Tensor:
+    """Weighted residual sum of squares of ``y - c - curve`` with ``c`` profiled out, per pixel and curve.
+
+    Args:
+        y: log excess per pixel and bin, ``(P, N)``.
+        w: weights (inverse variances; 0 leaves a bin out), ``(P, N)``.
+        curves: ``(K, N)``.
+
+    Returns:
+        ``(P, K)``.
+    """
+    sw = w.sum(1, keepdim=True).clamp_min(torch.finfo(w.dtype).tiny)
+    wy = w * y
+    cross = wy.sum(1, keepdim=True) - w @ curves.T  # sum w (y - g)
+    return (wy * y).sum(1, keepdim=True) - 2 * wy @ curves.T + w @ (curves * curves).T - cross**2 / sw
+
+
+def refine_minimum(rss: Tensor, taus: Tensor) -> tuple[Tensor, Tensor]:
+    """Each row's minimum over the grid, refined by a parabola in ``ln tau``; ``inf`` at the grid's top.
+
+    Args:
+        rss: ``(P, K + 1)`` from :func:`profile_rss` on a :class:`TauGrid`.
+        taus: the grid's ``(K + 1,)``, the last ``inf``.
+
+    Returns:
+        ``tau`` in s ``(P,)`` and the index of the grid's minimum ``(P,)``.
+    """
+    k = rss.argmin(1)
+    points = rss.shape[1] - 1
+    log_taus = torch.log(taus[:-1])
+    step = log_taus[1] - log_taus[0]
+    kk = k.clamp(1, points - 2)
+    r0, r1, r2 = (rss.gather(1, (kk + o)[:, None])[:, 0] for o in (-1, 0, 1))
+    curvature = r0 - 2 * r1 + r2
+    shift = torch.where(curvature > 0, 0.5 * (r0 - r2) / curvature, torch.zeros_like(r1)).clamp(-1, 1)
+    tau = torch.exp(log_taus[kk] + shift * step)
+    unresolved = k >= points - 1  # at the grid's top or the half-space: beyond the recording
+    return torch.where(unresolved, torch.full_like(tau, math.inf), tau), k
+
+
+@dataclass(frozen=True)
+class TimeBins:
+    """Frames averaged over bins growing geometrically in time (see :func:`time_bins`).
+
+    Attributes:
+        index: each frame's bin (``-1`` before the first), ``(T,)``.
+        counts: frames per bin, ``(N,)``.
+        elapsed: each bin's mean time since the flash in s, ``(N,)``.
+    """
+
+    index: Tensor
+    counts: Tensor
+    elapsed: Tensor
+
+    def average(self, values: Tensor) -> Tensor:
+        """Bin means of ``values`` ``(T, ...)`` -> ``(N, ...)``."""
+        index = self.index.to(values.device)
+        used = index >= 0
+        out = values.new_zeros((len(self.counts), *values.shape[1:]))
+        out.index_add_(0, index[used], values[used])
+        return out / self.counts.to(values).view(-1, *([1] * (values.dim() - 1)))
+
+
+def time_bins(frames: int, dt: float, first: float, *, start: int = 3, ratio: float = 1.03) -> TimeBins:
+    """Bins from frame ``start`` on, each at least one frame and ending ``ratio`` times later than it began.
+
+    Args:
+        frames: frames in the recording.
+        dt: frame period in s.
+        first: time of frame 0 since the flash in s (positive).
+        start: frames left out at the start (the flash's own frames).
+        ratio: a bin's end time over its start time.
+
+    Shape:
+        ``index`` ``(frames,)``; ``counts``, ``elapsed`` ``(N,)``.
+    """
+    edges = [start]
+    while edges[-1] < frames:
+        t = first + edges[-1] * dt
+        edges.append(min(frames, max(edges[-1] + 1, math.ceil((t * ratio - first) / dt))))
+    cpu = torch.device("cpu")  # a few numbers, moved to the frames' device where they are used
+    sizes = torch.tensor(edges, device=cpu).diff()
+    index = torch.cat(
+        [
+            torch.full((start,), -1, device=cpu),
+            torch.repeat_interleave(torch.arange(len(sizes), device=cpu), sizes),
+        ]
+    )
+    counts = sizes.to(torch.float64)
+    times = first + torch.arange(frames, dtype=torch.float64, device=cpu) * dt
+    elapsed = (
+        torch.zeros(len(sizes), dtype=torch.float64, device=cpu).index_add_(0, index[start:], times[start:])
+        / counts
+    )
+    return TimeBins(index, counts, elapsed)

@@ -1,0 +1,444 @@
+"""The defect map of a flash recording: per pixel, the through-thickness time constant its cooling says.
+
+Per pixel, ``ln u`` (``u = T - T_ref``, the frames smoothed by 1 px) less the lateral conduction the
+frames show (:mod:`~anra_torch.flash.lateral`: a non-uniform flash and the anisotropy spread heat
+sideways, not into depth) is fitted by the insulated plate's cooling ``c + g(t; tau)``
+(:mod:`~anra_torch.flash.cooling`) over the times up to ``window tau`` (where the heat stops: the back
+wall, or a defect above it, whose layer is a thinner plate with ``tau = d^2 / a_z``), the window grown
+with the pixel's own ``tau``. The frames' shared unknowns, the temperature the plate cools to
+(``T_ref``) and the flash's time before the first frame, are fitted to all pixels; the lateral
+diffusivities to the sound plate and to each region of equal depth, in turns with the map.
+
+From the map: the plate's ``L^2 / a_z`` (the median of the sound pixels; front-face data fix only this
+ratio, not ``L`` or ``a_z``) with its standard error over tiles of the frame; defects where ``tau`` is
+significantly shorter than the plate's, each outlined where its log contrast ``ln(plate / tau)`` is above
+half its peak (any shape, running out of the frame or not) with its depth fraction
+``d / L = sqrt(tau / plate)``.
+
+Assumptions (each one a way for a recording to break the map): an instantaneous flash absorbed at the
+surface, smooth across the frame; a plate of uniform thickness and diffusivity (lateral anisotropy with
+axes anywhere) insulated on both faces over the recording (no loss to the air); defects planar, parallel
+to the surface, that stop the heat; one ``T_ref`` for the whole frame; white camera noise. The results
+page (docs/results/flash.md) measures it on plates from an independent simulator.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from anra_torch.balance import estimate_noise_sd
+from anra_torch.checks import as_video, spacing_in_range
+from anra_torch.flash.cooling import profile_rss, refine_minimum, tau_grid, time_bins
+from anra_torch.flash.lateral import fit_lateral, lateral_integrals, local_quadratic, value_noise_gain
+from anra_torch.flash.regions import components, dilate, erode
+
+__all__ = ["DefectMap", "FoundDefect", "defect_map"]
+
+_F64 = torch.float64
+_SIGMA_VALUE = 1.0  # px: the smoothing of u
+_SIGMA_LATERAL = 3.0  # px: the smoothing of its second derivatives
+_MODEL_FLOOR = 0.003  # relative: the cooling model's own error per bin, beside the noise
+_WINDOW = 0.4  # a pixel's fit reaches window * its tau
+_ODD = 0.3  # |ln tau - ln plate| beyond this: another depth (the lateral fit's regions)
+_CONTRAST = 0.2  # ln(plate / tau) a defect pixel exceeds (d / L < 0.9) ...
+_SIGNIFICANCE = 3.0  # ... at this many standard deviations of its own fit
+_SCATTER = 4.0  # a defect's peak contrast exceeds this many robust sd of the sound pixels' contrast
+_MIN_PIXELS = math.ceil(math.pi * _SIGMA_LATERAL**2)  # smaller than the lateral derivatives' footprint
+_EDGE_RINGS = 10
+_ROUNDS = 3
+_BOUNDS = torch.tensor([[-9.2, -3.0], [3.4, 1.6]], device="cpu")
+"""The globals' search box: ``ln`` of how far ``T_ref`` lies below the coolest pixel over the cooling's
+span (1e-4 to 30), ``ln`` of the first frame's time since the flash in frame periods (0.05 to 5)."""
+
+
+@dataclass(frozen=True)
+class FoundDefect:
+    """One defect of a :class:`DefectMap`.
+
+    Attributes:
+        x: centroid in mm along the columns (from the frame's corner).
+        y: centroid in mm along the rows.
+        area: in mm^2 (inside the frame).
+        depth_fraction: ``d / L``.
+        touches_edge: the outline reaches the frame's edge (the defect may run out of it).
+    """
+
+    x: float
+    y: float
+    area: float
+    depth_fraction: float
+    touches_edge: bool
+
+
+@dataclass(frozen=True)
+class DefectMap:
+    """Output of :func:`defect_map`.
+
+    Attributes:
+        depth_time: per pixel ``tau`` in s (``inf``: beyond the recording), ``(H, W)``.
+        plate_time: the sound plate's ``L^2 / a_z`` in s.
+        plate_time_se: its standard error in s.
+        back_wall_reached: the recording lasts past ``plate_time / pi``, where the back wall shows.
+        defect_score: ``ln(plate_time / tau)`` over the peak of its defect where one is found (1 in its
+            core, 1/2 at its outline), else over the largest such peak; higher = more likely a defect,
+            ``(H, W)``.
+        defect_mask: ``(H, W)`` booleans.
+        depth_fraction: ``d / L`` of the defect at each pixel, NaN where sound, ``(H, W)``.
+        defects: the defects found.
+        lateral: ``(a_x, a_y, a_xy)`` in mm^2/s, the lateral diffusivities taken off (zeros where they
+            could not be measured).
+        t_ref: the temperature the plate cools to.
+        first_time: the first frame's time since the flash in s.
+        noise_sd: the frames' white noise sd.
+    """
+
+    depth_time: Tensor
+    plate_time: float
+    plate_time_se: float
+    back_wall_reached: bool
+    defect_score: Tensor
+    defect_mask: Tensor
+    depth_fraction: Tensor
+    defects: tuple[FoundDefect, ...]
+    lateral: tuple[float, float, float]
+    t_ref: float
+    first_time: float
+    noise_sd: float
+
+
+class _Cooling:
+    """The frames averaged over time bins, smoothed, and their lateral second derivatives."""
+
+    def __init__(self, frames: Tensor, dt: float, dx: float, noise_sd: float) -> None:
+        self.dt, self.dx, self.shape, self.noise_sd = dt, dx, tuple(frames.shape), noise_sd
+        self.bins = time_bins(len(frames), dt, dt)  # the bins' frames, whatever the flash's exact time
+        self.frames = self.bins.average(frames)  # (N, H, W)
+        self.counts = self.bins.counts.to(frames)
+        self.offsets = self.bins.elapsed.to(frames) - dt  # each bin's time after the first frame
+        value, _ = local_quadratic(self.frames, _SIGMA_VALUE, dx)
+        _, second = local_quadratic(self.frames, _SIGMA_LATERAL, dx)
+        self.value, self.second = value.flatten(1), second.flatten(2)  # (N, P), (3, N, P)
+        self.sd = noise_sd * value_noise_gain(_SIGMA_VALUE)
+        self.low = float(self.value[-1].min())  # the coolest late pixel: T_ref lies below it
+        self.span = float(self.value[0].median()) - self.low
+
+    def series(
+        self, t_ref: float, first: float, pixels: Tensor | None = None
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """Per pixel and bin: ``ln u`` ``(P, N)``, the lateral integrals ``(3, P, N)``, the weights
+        ``(P, N)``, and the bins' times since the flash ``(N,)``."""
+        value = self.value if pixels is None else self.value[:, pixels]
+        second = self.second if pixels is None else self.second[:, :, pixels]
+        excess = (value - t_ref).clamp_min(torch.finfo(value.dtype).tiny)
+        elapsed = self.offsets + first
+        integrals = lateral_integrals(second, excess, elapsed)
+        weights = self.counts[:, None] / ((self.sd / excess) ** 2 + _MODEL_FLOOR**2)
+        return excess.log().T, integrals.transpose(1, 2), weights.T, elapsed
+
+    def lateral(self, t_ref: float, first: float, labels: Tensor | None) -> Tensor:
+        """The lateral diffusivities (:func:`~anra_torch.flash.lateral.fit_lateral`) at ``T_ref``."""
+        height, width = self.shape[1:]
+        a, _ = fit_lateral(
+            self.frames,
+            self.offsets + first,
+            self.counts,
+            dx=self.dx,
+            t_ref=t_ref,
+            noise_sd=self.noise_sd,
+            sigma=max(2.0, min(height, width) / 16),
+            labels=labels,
+        )
+        return a
+
+
+def _trimmed_rss(cooling: _Cooling, a: Tensor, pixels: Tensor, point: Tensor) -> float:
+    """The sum of the best 70 % of the pixels' smallest residuals at ``point`` = (ln of how far ``T_ref``
+    lies below the coolest pixel over the cooling's span, ln of the first frame's time in frame periods)."""
+    t_ref = cooling.low - cooling.span * math.exp(float(point[0]))
+    logs, integrals, weights, elapsed = cooling.series(t_ref, cooling.dt * math.exp(float(point[1])), pixels)
+    grid = tau_grid(elapsed)
+    rss = profile_rss(logs - torch.einsum("i,ipn->pn", a, integrals), weights, grid.curves)
+    # -2 ln(likelihood) of the temperatures, not of ln u: the variances' logs in T, ln(u^2 / w), change
+    # with T_ref too (without them a T_ref far below the frames flattens ln u and fits it at any noise)
+    best = _smooth_minimum(rss) + (2 * logs - weights.log()).sum(1)
+    return float(best.sort().values[: max(1, int(0.7 * len(best)))].sum())
+
+
+def _smooth_minimum(rss: Tensor) -> Tensor:
+    """Each row's minimum over the grid of ``ln tau``, refined by a parabola through it and its two
+    neighbours (a continuous function of the data: the grid's own minimum jumps between points)."""
+    k = rss[:, :-1].argmin(1).clamp(1, rss.shape[1] - 3)[:, None]
+    r0, r1, r2 = rss.gather(1, k - 1)[:, 0], rss.gather(1, k)[:, 0], rss.gather(1, k + 1)[:, 0]
+    curvature = (r0 - 2 * r1 + r2).clamp_min(torch.finfo(rss.dtype).tiny)
+    refined = r1 - (r0 - r2) ** 2 / (8 * curvature)
+    return torch.minimum(refined.clamp_min(0), rss.min(1).values)
+
+
+def _fit_globals(cooling: _Cooling, a: Tensor, start: tuple[float, float] | None) -> tuple[float, float]:
+    """``T_ref`` and the first frame's time since the flash (s), by Nelder-Mead on every third pixel of
+    every third row from ``start`` (or the best of a few guesses)."""
+    height, width = cooling.shape[1:]
+    device = cooling.value.device
+    pixels = torch.arange(height * width, device=device).view(height, width)[1::3, 1::3].flatten()
+
+    low, high = _BOUNDS.to(_F64)
+
+    def loss(point: Tensor) -> float:
+        return _trimmed_rss(cooling, a, pixels, torch.maximum(torch.minimum(point, high), low))
+
+    if start is None:
+        # T_ref is the sharp direction: a fine grid along it
+        below = torch.linspace(math.log(1e-3), math.log(10.0), 33, device="cpu").tolist()
+        guesses = [(s, math.log(q)) for s in below for q in (0.25, 0.5, 1.0, 2.0, 4.0)]
+    else:
+        guesses = [
+            (math.log(max((cooling.low - start[0]) / cooling.span, 1e-4)), math.log(start[1] / cooling.dt))
+        ]
+    points = [
+        torch.maximum(torch.minimum(torch.tensor(g, dtype=_F64, device="cpu"), high), low) for g in guesses
+    ]
+    values = [loss(p) for p in points]
+    best = points[min(range(len(points)), key=values.__getitem__)]
+    point = _nelder_mead(loss, best, min(values), step=0.3, tolerance=0.001, iterations=200)
+    point = torch.maximum(torch.minimum(point, high), low)
+    return cooling.low - cooling.span * math.exp(float(point[0])), cooling.dt * math.exp(float(point[1]))
+
+
+def _nelder_mead(
+    loss, start: Tensor, value: float, *, step: float, tolerance: float, iterations: int
+) -> Tensor:
+    """A two-parameter Nelder-Mead from ``start`` (its loss ``value``) with simplex edges ``step``."""
+    simplex = [
+        start,
+        start + torch.tensor([step, 0.0], dtype=_F64, device="cpu"),
+        start + torch.tensor([0.0, step], dtype=_F64, device="cpu"),
+    ]
+    values = [value, loss(simplex[1]), loss(simplex[2])]
+    for _ in range(iterations):
+        order = sorted(range(3), key=values.__getitem__)
+        simplex, values = [simplex[i] for i in order], [values[i] for i in order]
+        centre = (simplex[0] + simplex[1]) / 2
+        reflected = 2 * centre - simplex[2]
+        v_r = loss(reflected)
+        if v_r < values[0]:
+            expanded = 3 * centre - 2 * simplex[2]
+            v_e = loss(expanded)
+            simplex[2], values[2] = (expanded, v_e) if v_e < v_r else (reflected, v_r)
+        elif v_r < values[1]:
+            simplex[2], values[2] = reflected, v_r
+        else:
+            contracted = (centre + simplex[2]) / 2
+            v_c = loss(contracted)
+            if v_c < values[2]:
+                simplex[2], values[2] = contracted, v_c
+            else:
+                simplex = [simplex[0]] + [(simplex[0] + s) / 2 for s in simplex[1:]]
+                values = [values[0]] + [loss(s) for s in simplex[1:]]
+        if max(float((s - simplex[0]).abs().max()) for s in simplex[1:]) < tolerance:
+            break
+    return simplex[min(range(3), key=values.__getitem__)]
+
+
+def _check(frames: object, dt: float, dx: float) -> Tensor:
+    video, batched = as_video(frames, name="frames", min_frames=8)
+    if batched:
+        raise ValueError(f"frames must be one recording (T, H, W), got {tuple(video.shape)}")
+    spacing_in_range(dt, "dt", "s")
+    spacing_in_range(dx, "dx", "mm")
+    if min(video.shape[-2:]) < 8:
+        raise ValueError(f"frames must be at least 8 x 8 px for a defect map, got {tuple(video.shape[-2:])}")
+    if not bool(torch.isfinite(video).all()):
+        raise ValueError("frames must be finite; repair or mask the non-finite samples first")
+    return video[0].to(_F64)
+
+
+def _fit_pixels(
+    cooling: _Cooling, a: Tensor, t_ref: float, first: float
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Each pixel's ``tau`` with its window grown from the first 5 % of the recording; also the
+    residuals over the grid ``(P, K + 1)`` and the windows' weights ``(P, N)``."""
+    logs, integrals, weights, elapsed = cooling.series(t_ref, first)
+    grid = tau_grid(elapsed)
+    y = logs - torch.einsum("i,ipn->pn", a, integrals)
+    floor = max(float(elapsed[min(8, len(elapsed) - 1)]), 0.05 * float(elapsed[-1]))
+    limit = torch.full((len(y),), floor, dtype=y.dtype, device=y.device)
+    for _ in range(3):
+        windowed = weights * (elapsed[None, :] <= limit[:, None])
+        rss = profile_rss(y, windowed, grid.curves)
+        tau, _ = refine_minimum(rss, grid.taus)
+        limit = (_WINDOW * tau).clamp(min=floor)
+    return tau, rss, windowed, grid.taus
+
+
+def _regions(log_tau: Tensor) -> Tensor:
+    """The lateral fit's regions: the sound plate (1) and each region of another depth (2, ...), a ring
+    of 3 px around each left out (0)."""
+    plate = log_tau.median()
+    odd = (log_tau - plate).abs() > _ODD
+    labels, _ = components(odd)
+    labels = labels + 1
+    ring = dilate(odd, 3) & ~erode(odd, 3)
+    return torch.where(ring, torch.zeros_like(labels), labels)
+
+
+def defect_map(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None = None) -> DefectMap:
+    """Map the through-thickness time constant of a flash recording and the defects it shows.
+
+    Args:
+        frames: the cooling after the flash in C or K, the first frame after the flash first, ``(T, H, W)``.
+        dt: frame period in s.
+        dx: pixel size in mm.
+        noise_sd: the camera's white noise sd (default: measured from the frames).
+
+    Returns:
+        :class:`DefectMap` (tensors on the frames' device, float64).
+
+    Raises:
+        ValueError: not one recording of at least 8 frames of 8 x 8 px, a spacing not positive, a
+            sample not finite.
+
+    Shape:
+        ``frames`` ``(T, H, W)``; every map ``(H, W)``.
+    """
+    video = _check(frames, dt, dx)
+    sd = float(estimate_noise_sd(video)) if noise_sd is None else float(noise_sd)
+    height, width = video.shape[1:]
+    cooling = _Cooling(video, dt, dx, sd)
+    a = video.new_zeros(3)
+    t_ref, first = _fit_globals(cooling, a, None)
+    labels = None
+    for _ in range(_ROUNDS):
+        a = cooling.lateral(t_ref, first, labels)
+        t_ref, first = _fit_globals(cooling, a, (t_ref, first))
+        tau, rss, windowed, taus = _fit_pixels(cooling, a, t_ref, first)
+        log_tau = torch.log(tau.clamp(max=float(taus[-2]))).view(height, width)
+        labels = _regions(log_tau)
+    return _finish(tau.view(height, width), rss, windowed, taus, dx, (a, t_ref, first, sd), cooling)
+
+
+def _plate(log_tau: Tensor) -> tuple[Tensor, Tensor]:
+    """The sound plate's ``ln tau`` (median of the pixels within 0.3 of it, iterated) and its sound pixels."""
+    plate = log_tau.median()
+    for _ in range(3):
+        sound = (log_tau - plate).abs() < _ODD
+        plate = log_tau[sound].median()
+    return plate, sound
+
+
+def _standard_error(log_tau: Tensor, sound: Tensor) -> float:
+    """Standard error of the plate's ``ln tau`` from the spread of its median over 4 x 4 tiles."""
+    height, width = log_tau.shape
+    rows = torch.arange(height, device=log_tau.device) * 4 // height
+    cols = torch.arange(width, device=log_tau.device) * 4 // width
+    tile = (rows[:, None] * 4 + cols[None, :])[sound]
+    values = log_tau[sound]
+    medians = torch.stack([values[tile == k].median() for k in range(16) if int((tile == k).sum()) >= 8])
+    if len(medians) < 2:
+        return math.inf
+    return float(medians.std() / math.sqrt(len(medians)))
+
+
+def _edge_scatter(contrast: Tensor, sound: Tensor) -> Tensor:
+    """Per pixel, the robust sd of the contrast over the sound pixels as far from the frame's edge (up to
+    :data:`_EDGE_RINGS` px; the lateral derivatives are one-sided and noisier near the edge)."""
+    height, width = contrast.shape
+    rows = torch.arange(height, device=contrast.device)[:, None]
+    cols = torch.arange(width, device=contrast.device)[None, :]
+    ring = torch.minimum(torch.minimum(rows, height - 1 - rows), torch.minimum(cols, width - 1 - cols))
+    ring = ring.clamp(max=_EDGE_RINGS)
+    spread = torch.zeros(_EDGE_RINGS + 1, dtype=contrast.dtype, device=contrast.device)
+    for k in range(int(ring.max()) + 1):  # a few rings, each whole
+        values = contrast[(ring == k) & sound]
+        if len(values) < _MIN_PIXELS:
+            values = contrast[ring == k]
+        spread[k] = 1.4826 * (values - values.median()).abs().median()
+    return spread[ring]
+
+
+def _significance(rss: Tensor, windowed: Tensor, plate_index: int) -> Tensor:
+    """Per pixel, how many standard deviations of its own fit its ``tau`` is from the plate's."""
+    best = rss.min(1).values
+    dof = (windowed > 0).sum(1).clamp_min(3).to(rss)
+    variance = (best / (dof - 2)).clamp_min(torch.finfo(rss.dtype).tiny)
+    return ((rss[:, plate_index] - best) / variance).clamp_min(0).sqrt()
+
+
+def _finish(
+    tau: Tensor,
+    rss: Tensor,
+    windowed: Tensor,
+    taus: Tensor,
+    dx: float,
+    fitted: tuple[Tensor, float, float, float],
+    cooling: _Cooling,
+) -> DefectMap:
+    """Plate, significance, defects, their outlines, depths and the score from the fitted map."""
+    a, t_ref, first, sd = fitted
+    height, width = tau.shape
+    log_tau = torch.log(tau.clamp(max=float(taus[-2])))
+    plate, sound = _plate(log_tau)
+    index = int(torch.argmin((torch.log(taus[:-1]) - plate).abs()))
+    z = _significance(rss, windowed, index).view(height, width)
+    contrast = plate - log_tau
+    scatter = 1.4826 * (contrast[sound] - contrast[sound].median()).abs().median()  # the sound plate's
+    least = max(_CONTRAST, _SCATTER * float(scatter))
+    candidate = (
+        (contrast > _CONTRAST) & (contrast > _SCATTER * _edge_scatter(contrast, sound)) & (z > _SIGNIFICANCE)
+    )
+    labels, count = components(candidate)
+    mask = torch.zeros_like(sound)
+    fraction = torch.full_like(contrast, math.nan)
+    peaks, found = [], []
+    for k in range(1, count + 1):  # a few defects, each a whole region at once
+        region = labels == k
+        if int(region.sum()) < _MIN_PIXELS:
+            continue
+        values = contrast[region]
+        peak = torch.quantile(values, 0.95)
+        if float(peak) < least:  # within the sound plate's own scatter
+            continue
+        outline = region & (contrast >= 0.5 * peak)
+        depth = float(torch.exp(-0.5 * torch.quantile(values, 0.8)))
+        mask |= outline
+        fraction[outline] = depth
+        peaks.append((outline, peak))
+        found.append(_describe(outline, depth, dx))
+    score = contrast.clamp_min(0) / max([float(p) for _, p in peaks], default=1.0) * 0.5
+    for outline, peak in peaks:
+        region = dilate(outline, 2)
+        score = torch.where(region, torch.maximum(score, contrast.clamp_min(0) / peak), score)
+    plate_time = math.exp(float(plate))
+    last = first + (cooling.shape[0] - 1) * cooling.dt
+    return DefectMap(
+        depth_time=tau,
+        plate_time=plate_time,
+        plate_time_se=plate_time * _standard_error(log_tau, sound),
+        back_wall_reached=last >= plate_time / math.pi,
+        defect_score=score,
+        defect_mask=mask,
+        depth_fraction=fraction,
+        defects=tuple(found),
+        lateral=(float(a[0]), float(a[1]), float(a[2])),
+        t_ref=t_ref,
+        first_time=first,
+        noise_sd=sd,
+    )
+
+
+def _describe(outline: Tensor, depth: float, dx: float) -> FoundDefect:
+    rows, cols = torch.nonzero(outline, as_tuple=True)
+    height, width = outline.shape
+    edge = bool(
+        (rows == 0).any() or (cols == 0).any() or (rows == height - 1).any() or (cols == width - 1).any()
+    )
+    return FoundDefect(
+        x=float((cols.to(_F64) + 0.5).mean()) * dx,
+        y=float((rows.to(_F64) + 0.5).mean()) * dx,
+        area=len(rows) * dx**2,
+        depth_fraction=depth,
+        touches_edge=edge,
+    )

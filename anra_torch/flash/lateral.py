@@ -1,0 +1,196 @@
+"""The lateral conduction of a flash recording: local quadratic derivatives and the lateral diffusivities.
+
+An intact plate's surface after a flash, whatever the flash's pattern, is ``S(x, y, t) theta(t)``: ``S``
+spreads laterally by ``dS/dt = a_x S_xx + a_y S_yy + 2 a_xy S_xy`` and ``theta`` is the depth factor of
+:mod:`~anra_torch.flash.cooling`. So
+
+    d ln u / dt = (a_x u_xx + a_y u_yy + 2 a_xy u_xy) / u + d ln theta / dt,      u = T - T_ref,
+
+and the lateral part, integrated over time (:func:`lateral_integrals`), can be taken off ``ln u`` before
+the depth is fitted; a non-uniform flash and the anisotropy then do not read as a change of depth.
+
+- :func:`local_quadratic`: a quadratic fitted around every pixel with Gaussian weights over the pixels of
+  the frame (truncated at its edges, not padded): the smoothed value and the second derivatives, exact
+  for any quadratic field, at the edges too.
+- :func:`fit_lateral`: ``(a_x, a_y, a_xy)`` from the increments of ``ln u`` over blocks of frames that
+  grow geometrically; within a region of equal depth the depth factor is common to its pixels and drops
+  out of the increments' differences between pixels.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as nnf
+from torch import Tensor
+
+__all__ = ["fit_lateral", "lateral_integrals", "local_quadratic", "value_noise_gain"]
+
+_MONOMIALS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))  # powers of (x, y) in pixels
+_CHUNK = 64  # frames filtered at once
+_STOP_CHI2 = 3.0  # a block whose residual is this many times its noise, ...
+_STOP_R2 = 0.8  # ... and explains less than this share of its increments, ends the fit
+RATIO = 1.25
+
+
+def _weights(sigma: float, powers: int, like: Tensor) -> tuple[Tensor, int]:
+    radius = int(math.ceil(3 * sigma))
+    offsets = torch.arange(-radius, radius + 1, dtype=like.dtype, device=like.device)
+    gauss = torch.exp(-(offsets**2) / (2 * sigma**2))
+    return torch.stack([gauss * offsets**p for p in range(powers)]), radius
+
+
+def _correlate(x: Tensor, taps: Tensor, radius: int, dim: int) -> Tensor:
+    """``x`` ``(N, H, W)`` correlated with ``taps`` along ``dim`` (-1: W, -2: H), zero outside."""
+    kernel = taps.view(1, 1, 1, -1) if dim == -1 else taps.view(1, 1, -1, 1)
+    padding = (0, radius) if dim == -1 else (radius, 0)
+    return nnf.conv2d(x[:, None], kernel, padding=padding)[:, 0]
+
+
+def _inverse_gram(sigma: float, shape: tuple[int, int], like: Tensor) -> Tensor:
+    """Rows (value, xx, yy, xy) of each pixel's inverse weighted Gram matrix of the monomials,
+    ``(4, 6, H, W)``."""
+    taps, radius = _weights(sigma, 5, like)
+    ones = torch.ones((1, *shape), dtype=like.dtype, device=like.device)
+    along_x = [_correlate(ones, taps[p], radius, -1) for p in range(5)]
+    moments = {(a, b): _correlate(along_x[a], taps[b], radius, -2)[0] for a in range(5) for b in range(5 - a)}
+    gram = torch.stack(
+        [torch.stack([moments[(a + c, b + d)] for c, d in _MONOMIALS], -1) for a, b in _MONOMIALS], -2
+    )  # (H, W, 6, 6)
+    inverse = torch.linalg.inv(gram)
+    return inverse[..., [0, 3, 5, 4], :].permute(2, 3, 0, 1)
+
+
+def local_quadratic(frames: Tensor, sigma: float, dx: float) -> tuple[Tensor, Tensor]:
+    """The value and second derivatives of a local quadratic fit with Gaussian weights (``sigma`` px).
+
+    Args:
+        frames: ``(T, H, W)``, at least ``3 sigma`` px on each side... any size of at least 3 x 3 px.
+        sigma: the weights' standard deviation in px (they reach ``3 sigma``).
+        dx: pixel size in mm.
+
+    Returns:
+        The fitted value ``(T, H, W)`` and ``(d^2/dx^2, d^2/dy^2, d^2/dxdy)`` in data units per mm^2,
+        ``(3, T, H, W)``, x along W; on the frames' device and dtype.
+    """
+    inverse = _inverse_gram(sigma, tuple(frames.shape[1:]), frames)
+    taps, radius = _weights(sigma, 3, frames)
+    scale = frames.new_tensor([1.0, 2 / dx**2, 2 / dx**2, 1 / dx**2]).view(4, 1, 1, 1)
+    parts = []
+    for chunk in frames.split(_CHUNK):
+        along_x = [_correlate(chunk, taps[p], radius, -1) for p in range(3)]
+        moments = torch.stack([_correlate(along_x[a], taps[b], radius, -2) for a, b in _MONOMIALS])
+        parts.append(torch.einsum("kmhw,mthw->kthw", inverse, moments) * scale)
+    out = torch.cat(parts, 1)
+    return out[0], out[1:]
+
+
+def value_noise_gain(sigma: float) -> float:
+    """The standard deviation of :func:`local_quadratic`'s value in the frame's interior over that of
+    white noise in the frames."""
+    like = torch.zeros((), dtype=torch.float64, device="cpu")
+    radius = int(math.ceil(3 * sigma))
+    size = 2 * radius + 1
+    inverse = _inverse_gram(sigma, (size, size), like)[0, :, radius, radius]  # (6,)
+    taps, _ = _weights(sigma, 3, like)
+    kernel = sum(inverse[m] * taps[a][None, :] * taps[b][:, None] for m, (a, b) in enumerate(_MONOMIALS))
+    return float(kernel.square().sum().sqrt())
+
+
+def lateral_integrals(second: Tensor, excess: Tensor, elapsed: Tensor) -> Tensor:
+    """``int (u_xx, u_yy, 2 u_xy) / u dt`` from the first sample by the trapezoidal rule.
+
+    Args:
+        second: :func:`local_quadratic`'s derivatives, ``(3, N, ...)``.
+        excess: ``u = T - T_ref``, positive, ``(N, ...)``.
+        elapsed: the samples' times in s, increasing, ``(N,)``.
+
+    Returns:
+        ``(3, N, ...)`` in s per mm^2 (times a diffusivity: a change of ``ln u``).
+    """
+    ratio = second / excess[None]
+    ratio[2] *= 2  # the mixed term enters twice: 2 a_xy u_xy
+    steps = elapsed.diff().to(ratio).view(1, -1, *([1] * (ratio.dim() - 2)))
+    out = torch.zeros_like(ratio)
+    out[:, 1:] = torch.cumsum(0.5 * (ratio[:, 1:] + ratio[:, :-1]) * steps, 1)
+    return out
+
+
+def _demean(values: Tensor, labels: Tensor, regions: int) -> Tensor:
+    """``values`` ``(P, ...)`` less the mean of its region (``labels`` ``(P,)`` in ``0 .. regions - 1``)."""
+    sums = values.new_zeros((regions, *values.shape[1:])).index_add_(0, labels, values)
+    counts = torch.bincount(labels, minlength=regions).to(values).clamp_min(1)
+    return values - (sums / counts.view(-1, *([1] * (values.dim() - 1))))[labels]
+
+
+def _blocks(elapsed: Tensor) -> list[int]:
+    """Sample indices whose times grow by half each (at least one sample apart), from the first."""
+    times, edges = elapsed.tolist(), [0]
+    while edges[-1] < len(times) - 1:
+        later = [j for j in range(edges[-1] + 1, len(times)) if times[j] >= RATIO * times[edges[-1]]]
+        edges.append(later[0] if later else len(times) - 1)
+    return edges
+
+
+def fit_lateral(
+    frames: Tensor,
+    elapsed: Tensor,
+    counts: Tensor,
+    *,
+    dx: float,
+    t_ref: float,
+    noise_sd: float,
+    sigma: float,
+    labels: Tensor | None,
+) -> tuple[Tensor, int]:
+    """``(a_x, a_y, a_xy)`` in mm^2/s from the pixels' differences in the increments of ``ln u``.
+
+    Args:
+        frames: the cooling averaged over bins of frames, ``(N, H, W)`` float64.
+        elapsed: the bins' times since the flash in s, ``(N,)``.
+        counts: frames per bin, ``(N,)``.
+        dx: pixel size in mm.
+        t_ref: the temperature the plate cools to.
+        noise_sd: a frame's white noise sd.
+        sigma: smoothing of the fit in px; pixels closer than ``3 sigma`` to the frame's edge are left out.
+        labels: regions of equal depth, ``(H, W)`` integers, 0 left out; None: the whole frame one region.
+
+    Returns:
+        The diffusivities (zeros where the fit fails or is not physical: ``a_x, a_y >= 0``,
+        ``a_xy^2 <= a_x a_y``) and the blocks of frames it used (negative when it was not physical).
+    """
+    value, second = local_quadratic(frames, sigma, dx)
+    excess = (value - t_ref).clamp_min(torch.finfo(value.dtype).tiny)
+    integrals = lateral_integrals(second, excess, elapsed).flatten(2)  # (3, N, P)
+    logs, excess = excess.log().flatten(1), excess.flatten(1)
+    height, width = frames.shape[1:]
+    margin = int(math.ceil(3 * sigma))
+    inside = torch.zeros((height, width), dtype=torch.long, device=frames.device)
+    inside[margin : height - margin, margin : width - margin] = 1
+    labels = inside if labels is None else labels.to(frames.device) * inside
+    keep = labels.flatten() > 0
+    if int(keep.sum()) < 50:
+        return frames.new_zeros(3), 0
+    region = labels.flatten()[keep]
+    regions = int(region.max()) + 1
+    variance = (noise_sd * value_noise_gain(sigma)) ** 2 / counts.to(frames)
+    edges = _blocks(elapsed)
+    gram, rhs, used = frames.new_zeros((3, 3)), frames.new_zeros(3), 0
+    for i0, i1 in zip(edges[:-1], edges[1:], strict=False):
+        dy = _demean((logs[i1] - logs[i0])[keep], region, regions)
+        a = _demean((integrals[:, i1] - integrals[:, i0])[:, keep].T, region, regions)
+        if used >= 2:
+            residual = float((dy - a @ torch.linalg.solve(gram, rhs)).square().mean())
+            expected = float(
+                (variance[i1] / excess[i1, keep] ** 2 + variance[i0] / excess[i0, keep] ** 2).mean()
+            )
+            if residual > _STOP_CHI2 * expected and residual > (1 - _STOP_R2) * float(dy.square().mean()):
+                break
+        gram, rhs, used = gram + a.T @ a, rhs + a.T @ dy, used + 1
+    if used < 4:
+        return frames.new_zeros(3), used
+    a = torch.linalg.solve(gram, rhs)
+    if a[0] < 0 or a[1] < 0 or a[2] ** 2 > a[0] * a[1]:
+        return frames.new_zeros(3), -used
+    return a, used

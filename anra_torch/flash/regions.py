@@ -1,0 +1,56 @@
+"""Regions of a boolean map: connected components, dilation and erosion, as whole-map tensor operations."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as nnf
+from torch import Tensor
+
+__all__ = ["components", "dilate", "erode"]
+
+
+def components(mask: Tensor) -> tuple[Tensor, int]:
+    """Label the 4-connected components of ``mask``.
+
+    Every pixel of ``mask`` takes the largest index of its component by repeated 3 x 3 cross maxima
+    (as many rounds as the longest path inside a component), then the labels are renumbered.
+
+    Args:
+        mask: ``(H, W)`` booleans.
+
+    Returns:
+        Labels ``(H, W)`` int64 (0 outside ``mask``, components 1 .. n in the order of their first pixel
+        in row-major order) and ``n``.
+    """
+    height, width = mask.shape
+    index = torch.arange(1, height * width + 1, device=mask.device, dtype=torch.float64).view(height, width)
+    labels = torch.where(mask, index, torch.zeros_like(index))
+    while True:
+        padded = nnf.pad(labels[None, None], (1, 1, 1, 1))[0, 0]
+        neighbours = torch.stack(
+            [labels, padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]]
+        ).amax(0)
+        grown = torch.where(mask, neighbours, labels)
+        if torch.equal(grown, labels):
+            break
+        labels = grown
+    values, inverse = torch.unique(labels.flatten(), return_inverse=True)
+    # unique sorts by the largest index: renumber by each component's first pixel instead
+    first = torch.full((len(values),), height * width, device=mask.device, dtype=torch.long)
+    first.scatter_reduce_(0, inverse, torch.arange(height * width, device=mask.device), "amin")
+    start = 1 if bool((values == 0).any()) else 0
+    order = torch.argsort(first[start:])
+    rank = torch.zeros(len(values), dtype=torch.long, device=mask.device)
+    rank[start + order] = torch.arange(1, len(order) + 1, device=mask.device)
+    return rank[inverse].view(height, width), len(order)
+
+
+def dilate(mask: Tensor, radius: int) -> Tensor:
+    """``mask`` ``(H, W)`` grown by a square of ``radius`` px on each side (nothing beyond the frame)."""
+    grown = nnf.max_pool2d(mask[None, None].to(torch.float32), 2 * radius + 1, stride=1, padding=radius)
+    return grown[0, 0] > 0
+
+
+def erode(mask: Tensor, radius: int) -> Tensor:
+    """``mask`` ``(H, W)`` shrunk by a square of ``radius`` px (pixels off the frame count as in ``mask``)."""
+    return ~dilate(~mask, radius)

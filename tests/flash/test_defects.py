@@ -1,0 +1,130 @@
+"""The defect map against exact plates: every pixel its own insulated plate (the cosine series, 400 terms),
+the layer above a defect a thinner plate; an anisotropic lateral spread of a non-uniform flash (an exact
+Gaussian times the depth factor); a recording that ends before the back wall shows."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from anra_torch.flash import defect_map
+
+TAU = 4.0  # s: the plate's L^2 / a_z
+DX = 0.3  # mm
+
+
+def _plate(
+    *,
+    size: int = 40,
+    frames: int = 240,
+    dt: float = 0.025,
+    defects: tuple[tuple[float, float, float, float], ...] = (),
+    lateral: tuple[float, float] | None = None,
+    seed: int = 0,
+) -> tuple[torch.Tensor, float, np.ndarray, np.ndarray]:
+    """Frames (first at ``dt`` after the flash, T_ref 20, 20 mK noise), the truth's defect mask and
+    depth fractions. ``defects``: discs ``(x, y, radius, d / L)`` in mm; ``lateral``: ``(a_x, a_y)`` of a
+    flash 0.7 + a Gaussian spot of 4 mm (without it the flash is uniform and nothing flows sideways)."""
+    t = dt * np.arange(1, frames + 1)
+    yy, xx = (np.mgrid[0:size, 0:size] + 0.5) * DX
+    fraction = np.full((size, size), np.nan)
+    for x, y, radius, f in defects:
+        fraction[(xx - x) ** 2 + (yy - y) ** 2 <= radius**2] = f
+    taus = np.where(np.isnan(fraction), TAU, np.nan_to_num(fraction) ** 2 * TAU)
+    n = np.arange(1, 401)
+    s = t[:, None, None, None] / taus[None, :, :, None]
+    depth = (1 + 2 * np.exp(-(n**2) * math.pi**2 * s).sum(-1)) / np.sqrt(taus)
+    spread = 1.0
+    if lateral is not None:
+        vx, vy = (16 + 2 * a * t[:, None, None] for a in lateral)
+        r2 = (xx - 0.35 * size * DX) ** 2 / vx + (yy - 0.6 * size * DX) ** 2 / vy
+        spread = 0.7 + 0.5 * 16 / np.sqrt(vx * vy) * np.exp(-r2 / 2)
+    noise = 0.02 * np.random.default_rng(seed).standard_normal(depth.shape)
+    return torch.from_numpy(20 + 3 * spread * depth + noise), dt, ~np.isnan(fraction), fraction
+
+
+@pytest.fixture(scope="module")
+def defective() -> tuple[object, np.ndarray, np.ndarray]:
+    """An ellipse-free plate with a disc at d / L 0.5 inside the frame and one at 0.3 running out of it."""
+    frames, dt, mask, fraction = _plate(defects=((7.0, 5.0, 2.5, 0.5), (-0.5, 8.0, 3.0, 0.3)))
+    return defect_map(frames, dt, DX), mask, fraction
+
+
+def test_plate_time_defects_outlines_and_depths_on_an_exact_plate(defective) -> None:
+    found, mask, fraction = defective
+    assert abs(found.plate_time / TAU - 1) < 0.03
+    assert 0 < found.plate_time_se < 0.05 * TAU
+    assert found.back_wall_reached
+    assert abs(found.t_ref - 20) < 0.03 and abs(found.first_time / 0.025 - 1) < 0.3
+    assert found.lateral == (0.0, 0.0, 0.0)  # nothing flows sideways: no lateral fit is physical
+    got = found.defect_mask.numpy()
+    assert (got & mask).sum() / (got | mask).sum() > 0.8
+    inside = sorted(found.defects, key=lambda d: d.x)
+    assert len(inside) == 2
+    edge, middle = inside
+    assert edge.touches_edge and not middle.touches_edge
+    assert abs(middle.x - 7.0) < 0.3 and abs(middle.y - 5.0) < 0.3
+    assert abs(middle.area / (math.pi * 2.5**2) - 1) < 0.2
+    assert abs(middle.depth_fraction - 0.5) < 0.05 and abs(edge.depth_fraction - 0.3) < 0.05
+    depth = found.depth_fraction.numpy()
+    assert np.isnan(depth[~got]).all()
+    assert np.nanmax(np.abs(depth[mask & got] - fraction[mask & got])) < 0.08
+
+
+def test_the_score_ranks_every_defect_pixel_above_the_sound_ones(defective) -> None:
+    found, mask, _ = defective
+    score = found.defect_score.numpy()
+    # ROC AUC by ranks (Mann-Whitney)
+    ranks = score.ravel().argsort().argsort() + 1.0
+    positives = mask.ravel()
+    auc = (ranks[positives].sum() - positives.sum() * (positives.sum() + 1) / 2) / (
+        positives.sum() * (~positives).sum()
+    )
+    assert auc > 0.99
+    assert score[found.defect_mask.numpy()].min() >= 0.5 - 1e-9  # the outline: half the peak
+    assert score.max() <= 1.0 + 1e-9 or found.defects
+
+
+def test_a_non_uniform_flash_spreading_anisotropically_is_no_defect() -> None:
+    frames, dt, _, _ = _plate(lateral=(7.3, 1.1), seed=1)
+    found = defect_map(frames, dt, DX)
+    a_x, a_y, a_xy = found.lateral
+    assert abs(a_x / 7.3 - 1) < 0.1 and abs(a_y / 1.1 - 1) < 0.25 and abs(a_xy) < 0.5  # a_y: 1.29 at seed 1
+    assert found.defects == () and not found.defect_mask.any()
+    assert abs(found.plate_time / TAU - 1) < 0.03
+
+
+def test_a_recording_that_ends_before_the_back_wall_says_so() -> None:
+    frames, dt, _, _ = _plate(size=24, frames=200, dt=0.005, seed=2)  # ends at TAU / 4
+    found = defect_map(frames, dt, DX)
+    assert not found.back_wall_reached
+    assert found.defects == ()
+    assert abs(found.t_ref - 20) < 0.03
+    assert found.plate_time > 0.8 * TAU
+
+
+def test_tensors_are_made_where_the_frames_live() -> None:
+    frames, dt, _, _ = _plate(size=16, frames=60, dt=0.05, seed=3)
+    torch.set_default_device("meta")  # any tensor made without the input's device lands here and fails
+    try:
+        found = defect_map(frames.float(), dt, DX)
+    finally:
+        torch.set_default_device(None)
+    assert found.depth_time.device.type == "cpu" and found.depth_time.dtype == torch.float64
+
+
+def test_errors() -> None:
+    frames = torch.ones(20, 10, 10) + torch.linspace(1, 0, 20)[:, None, None]
+    with pytest.raises(ValueError, match=r"frames must be one recording \(T, H, W\)"):
+        defect_map(frames[None].repeat(2, 1, 1, 1), 0.1, DX)
+    with pytest.raises(ValueError, match="at least 8 x 8 px"):
+        defect_map(frames[:, :6, :6], 0.1, DX)
+    bad = frames.clone()
+    bad[3, 2, 2] = math.nan
+    with pytest.raises(ValueError, match="frames must be finite"):
+        defect_map(bad, 0.1, DX)
+    with pytest.raises(ValueError, match="dt"):
+        defect_map(frames, -0.1, DX)

@@ -1,0 +1,52 @@
+"""Connected components, dilation and erosion of boolean maps against small drawn cases."""
+
+from __future__ import annotations
+
+import torch
+
+from anra_torch.flash.regions import components, dilate, erode
+
+
+def _mask(rows: list[str]) -> torch.Tensor:
+    return torch.tensor([[c == "#" for c in r] for r in rows])
+
+
+def test_components_are_four_connected_and_numbered_by_their_first_pixel() -> None:
+    mask = _mask(
+        [
+            "##..#",
+            ".#..#",
+            "...#.",
+            "###.#",
+            "#...#",
+        ]
+    )
+    labels, count = components(mask)
+    expected = torch.tensor(
+        [
+            [1, 1, 0, 0, 2],
+            [0, 1, 0, 0, 2],
+            [0, 0, 0, 3, 0],
+            [4, 4, 4, 0, 5],
+            [4, 0, 0, 0, 5],
+        ]
+    )
+    assert count == 5 and torch.equal(labels, expected)  # diagonal neighbours are apart
+
+
+def test_a_spiral_is_one_component_and_an_empty_map_none() -> None:
+    spiral = _mask(["#######", "......#", "#####.#", "#...#.#", "#.###.#", "#.....#", "#######"])
+    labels, count = components(spiral)
+    assert count == 1 and torch.equal(labels > 0, spiral)
+    labels, count = components(torch.zeros(4, 6, dtype=torch.bool))
+    assert count == 0 and labels.eq(0).all()
+
+
+def test_dilate_and_erode_by_squares() -> None:
+    point = torch.zeros(7, 7, dtype=torch.bool)
+    point[3, 3] = True
+    assert torch.equal(dilate(point, 2), _mask(["......."] + [".#####."] * 5 + ["......."]))
+    block = dilate(point, 2)
+    assert torch.equal(erode(block, 2), point)
+    full = torch.ones(5, 5, dtype=torch.bool)
+    assert torch.equal(erode(full, 1), full)  # the frame's edge does not erode
