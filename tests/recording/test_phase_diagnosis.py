@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -223,6 +225,16 @@ def test_effects_that_do_not_forecast_or_sit_outside_the_frame_are_flagged() -> 
     assert flagged[2].startswith("advection: its own held-out gain is -4")
 
 
+def _laser_phases(disk_cache: Callable[..., Any], name: str) -> list[PhaseDiagnosis]:
+    """The library's default diagnosis of the laser run ``name``, once per test run (two tests read it)."""
+
+    def diagnose() -> list[PhaseDiagnosis]:
+        video = load(DATA / "laser_silicone" / name)
+        return diagnose_recording(video.frames, video.dt, video.dx, video.t)
+
+    return disk_cache(f"diagnose_recording-laser_silicone-{name}", diagnose)
+
+
 @needs_data
 def test_csv_recording_gets_its_phases_and_gains_from_the_library_default() -> None:
     """Sample2 RT M1: baseline, heating and cooling found; the small-box family; a held-out gain in each."""
@@ -241,12 +253,11 @@ def test_csv_recording_gets_its_phases_and_gains_from_the_library_default() -> N
 
 @pytest.mark.slow
 @needs_data
-def test_laser_heating_source_map_is_chosen_inside_the_fit_frames() -> None:
+def test_laser_heating_source_map_is_chosen_inside_the_fit_frames(disk_cache: Callable[..., Any]) -> None:
     """Nov19_2 heating: the split inside the fit frames prefers the measured beam map, with its input decaying
     like a flux into a half-space (t^-1/2: the beam heats 2 cm of liquid), to the Gaussian spot and to the
     stationary map; on the held-out frames it beats the plain model by more than either."""
-    video = load(DATA / "laser_silicone" / "Nov19_2")
-    heating = diagnose_recording(video.frames, video.dt, video.dx, video.t)[0]
+    heating = _laser_phases(disk_cache, "Nov19_2")[0]
     assert heating.phase.name == "heating" and heating.family == "balance"
     assert heating.effects[0]["name"] == "source" and heating.model == "source_map_t^-0.5"
     assert heating.gain > 0.4  # measured +0.48
@@ -256,15 +267,14 @@ def test_laser_heating_source_map_is_chosen_inside_the_fit_frames() -> None:
 
 @pytest.mark.slow
 @needs_data
-def test_laser_cooling_phases_are_analysed_with_conduction_into_depth() -> None:
+def test_laser_cooling_phases_are_analysed_with_conduction_into_depth(disk_cache: Callable[..., Any]) -> None:
     """Both laser runs' cooling phases are analysed (a delamination fitted with a negative strength once
     stopped Nov19's); Nov19_2 cooling names depth_conduction, and the model chosen inside the fit frames
     (the map of heat stored below the spot, released like t^-1/2) gains held out, as the parametric one
     would (+0.49). Nov19 cooling's choice (its map released like t^-1) gains too (+0.38)."""
     phases = {}
     for name in ("Nov19", "Nov19_2"):
-        video = load(DATA / "laser_silicone" / name)
-        cooling = diagnose_recording(video.frames, video.dt, video.dx, video.t)[1]
+        cooling = _laser_phases(disk_cache, name)[1]
         assert cooling.phase.name == "cooling" and cooling.reason is None, cooling.reason
         phases[name] = cooling
     nov19_2 = phases["Nov19_2"]
