@@ -27,7 +27,7 @@ pixel (Henriques-Moritz skin). What is measured (``deep``: true damage deeper th
   ``experiments/tissue_damage.py``);
 * the fitted ``a`` against the truth on every scene whose cooling is recorded (within 10 %?), the volumetric
   flag (none of the surface-heated scenes, all of the near-infrared ones), and the coverage of the +-2
-  standard-error band over damaged pixels.
+  standard-error band over damaged pixels (all scenes and per kind).
 
     python -m experiments.damage_depth                          # 24 + 24 scenes + 6 near-infrared
     python -m experiments.damage_depth --shard 0/2 &            # fill the cache in two processes, then
@@ -394,6 +394,16 @@ def table(results: dict) -> str:
         )
         + ".",
         "",
+        "By kind (damaged pixels): "
+        + "; ".join(
+            f"{kind}: {v['coverage']:.1%} of {v['pixels']} (median |z| {v['median_abs_z']:.2f})"
+            for kind, v in (
+                (k, by_kind["damaged (true depth > 0)"])
+                for k, by_kind in results.get("calibration_by_kind", {}).items()
+            )
+        )
+        + ".",
+        "",
         f"Fitted a where the cooling is recorded ({p['valid_fits']} of {p['scenes']} scenes): "
         f"{p['a_within_10_percent']} within 10 % of the truth, median |relative error| "
         f"{p['a_median_abs_rel_error']:.1%}, largest {p['a_largest_abs_rel_error']:.1%}, median |z| "
@@ -476,6 +486,9 @@ def main() -> None:
         "f1": f1_table(records, rng),
         "depth": depth_table(records, rng),
         "calibration": calibration(records),
+        "calibration_by_kind": {
+            kind: calibration([r for r in records if r["kind"] == kind]) for kind in KINDS[:2]
+        },
         "parameters": parameters(records),
     }
     if args.near_infrared:

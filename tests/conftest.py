@@ -1,14 +1,20 @@
-"""Shared fixtures: a fixed seed for every test, the two floating dtypes with their tolerances, and the video
-files that tests in several folders read (written once per test process where no test changes them)."""
+"""Shared fixtures: a fixed seed for every test, the two floating dtypes with their tolerances, the video
+files that tests in several folders read (written once per test process where no test changes them), and a
+cache on disk that the xdist workers share for results several tests compute alike."""
 
 from __future__ import annotations
 
 import os
+import pickle
+import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import torch
+from filelock import FileLock
 
 from anra_torch.cli import main
 from anra_torch.simulation.synthetic import paper_video
@@ -72,6 +78,30 @@ def one_video(tmp_path: Path) -> Path:
     """One paper video cropped to 40 px (seed 5) in the test's own folder (tests may rewrite it)."""
     video = paper_video(n_videos=1, seed=5, crop=40)
     return save_npz(tmp_path / "v.npz", video.frames[0], dt=video.dt, dx=video.dx)
+
+
+@pytest.fixture(scope="session")
+def disk_cache(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, Callable[[], Any]], Any]:
+    """``disk_cache(key, make)``: what ``make()`` returns, made once per test run and shared by the xdist
+    workers (a diagnosis of a recording, a simulated video that several tests read). Pickled under the run's
+    temporary folder as ``<key>.pkl`` (the key spells the parameters); the first worker to ask makes it while
+    the others wait on its lock. Callers must not change what they get in place."""
+    base = tmp_path_factory.getbasetemp()
+    root = (base.parent if "PYTEST_XDIST_WORKER" in os.environ else base) / "disk-cache"
+    root.mkdir(exist_ok=True)
+
+    def cached(key: str, make: Callable[[], Any]) -> Any:
+        path = root / f"{re.sub(r'[^A-Za-z0-9_.=-]', '_', key)}.pkl"
+        with FileLock(path.with_suffix(".lock")):
+            if path.exists():
+                return pickle.loads(path.read_bytes())
+            value = make()
+            partial = path.with_suffix(".part")
+            partial.write_bytes(pickle.dumps(value))
+            partial.replace(path)
+            return value
+
+    return cached
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

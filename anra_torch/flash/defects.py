@@ -50,6 +50,7 @@ _SCATTER = 4.0  # a defect's peak contrast exceeds this many robust sd of the so
 _MIN_PIXELS = math.ceil(math.pi * _SIGMA_LATERAL**2)  # smaller than the lateral derivatives' footprint
 _EDGE_RINGS = 10
 _ROUNDS = 3
+_LONG = 2.0  # a recording longer than this many plate times: the globals fitted up to 1 / _LONG^2 of it
 _BOUNDS = torch.tensor([[-9.2, -3.0], [3.4, 1.6]], device="cpu")
 """The globals' search box: ``ln`` of how far ``T_ref`` lies below the coolest pixel over the cooling's
 span (1e-4 to 30), ``ln`` of the first frame's time since the flash in frame periods (0.05 to 5)."""
@@ -155,16 +156,20 @@ class _Cooling:
         return a
 
 
-def _trimmed_rss(cooling: _Cooling, a: Tensor, pixels: Tensor, point: Tensor) -> float:
+def _trimmed_rss(cooling: _Cooling, a: Tensor, pixels: Tensor, point: Tensor, horizon: float) -> float:
     """The sum of the best 70 % of the pixels' smallest residuals at ``point`` = (ln of how far ``T_ref``
-    lies below the coolest pixel over the cooling's span, ln of the first frame's time in frame periods)."""
+    lies below the coolest pixel over the cooling's span, ln of the first frame's time in frame periods), over
+    the bins up to ``horizon`` s."""
     t_ref = cooling.low - cooling.span * math.exp(float(point[0]))
     logs, integrals, weights, elapsed = cooling.series(t_ref, cooling.dt * math.exp(float(point[1])), pixels)
+    used = (elapsed <= max(horizon, float(elapsed[min(8, len(elapsed) - 1)])))[None, :].expand_as(weights)
+    weights = torch.where(used, weights, torch.zeros_like(weights))
     grid = tau_grid(elapsed)
     rss = profile_rss(logs - torch.einsum("i,ipn->pn", a, integrals), weights, grid.curves)
     # -2 ln(likelihood) of the temperatures, not of ln u: the variances' logs in T, ln(u^2 / w), change
     # with T_ref too (without them a T_ref far below the frames flattens ln u and fits it at any noise)
-    best = _smooth_minimum(rss) + (2 * logs - weights.log()).sum(1)
+    logs_w = torch.where(used, 2 * logs - weights.clamp_min(torch.finfo(weights.dtype).tiny).log(), 0 * logs)
+    best = _smooth_minimum(rss) + logs_w.sum(1)
     return float(best.sort().values[: max(1, int(0.7 * len(best)))].sum())
 
 
@@ -178,7 +183,9 @@ def _smooth_minimum(rss: Tensor) -> Tensor:
     return torch.minimum(refined.clamp_min(0), rss.min(1).values)
 
 
-def _fit_globals(cooling: _Cooling, a: Tensor, start: tuple[float, float] | None) -> tuple[float, float]:
+def _fit_globals(
+    cooling: _Cooling, a: Tensor, start: tuple[float, float] | None, horizon: float = math.inf
+) -> tuple[float, float]:
     """``T_ref`` and the first frame's time since the flash (s), by Nelder-Mead on every third pixel of
     every third row from ``start`` (or the best of a few guesses)."""
     height, width = cooling.shape[1:]
@@ -188,7 +195,7 @@ def _fit_globals(cooling: _Cooling, a: Tensor, start: tuple[float, float] | None
     low, high = _BOUNDS.to(_F64)
 
     def loss(point: Tensor) -> float:
-        return _trimmed_rss(cooling, a, pixels, torch.maximum(torch.minimum(point, high), low))
+        return _trimmed_rss(cooling, a, pixels, torch.maximum(torch.minimum(point, high), low), horizon)
 
     if start is None:
         # T_ref is the sharp direction: a fine grid along it
@@ -310,13 +317,16 @@ def defect_map(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None =
     cooling = _Cooling(video, dt, dx, sd)
     a = video.new_zeros(3)
     t_ref, first = _fit_globals(cooling, a, None)
-    labels = None
+    labels, horizon, last = None, math.inf, float(cooling.offsets[-1]) + first
     for _ in range(_ROUNDS):
         a = cooling.lateral(t_ref, first, labels)
-        t_ref, first = _fit_globals(cooling, a, (t_ref, first))
+        t_ref, first = _fit_globals(cooling, a, (t_ref, first) if math.isinf(horizon) else None, horizon)
         tau, rss, windowed, taus = _fit_pixels(cooling, a, t_ref, first)
         log_tau = torch.log(tau.clamp(max=float(taus[-2]))).view(height, width)
         labels = _regions(log_tau)
+        plate_time = math.exp(float(_plate(log_tau)[0]))
+        if math.isinf(horizon) and last > _LONG * plate_time:  # long past the back wall: only the lateral
+            horizon = max(last / _LONG**2, plate_time)  # flow changes the late frames; the globals end here
     return _finish(tau.view(height, width), rss, windowed, taus, dx, (a, t_ref, first, sd), cooling)
 
 

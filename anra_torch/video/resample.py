@@ -43,9 +43,9 @@ def resample_uniform(video: Video, dt: float | None = None, *, method: str = "cu
     weights; one-sided at a phase's ends). Between two samples seconds apart a diffusing field is convex
     in time, and a straight line between them is biased: the balance fits the interpolation, and on frames
     5-60 s apart the plain forecast's error rose well above the noise floor and a loss was named
-    (``tests/test_recording.py -k 12x`` holds it under 1.5 floors with the cubic). Across a phase switch
-    (a kink in time), after a heating's hot-spot peak sample and next to a masked sample the interpolation
-    is linear. ``"linear"``: linear interpolation throughout.
+    (``tests/recording/test_phase_diagnosis.py -k 12x`` holds it under 1.5 floors with the cubic). Across a
+    phase switch (a kink in time), after a heating's hot-spot peak sample and next to a masked sample the
+    interpolation is linear. ``"linear"``: linear interpolation throughout.
 
     Args:
         video: a video with timestamps ``t`` (strictly increasing, s).

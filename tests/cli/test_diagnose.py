@@ -15,6 +15,7 @@ from scenes import DT, DX, blob_video, quasi_steady_box
 import anra_torch.recording.decimate as decimate
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
+from anra_torch.simulation import Defect, reference_plate_video
 from anra_torch.video import Video, save_npz
 
 
@@ -235,3 +236,23 @@ def test_cli_diagnoses_an_8x8_box_and_estimate_flags_it_unresolved(
     assert main(["estimate", str(path), "--json"]) == 2
     out = json.loads(capsys.readouterr().out)
     assert out["valid"] is False and out["diffusivity"] is None and "unresolved" in out["message"]
+
+
+def test_maps_of_a_flash_plate_summary_file_and_report(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plate = reference_plate_video(
+        thickness=1.3, duration=3.8, shape=(24, 24), dx=0.4, n_frames=80,
+        defects=(Defect("ellipse", centre=(7.5, 5.0), size=(3.0, 2.0), depth=0.87, angle=20.0),), seed=1,
+    )  # fmt: skip
+    path = save_npz(tmp_path / "plate.npz", plate.frames.numpy(), dt=plate.dt, dx=plate.dx)
+    maps = tmp_path / "maps.npz"
+    code, out, err = run(capsys, "diagnose", path, "--maps", maps, "--report", tmp_path / "r")
+    assert (code, err) == (0, "")
+    assert f"defect map ({maps}): plate L^2/a_z = " in out and "1 defect(s)" in out
+    assert "depth fraction 0." in out
+    with np.load(maps) as arrays:
+        assert arrays["defect_mask"].shape == (24, 24) and arrays["defect_mask"][12, 18]
+    assert "| 1 |" in (tmp_path / "r" / "flash.md").read_text()
+    code, out, err = run(capsys, "diagnose", path, "--maps", path)
+    assert code == 2 and err.count("\n") == 1 and "--maps" in err

@@ -128,3 +128,10 @@ def test_errors() -> None:
         defect_map(bad, 0.1, DX)
     with pytest.raises(ValueError, match="dt"):
         defect_map(frames, -0.1, DX)
+
+
+def test_a_recording_long_past_the_back_wall_keeps_t_ref() -> None:
+    frames, dt, _, _ = _plate(size=32, frames=240, dt=0.05, lateral=(7.3, 1.1), seed=5)  # to 3 TAU
+    found = defect_map(frames, dt, DX)  # its late frames, only lateral flow, sent T_ref to -58 C
+    assert abs(found.t_ref - 20) < 0.05 and abs(found.plate_time / TAU - 1) < 0.1
+    assert found.defects == () and found.back_wall_reached

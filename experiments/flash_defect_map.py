@@ -1,0 +1,312 @@
+"""The flash defect map through the CLI on plates from the independent simulator, against TSR, PCT and PPT.
+
+Each plate is :func:`anra_torch.simulation.reference_plate_video` (finite volumes on an irregular mesh,
+Crank-Nicolson, nothing shared with :mod:`anra_torch.flash`): anisotropic (lateral 7.3 and 1.1 mm^2/s,
+through-thickness 0.45 mm^2/s unless stated), a non-uniform flash, 20 mK noise, 48 x 48 px at 0.4 mm,
+300 frames. The plates vary what the map assumes: 1-5 mm thick, defects at depth fractions 0.2-0.8 (an
+ellipse, a rotated rectangle, polygons, two defects on one plate, defects running out of the frame),
+recordings that end before the back wall shows (``duration < L^2 / (pi a_z)``) and long after it, intact
+plates, one isotropic plate with another ``a_z``. ``anra diagnose PLATE --json --maps MAPS`` runs on each
+file as a user would run it.
+
+Per plate: the ROC AUC of ``defect_score`` against the truth's defect pixels, and of TSR's second
+derivative, PCT's components and PPT's phases, each at its best frame / component / frequency and sign
+chosen with hindsight; the IoU of ``defect_mask``; on intact plates the share of the frame it covers; the
+plate's ``L^2 / a_z`` error; each true defect's depth fraction against the found defect that overlaps it
+most; what the diagnosis names (``depth_conduction``, ``delamination`` and where, effects with a gain
+``<= 0`` or centred outside the frame) and which defects the map lists.
+
+Run: ``python -m experiments.flash_defect_map [--map-only] [--out DIR] [--plates 1,2,...]``. With
+``--map-only`` (the map that ``--maps`` writes, without the diagnosis) about 6 minutes on a loaded 2-core
+machine; with the diagnosis from 2 to more than 35 minutes a plate there. A plate whose result is in
+``DIR`` is not run again. It prints one line per plate and the Markdown table of docs/results/flash.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from anra_torch.cli import main
+from anra_torch.flash import flash_maps
+from anra_torch.simulation.plate_reference import Defect, reference_plate_video
+from anra_torch.video import load_video
+
+SHAPE, DX, FRAMES = (48, 48), 0.4, 300
+
+
+def _ellipse(x: float, y: float, a: float, b: float, depth: float, angle: float = 0.0) -> Defect:
+    return Defect("ellipse", centre=(x, y), size=(a, b), depth=depth, angle=angle)
+
+
+def _rectangle(x: float, y: float, a: float, b: float, depth: float, angle: float = 0.0) -> Defect:
+    return Defect("rectangle", centre=(x, y), size=(a, b), depth=depth, angle=angle)
+
+
+def _polygon(depth: float, *vertices: tuple[float, float]) -> Defect:
+    return Defect("polygon", vertices=vertices, depth=depth)
+
+
+PLATES: dict[str, dict] = {
+    "1.0 mm, triangle d/L 0.2 + ellipse 0.8, to 1.8 L^2/a_z": dict(
+        thickness=1.0,
+        duration=4.0,
+        defects=(_polygon(0.2, (3.0, 3.0), (10.0, 4.0), (5.0, 10.0)), _ellipse(14.0, 13.5, 3.5, 3.0, 0.8)),
+    ),
+    "1.3 mm, ellipse d/L 0.67 out of the frame": dict(
+        thickness=1.3, duration=3.8, defects=(_ellipse(17.5, 8.0, 5.0, 3.0, 0.87, 20.0),)
+    ),
+    "2.0 mm, rotated rectangle d/L 0.5": dict(
+        thickness=2.0, duration=8.0, defects=(_rectangle(10.0, 9.5, 4.0, 2.5, 1.0, 30.0),)
+    ),
+    "2.5 mm, intact": dict(thickness=2.5, duration=14.0),
+    "3.0 mm, ellipse d/L 0.3, ends before the back wall": dict(
+        thickness=3.0, duration=5.0, defects=(_ellipse(9.0, 10.0, 4.0, 3.0, 0.9),)
+    ),
+    "3.8 mm, rectangle d/L 0.35": dict(
+        thickness=3.8, duration=32.0, defects=(_rectangle(9.5, 8.0, 3.5, 2.5, 1.33),)
+    ),
+    "4.0 mm, intact, ends before the back wall": dict(thickness=4.0, duration=9.0),
+    "5.0 mm, ellipse d/L 0.8": dict(
+        thickness=5.0, duration=45.0, defects=(_ellipse(10.0, 10.0, 5.0, 4.0, 4.0),)
+    ),
+    "2.0 mm, corner disc d/L 0.25 out of the frame + rectangle 0.6": dict(
+        thickness=2.0,
+        duration=9.0,
+        defects=(_ellipse(1.0, 1.5, 3.0, 3.0, 0.5), _rectangle(13.0, 13.0, 4.5, 3.0, 1.2)),
+    ),
+    "4.6 mm, intact": dict(thickness=4.6, duration=47.0),
+    "3.0 mm isotropic (2, 2, 0.6), polygon d/L 0.7": dict(
+        thickness=3.0,
+        duration=20.0,
+        diffusivity=(2.0, 2.0, 0.6),
+        defects=(_polygon(2.1, (6.0, 5.0), (14.0, 6.0), (15.0, 13.0), (8.0, 15.0)),),
+    ),
+    "1.5 mm, intact, to 2.4 L^2/a_z": dict(thickness=1.5, duration=12.0),
+}
+"""The plates: :func:`reference_plate_video`'s keyword arguments (48 x 48 px at 0.4 mm, 300 frames)."""
+
+
+def auc(scores: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """ROC AUC of each row of ``scores`` ``(K, P)`` against ``truth`` ``(P,)`` (ties share their rank)."""
+    positives, negatives = int(truth.sum()), int((~truth).sum())
+    out = np.empty(len(scores))
+    for k, row in enumerate(scores):  # a few dozen maps
+        _, inverse, counts = np.unique(row, return_inverse=True, return_counts=True)
+        ranks = (np.cumsum(counts) - (counts - 1) / 2)[inverse]  # average rank of ties, from 1
+        out[k] = (ranks[truth].sum() - positives * (positives + 1) / 2) / (positives * negatives)
+    return out
+
+
+def _run(argv: list[str]) -> dict:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        status = main(argv)
+    text = out.getvalue().strip().splitlines()
+    return json.loads(text[-1]) if status == 0 and text else {"error": f"exit {status}: {text[-1:]}"}
+
+
+def _depths(truth_fraction: np.ndarray, found_mask: np.ndarray, found: list[dict]) -> list[list[float]]:
+    """Per true defect (distinct depth fraction): [truth, found d/L of the found defect overlapping it
+    most (NaN: none)], the found defects' outlines recovered from their centroids' nearest pixels."""
+    rows = []
+    for value in np.unique(truth_fraction[np.isfinite(truth_fraction)]):
+        region = np.isclose(truth_fraction, value)
+        overlap = found_mask & region
+        got = math.nan
+        if overlap.any() and found:
+            ys, xs = np.nonzero(overlap)
+            centre = np.array([(xs.mean() + 0.5) * DX, (ys.mean() + 0.5) * DX])
+            nearest = min(found, key=lambda d: float(np.hypot(d["x"] - centre[0], d["y"] - centre[1])))
+            got = nearest["depth_fraction"]
+        rows.append([float(value), got])
+    return rows
+
+
+def _named(diagnosis: dict, truth: np.ndarray) -> dict:
+    """What the diagnosis names: depth_conduction, delaminations (centre over a true defect or not), effects
+    with a gain <= 0 or centred outside the frame."""
+    effects = diagnosis.get("effects", [])
+    if effects is None:
+        return {
+            "depth_conduction": None,
+            "delamination_over_defect": [],
+            "bad_effects": [],
+            "names": ["(not run)"],
+        }
+    height, width = truth.shape
+    bad, delaminations = [], []
+    for e in effects:
+        params, gain = e.get("params", {}), e.get("gain")
+        if gain is None or gain <= 0:
+            bad.append(f"{e['name']} gain {gain}")
+        if "x" in params and "y" in params:
+            col, row = int(params["x"] // DX), int(params["y"] // DX)
+            inside = 0 <= col < width and 0 <= row < height
+            if not inside:
+                bad.append(f"{e['name']} centred outside the frame")
+            if e["name"] == "delamination":
+                delaminations.append(bool(inside and truth[row, col]))
+    return {
+        "depth_conduction": any(e["name"] == "depth_conduction" for e in effects),
+        "delamination_over_defect": delaminations,
+        "bad_effects": bad,
+        "names": [e["name"] for e in effects],
+    }
+
+
+def _maps_only(path: Path, maps_path: Path) -> dict:
+    """What ``anra diagnose --maps`` writes of the map (the same :func:`flash_maps` on the same frames),
+    without the diagnosis: ``{"defect_map": record}``."""
+    video = load_video(path)
+    maps = flash_maps(torch.as_tensor(video.frames), video.dt, video.dx)
+    np.savez_compressed(maps_path, **maps.arrays())
+    return {"defect_map": maps.record(), "effects": None}
+
+
+def evaluate(name: str, case: dict, out: Path, seed: int, *, diagnose: bool = True) -> dict:
+    """Simulate one plate, run ``anra diagnose --maps`` (or only its map), score the maps."""
+    path, maps_path = out / f"plate{seed}.npz", out / f"plate{seed}_maps.npz"
+    plate = reference_plate_video(shape=SHAPE, dx=DX, n_frames=FRAMES, seed=seed, **case)
+    np.savez(path, frames=plate.frames.numpy(), dt=plate.dt, dx=plate.dx)
+    start = time.perf_counter()
+    if diagnose:
+        diagnosis = _run(["diagnose", str(path), "--json", "--maps", str(maps_path)])
+    else:
+        diagnosis = _maps_only(path, maps_path)
+    seconds = time.perf_counter() - start
+    result: dict = {"name": name, "seconds": seconds, "plate_time": plate.plate_time}
+    result["back_wall_in_recording"] = case["duration"] >= plate.plate_time / math.pi
+    if "error" in diagnosis:
+        return {**result, "error": diagnosis["error"]}
+    record = diagnosis["defect_map"]
+    truth = plate.defect_mask
+    with np.load(maps_path) as maps:
+        mask, score = maps["defect_mask"], maps["defect_score"]
+        contrasts = {k: maps[k].reshape(len(maps[k]), -1) for k in ("tsr_d2", "pct", "ppt")}
+    found = record["defects"]
+    result.update(
+        plate_time_found=record["plate_time"],
+        plate_time_se=record["plate_time_std_error"],
+        back_wall_reached=record["back_wall_reached"],
+        plate_time_error=(record["plate_time"] or math.nan) / plate.plate_time - 1,
+        defects_found=len(found),
+        false_defects=sum(
+            not truth[min(int(d["y"] // DX), SHAPE[0] - 1), min(int(d["x"] // DX), SHAPE[1] - 1)]
+            for d in found
+        ),
+        diagnosis=_named(diagnosis, truth),
+    )
+    if truth.any():
+        result["auc"] = float(auc(score.reshape(1, -1), truth.ravel())[0])
+        for key, stack in contrasts.items():
+            values = auc(np.nan_to_num(stack), truth.ravel())
+            result[f"auc_{key}"] = float(np.max(np.maximum(values, 1 - values)))
+        result["iou"] = float((mask & truth).sum() / (mask | truth).sum())
+        result["depths"] = _depths(plate.depth_fraction, mask, found)
+    else:
+        result["coverage"] = float(mask.mean())
+    return result
+
+
+def _line(r: dict) -> str:
+    if "error" in r:
+        return f"| {r['name']} | error: {r['error']} |"
+    d = r["diagnosis"]
+    names = ", ".join(d["names"]) or "none"
+    bad = "; ".join(d["bad_effects"]) or "none"
+    wall = "yes" if r["back_wall_in_recording"] else "no"
+    plate = f"{100 * r['plate_time_error']:+.1f} % ({'reached' if r['back_wall_reached'] else 'not reached'})"
+    if "auc" in r:
+        best = max(r["auc_tsr_d2"], r["auc_pct"], r["auc_ppt"])
+        aucs = f"**{r['auc']:.3f}** / {r['auc_tsr_d2']:.3f} / {r['auc_pct']:.3f} / {r['auc_ppt']:.3f}"
+        aucs += " (>= best)" if r["auc"] >= best else " (< best)"
+        mask = f"IoU {r['iou']:.2f}"
+        depths = ", ".join(f"{t:.2f} -> {g:.2f}" for t, g in r["depths"])
+    else:
+        aucs, mask, depths = "-", f"covers {100 * r['coverage']:.2f} %", "-"
+    return (
+        f"| {r['name']} | {wall} | {aucs} | {mask} | {plate} | {depths} | {r['defects_found']} "
+        f"({r['false_defects']} false) | {names} | {bad} | {r['seconds']:.0f} |"
+    )
+
+
+HEADER = (
+    "| plate | back wall in the recording | AUC defect_score / TSR / PCT / PPT | mask | L^2/a_z error | "
+    "d/L truth -> found | map's defects | diagnosis names | effects with gain <= 0 or outside | s |\n"
+    "|---|---|---|---|---|---|---|---|---|---|"
+)
+
+
+def run(out: Path, chosen: list[int], *, diagnose: bool = True) -> list[dict]:
+    """Evaluate the chosen plates (1-based), reusing results already in ``out``; return every result."""
+    results = []
+    for index, (name, case) in enumerate(PLATES.items(), 1):
+        cached = out / f"plate{index}.json"
+        if index in chosen and not cached.is_file():
+            result = evaluate(name, case, out, index, diagnose=diagnose)
+            cached.write_text(json.dumps(result))
+            print(_line(result), flush=True)
+        if cached.is_file():
+            results.append(json.loads(cached.read_text()))
+    return results
+
+
+def summary(results: list[dict]) -> list[str]:
+    """The table and the acceptance lines' aggregates."""
+    lines = [HEADER, *(_line(r) for r in results)]
+    defect = [r for r in results if "auc" in r]
+    intact = [r for r in results if "coverage" in r]
+    if defect:
+        beats = sum(r["auc"] >= max(r["auc_tsr_d2"], r["auc_pct"], r["auc_ppt"]) for r in defect)
+        lines.append(
+            f"\nmean AUC {np.mean([r['auc'] for r in defect]):.3f} on {len(defect)} defect plates; >= best "
+            f"contrast on {beats}; IoU >= 0.6 on {sum(r['iou'] >= 0.6 for r in defect)}"
+        )
+        errors = [abs(g - t) for r in defect for t, g in r["depths"] if r["back_wall_reached"]]
+        lines.append(f"depth fraction error (back wall reached): max {max(errors, default=math.nan):.3f}")
+    reached = [
+        abs(r["plate_time_error"]) for r in results if "error" not in r and r["back_wall_in_recording"]
+    ]
+    lines.append(
+        f"|L^2/a_z error| where the back wall is in the recording: max {100 * max(reached, default=0):.1f} %"
+    )
+    if intact:
+        lines.append(f"intact coverage: max {100 * max(r['coverage'] for r in intact):.2f} %")
+    return lines
+
+
+def cli() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--out", type=Path, default=None, help="folder for plates and results (default: temporary)"
+    )
+    parser.add_argument(
+        "--plates", default=None, help="comma-separated plate numbers, 1-based (default: all)"
+    )
+    parser.add_argument(
+        "--map-only",
+        action="store_true",
+        help="only the map (flash_maps, what --maps writes), not the diagnosis: minutes instead of an hour",
+    )
+    args = parser.parse_args()
+    chosen = (
+        list(range(1, len(PLATES) + 1)) if args.plates is None else [int(p) for p in args.plates.split(",")]
+    )
+    with contextlib.ExitStack() as stack:
+        out = args.out or Path(stack.enter_context(tempfile.TemporaryDirectory()))
+        out.mkdir(parents=True, exist_ok=True)
+        print("\n".join(summary(run(out, chosen, diagnose=not args.map_only))))
+
+
+if __name__ == "__main__":
+    cli()
