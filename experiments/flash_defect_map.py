@@ -197,6 +197,8 @@ def evaluate(name: str, case: dict, out: Path, seed: int, *, diagnose: bool = Tr
     result.update(
         plate_time_found=record["plate_time"],
         plate_time_se=record["plate_time_std_error"],
+        lateral=record["lateral_diffusivity"],
+        diffusivity=list(case.get("diffusivity", (7.3, 1.1, 0.45))),
         back_wall_reached=record["back_wall_reached"],
         plate_time_error=(record["plate_time"] or math.nan) / plate.plate_time - 1,
         defects_found=len(found),
@@ -234,16 +236,18 @@ def _line(r: dict) -> str:
         depths = ", ".join(f"{t:.2f} -> {g:.2f}" for t, g in r["depths"])
     else:
         aucs, mask, depths = "-", f"covers {100 * r['coverage']:.2f} %", "-"
+    lateral = "{:.2f}, {:.2f} ({:g}, {:g})".format(*r["lateral"][:2], *r["diffusivity"][:2])
     return (
         f"| {r['name']} | {wall} | {aucs} | {mask} | {plate} | {depths} | {r['defects_found']} "
-        f"({r['false_defects']} false) | {names} | {bad} | {r['seconds']:.0f} |"
+        f"({r['false_defects']} false) | {lateral} | {names} | {bad} | {r['seconds']:.0f} |"
     )
 
 
 HEADER = (
     "| plate | back wall in the recording | AUC defect_score / TSR / PCT / PPT | mask | L^2/a_z error | "
-    "d/L truth -> found | map's defects | diagnosis names | effects with gain <= 0 or outside | s |\n"
-    "|---|---|---|---|---|---|---|---|---|---|"
+    "d/L truth -> found | map's defects | a_x, a_y taken off (truth) | diagnosis names | "
+    "effects with gain <= 0 or outside | s |\n"
+    "|---|---|---|---|---|---|---|---|---|---|---|"
 )
 
 
