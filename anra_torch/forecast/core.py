@@ -334,7 +334,6 @@ def forecast_errors(
     scored: Tensor | None = None,
     *,
     within_frames: bool = False,
-    within_pixels: bool = False,
 ) -> tuple[Tensor, float, float]:
     """Per-frame RMSE ``(K,)``, overall RMSE and sum of squared errors on the interior (:func:`interior`).
 
@@ -346,8 +345,6 @@ def forecast_errors(
             resampled from irregular times, not the frames interpolated between them); None: all.
         within_frames: score each frame's errors about their mean (per-frame fixed effects: a global
             offset of the camera, which no model forecasts, left out).
-        within_pixels: score each pixel's errors about their mean over the frames (per-pixel fixed effects:
-            a camera's static pattern, which no model forecasts, left out).
 
     Returns:
         RMSE per frame (data units, every frame), RMSE over the scored frames (data units), sum of squared
@@ -360,8 +357,6 @@ def forecast_errors(
         ``predicted``, ``measured`` ``(K, H, W)``; ``scored`` ``(K,)`` bool.
     """
     diff = interior(predicted, margin) - interior(measured, margin)
-    if within_pixels:
-        diff = diff - diff.mean(0, keepdim=True)
     if within_frames:
         diff = diff - diff.mean((-2, -1), keepdim=True)
     squared = diff.pow(2)

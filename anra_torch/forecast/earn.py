@@ -22,11 +22,7 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
   effects; when no split is left, the model stays as the selection named it, its costs unknown (None).
 - **Offset steps.** Where the artefact search found global offset steps, the frames are forecast with the
   found steps taken out and scored frame by frame about their mean (the balance's per-frame fixed effects):
-  a recalibration the camera made is forecast by no model and decides nothing. Where it found a static
-  fixed pattern, each pixel's forecast errors are scored about their mean over the forecast frames (the
-  balance's per-pixel fixed effects): the pattern, which every model smooths away and the camera keeps,
-  would otherwise make most of every model's error and judge the effects by how they smooth it (a true
-  disc of lower diffusivity cost -0.9 floors with a pattern of 3 noise sds, +0.27 without it).
+  a recalibration the camera made is forecast by no model and decides nothing.
 
 The surviving model is refitted on the whole fit frames (:func:`~anra_torch.selection.fit_effects`).
 """
@@ -259,11 +255,10 @@ def _inner_scores(
             )
         except ValueError:
             fitted = [None] * len(models)
-        found = diagnosis.artefacts
-        within = (found is not None and found.global_offsets, found is not None and found.fixed_pattern)
+        offsets = diagnosis.artefacts is not None and diagnosis.artefacts.global_offsets
         for model, inner in zip(models, fitted, strict=True):
             ratio = math.inf if inner is None else _validation(video, dt, dx, inner, split, time_window,
-                                                                assimilate, within)  # fmt: skip
+                                                                assimilate, offsets)  # fmt: skip
             totals[frozenset(model)].append(ratio)
     return totals
 
@@ -276,7 +271,7 @@ def _validation(
     split: int,
     time_window: int | None,
     assimilate: int | None,
-    within: tuple[bool, bool],
+    offsets: bool,
 ) -> float:
     """RMSE over the noise floor of ``inner`` (fitted on frames ``0 .. split``) forecasting the rest."""
     horizon = video.shape[0] - split
@@ -293,8 +288,7 @@ def _validation(
     except ValueError:
         return math.inf
     measured = run.evaluate(video[split + 1 :])
-    offsets, pattern = within
-    rmse = forecast_errors(predicted, measured, inner.margin, within_frames=offsets, within_pixels=pattern)[1]
+    rmse = forecast_errors(predicted, measured, inner.margin, within_frames=offsets)[1]
     floor = forecast_floor(
         inner, scale, dt=dt, dx=dx, held_out=horizon - 1, window=window, assimilated=n_assimilated
     )
