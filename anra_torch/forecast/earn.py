@@ -177,8 +177,7 @@ def _eliminate(
              for e in diagnosis.effects}  # fmt: skip
     scores: dict[frozenset[str], list[float]] = {}
     removed: list[dict] = []
-    kept = list(diagnosis.names)
-    cost: dict[str, float | None] = {}
+    kept, cost = list(diagnosis.names), {}
     while kept:
         models = [kept, *(_without(kept, name) for name in kept), []]
         missing = [m for m in models if frozenset(m) not in scores]
@@ -191,12 +190,11 @@ def _eliminate(
         if not judged:
             cost = {name: None for name in kept}
             break
-        judged_cost = {
+        cost = {
             name: sum(scores[frozenset(_without(kept, name))][k] - full[k] for k in judged) / len(judged)
             for name in kept
         }
-        cost = dict(judged_cost)
-        cheap = sorted((c, name) for name, c in judged_cost.items() if c <= EARN_MARGIN)
+        cheap = sorted((c, name) for name, c in cost.items() if c <= EARN_MARGIN)
         if not cheap:
             break
         value, name = cheap[0]
@@ -242,16 +240,15 @@ def _inner_scores(
     splits: list[int],
     time_window: int | None,
     assimilate: int | None,
-) -> dict[frozenset[str], list[float]]:
+) -> dict[frozenset[str], float]:
     """Each model's validation RMSE in noise floors on each inner split (infinity where the model cannot be
     fitted or simulated)."""
     totals: dict[frozenset[str], list[float]] = {frozenset(m): [] for m in models}
     for split in splits:
         prefix = video[: split + 1]
-        fitted: list[Diagnosis | None]
         try:
-            fitted = list(
-                fit_effects(prefix, dt, dx, models, smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise)
+            fitted = fit_effects(
+                prefix, dt, dx, models, smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise
             )
         except ValueError:
             fitted = [None] * len(models)
