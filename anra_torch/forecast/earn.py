@@ -17,9 +17,7 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
   :data:`EARN_MARGIN` floors, it goes (the smallest model whose forecast is within the noise of the best).
   When two effects each cost that little, they explain the same signal: the one whose own model forecasts
   better stays (rule ``"same_signal"``); an effect alone that does not help the forecast goes by rule
-  ``"forecast"``. Each removal is listed in the diagnosis' ``negligible`` with its rule and cost. A split
-  on which the model itself cannot be fitted or forecast (a plate's depth from 5 frames) judges none of its
-  effects; when no split is left, the model stays as the selection named it, its costs unknown (None).
+  ``"forecast"``. Each removal is listed in the diagnosis' ``negligible`` with its rule and cost.
 - **Offset steps.** Where the artefact search found global offset steps, the frames are forecast with the
   found steps taken out and scored frame by frame about their mean (the balance's per-frame fixed effects):
   a recalibration the camera made is forecast by no model and decides nothing.
@@ -36,7 +34,7 @@ from dataclasses import replace
 import torch
 from torch import Tensor
 
-from anra_torch.balance import Artefacts, find_artefacts
+from anra_torch.balance import find_artefacts
 from anra_torch.checks import mostly_finite
 from anra_torch.effects import EFFECTS
 from anra_torch.forecast.core import (
@@ -50,17 +48,10 @@ from anra_torch.forecast.core import (
     interior,
     split_index,
 )
-from anra_torch.forecast.gain import _Forecasts
+from anra_torch.forecast.gain import _Forecasts, without_offsets
 from anra_torch.selection import Diagnosis, diagnose_terms, fit_effects
 
-__all__ = [
-    "EARN_MARGIN",
-    "EARN_SPLITS",
-    "WEAK_SIGNAL",
-    "earned_diagnosis",
-    "signal_to_noise",
-    "without_offsets",
-]
+__all__ = ["EARN_MARGIN", "EARN_SPLITS", "WEAK_SIGNAL", "earned_diagnosis", "signal_to_noise"]
 
 EARN_SPLITS = tuple(0.6 + extra for extra in INNER_SPLITS)
 """Inner splits of the fit frames (fractions of their length) over which an effect's forecast is averaged: a
@@ -115,7 +106,7 @@ def earned_diagnosis(
         The :class:`~anra_torch.selection.Diagnosis` of the earned model: ``diagnosis`` itself when every
         effect earns its place, else the earned model refitted, with each removed effect in ``negligible``
         (``{"name", "params", "share", "rule", "cost", "margin"}``, ``"kept"`` for ``"same_signal"``);
-        each named effect has its ``"forecast_cost"`` (noise floors; None when no inner split could judge it).
+        each named effect has its ``"forecast_cost"`` (noise floors).
 
     Raises:
         ValueError: as :func:`~anra_torch.selection.diagnose_terms`.
@@ -146,21 +137,6 @@ def earned_diagnosis(
     )
 
 
-def without_offsets(frames: Tensor, artefacts: Artefacts) -> Tensor:
-    """``frames`` with the global offset steps the artefact search found taken out: each frame after a
-    step lowered by the step (a camera's recalibrations are no heat; a drift between them stays).
-
-    Shape:
-        ``frames`` ``(T, H, W)``; output the same.
-    """
-    if not artefacts.steps:
-        return frames
-    offsets = torch.zeros(frames.shape[0], dtype=frames.dtype, device=frames.device)
-    for step, size in zip(artefacts.steps, artefacts.step_sizes, strict=True):
-        offsets[step:] += size
-    return frames - offsets[:, None, None]
-
-
 def _eliminate(
     video: Tensor,
     dt: float,
@@ -169,13 +145,12 @@ def _eliminate(
     splits: list[int],
     time_window: int | None,
     assimilate: int | None,
-) -> tuple[list[str], dict[str, float | None], list[dict]]:
+) -> tuple[list[str], dict[str, float], list[dict]]:
     """Backward elimination by the inner forecasts: the effects kept, each one's cost of removal (noise
-    floors, averaged over the splits that judge the kept model; None where none does) in the kept model,
-    and the removed ones' ``negligible`` entries."""
+    floors) in the kept model, and the removed ones' ``negligible`` entries."""
     named = {e["name"]: {"name": e["name"], "params": dict(e["params"]), "share": e.get("share")}
              for e in diagnosis.effects}  # fmt: skip
-    scores: dict[frozenset[str], list[float]] = {}
+    scores: dict[frozenset[str], float] = {}
     removed: list[dict] = []
     kept, cost = list(diagnosis.names), {}
     while kept:
@@ -184,16 +159,7 @@ def _eliminate(
         if missing:
             scores.update(_inner_scores(video, dt, dx, diagnosis, missing, splits, time_window, assimilate))
         full = scores[frozenset(kept)]
-        # A split where the model itself cannot be fitted or forecast judges none of its effects; with no
-        # split left, the model stays as it is (its effects' costs unknown).
-        judged = [k for k, ratio in enumerate(full) if math.isfinite(ratio)]
-        if not judged:
-            cost = {name: None for name in kept}
-            break
-        cost = {
-            name: sum(scores[frozenset(_without(kept, name))][k] - full[k] for k in judged) / len(judged)
-            for name in kept
-        }
+        cost = {name: scores[frozenset(_without(kept, name))] - full for name in kept}
         cheap = sorted((c, name) for name, c in cost.items() if c <= EARN_MARGIN)
         if not cheap:
             break
@@ -241,9 +207,9 @@ def _inner_scores(
     time_window: int | None,
     assimilate: int | None,
 ) -> dict[frozenset[str], float]:
-    """Each model's validation RMSE in noise floors on each inner split (infinity where the model cannot be
-    fitted or simulated)."""
-    totals: dict[frozenset[str], list[float]] = {frozenset(m): [] for m in models}
+    """Each model's validation RMSE in noise floors, averaged over the inner splits (infinity for a model
+    that cannot be fitted or simulated there)."""
+    totals = {frozenset(m): 0.0 for m in models}
     for split in splits:
         prefix = video[: split + 1]
         try:
@@ -256,7 +222,7 @@ def _inner_scores(
         for model, inner in zip(models, fitted, strict=True):
             ratio = math.inf if inner is None else _validation(video, dt, dx, inner, split, time_window,
                                                                 assimilate, offsets)  # fmt: skip
-            totals[frozenset(model)].append(ratio)
+            totals[frozenset(model)] += ratio / len(splits)
     return totals
 
 

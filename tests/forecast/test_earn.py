@@ -10,7 +10,7 @@ from scenes import camera_scene, with_artefacts
 from anra_torch.balance import find_artefacts
 from anra_torch.effects import hidden_effect_video, independent_effect_video
 from anra_torch.forecast import EARN_MARGIN, WEAK_SIGNAL, earned_diagnosis, signal_to_noise
-from anra_torch.forecast.earn import without_offsets
+from anra_torch.forecast.gain import without_offsets
 from anra_torch.selection import fit_effects
 
 
