@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from anra_torch.balance import Artefacts, find_artefacts
+from anra_torch.balance import find_artefacts
 from anra_torch.checks import diffusivity_warnings, extended_diffusivity_warning, model_failure, mostly_finite
 from anra_torch.effects import Effect
 from anra_torch.forecast.core import (
@@ -40,7 +40,7 @@ from anra_torch.forecast.core import (
 )
 from anra_torch.selection import Diagnosis, diagnose_terms
 
-__all__ = ["GainResult", "assess_gain", "without_offsets"]
+__all__ = ["GainResult", "assess_gain"]
 
 _F64 = torch.float64
 
@@ -163,7 +163,6 @@ class _Forecasts:
     window: int
     assimilated: int
     scored: Tensor | None = None  # which held-out frames are measured samples (None: all)
-    within_frames: bool = False  # offset steps were found: errors scored about each frame's mean
 
     def forecast(self, chosen: tuple[Effect, ...]) -> Tensor:
         """The held-out frames forecast from the assimilated state, full resolution: ``(T - s - 1, H, W)``;
@@ -267,25 +266,9 @@ def assess_gain(
     n_assimilated = _frame_count(assimilate, "assimilate", split + 1, split + 1, cap=False)
     # Forecasts start from, and are scored against, frames without camera artefacts (a masked sample, a
     # spike, a dead element): the diagnosis repairs its own fit frames the same way.
-    repaired, artefacts = find_artefacts(video)
-    run = _Forecasts(without_offsets(repaired, artefacts), diagnosis, split, dt, dx, effects, scale, window,
-                     n_assimilated, held_scored, artefacts.global_offsets)  # fmt: skip
+    repaired = find_artefacts(video)[0]
+    run = _Forecasts(repaired, diagnosis, split, dt, dx, effects, scale, window, n_assimilated, held_scored)
     return _scored(run, tick)
-
-
-def without_offsets(frames: Tensor, artefacts: Artefacts) -> Tensor:
-    """``frames`` with the global offset steps the artefact search found taken out: each frame after a
-    step lowered by the step (the camera's recalibrations are no heat; a drift between them stays).
-
-    Shape:
-        ``frames`` ``(T, H, W)``; output the same.
-    """
-    if not artefacts.steps:
-        return frames
-    offsets = torch.zeros(frames.shape[0], dtype=frames.dtype, device=frames.device)
-    for step, size in zip(artefacts.steps, artefacts.step_sizes, strict=True):
-        offsets[step:] += size
-    return frames - offsets[:, None, None]
 
 
 def _held_out_scored(scored: Tensor | None, n_frames: int, split: int, window: int) -> Tensor | None:
@@ -312,11 +295,10 @@ def _scored(run: _Forecasts, tick: float) -> GainResult:
     extended_full = run.forecast(effects) if effects else base_full
     measured, base, extended = run.evaluate(raw), run.evaluate(base_full), run.evaluate(extended_full)
     scored = run.scored
-    within_frames = run.within_frames
-    rmse_base, base_rmse, base_sse = forecast_errors(base, measured, m, scored, within_frames=within_frames)
-    rmse_ext, ext_rmse, ext_sse = forecast_errors(extended, measured, m, scored, within_frames=within_frames)
-    base_raw = forecast_errors(base_full, raw, m, scored, within_frames=within_frames)[1]
-    ext_raw = forecast_errors(extended_full, raw, m, scored, within_frames=within_frames)[1]
+    rmse_base, base_rmse, base_sse = forecast_errors(base, measured, m, scored)
+    rmse_ext, ext_rmse, ext_sse = forecast_errors(extended, measured, m, scored)
+    base_raw = forecast_errors(base_full, raw, m, scored)[1]
+    ext_raw = forecast_errors(extended_full, raw, m, scored)[1]
     found = bool(effects)
     gain = 1.0 - ext_rmse / base_rmse if found and base_rmse > 0 else 0.0
     effect_gains = _effect_gains(run, measured, base_rmse, gain)
@@ -396,8 +378,6 @@ def _effect_gains(run: _Forecasts, measured: Tensor, base_rmse: float, gain: flo
     for effect in run.effects:
         others = tuple(e for e in run.effects if e is not effect)
         without = run.evaluate(run.forecast(others))
-        rmse = forecast_errors(
-            without, measured, run.diagnosis.margin, run.scored, within_frames=run.within_frames
-        )[1]
+        rmse = forecast_errors(without, measured, run.diagnosis.margin, run.scored)[1]
         gains.append((rmse - extended_rmse) / base_rmse)
     return tuple(gains)
