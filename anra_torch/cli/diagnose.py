@@ -34,10 +34,11 @@ from anra_torch.cli.arguments import (
     json_line,
     number,
     object_parameters,
+    open_input,
     print_input,
 )
 from anra_torch.flash import FlashMaps, flash_maps
-from anra_torch.recording import diagnose_video, open_for_diagnosis, open_recording
+from anra_torch.recording import diagnose_video, open_for_diagnosis
 from anra_torch.report import write_diagnosis_report, write_flash_report, write_phase_report
 from anra_torch.video import Video
 
@@ -198,15 +199,7 @@ def _flash_maps(args: argparse.Namespace, recording: Video, decimated: bool) -> 
     """The flash maps of the recording read whole (up to :data:`MAP_VALUES`), else of the diagnosed copy."""
     source = recording
     if decimated:
-        whole = open_recording(
-            args.video,
-            dt=args.dt,
-            dx=args.dx,
-            roi=args.roi,
-            calibration=args.calibration,
-            on_disk_above=MAP_VALUES,
-            **object_parameters(args),
-        )
+        whole = open_input(args, on_disk_above=MAP_VALUES)
         source = recording if whole.on_disk else whole
     frames = torch.as_tensor(source.frames).to(args.device)
     return flash_maps(frames, source.dt, source.dx)
