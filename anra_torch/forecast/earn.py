@@ -28,7 +28,11 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
   would otherwise make most of every model's error and judge the effects by how they smooth it (a true
   disc of lower diffusivity cost -0.9 floors with a pattern of 3 noise sds, +0.27 without it).
 
-The surviving model is refitted on the whole fit frames (:func:`~anra_torch.selection.fit_effects`).
+Every model, the inner ones and the surviving one, is fitted with the diagnosis' nuisance terms beside
+it (:attr:`~anra_torch.selection.Diagnosis.nuisance`: significant effects too small to name, which stay in
+the fit so that the named ones are not biased by their absence); an effect removed by a forecast rule leaves
+the fit, as the inner forecasts that removed it were fitted. The surviving model is refitted on the whole
+fit frames (:func:`~anra_torch.selection.fit_effects`).
 """
 
 from __future__ import annotations
@@ -139,14 +143,21 @@ def earned_diagnosis(
     if not removed:
         final = diagnosis
     else:
-        (final,) = fit_effects(video, dt, dx, [kept], smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise)
+        (final,) = fit_effects(
+            video, dt, dx, [kept], smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise,
+            nuisance=diagnosis.nuisance,
+        )  # fmt: skip
     ranked = sorted(final.effects, key=lambda e: -e["score"])
     return replace(
         final,
         effects=[{**e, "forecast_cost": cost[e["name"]]} for e in ranked],
         scores=dict(diagnosis.scores),
         thresholds=dict(diagnosis.thresholds),
-        negligible=[*diagnosis.negligible, *removed],
+        negligible=[
+            *(n for n in final.negligible if n.get("rule") == "share"),  # the nuisance terms, as refitted
+            *(n for n in diagnosis.negligible if n.get("rule") != "share"),
+            *removed,
+        ],
     )
 
 
@@ -255,7 +266,15 @@ def _inner_scores(
         fitted: list[Diagnosis | None]
         try:
             fitted = list(
-                fit_effects(prefix, dt, dx, models, smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise)
+                fit_effects(
+                    prefix,
+                    dt,
+                    dx,
+                    models,
+                    smoothing=diagnosis.smoothing,
+                    noise_sd=diagnosis.noise,
+                    nuisance=diagnosis.nuisance,
+                )  # fmt: skip
             )
         except ValueError:
             fitted = [None] * len(models)

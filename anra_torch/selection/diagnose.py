@@ -48,8 +48,11 @@ A significant effect is named only if it is material: its term makes at least :d
 (the RMS of its coefficients times its regressors over the RMS of ``U``, noise parts removed: what it does to
 the frames, whatever its parameters), and it reaches its physical size where it states one
 (``EffectSpec.min_size``). At a low noise the balance also sees a camera's departures from the model's
-operators; they make well under 1 % of ``dT/dt``. Whether an effect earns its place by its own forecast is
-asked one layer up (:func:`anra_torch.forecast.earned_diagnosis`), on models :func:`fit_effects` fits.
+operators; they make well under 1 % of ``dT/dt``. An effect under the share is not named but stays in the fit
+as a nuisance term: a real small effect left out biases the named ones that share its signal (an intact flash
+plate's loss, 0.94 % of ``dT/dt``: without it the anisotropy's ``a_y`` read 1.83 mm^2/s for a true 1.1). One
+below its physical size leaves the model, as before. Whether an effect earns its place by its own forecast
+is asked one layer up (:func:`anra_torch.forecast.earned_diagnosis`), on models :func:`fit_effects` fits.
 
 Measured by ``python -m experiments.diagnosis_benchmark`` (README): the top effect, parameter errors and
 false positives over 20 random cases per effect and 20 pure videos.
@@ -64,6 +67,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -120,7 +124,8 @@ class Diagnosis:
         artefacts: the camera artefacts found and what was done (:mod:`anra_torch.balance.artefacts`).
         negligible: effects that were significant but not material, not named: ``{"name", "params",
             "share", "min_share", "rule"}`` each, ``rule`` ``"share"`` (under
-            :data:`~anra_torch.selection.MIN_SHARE` of ``dT/dt``) or ``"size"`` (under its physical size,
+            :data:`~anra_torch.selection.MIN_SHARE` of ``dT/dt``: a nuisance term, still in the fit,
+            :attr:`nuisance`) or ``"size"`` (under its physical size, out of the fit,
             :attr:`~anra_torch.effects.EffectSpec.min_size`: then also ``"size"``, ``"min_size"``; both are
             there for every effect that states a size).
     """
@@ -147,6 +152,12 @@ class Diagnosis:
     def names(self) -> list[str]:
         """Names of the effects found, best first."""
         return [e["name"] for e in self.effects]
+
+    @property
+    def nuisance(self) -> list[str]:
+        """The effects fitted beside the named ones but too small to name (``negligible``, rule
+        ``"share"``): their terms are in the fit and in :attr:`coefficients`, not in :attr:`effects`."""
+        return [e["name"] for e in self.negligible if e.get("rule") == "share"]
 
 
 # --------------------------------------------------------------------------------------------- API
@@ -246,6 +257,7 @@ def fit_effects(
     smoothing: float,
     noise_sd: float | NoiseModel | None = None,
     time_family: str = "smooth",
+    nuisance: Sequence[str] = (),
 ) -> list[Diagnosis]:
     """Fit given models on a video as they are: no test, no size rule, nothing added or dropped.
 
@@ -261,6 +273,9 @@ def fit_effects(
         smoothing: the Gaussian sigma (px) of the balance.
         noise_sd: as :func:`diagnose_terms` (e.g. the noise model a diagnosis of the whole video measured).
         time_family: as :func:`diagnose_terms`.
+        nuisance: effects fitted beside every model but not named (a diagnosis'
+            :attr:`Diagnosis.nuisance`; listed in ``negligible``, rule ``"share"``); one whose required
+            effect a model lacks is left out of that model.
 
     Returns:
         One :class:`Diagnosis` per model, its ``effects`` in the model's order.
@@ -273,7 +288,7 @@ def fit_effects(
     """
     video = _as_frames(frames)
     dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
-    for model in models:
+    for model in [*models, nuisance]:
         for name in model:
             if name not in EFFECTS:
                 raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
@@ -282,14 +297,17 @@ def fit_effects(
     video, artefacts, system, plain = _balance(video, dt, dx, float(smoothing), noise_sd, time_family)
     out = []
     for model in models:
-        selection = Selection(system, ALPHA, model, _background(video[0]))
-        for name in model:
+        extra = [n for n in nuisance if n not in model]
+        fitted = [*model, *(n for n in extra if all(r in model or r in extra for r in EFFECTS[n].requires))]
+        fitted.sort(key=lambda n: bool(EFFECTS[n].requires))  # a required effect's shape is fitted first
+        selection = Selection(system, ALPHA, fitted, _background(video[0]))
+        for name in fitted:
             selection.prepare(name, system.fit(selection.columns(selection.selected)))
             selection.selected.append(name)
-        for name in model:
-            if name in selection.shapes and len(model) > 1:
+        for name in fitted:
+            if name in selection.shapes and len(fitted) > 1:
                 selection.refit(name)
-        out.append(_result(system, selection, plain, artefacts, found_only=True))
+        out.append(_result(system, selection, plain, artefacts, given=model))
     return out
 
 
@@ -369,32 +387,50 @@ def _least_noisy(
 
 
 def _result(
-    system: BalanceSystem, selection: Selection, plain: Fit, artefacts: Artefacts, *, found_only: bool = False
+    system: BalanceSystem,
+    selection: Selection,
+    plain: Fit,
+    artefacts: Artefacts,
+    *,
+    given: Sequence[str] | None = None,
 ) -> Diagnosis:
-    """The :class:`Diagnosis` of the selected model (refitted), effects ranked by score (``found_only``:
-    in the model's order, and no thermal activity is no error: a model fitted as given).
+    """The :class:`Diagnosis` of the selected model (refitted), named effects ranked by score, the selected
+    effects under :data:`MIN_SHARE` of ``dT/dt`` kept in the fit as nuisance terms (listed in
+    ``negligible``, rule ``"share"``). ``given``: the effects of a model fitted as given (named in its
+    order, whatever their share; the other selected effects are its nuisance terms), and no thermal
+    activity is no error.
 
     Raises:
         ValueError: no effect and a plain ``a`` within 3 standard errors of 0 (no thermal activity).
     """
     final = system.fit(selection.columns(selection.selected))
     coefficients = final.coefficients()
-    found = [
-        {
-            "name": name,
-            "params": EFFECTS[name].from_coefficients(coefficients, selection.context()),
-            "score": wald_score(final, EFFECTS[name].regressors),
-            "share": selection.share(name, final),
-        }
-        for name in selection.selected
-    ]
-    if not found_only:
+    found: list[dict[str, Any]] = []
+    nuisance: list[dict] = []
+    for name in selection.selected:
+        params = EFFECTS[name].from_coefficients(coefficients, selection.context())
+        small = selection.nuisance_record(name, params, final)
+        if (given is None and small is not None) or (given is not None and name not in given):
+            nuisance.append(small or {**selection.entry(name, params, final), "rule": "share"})
+            continue
+        found.append(
+            {
+                "name": name,
+                "params": params,
+                "score": wald_score(final, EFFECTS[name].regressors),
+                "share": selection.share(name, final),
+            }
+        )
+    if given is None:
         found.sort(key=lambda e: -e["score"])
+    else:
+        order = list(given)
+        found.sort(key=lambda e: order.index(str(e["name"])))
     expected = system.expected_rss(final)  # 0 for noiseless (e.g. quantised, noise-free) frames
     fit_ratio = final.rss / expected if expected > 0 else (math.inf if final.rss > 0 else 1.0)
     a_plain = float(plain.beta[0])
     a_se = float(plain.cov[0, 0].clamp_min(0).sqrt())
-    if not found_only and not found and abs(a_plain) < _MIN_SIGNIFICANCE * a_se:
+    if given is None and not found and not nuisance and abs(a_plain) < _MIN_SIGNIFICANCE * a_se:
         raise ValueError(
             f"frames show no thermal activity above the noise (a = {a_plain:.3g} +- {a_se:.2g} mm^2/s, "
             "no effect found); nothing to diagnose"
@@ -416,5 +452,5 @@ def _result(
         margin=system.margin,
         noise=system.measured_noise,
         artefacts=artefacts,
-        negligible=[v for k, v in selection.negligible.items() if k not in selection.selected],
+        negligible=[*nuisance, *(v for k, v in selection.negligible.items() if k not in selection.selected)],
     )

@@ -243,6 +243,12 @@ def test_given_models_are_fitted_as_they_are() -> None:
     assert 0.05 < loss.effects[0]["share"] < 1  # a strong loss: a good part of dT/dt
     selected = diagnose(video, smoothing=2.0)
     assert selected.names == ["linear_loss"] and selected.coefficients == pytest.approx(loss.coefficients)
+    # a nuisance term is fitted beside the model, not named: the same fit as the model that names it
+    (nuisance,) = fit_effects(video.frames, video.dt, video.dx, [["linear_loss"]], smoothing=2.0,
+                              nuisance=["advection"])  # fmt: skip
+    assert nuisance.names == ["linear_loss"] and nuisance.nuisance == ["advection"]
+    assert nuisance.coefficients == pytest.approx(both.coefficients)
+    assert nuisance.negligible[0]["rule"] == "share" and nuisance.negligible[0]["share"] < 0.01
     with pytest.raises(ValueError, match="unknown effect 'perfusion'"):
         fit_effects(video.frames, video.dt, video.dx, [["perfusion"]], smoothing=2.0)
     with pytest.raises(ValueError, match="names each effect once"):
