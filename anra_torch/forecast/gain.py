@@ -213,12 +213,10 @@ def assess_gain(
         diagnosis: a diagnosis of exactly ``frames[: round(fit_fraction T)]``; default: made here.
         scale_px: evaluation scale, a Gaussian sigma in px (0 compares raw frames); default the
             diagnosis' smoothing.
-        time_window: frames of the moving average in time at the evaluation scale (1: none); default
-            :data:`~anra_torch.forecast.TIME_WINDOW`, at most half the held-out frames. Use 1 for
-            videos whose frames are seconds apart, where a few frames already span the dynamics.
+        time_window: frames of the moving average in time at the evaluation scale (1: none, for frames
+            seconds apart); default :data:`~anra_torch.forecast.TIME_WINDOW`, at most half the held out.
         assimilate: the fit part's last frames assimilated into each model's starting state
-            (:mod:`anra_torch.forecast.core`); 1 starts from the measured split frame; default all the
-            fit part's frames.
+            (:mod:`anra_torch.forecast.core`; 1: the measured split frame); default all of them.
         scored: bool per frame of ``frames``: the measured samples of a recording resampled from
             irregular times. The held-out frames are scored only there, each on its own
             (``time_window`` must then be 1, the default); None scores every held-out frame.
@@ -227,11 +225,9 @@ def assess_gain(
         :class:`GainResult`.
 
     Raises:
-        ValueError: too short a video for the split (see :func:`~anra_torch.forecast.split_index`),
-            bad frames or spacing, or no thermal activity (from :func:`anra_torch.selection.diagnose_terms`);
-            a diagnosis whose residual map does not fit the frame size; a negative or non-finite
-            ``scale_px``; a ``time_window`` that is not an integer from 1 to the number of held-out frames,
-            or an ``assimilate`` that is not one from 1 to the fit part's frames.
+        ValueError: too short a video for the split (:func:`~anra_torch.forecast.split_index`), bad frames
+            or spacing, no thermal activity (:func:`~anra_torch.selection.diagnose_terms`), a diagnosis of
+            another frame size, a bad ``scale_px``, ``time_window`` (1 .. held-out frames) or ``assimilate``.
 
     Shape:
         ``frames`` ``(T, H, W)``.
@@ -244,21 +240,29 @@ def assess_gain(
         (['advection'], 0.99)
     """
     tick = time.perf_counter()
-    if not isinstance(frames, Tensor):
-        frames = torch.as_tensor(frames, device="cpu")
-    if frames.ndim != 3:
-        raise ValueError(f"frames must have shape (T, H, W), got {tuple(frames.shape)}")
-    video = mostly_finite(frames.detach().to(_F64))  # counted on the whole video, not only the fit part
-    n_frames, h, w = video.shape
-    split = split_index(n_frames, fit_fraction)
-    if diagnosis is None:
-        diagnosis = diagnose_terms(video[: split + 1], dt, dx)
-    else:
-        check_diagnosis_frames(diagnosis, h, w)
-    fit_duration = split * dt
+    video = _checked_video(frames)
+    split = split_index(video.shape[0], fit_fraction)
+    diagnosis = _fit_diagnosis(video, split, dt, dx, diagnosis)
+    run = _forecasts(video, diagnosis, split, dt, dx, scale_px, time_window, assimilate, scored)
+    return _scored(run, tick)
+
+
+def _forecasts(
+    video: Tensor,
+    diagnosis: Diagnosis,
+    split: int,
+    dt: float,
+    dx: float,
+    scale_px: float | None,
+    time_window: int | None,
+    assimilate: int | None,
+    scored: Tensor | None,
+) -> _Forecasts:
+    """:func:`assess_gain`'s forecasts of frames ``split + 1 ..`` with its options checked."""
+    n_frames = video.shape[0]
     horizon = n_frames - split
     effects = extended_effects(
-        diagnosis, fit_duration=fit_duration, start=fit_duration, duration=(horizon - 1) * dt
+        diagnosis, fit_duration=split * dt, start=split * dt, duration=(horizon - 1) * dt
     )
     scale = evaluation_scale(diagnosis, scale_px)
     window = _frame_count(time_window, "time_window", 1 if scored is not None else TIME_WINDOW, horizon - 1)
@@ -267,8 +271,25 @@ def assess_gain(
     # Forecasts start from, and are scored against, frames without camera artefacts (a masked sample, a
     # spike, a dead element): the diagnosis repairs its own fit frames the same way.
     repaired = find_artefacts(video)[0]
-    run = _Forecasts(repaired, diagnosis, split, dt, dx, effects, scale, window, n_assimilated, held_scored)
-    return _scored(run, tick)
+    return _Forecasts(repaired, diagnosis, split, dt, dx, effects, scale, window, n_assimilated, held_scored)
+
+
+def _checked_video(frames: Tensor) -> Tensor:
+    """``frames`` as float64 ``(T, H, W)``, mostly finite (counted on the whole video, not only the fit
+    part)."""
+    if not isinstance(frames, Tensor):
+        frames = torch.as_tensor(frames, device="cpu")
+    if frames.ndim != 3:
+        raise ValueError(f"frames must have shape (T, H, W), got {tuple(frames.shape)}")
+    return mostly_finite(frames.detach().to(_F64))
+
+
+def _fit_diagnosis(video: Tensor, split: int, dt: float, dx: float, diagnosis: Diagnosis | None) -> Diagnosis:
+    """``diagnosis`` checked against the frame size, or, when None, the diagnosis of frames ``0 .. split``."""
+    if diagnosis is None:
+        return diagnose_terms(video[: split + 1], dt, dx)
+    check_diagnosis_frames(diagnosis, video.shape[1], video.shape[2])
+    return diagnosis
 
 
 def _held_out_scored(scored: Tensor | None, n_frames: int, split: int, window: int) -> Tensor | None:

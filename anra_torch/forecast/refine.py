@@ -162,6 +162,17 @@ def _misfit(
     return sse
 
 
+def _problem(
+    target: Tensor, dt: float, dx: float, margin: int, a0: float, effects: tuple[Effect, ...]
+) -> tuple[_Model, Callable[[Tensor], Tensor]]:
+    """The parametrised model from ``a0`` and ``effects`` and its misfit to ``target`` ``(T, H, W)``."""
+    n, h, w = target.shape
+    duration = (n - 1) * dt
+    model = _Model(a0, effects, dx=dx, spread=float(target.std()) or 1.0, duration=duration)
+    grid = Grid((h, w), dx, duration)
+    return model, _misfit(model, target, grid, a=a0, effects=effects, dt=dt, margin=margin)
+
+
 def refine_model(
     frames: Tensor,
     dt: float,
@@ -196,18 +207,12 @@ def refine_model(
     video = own_tensor(frames, _F64).detach()
     if video.ndim != 3 or video.shape[0] < 2:
         raise ValueError(f"frames must have shape (T >= 2, H, W), got {tuple(video.shape)}")
-    n, h, w = video.shape
-    check_diagnosis_frames(diagnosis, h, w)
+    check_diagnosis_frames(diagnosis, video.shape[1], video.shape[2])
     check_int(iterations, "iterations", 1)
     scale = evaluation_scale(diagnosis, scale_px)
-    target = at_scale(video, scale)
-    duration = (n - 1) * dt
     effects = extended_effects(diagnosis)
     a0 = max(diagnosis.base if effects else diagnosis.a_plain, 1e-9)
-    spread = float(target.std()) or 1.0
-    model = _Model(a0, effects, dx=dx, spread=spread, duration=duration)
-    grid = Grid((h, w), dx, duration)
-    sse = _misfit(model, target, grid, a=a0, effects=effects, dt=dt, margin=diagnosis.margin)
+    model, sse = _problem(at_scale(video, scale), dt, dx, diagnosis.margin, a0, effects)
     delta = torch.zeros(len(model.names), dtype=_F64, device="cpu", requires_grad=True)
     with torch.no_grad():
         sse_before = float(sse(delta))

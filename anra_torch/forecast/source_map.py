@@ -173,6 +173,35 @@ def _nonnegative_pair(moments: Moments) -> tuple[float, float]:
     return best[0], best[1]
 
 
+def _checked_frames(frames: Tensor) -> Tensor:
+    """``frames`` as float64 ``(T, H, W)`` with at least 4 frames (2 rates)."""
+    video = own_tensor(frames)
+    if video.ndim != 3:
+        raise ValueError(f"frames must have shape (T, H, W), got {tuple(video.shape)}")
+    if video.shape[0] < 4:
+        raise ValueError(
+            f"frames must hold at least 4 frames for a per-pixel source map (2 rates), got {video.shape[0]}"
+        )
+    return video.to(_F64)
+
+
+def _terms(video: Tensor, dt: float, dx: float, scale_px: float, margin: int) -> dict[str, Tensor]:
+    """``U``, ``L`` and ``T`` at ``scale_px`` (centred time derivative, 3-point Holoborodko Laplacian) on the
+    interior ``margin`` px from each edge, ``(T - 2, H - 2 margin, W - 2 margin)`` each."""
+    filters = MatchedFilters(
+        scale_px,
+        time_family="centred",
+        time_length=3,
+        laplacian_size=3,
+        laplacian_family="holoborodko",
+        border="replicate",
+        smoothing_border="reflect",
+    )
+    h, w = video.shape[1:]
+    inner = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
+    return {k: v[inner] for k, v in filters.terms(video, dt, dx, ("U", "L", "T")).items()}
+
+
 def fit_source_map(
     frames: Tensor,
     dt: float,
@@ -214,28 +243,13 @@ def fit_source_map(
         >>> round(model.a, 2), round(float(model.forcing[12, 12]), 2)
         (0.1, 1.0)
     """
-    video = own_tensor(frames)
-    if video.ndim != 3:
-        raise ValueError(f"frames must have shape (T, H, W), got {tuple(video.shape)}")
-    n, h, w = video.shape
-    if n < 4:
-        raise ValueError(f"frames must hold at least 4 frames for a per-pixel source map (2 rates), got {n}")
-    video = video.to(_F64)
+    video = _checked_frames(frames)
+    n = video.shape[0]
     dt = float(as_spacing(dt, name="dt", unit="s", batch=1, like=video)[0])
     dx = float(as_spacing(dx, name="dx", unit="mm", batch=1, like=video)[0])
     _check_fit(video, dt, margin, decay, t_on)
     scale_px = check_scale(scale_px)
-    filters = MatchedFilters(
-        scale_px,
-        time_family="centred",
-        time_length=3,
-        laplacian_size=3,
-        laplacian_family="holoborodko",
-        border="replicate",
-        smoothing_border="reflect",
-    )
-    inner = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
-    terms = {k: v[inner] for k, v in filters.terms(video, dt, dx, ("U", "L", "T")).items()}
+    terms = _terms(video, dt, dx, scale_px, margin)
     # Fixed effects: each pixel's projection on the input's profile (its time mean for a stationary map)
     # removed from every term removes q g(t) exactly.
     t_ref = (n - 2) * dt

@@ -136,19 +136,8 @@ def depth_aware_diffusivity(
     Shape:
         ``frames`` ``(T, H, W)``.
     """
-    video = own_tensor(frames, torch.float64)
     dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
-    if video.ndim != 3 or video.shape[0] < 6:
-        raise ValueError(f"frames must have shape (T, H, W) with T >= 6, got {tuple(video.shape)}")
-    if not bool(torch.isfinite(video).all()):
-        raise ValueError("frames must be finite for the depth-aware fit; repair or crop non-finite pixels")
-    sigmas = [float(s) for s in smoothing if min(video.shape[1:]) >= minimum_frame_size(float(s))]
-    if not sigmas:
-        need = minimum_frame_size(smoothing)
-        raise ValueError(
-            f"frames must be at least {need} x {need} px for the depth-aware fit, "
-            f"got {video.shape[1]} x {video.shape[2]}"
-        )
+    video, sigmas = _checked(frames, smoothing)
     video, artefacts = find_artefacts(video)
     if float(video.amax() - video.amin()) == 0.0:
         raise ValueError("frames are constant: no change to fit")
@@ -178,6 +167,23 @@ def depth_aware_diffusivity(
         by_smoothing={s: float(f.beta[0]) for s, f in fits.items()},
         plain_by_smoothing={s: plains[s] for s in fits},
     )
+
+
+def _checked(frames: Tensor, smoothing: Sequence[float]) -> tuple[Tensor, list[float]]:
+    """The frames as float64 ``(T, H, W)``, checked, and the smoothings they are large enough for."""
+    video = own_tensor(frames, torch.float64)
+    if video.ndim != 3 or video.shape[0] < 6:
+        raise ValueError(f"frames must have shape (T, H, W) with T >= 6, got {tuple(video.shape)}")
+    if not bool(torch.isfinite(video).all()):
+        raise ValueError("frames must be finite for the depth-aware fit; repair or crop non-finite pixels")
+    sigmas = [float(s) for s in smoothing if min(video.shape[1:]) >= minimum_frame_size(float(s))]
+    if not sigmas:
+        need = minimum_frame_size(smoothing)
+        raise ValueError(
+            f"frames must be at least {need} x {need} px for the depth-aware fit, "
+            f"got {video.shape[1]} x {video.shape[2]}"
+        )
+    return video, sigmas
 
 
 def _fit_rates(system: BalanceSystem) -> tuple[Fit, float, list[slice]]:

@@ -67,7 +67,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import torch
 from torch import Tensor
@@ -76,7 +75,6 @@ from anra_torch.balance import Artefacts, BalanceSystem, Fit, NoiseModel, find_a
 from anra_torch.checks import as_video, mostly_finite, positive
 from anra_torch.effects import EFFECTS
 from anra_torch.layers import GaussianSmoothing, TimeDerivative
-from anra_torch.selection.statistics import wald_score
 from anra_torch.selection.stepwise import Selection
 
 __all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms", "fit_effects", "minimum_frame_size"]
@@ -232,10 +230,7 @@ def diagnose_terms(
     dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
     if not (0 < alpha < 1):
         raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
-    names = [n for n, spec in EFFECTS.items() if spec.searched] if effects is None else list(effects)
-    for name in names:
-        if name not in EFFECTS:
-            raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
+    names = _known([n for n, spec in EFFECTS.items() if spec.searched] if effects is None else effects)
     video, artefacts, system, plain = _balance(video, dt, dx, smoothing, noise_sd, time_family)
     selection = Selection(system, alpha, names, _background(video[0]))
     selection.forward()
@@ -289,26 +284,30 @@ def fit_effects(
     video = _as_frames(frames)
     dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
     for model in [*models, nuisance]:
-        for name in model:
-            if name not in EFFECTS:
-                raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
-        if len(set(model)) != len(model):
+        if len(set(_known(model))) != len(model):
             raise ValueError(f"a model names each effect once, got {list(model)}")
     video, artefacts, system, plain = _balance(video, dt, dx, float(smoothing), noise_sd, time_family)
     out = []
     for model in models:
-        extra = [n for n in nuisance if n not in model]
-        fitted = [*model, *(n for n in extra if all(r in model or r in extra for r in EFFECTS[n].requires))]
-        fitted.sort(key=lambda n: bool(EFFECTS[n].requires))  # a required effect's shape is fitted first
-        selection = Selection(system, ALPHA, fitted, _background(video[0]))
-        for name in fitted:
-            selection.prepare(name, system.fit(selection.columns(selection.selected)))
-            selection.selected.append(name)
-        for name in fitted:
-            if name in selection.shapes and len(fitted) > 1:
-                selection.refit(name)
+        selection = Selection(system, ALPHA, _with_nuisance(model, nuisance), _background(video[0]))
+        selection.take(selection.names)
         out.append(_result(system, selection, plain, artefacts, given=model))
     return out
+
+
+def _known(names: Sequence[str]) -> list[str]:
+    """``names`` as a list, each checked to be in :data:`~anra_torch.effects.EFFECTS`."""
+    for name in names:
+        if name not in EFFECTS:
+            raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
+    return list(names)
+
+
+def _with_nuisance(model: Sequence[str], nuisance: Sequence[str]) -> list[str]:
+    """``model`` and the nuisance terms whose required effects it holds, a required effect's first."""
+    extra = [n for n in nuisance if n not in model]
+    fitted = [*model, *(n for n in extra if all(r in model or r in extra for r in EFFECTS[n].requires))]
+    return sorted(fitted, key=lambda n: bool(EFFECTS[n].requires))  # stable: the model's order otherwise
 
 
 def minimum_frame_size(smoothing: float | Sequence[float] | None = None) -> int:
@@ -405,27 +404,7 @@ def _result(
     """
     final = system.fit(selection.columns(selection.selected))
     coefficients = final.coefficients()
-    found: list[dict[str, Any]] = []
-    nuisance: list[dict] = []
-    for name in selection.selected:
-        params = EFFECTS[name].from_coefficients(coefficients, selection.context())
-        small = selection.nuisance_record(name, params, final)
-        if (given is None and small is not None) or (given is not None and name not in given):
-            nuisance.append(small or {**selection.entry(name, params, final), "rule": "share"})
-            continue
-        found.append(
-            {
-                "name": name,
-                "params": params,
-                "score": wald_score(final, EFFECTS[name].regressors),
-                "share": selection.share(name, final),
-            }
-        )
-    if given is None:
-        found.sort(key=lambda e: -e["score"])
-    else:
-        order = list(given)
-        found.sort(key=lambda e: order.index(str(e["name"])))
+    found, nuisance = selection.named(final, given)
     expected = system.expected_rss(final)  # 0 for noiseless (e.g. quantised, noise-free) frames
     fit_ratio = final.rss / expected if expected > 0 else (math.inf if final.rss > 0 else 1.0)
     a_plain = float(plain.beta[0])

@@ -114,6 +114,25 @@ class Selection:
             record.update(size=float(spec.size(params, self.span)), min_size=spec.min_size)
         return record
 
+    def named(self, fit: Fit, given: Sequence[str] | None = None) -> tuple[list[dict], list[dict]]:
+        """The selected effects named in ``fit``, ``{"name", "params", "score", "share"}`` by score (or in
+        ``given``'s order), and the ``negligible`` entries of the nuisance terms: those under
+        :data:`MIN_SHARE` (:meth:`nuisance_record`), or, with ``given``, those not in it."""
+        coefficients, context = fit.coefficients(), self.context()
+        found: list[dict] = []
+        nuisance: list[dict] = []
+        for name in self.selected:
+            params = EFFECTS[name].from_coefficients(coefficients, context)
+            small = self.nuisance_record(name, params, fit)
+            if (given is None and small is not None) or (given is not None and name not in given):
+                nuisance.append(small or {**self.entry(name, params, fit), "rule": "share"})
+                continue
+            score = wald_score(fit, EFFECTS[name].regressors)
+            found.append({"name": name, "params": params, "score": score, "share": self.share(name, fit)})
+        order = list(given or [])
+        found.sort(key=lambda e: -e["score"] if given is None else order.index(e["name"]))
+        return found, nuisance
+
     def in_view(self, name: str, params: dict[str, float]) -> bool:
         """Whether every position of a localised effect (:attr:`EffectSpec.positions`, mm) lies in the
         frame or within a quarter of its size around it: a shape fitted far outside the field of view is a
@@ -151,6 +170,16 @@ class Selection:
         self.system.add(EFFECTS[name].regressors[0], fitted.term, fitted.noise)
         self.shapes[name] = fitted.params
         self.fitted[name] = fitted
+
+    def take(self, names: Sequence[str]) -> None:
+        """Put ``names`` into the model as given, in order, without a test: each localised shape fitted to
+        what the effects before it leave, then (beside others) refitted to the model without itself."""
+        for name in names:
+            self.prepare(name, self.system.fit(self.columns(self.selected)))
+            self.selected.append(name)
+        for name in names:
+            if name in self.shapes and len(names) > 1:
+                self.refit(name)
 
     def unphysical(self, *, material: bool = False) -> set[str]:
         """The selected effects whose parameters in the current fit are not physical (or, with
