@@ -21,7 +21,7 @@ of where the time goes.
 
 Usage::
 
-    .venv/bin/python -m experiments.bench_depth --runs 3 --out results/bench_depth
+    .venv/bin/python -m benchmarks.bench_depth --runs 3 --out results/bench_depth
 """
 
 from __future__ import annotations
