@@ -20,7 +20,7 @@ maps in process (the fit, the march, the doses) for the table of where the time 
 
 Usage::
 
-    .venv/bin/python -m experiments.bench_depth --runs 3 --out results/bench_depth
+    .venv/bin/python -m benchmarks.bench_depth --runs 3 --out results/bench_depth
 """
 
 from __future__ import annotations
