@@ -45,8 +45,8 @@ $(LINT_STAMP): $(STAMP)
 
 # ruff (lint and format) and mypy over the package, pinned in pyproject's `lint` extra; CI runs it first.
 lint: $(LINT_STAMP)
-	$(VENV)/bin/ruff check anra_torch tests experiments
-	$(VENV)/bin/ruff format --check anra_torch tests experiments
+	$(VENV)/bin/ruff check anra_torch tests experiments benchmarks
+	$(VENV)/bin/ruff format --check anra_torch tests experiments benchmarks
 	$(VENV)/bin/mypy
 
 bench-paper: $(STAMP)

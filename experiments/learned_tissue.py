@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from anra_torch.layers.derivatives import GaussianSmoothing
+from anra_torch.layers import GaussianSmoothing
 from anra_torch.simulation import simulate_tissue
 from anra_torch.tissue.learned import LearnedTissueModel, relative_error
 

@@ -43,7 +43,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from anra_torch.layers.derivatives import GaussianSmoothing
+from anra_torch.layers import GaussianSmoothing
 from anra_torch.simulation import MovingSource, simulate_tissue
 from anra_torch.tissue.dose import arrhenius_omega
 from anra_torch.tissue.features import TissueFeatures

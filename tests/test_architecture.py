@@ -24,6 +24,9 @@ from anra_torch.effects import EFFECTS
 PACKAGE = Path(anra_torch.__file__).parent
 MODULES = sorted(PACKAGE.rglob("*.py"))
 EXPERIMENTS = PACKAGE.parent / "experiments"
+BENCHMARKS = PACKAGE.parent / "benchmarks"
+SCRIPT_FOLDERS = ("experiments", "benchmarks")
+SCRIPTS = sorted([*EXPERIMENTS.glob("*.py"), *BENCHMARKS.glob("*.py")])
 TESTS = Path(__file__).resolve().parent
 
 LAYERS: tuple[tuple[str, ...], ...] = (
@@ -222,17 +225,16 @@ def test_no_table_of_effect_names_outside_effects() -> None:
 
 
 def _experiment_imports(path: Path) -> set[str]:
+    """The scripts of ``experiments/`` and ``benchmarks/`` that a file imports, as ``folder.NAME``."""
     found = set()
     for node in _imports(path):
-        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("experiments."):
-            found.add(node.module.split(".")[1])
-        elif isinstance(node, ast.Import):
-            found |= {a.name.split(".")[1] for a in node.names if a.name.startswith("experiments.")}
+        names = [node.module or ""] if isinstance(node, ast.ImportFrom) else [a.name for a in node.names]
+        found |= {".".join(n.split(".")[:2]) for n in names if n.split(".")[0] in SCRIPT_FOLDERS and "." in n}
     return found
 
 
 def test_the_experiments_import_each_other_without_a_circle_or_a_path_edit() -> None:
-    scripts = {p.stem: p for p in EXPERIMENTS.glob("*.py") if p.stem != "__init__"}
+    scripts = {f"{p.parent.name}.{p.stem}": p for p in SCRIPTS if p.stem != "__init__"}
     graph = {name: _experiment_imports(path) & set(scripts) for name, path in scripts.items()}
     assert not [name for name, path in scripts.items() if "sys.path" in path.read_text()]
     state: dict[str, int] = {}
@@ -253,7 +255,7 @@ def test_the_experiments_import_each_other_without_a_circle_or_a_path_edit() -> 
     assert not cycles
 
 
-def test_the_package_never_imports_the_experiments() -> None:
+def test_the_package_never_imports_the_experiments_or_benchmarks() -> None:
     importing = [module_name(p) for p in MODULES if _experiment_imports(p)]
     assert not importing
 
@@ -263,7 +265,7 @@ def test_the_package_tests_never_import_the_experiments_or_benchmarks() -> None:
     both need lives under ``tests/`` (the scripts import it as ``tests.NAME``)."""
     importing = []
     for path in sorted(TESTS.rglob("*.py")):
-        if path.relative_to(TESTS).parts[0] == "experiments":
+        if path.relative_to(TESTS).parts[0] in SCRIPT_FOLDERS:
             continue
         for node in _imports(path):
             names = [node.module or ""] if isinstance(node, ast.ImportFrom) else [a.name for a in node.names]
@@ -299,7 +301,7 @@ def test_every_test_file_in_a_folder_mirrors_a_module() -> None:
     itself), ``tests/experiments/test_<name>.py`` the script ``experiments/<name>.py``; package-wide
     tests stay at the top of ``tests/``."""
     mirrored = {test for p in MODULES if (test := mirrored_test(p)) is not None}
-    scripts = {TESTS / "experiments" / f"test_{p.stem}.py" for p in EXPERIMENTS.glob("*.py")}
+    scripts = {TESTS / p.parent.name / f"test_{p.stem}.py" for p in SCRIPTS}
     stray = sorted(
         str(p.relative_to(TESTS.parent))
         for p in TESTS.rglob("test_*.py")

@@ -25,7 +25,8 @@ PAGES = sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts and p no
 PAGES.append(ROOT / "README.md")
 RESULTS = sorted((DOCS / "results").glob("*.md"))
 COMMIT = re.compile(r"(?<![\w.,])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}(?![\w]|\.\d)")
-COMMAND = re.compile(r"python -m experiments\.\w+|`anra \w+")
+COMMAND = re.compile(r"python -m (?:experiments|benchmarks)\.\w+|`anra \w+")
+SCRIPT = re.compile(r"python -m ((?:experiments|benchmarks)\.\w+)")
 # a test file a page names, ``tests/video/test_resample.py``, and the ``-k WORD`` that may follow it (a
 # command may wrap onto the next line)
 TEST_PATH = re.compile(r"(?<![\w/.])tests/[\w/]+\.py")
@@ -61,8 +62,21 @@ def test_the_pages_are_found() -> None:
 
 @pytest.mark.parametrize("page", [p for p in RESULTS if p.name != "index.md"], ids=lambda p: p.name)
 def test_every_results_page_names_a_command(page: Path) -> None:
-    message = f"{page.name} names no `python -m experiments.` nor `anra` command"
+    message = f"{page.name} names no `python -m experiments.`, `python -m benchmarks.` nor `anra` command"
     assert COMMAND.search(page.read_text()), message
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_script_a_page_names_exists(page: Path) -> None:
+    """``python -m experiments.X`` and ``python -m benchmarks.X`` name a script of that folder (``NAME``
+    is the placeholder)."""
+    named = set(SCRIPT.findall(page.read_text()))
+    missing = sorted(
+        name
+        for name in named - {"experiments.NAME", "benchmarks.NAME"}
+        if not (ROOT / (name.replace(".", "/") + ".py")).is_file()
+    )
+    assert missing == [], f"{page.relative_to(ROOT)} names scripts that do not exist: {missing}"
 
 
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))

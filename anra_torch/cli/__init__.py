@@ -39,7 +39,7 @@ def free_cores(cores: int, loadavg: Path = Path("/proc/loadavg")) -> int:
     runnable count, this process included), at least 1; ``cores`` where that count is unavailable.
 
     A thread pool wider than the free cores stalls at every parallel step while a neighbour holds a core
-    (``experiments/bench_scale.py --shared``, 2 cores, a 128 px diagnosis beside one busy process: 1.48x its
+    (``benchmarks/bench_scale.py --shared``, 2 cores, a 128 px diagnosis beside one busy process: 1.48x its
     idle time with this default, 2.96x with both cores).
     """
     try:

@@ -5,17 +5,16 @@ The ANRA estimator built on them is :mod:`anra_torch.estimation.estimator` (thro
 
 from anra_torch.layers.attention import RTCAttention, UniformAttention, confidence_mask, rtc_attention
 from anra_torch.layers.derivatives import (
-    GaussianSmoothing,
     Gradient,
     Laplacian,
     SecondDerivatives,
     TimeDerivative,
-    gaussian_smooth,
     gradient,
     laplacian,
     second_derivatives,
     time_derivative,
 )
+from anra_torch.layers.smoothing import GaussianSmoothing, gaussian_smooth
 from anra_torch.layers.stencils import gaussian_taps
 
 __all__ = [

@@ -2,7 +2,7 @@
 
 Estimating one recording is a chain of many memory-bound passes and small operations that one core runs
 about as fast as two; several recordings at once, one per core, use every core (``anra batch``:
-``experiments/bench_batch.py``).
+``benchmarks/bench_batch.py``).
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ from reference import A_SKIN, EA_SKIN, R_GAS, cem43_constant, omega_constant
 from shared_data import DATA
 
 from anra_torch.cli import main
-from anra_torch.layers.derivatives import GaussianSmoothing
+from anra_torch.layers import GaussianSmoothing
 from anra_torch.simulation import (
     MovingSource,
     simulate_tissue,

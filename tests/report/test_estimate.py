@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from anra_torch.estimation.estimator import ANRAEstimator, ANRAResult
-from anra_torch.layers.derivatives import GaussianSmoothing
+from anra_torch.layers import GaussianSmoothing
 from anra_torch.report import FIGURES, attention_map, format_pm, write_estimate_report
 from anra_torch.simulation.synthetic import paper_video
 from anra_torch.video import Video, load_video, save_npz

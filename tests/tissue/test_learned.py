@@ -9,7 +9,7 @@ import math
 import pytest
 import torch
 
-from anra_torch.layers.derivatives import GaussianSmoothing
+from anra_torch.layers import GaussianSmoothing
 from anra_torch.simulation import simulate_tissue
 from anra_torch.tissue.dose import ArrheniusConstants, arrhenius_omega
 from anra_torch.tissue.learned import LearnedTissueModel, omega_with_constants, relative_error

@@ -124,7 +124,7 @@ def test_counts_stored_byte_swapped_are_recognised_and_flagged(tmp_path: Path) -
 
 def test_csq_jpeg_ls_decodes_100_frames(tmp_path: Path) -> None:
     """100 JPEG-LS frames of 640 x 512 decode to finite temperatures, each frame's own counts exactly (the
-    decode time is measured by ``python -m experiments.bench_sequence``, not here)."""
+    decode time is measured by ``python -m benchmarks.bench_sequence``, not here)."""
     rng = np.random.default_rng(2)
     scene = counts_for(gaussian(4, 512, 640, dx=0.02), Camera()).astype(np.int32)
     distinct = [

@@ -10,7 +10,7 @@ time (user + system, from ``os.wait4``) and of its wall time, and the table show
 
 Usage::
 
-    python -m experiments.bench_revisions --before ':/^One checks module' --after HEAD --runs 7 \
+    python -m benchmarks.bench_revisions --before ':/^One checks module' --after HEAD --runs 7 \
         --out results/bench_revisions
 
 (``:/TEXT`` is git's name for the youngest commit whose message matches: the one before the PDE-balance core.)

@@ -21,8 +21,8 @@ Each pair's ratio is printed; the table gives medians and the ratios' range. ``-
 ``torch.profiler`` table of one ``ANRAEstimator`` call (one thread) on one file: where the time goes.
 Writes ``bench_batch.json`` and ``bench_batch.md`` to ``--out``. Usage::
 
-    .venv/bin/python -m experiments.bench_batch --out results/bench_batch            # ~8 min, 2 cores
-    .venv/bin/python -m experiments.bench_batch --runs 5 --profile --out results/bench_batch
+    .venv/bin/python -m benchmarks.bench_batch --out results/bench_batch            # ~8 min, 2 cores
+    .venv/bin/python -m benchmarks.bench_batch --runs 5 --profile --out results/bench_batch
 """
 
 from __future__ import annotations
@@ -159,7 +159,7 @@ def child_profile(folder: Path, rows: int) -> dict:
 def _child(args: list[str], *, one_thread: bool) -> dict:
     env = os.environ | ({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"} if one_thread else {})
     done = subprocess.run(
-        [sys.executable, "-m", "experiments.bench_batch", "--child", *args],
+        [sys.executable, "-m", "benchmarks.bench_batch", "--child", *args],
         cwd=ROOT, env=env, capture_output=True, text=True,
     )  # fmt: skip
     if done.returncode != 0:

@@ -16,7 +16,7 @@ CPU time, best of ``--repeats``). Prints one JSON object and writes it to ``--ou
 
 Usage (6 GB of free disk; the 9000-frame estimate is about 15 CPU minutes)::
 
-    OMP_NUM_THREADS=1 .venv/bin/python experiments/bench_sequence.py --out results/bench_sequence.json
+    OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_sequence --out results/bench_sequence.json
 
 Measured with that command on 05158f3 plus this script (committed in 9afb637; 2 cores shared with 3-4
 other sessions, load average 6-16, one torch thread): ``anra estimate`` peaked at 1316.6 MiB on the

@@ -24,8 +24,8 @@ measured in the same run are what count, absolute numbers move with the load.
 
 Run::
 
-    .venv/bin/python -m experiments.bench_scale --out results/bench          # ~10-20 min, one thread
-    .venv/bin/python -m experiments.bench_scale --quick --out results/bench  # sizes 1, 8; no 10k video
+    .venv/bin/python -m benchmarks.bench_scale --out results/bench          # ~10-20 min, one thread
+    .venv/bin/python -m benchmarks.bench_scale --quick --out results/bench  # sizes 1, 8; no 10k video
 
 Writes ``bench.json`` (every measurement) and ``bench.md`` (tables and ratios) to ``--out``.
 """

@@ -14,7 +14,7 @@ call (the compilation) and the median of the following forward and backward pass
 
 Usage::
 
-    .venv/bin/python -m experiments.bench_gradients --before 5a863eb --runs 3 --out results/bench_gradients
+    .venv/bin/python -m benchmarks.bench_gradients --before 5a863eb --runs 3 --out results/bench_gradients
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from experiments.bench_revisions import export
+from benchmarks.bench_revisions import export
 
 ROOT = Path(__file__).resolve().parents[1]
 

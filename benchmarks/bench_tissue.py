@@ -20,7 +20,7 @@ last timed call), for the table of where the time goes.
 
 Usage::
 
-    .venv/bin/python -m experiments.bench_tissue --before ':/^Tests: the beam recording of the depth CLI' \\
+    .venv/bin/python -m benchmarks.bench_tissue --before ':/^Tests: the beam recording of the depth CLI' \\
         --runs 3 --profile --out results/bench_tissue
 """
 
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from experiments.bench_revisions import export
+from benchmarks.bench_revisions import export
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE, FRAMES, DX, DT, NOISE = 128, 100, 0.1, 0.1, 0.05

@@ -5,7 +5,7 @@ group and index is the same video) and prints how many name the same effects, ho
 forecast gain to 2 decimals, the cases that differ, and the median diagnosis time per case (per group and
 overall) of each run.
 
-    python -m experiments.compare_benchmarks BEFORE/results.json AFTER/results.json
+    python -m benchmarks.compare_benchmarks BEFORE/results.json AFTER/results.json
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ the computation follows them. Without a GPU the table says "no GPU" and shows th
 
 Usage::
 
-    .venv/bin/python -m experiments.bench_device --out results/bench_device
+    .venv/bin/python -m benchmarks.bench_device --out results/bench_device
 """
 
 from __future__ import annotations

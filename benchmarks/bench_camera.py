@@ -12,7 +12,7 @@ per frame against the chunked run's.
 
 Run::
 
-    .venv/bin/python -m experiments.bench_camera --out results/camera          # ~2 min (+ ~6 min with --long)
+    .venv/bin/python -m benchmarks.bench_camera --out results/camera          # ~2 min (+ ~6 min with --long)
 
 Writes ``camera.json`` and ``camera.md`` to ``--out``; the recordings go to a temporary folder (or
 ``--data``) and are deleted unless ``--keep``.
