@@ -91,7 +91,7 @@ def profile(video: Path) -> dict[str, float]:
     # the modules (the package's face exports functions of the same names)
     depth, doses, features = (
         importlib.import_module(f"anra_torch.tissue.{name}")
-        for name in ("depth", "depth_doses", "depth_features")
+        for name in ("depth_damage", "depth_doses", "depth_features")
     )
 
     torch.set_num_threads(1)
