@@ -163,9 +163,8 @@ def pilot_contenders(
     The pilot is :data:`_PILOT_BLOCKS` blocks of consecutive output frames spread over the video, one
     frame in :data:`_PILOT_SHARE` in all. Each block's noise norm is extrapolated lag by lag to the
     frames it stands for (:func:`~anra_torch.balance.spectral.pushed_norm`), so that the block's ends
-    (where the time derivative's noise does not cancel) weigh as little as the video's do. None where
-    no pilot applies: one candidate, too few frames, fixed effects or correlated noise, or a video whose
-    pilot measures nothing.
+    (where the time derivative's noise does not cancel) weigh as little as the video's do. None where no
+    pilot applies: one candidate, too few frames, fixed effects or correlated noise, nothing measured.
     """
     b, k, h, w = rate.shape
     n = _PILOT_BLOCKS
