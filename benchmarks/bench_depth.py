@@ -9,14 +9,15 @@ mm^2/s, b = 0.003 1/s, a loss to the air) from the Green's-function reference
 between two frames; 64 x 64 px of 0.1 mm with 0.3 K white noise; 150 frames at 10 frames/s (an exposure of
 3.9 s) and 1,668 at 30 frames/s (45.6 s: a minute-long recording). Written once to ``--out`` as ``.npz``.
 
-Each case runs ``anra features VIDEO --depth --json`` (the whole command: reading, the surface features,
-the depth fit and maps, the JSON; on 150 frames also without ``--depth``: the surface features' share) in
-a child process with ``OMP_NUM_THREADS=1`` from the working tree (or ``--tree``: another revision's
-``anra_torch/``, e.g. exported with ``git archive``), ``--runs`` times after ``--warmup`` runs; the child's
-wall seconds and its CPU seconds (user + system: on a shared machine the one thread's own work, which wall
-time overstates by the machine's load; medians) and peak resident memory (the largest, from the operating
-system's accounting of the finished child) are reported. ``--profile`` also times the stages of the depth
-maps in process (the fit, the march, the doses) for the table of where the time goes.
+Each case runs ``anra features VIDEO --depth --json`` (the whole command: reading, the surface features, the
+depth fit and maps, the JSON; on 150 frames also without ``--depth``: the surface features' share) in a child
+process with ``OMP_NUM_THREADS=1`` from the working tree (or ``--tree``: another revision's ``anra_torch/``,
+e.g. exported with ``git archive``), ``--runs`` times after ``--warmup`` runs (the tree's bytecode compiled
+first, as an installation has it); the child's wall seconds and its CPU seconds (user + system: on a shared
+machine the one thread's own work, which wall time overstates by the machine's load; medians) and peak
+resident memory (the largest, from the operating system's accounting of the finished child) are reported.
+``--profile`` also times the stages of the depth maps in process (the fit, the march, the doses) for the table
+of where the time goes.
 
 Usage::
 
@@ -26,6 +27,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import compileall
 import json
 import os
 import statistics
@@ -89,7 +91,7 @@ def profile(video: Path) -> dict[str, float]:
     # the modules (the package's face exports functions of the same names)
     depth, doses, features = (
         importlib.import_module(f"anra_torch.tissue.{name}")
-        for name in ("depth", "depth_doses", "depth_features")
+        for name in ("depth_damage", "depth_doses", "depth_features")
     )
 
     torch.set_num_threads(1)
@@ -131,6 +133,9 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     results: dict = {"tree": args.tree, "runs": args.runs, "cases": {}}
+    # The package's bytecode written once, as installing it does: the command then reads it instead of
+    # compiling its ~140 modules on every run (a shell with PYTHONDONTWRITEBYTECODE never caches them)
+    compileall.compile_dir(str(Path(args.tree) / "anra_torch"), quiet=1)
     for name in args.cases.split(","):
         frames, rate = CASES[name]
         video = recording(frames, rate, out)

@@ -57,7 +57,7 @@ import torch
 from anra_torch.cli import main as anra
 from anra_torch.simulation import GreenScene, random_scene, simulate_bioheat, simulate_spot
 from anra_torch.tissue import arrhenius_omega, cem43, damage_in_depth
-from anra_torch.tissue.depth_features import MAP_COARSE, MAP_GROWTH, MAP_MARGIN
+from anra_torch.tissue.depth_features import MAP_SETTINGS
 from anra_torch.video import save_npz
 from experiments.tissue_damage import Logistic, best_threshold  # the house's classifier helpers, reused
 
@@ -166,9 +166,7 @@ def analyse(scene: dict, noise: float, seed: int) -> dict:
         diffusivity=scene["a"],
         loss_rate=scene["b"],
         body_temperature=scene["body"],
-        growth=MAP_GROWTH,
-        margin=MAP_MARGIN,
-        coarse=MAP_COARSE,
+        settings=MAP_SETTINGS,
     )
     out[TRUE] = exact.damage_depth.double().flatten().numpy()
     out["features"] = surface_features(torch.from_numpy(frames), scene["dt"])

@@ -4,10 +4,11 @@ cache on disk that the xdist workers share for results several tests compute ali
 
 from __future__ import annotations
 
+import hashlib
 import os
 import pickle
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,7 @@ import torch
 from filelock import FileLock
 
 from anra_torch.cli import main
+from anra_torch.effects import HiddenEffectVideo, hidden_effect_video
 from anra_torch.simulation.synthetic import paper_video
 from anra_torch.video import save_npz
 
@@ -102,6 +104,20 @@ def disk_cache(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, Calla
             return value
 
     return cached
+
+
+@pytest.fixture(scope="session")
+def hidden_video(disk_cache: Callable[[str, Callable[[], Any]], Any]) -> Callable[..., HiddenEffectVideo]:
+    """``hidden_video(names, seed=..., **kwargs)``: :func:`~anra_torch.effects.hidden_effect_video` with
+    these arguments, simulated once per test run and shared by the tests (and xdist workers) that ask for
+    the same scene. Read only."""
+
+    def shared(names: Sequence[str] = (), **kwargs: Any) -> HiddenEffectVideo:
+        spelled = "+".join(names) + "".join(f"-{k}={v!r}" for k, v in sorted(kwargs.items()))
+        key = f"hidden-{spelled[:100]}-{hashlib.sha1(spelled.encode()).hexdigest()[:12]}"
+        return disk_cache(key, lambda: hidden_effect_video(tuple(names), **kwargs))
+
+    return shared
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

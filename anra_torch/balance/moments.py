@@ -321,9 +321,8 @@ def pushback(outputs: Tensor, frames: Tensor, levers: Sequence[Tensor]) -> Tenso
     """
     backs = []
     for lever in levers:
-        (back,) = torch.autograd.grad(
-            outputs, frames, grad_outputs=lever.expand_as(outputs), retain_graph=True
-        )
+        # the gradient of <outputs, lever>: the same A^T x, without grad_outputs (whose check imports sympy)
+        (back,) = torch.autograd.grad((outputs * lever).sum(), frames, retain_graph=True)
         backs.append(back)
     return torch.stack(backs)
 

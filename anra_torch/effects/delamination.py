@@ -35,7 +35,7 @@ from torch import Tensor
 
 from anra_torch.balance import NoiseSpec
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Rates, Shape, Term, require
-from anra_torch.effects.depth_conduction import depth_rate
+from anra_torch.effects.depth_conduction import depth_rate, depth_rate_at
 from anra_torch.effects.shapes import draw_circle, edge_disc, optimise, peak, pixel_grid
 
 if TYPE_CHECKING:
@@ -49,7 +49,7 @@ _STRENGTH = (0.2, 5.0)
 
 
 def _difference(elapsed: Tensor, p: dict[str, float]) -> Tensor:
-    return depth_rate(elapsed, p["plate_time"]) - depth_rate(elapsed, p["depth_time"])
+    return depth_rate_at(elapsed, p["plate_time"]) - depth_rate_at(elapsed, p["depth_time"])
 
 
 def _build(p: dict[str, float], grid: Grid) -> Term:

@@ -31,6 +31,7 @@ Random draw: ``t_heat`` 2-20 % of the video before its first frame, ``depth_time
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import TYPE_CHECKING
 
@@ -46,7 +47,7 @@ from anra_torch.simulation import Continuum
 if TYPE_CHECKING:
     from anra_torch.balance import BalanceSystem, Fit
 
-__all__ = ["SPEC", "depth_rate"]
+__all__ = ["SPEC", "depth_rate", "depth_rate_at"]
 
 _F64 = torch.float64
 _STRENGTH = (0.2, 5.0)  # a fit outside is not conduction into depth (1 for a homogeneous body)
@@ -86,6 +87,35 @@ def depth_rate(elapsed: Tensor, depth_time: float | Tensor) -> Tensor:
     return torch.where(small, dual, direct) / tau
 
 
+@functools.lru_cache(maxsize=1 << 15)
+def _rate_at(elapsed: float, depth_time: float) -> float:
+    return float(depth_rate(torch.tensor(elapsed, dtype=_F64, device="cpu"), depth_time))
+
+
+def depth_rate_at(elapsed: Tensor, depth_time: float | Tensor) -> Tensor:
+    """:func:`depth_rate` at one time, as a simulation's term asks for it: the same values, looked up.
+
+    A simulation asks at the same solver times again and again (every stage of every forecast of one
+    video), so a time that is a CPU scalar without gradient, with a numeric ``depth_time``, is computed
+    once per process; any other input goes to :func:`depth_rate`.
+
+    Args:
+        elapsed: time since the heating in s, > 0, a 0-d float64 tensor.
+        depth_time: ``L^2 / a_z`` in s, > 0.
+
+    Returns:
+        ``r`` in 1/s, 0-d float64 on ``elapsed``'s device.
+    """
+    if (
+        elapsed.ndim == 0
+        and elapsed.device.type == "cpu"
+        and not elapsed.requires_grad
+        and isinstance(depth_time, (int, float))
+    ):
+        return torch.tensor(_rate_at(float(elapsed), float(depth_time)), dtype=_F64, device="cpu")
+    return depth_rate(elapsed, depth_time)
+
+
 def _build(p: dict[str, float], grid: Grid) -> Term:
     strength, t_heat, depth_time, t_ref = p["strength"], p["t_heat"], p["depth_time"], p["T_ref"]
 
@@ -93,7 +123,7 @@ def _build(p: dict[str, float], grid: Grid) -> Term:
         elapsed = (
             torch.as_tensor(t, dtype=_F64, device=u.device) - t_heat
         )  # > 0: the heating precedes the first frame
-        return (-strength * depth_rate(elapsed, depth_time)).to(u) * (u - t_ref)
+        return (-strength * depth_rate_at(elapsed, depth_time)).to(u) * (u - t_ref)
 
     return term
 

@@ -12,20 +12,31 @@ the depth is fitted; a non-uniform flash and the anisotropy then do not read as 
 - :func:`local_quadratic`: a quadratic fitted around every pixel with Gaussian weights over the pixels of
   the frame (truncated at its edges, not padded): the smoothed value and the second derivatives, exact
   for any quadratic field, at the edges too.
+- :func:`gaussian_derivatives`: the frames smoothed by a Gaussian and the smoothed frames' exact second
+  derivatives (the same smoothing on both sides of the heat equation), valid away from the edges.
 - :func:`fit_lateral`: ``(a_x, a_y, a_xy)`` from the increments of ``ln u`` over blocks of frames that
   grow geometrically; within a region of equal depth the depth factor is common to its pixels and drops
-  out of the increments' differences between pixels.
+  out of the increments' differences between pixels. Late blocks' regressors are mostly noise: their
+  expected noise parts are taken off the normal equations (errors in variables).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as nnf
 from torch import Tensor
 
-__all__ = ["fit_lateral", "lateral_integrals", "local_quadratic", "value_noise_gain"]
+__all__ = [
+    "fit_lateral",
+    "lateral_integrals",
+    "local_quadratic",
+    "gaussian_derivatives",
+    "gaussian_noise_covariance",
+    "value_noise_gain",
+]
 
 _MONOMIALS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))  # powers of (x, y) in pixels
 _CHUNK = 64  # frames filtered at once
@@ -98,6 +109,53 @@ def value_noise_gain(sigma: float) -> float:
     return float(kernel.square().sum().sqrt())
 
 
+def _gaussian_taps(sigma: float, like: Tensor) -> tuple[Tensor, int]:
+    """A Gaussian's taps and its first and second derivatives' (px), each exact on polynomials up to its
+    order: ``sum g0 = 1``, ``sum k g1 = 1``, ``sum g2 = 0``, ``sum k^2 g2 / 2 = 1``; ``(3, 2 r + 1)``."""
+    radius = int(math.ceil(3 * sigma))
+    k = torch.arange(-radius, radius + 1, dtype=like.dtype, device=like.device)
+    gauss = torch.exp(-(k**2) / (2 * sigma**2))
+    g0 = gauss / gauss.sum()
+    g1 = k * gauss
+    g1 = g1 / (k * g1).sum()
+    g2 = (k**2 / sigma**2 - 1) * gauss
+    g2 = g2 - g0 * g2.sum()
+    g2 = g2 / (k**2 * g2).sum() * 2
+    return torch.stack([g0, g1, g2]), radius
+
+
+_GAUSSIAN_PARTS = ((0, 0), (2, 0), (0, 2), (1, 1))  # (x, y) orders of the value, xx, yy and xy
+
+
+def gaussian_derivatives(frames: Tensor, sigma: float, dx: float) -> tuple[Tensor, Tensor]:
+    """The frames smoothed by a Gaussian (``sigma`` px) and the smoothed frames' second derivatives.
+
+    The smoothing commutes with the heat equation's derivatives (the same kernel on both sides), so the
+    smoothed frames obey the same lateral conduction as the frames; valid ``3 sigma`` px from the frame's
+    edges (zeros are assumed beyond them).
+
+    Returns:
+        The smoothed value ``(T, H, W)`` and ``(d^2/dx^2, d^2/dy^2, d^2/dxdy)`` in data units per mm^2,
+        ``(3, T, H, W)``, x along W.
+    """
+    taps, radius = _gaussian_taps(sigma, frames)
+    parts = []
+    for chunk in frames.split(_CHUNK):
+        along_x = [_correlate(chunk, taps[p], radius, -1) for p in range(3)]
+        parts.append(torch.stack([_correlate(along_x[a], taps[b], radius, -2) for a, b in _GAUSSIAN_PARTS]))
+    out = torch.cat(parts, 1) / frames.new_tensor([1.0, dx**2, dx**2, dx**2]).view(4, 1, 1, 1)
+    return out[0], out[1:]
+
+
+def gaussian_noise_covariance(sigma: float, dx: float) -> Tensor:
+    """The covariance of :func:`gaussian_derivatives`' value and the regressors' numerators ``(u_xx, u_yy,
+    2 u_xy)`` per unit variance of white noise in the frames, ``(4, 4)`` float64 on the CPU."""
+    taps, _ = _gaussian_taps(sigma, torch.zeros((), dtype=torch.float64, device="cpu"))
+    kernels = torch.stack([taps[a][None, :] * taps[b][:, None] for a, b in _GAUSSIAN_PARTS]).flatten(1)
+    kernels = kernels * torch.tensor([1.0, 1 / dx**2, 1 / dx**2, 2 / dx**2], dtype=torch.float64)[:, None]
+    return kernels @ kernels.T
+
+
 def lateral_integrals(second: Tensor, excess: Tensor, elapsed: Tensor) -> Tensor:
     """``int (u_xx, u_yy, 2 u_xy) / u dt`` from the first sample by the trapezoidal rule.
 
@@ -133,6 +191,42 @@ def _blocks(elapsed: Tensor) -> list[int]:
     return edges
 
 
+def _trapezoid(elapsed: Tensor, i0: int, i1: int) -> Tensor:
+    """The trapezoidal rule's weights of the samples ``i0 .. i1`` in ``int_{t_i0}^{t_i1} f dt``."""
+    steps = elapsed[i0 : i1 + 1].diff()
+    weights = elapsed.new_zeros(i1 - i0 + 1)
+    weights[:-1] += 0.5 * steps
+    weights[1:] += 0.5 * steps
+    return weights
+
+
+@dataclass(frozen=True)
+class _Block:
+    """One block's sums over its pixels: ``A^T A`` and ``A^T dy`` less their expected noise parts (errors
+    in variables), the noise parts, ``dy^T dy`` and the pixels' count."""
+
+    gram: Tensor
+    rhs: Tensor
+    noise_aa: Tensor
+    noise_ay: Tensor
+    noise_yy: Tensor
+    yy: Tensor
+    pixels: int
+
+    def residual(self, a: Tensor) -> tuple[float, float]:
+        """The mean square residual at ``a`` and its expected noise part, per pixel."""
+        noise = self.noise_yy - 2 * a @ self.noise_ay + a @ self.noise_aa @ a
+        total = self.yy - 2 * a @ (self.rhs + self.noise_ay) + a @ (self.gram + self.noise_aa) @ a
+        return float(total) / self.pixels, float(noise) / self.pixels
+
+
+def _solve(blocks: list[_Block], weights: list[float]) -> Tensor:
+    """The blocks' weighted errors-in-variables solution."""
+    gram = torch.stack([w * b.gram for b, w in zip(blocks, weights, strict=True)]).sum(0)
+    rhs = torch.stack([w * b.rhs for b, w in zip(blocks, weights, strict=True)]).sum(0)
+    return torch.linalg.solve(gram, rhs)
+
+
 def fit_lateral(
     frames: Tensor,
     elapsed: Tensor,
@@ -145,6 +239,12 @@ def fit_lateral(
     labels: Tensor | None,
 ) -> tuple[Tensor, int]:
     """``(a_x, a_y, a_xy)`` in mm^2/s from the pixels' differences in the increments of ``ln u``.
+
+    The regressors (the lateral integrals) are noisy as the increments are; late in a recording their
+    noise outgrows their signal and would bias plain least squares towards zero. Each block's sums lose
+    their expected noise parts (the local quadratic's noise covariance, :func:`noise_covariance`, over
+    ``u^2`` and the bins' frame counts, through the trapezoidal rule: errors in variables), and the blocks
+    are weighted by their residuals' mean square.
 
     Args:
         frames: the cooling averaged over bins of frames, ``(N, H, W)`` float64.
@@ -160,37 +260,58 @@ def fit_lateral(
         The diffusivities (zeros where the fit fails or is not physical: ``a_x, a_y >= 0``,
         ``a_xy^2 <= a_x a_y``) and the blocks of frames it used (negative when it was not physical).
     """
-    value, second = local_quadratic(frames, sigma, dx)
+    value, second = gaussian_derivatives(frames, sigma, dx)
     excess = (value - t_ref).clamp_min(torch.finfo(value.dtype).tiny)
     integrals = lateral_integrals(second, excess, elapsed).flatten(2)  # (3, N, P)
     logs, excess = excess.log().flatten(1), excess.flatten(1)
+    keep, region, regions = _pixels(frames, sigma, labels)
+    if len(region) < 50:
+        return frames.new_zeros(3), 0
+    # per bin: the noise variance of the local fit's outputs over u^2, summed over the pixels
+    spread = (noise_sd**2 / counts.to(frames)) * excess[:, keep].pow(-2).sum(1)  # (N,)
+    covariance = gaussian_noise_covariance(sigma, dx).to(frames)
+    blocks: list[_Block] = []
+    edges = _blocks(elapsed)
+    for i0, i1 in zip(edges[:-1], edges[1:], strict=False):
+        dy = _demean((logs[i1] - logs[i0])[keep], region, regions)
+        a = _demean((integrals[:, i1] - integrals[:, i0])[:, keep].T, region, regions)
+        steps = _trapezoid(elapsed, i0, i1)
+        block = _Block(
+            gram=a.T @ a - covariance[1:, 1:] * (steps.square() * spread[i0 : i1 + 1]).sum(),
+            rhs=a.T @ dy - covariance[1:, 0] * (steps[-1] * spread[i1] - steps[0] * spread[i0]),
+            noise_aa=covariance[1:, 1:] * (steps.square() * spread[i0 : i1 + 1]).sum(),
+            noise_ay=covariance[1:, 0] * (steps[-1] * spread[i1] - steps[0] * spread[i0]),
+            noise_yy=covariance[0, 0] * (spread[i1] + spread[i0]),
+            yy=dy @ dy,
+            pixels=len(dy),
+        )
+        if len(blocks) >= 2 and _breaks(block, _solve(blocks, [1.0] * len(blocks))):
+            break
+        blocks.append(block)
+    if len(blocks) < 4:
+        return frames.new_zeros(3), len(blocks)
+    a = _solve(blocks, [1.0] * len(blocks))
+    for _ in range(3):  # each block weighted by its residuals' mean square
+        a = _solve(blocks, [1 / max(b.residual(a)[0], torch.finfo(a.dtype).tiny) for b in blocks])
+    if a[0] < 0 or a[1] < 0 or a[2] ** 2 > a[0] * a[1]:
+        return frames.new_zeros(3), -len(blocks)
+    return a, len(blocks)
+
+
+def _breaks(block: _Block, a: Tensor) -> bool:
+    """A block the fit so far leaves a residual of :data:`_STOP_CHI2` times its noise and less than
+    :data:`_STOP_R2` of its increments explained: the model no longer holds (a region changed depth)."""
+    residual, noise = block.residual(a)
+    return residual > _STOP_CHI2 * noise and residual > (1 - _STOP_R2) * float(block.yy) / block.pixels
+
+
+def _pixels(frames: Tensor, sigma: float, labels: Tensor | None) -> tuple[Tensor, Tensor, int]:
+    """The pixels the fit uses (``3 sigma`` from the edge, labelled), their regions and the regions' count."""
     height, width = frames.shape[1:]
     margin = int(math.ceil(3 * sigma))
     inside = torch.zeros((height, width), dtype=torch.long, device=frames.device)
     inside[margin : height - margin, margin : width - margin] = 1
     labels = inside if labels is None else labels.to(frames.device) * inside
     keep = labels.flatten() > 0
-    if int(keep.sum()) < 50:
-        return frames.new_zeros(3), 0
     region = labels.flatten()[keep]
-    regions = int(region.max()) + 1
-    variance = (noise_sd * value_noise_gain(sigma)) ** 2 / counts.to(frames)
-    edges = _blocks(elapsed)
-    gram, rhs, used = frames.new_zeros((3, 3)), frames.new_zeros(3), 0
-    for i0, i1 in zip(edges[:-1], edges[1:], strict=False):
-        dy = _demean((logs[i1] - logs[i0])[keep], region, regions)
-        a = _demean((integrals[:, i1] - integrals[:, i0])[:, keep].T, region, regions)
-        if used >= 2:
-            residual = float((dy - a @ torch.linalg.solve(gram, rhs)).square().mean())
-            expected = float(
-                (variance[i1] / excess[i1, keep] ** 2 + variance[i0] / excess[i0, keep] ** 2).mean()
-            )
-            if residual > _STOP_CHI2 * expected and residual > (1 - _STOP_R2) * float(dy.square().mean()):
-                break
-        gram, rhs, used = gram + a.T @ a, rhs + a.T @ dy, used + 1
-    if used < 4:
-        return frames.new_zeros(3), used
-    a = torch.linalg.solve(gram, rhs)
-    if a[0] < 0 or a[1] < 0 or a[2] ** 2 > a[0] * a[1]:
-        return frames.new_zeros(3), -used
-    return a, used
+    return keep, region, int(region.max()) + 1 if len(region) else 1

@@ -6,9 +6,10 @@ below the surface.
 - :mod:`~anra_torch.tissue.learned`: :class:`LearnedTissueModel`, fitted end to end through the simulator,
   and :func:`omega_with_constants`, the Arrhenius dose with per-pixel constants that learn;
 - :mod:`~anra_torch.tissue.depth`: the subsurface temperature under every pixel from the measured surface
-  (:func:`subsurface_temperature`), the heat that entered through it (:func:`surface_heat_input`), Omega,
-  CEM43 and the peak temperature in depth with the damage depth and its standard error
-  (:func:`damage_in_depth`, :class:`DepthMaps`);
+  (:func:`subsurface_temperature`) and the heat that entered through it (:func:`surface_heat_input`);
+- :mod:`~anra_torch.tissue.depth_damage`: Omega, CEM43 and the peak temperature in depth with the damage
+  depth and its standard error (:func:`damage_in_depth`, :class:`DepthMaps`, its settings
+  :class:`DepthSettings` and :class:`StandardErrors`);
 - :mod:`~anra_torch.tissue.depth_fit`: the diffusivity and perfusion the depth model needs, fitted on the
   recording's cooling, and the flag for volumetric heating (:func:`fit_depth_parameters`,
   :class:`DepthParameters`);
@@ -20,13 +21,14 @@ below the surface.
 - :mod:`~anra_torch.tissue.depth_doses`: the doses of the depth march and the noise carried through them.
 """
 
-from anra_torch.tissue.depth import (
+from anra_torch.tissue.depth import subsurface_temperature, surface_heat_input
+from anra_torch.tissue.depth_damage import (
     CEM43_THRESHOLD,
     DOSE_FLOOR,
     DepthMaps,
+    DepthSettings,
+    StandardErrors,
     damage_in_depth,
-    subsurface_temperature,
-    surface_heat_input,
     threshold_depth,
 )
 from anra_torch.tissue.depth_features import DEPTH_MAPS, DepthFeatures, depth_features
@@ -67,6 +69,7 @@ __all__ = [
     "DepthFeatures",
     "DepthMaps",
     "DepthParameters",
+    "DepthSettings",
     "GAS_CONSTANT",
     "LearnedTissueModel",
     "MAPS",
@@ -74,6 +77,7 @@ __all__ = [
     "MIN_CONFIDENCE",
     "RULES",
     "SKIN",
+    "StandardErrors",
     "TissueFeatureMaps",
     "TissueFeatures",
     "UNITS",

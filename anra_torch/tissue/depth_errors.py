@@ -1,5 +1,7 @@
-"""The standard errors of the depth maps: the perturbed copies of a depth problem (``a + se``, ``b + se``),
-the spread of their results, and the frames' noise propagated analytically to every depth node.
+"""The depth where a dose crosses its threshold (:func:`threshold_depth`) and the standard errors of the
+depth maps: the variance of that depth from the doses' noise (:func:`threshold_variance`), the perturbed
+copies of a depth problem (``a + se``, ``b + se``), the spread of their results, and the frames' noise
+propagated analytically to every depth node.
 
 The maps are solved for the base problem and its copies at once (:func:`anra_torch.tissue.damage_in_depth`);
 the parameters' part of a standard error is the root sum of squares of the copies' changes (one linearised
@@ -21,7 +23,7 @@ import math
 import torch
 from torch import Tensor
 
-__all__ = ["noise_correlation", "perturbed_copies", "spread"]
+__all__ = ["noise_correlation", "perturbed_copies", "spread", "threshold_depth", "threshold_variance"]
 
 _F64 = torch.float64
 _BINS = 48  # radial bins of |k|^2 (the transfer function depends on |k| only)
@@ -99,3 +101,58 @@ def noise_correlation(
     zero = noise.view(-1, 1) ** 2 * (weight * torch.exp(-2.0 * z * rate.sqrt())).sum(1)[..., 0]
     rho = ((zero - variance) / (zero + variance).clamp_min(1e-300)).clamp(0.0, 1.0 - 1e-9)
     return variance, rho
+
+
+def threshold_depth(values: Tensor, depths: Tensor, threshold: float | Tensor) -> Tensor:
+    """Deepest point where ``values >= threshold`` along the depth axis, ``log(values)`` interpolated
+    linearly between the nodes around it (0 where no node reaches it). Differentiable in ``values``.
+
+    Args:
+        values: a positive dose at every node (Omega, CEM43), ``(..., Z, H, W)``.
+        depths: node depths in mm, ``(Z,)``, increasing.
+        threshold: the dose (> 0).
+
+    Returns:
+        Depth in mm, ``(..., H, W)``.
+
+    Shape:
+        ``(..., Z, H, W)`` -> ``(..., H, W)``.
+
+    Example:
+        >>> omega = torch.tensor([8.0, 2.0, 0.5]).view(3, 1, 1)  # ln: 2.08, 0.69, -0.69
+        >>> round(float(threshold_depth(omega, torch.tensor([0.0, 0.1, 0.2]), 1.0)), 6)
+        0.15
+    """
+    z = depths.to(device=values.device, dtype=values.dtype)
+    above = values >= threshold
+    n = values.shape[-3]
+    index = torch.arange(n, device=values.device).view(-1, 1, 1)
+    last = torch.where(above, index, -1).amax(-3, keepdim=True)  # deepest node at or above
+    here = last.clamp_min(0)
+    below = (here + 1).clamp_max(n - 1)
+    log_here = torch.log(values.gather(-3, here).clamp_min(1e-300) / threshold)
+    log_below = torch.log(values.gather(-3, below).clamp_min(1e-300) / threshold)
+    span = (log_here - log_below).clamp_min(1e-12)
+    fraction = torch.where(below > here, (log_here / span).clamp(0.0, 1.0), torch.zeros_like(span))
+    depth = z[here] + fraction * (z[below] - z[here])
+    return torch.where(last >= 0, depth, torch.zeros_like(depth)).squeeze(-3)
+
+
+def threshold_variance(values: Tensor, variance: Tensor, depths: Tensor, threshold: float) -> Tensor:
+    """The variance (mm^2) of :func:`threshold_depth` from the dose's noise variance ``variance`` at every
+    node: ``Var(ln D)`` interpolated to the crossing, over the squared slope of ``ln D`` there."""
+    z = depths.to(device=values.device, dtype=values.dtype)
+    n = values.shape[-3]
+    index = torch.arange(n, device=values.device).view(-1, 1, 1)
+    last = torch.where(values >= threshold, index, -1).amax(-3, keepdim=True)
+    here = last.clamp_min(0)
+    below = (here + 1).clamp_max(n - 1)
+    log_here = torch.log(values.gather(-3, here).clamp_min(1e-300) / threshold)
+    log_below = torch.log(values.gather(-3, below).clamp_min(1e-300) / threshold)
+    span = (log_here - log_below).clamp_min(1e-12)
+    fraction = (log_here / span).clamp(0.0, 1.0)
+    relative = variance / values.clamp_min(1e-300) ** 2  # Var(ln D) at every node
+    mixed = (1 - fraction) * relative.gather(-3, here) + fraction * relative.gather(-3, below)
+    slope = span / (z[below] - z[here]).clamp_min(1e-12)
+    out = torch.where((last >= 0) & (below > here), mixed / slope**2, torch.zeros_like(mixed))
+    return out.squeeze(-3)

@@ -2,7 +2,7 @@
 
 :func:`depth_features` fits ``a`` and ``b`` on the recording's cooling
 (:func:`anra_torch.tissue.depth_fit.fit_depth_parameters`) and maps the damage in depth with their
-standard errors and the noise's (:func:`anra_torch.tissue.depth.damage_in_depth`). A video whose fit is
+standard errors and the noise's (:func:`anra_torch.tissue.depth_damage.damage_in_depth`). A video whose fit is
 not possible (no cooling recorded) or that looks volumetrically heated gets NaN maps and the reason: the
 model's number would not describe it. Units: mm, s, C.
 """
@@ -14,11 +14,17 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from anra_torch.tissue.depth import CEM43_THRESHOLD, DepthMaps, damage_in_depth
+from anra_torch.tissue.depth_damage import (
+    CEM43_THRESHOLD,
+    DepthMaps,
+    DepthSettings,
+    StandardErrors,
+    damage_in_depth,
+)
 from anra_torch.tissue.depth_fit import DepthParameters, fit_depth_parameters
 from anra_torch.tissue.dose import SKIN, ArrheniusConstants
 
-__all__ = ["DEPTH_MAPS", "PRIOR", "DepthFeatures", "depth_features"]
+__all__ = ["DEPTH_MAPS", "MAP_SETTINGS", "PRIOR", "DepthFeatures", "depth_features"]
 
 _F64 = torch.float64
 
@@ -38,6 +44,8 @@ MAP_COARSE = 2
 """The maps' perturbed solves (``a + se``, ``b + se``: the parameters' part of the standard errors) on the
 frames' ``2 x 2`` px means (:func:`anra_torch.tissue.damage_in_depth`'s ``coarse``): the base at full
 resolution, the copies' changes vary smoothly across pixels."""
+MAP_SETTINGS = DepthSettings(growth=MAP_GROWTH, margin=MAP_MARGIN, coarse=MAP_COARSE)
+"""The maps' :class:`~anra_torch.tissue.DepthSettings` (skin's constants, the linear rule, 240 min)."""
 PRIOR: dict[str, tuple[float, float]] = {"diffusivity": (0.14, 0.03), "loss_rate": (0.005, 0.005)}
 """Textbook skin values with wide standard errors (value, standard error) for a recording whose cooling
 cannot be fitted (none recorded, or nothing above the noise): ``a`` 0.14 mm^2/s (0.08-0.20 within two
@@ -127,10 +135,7 @@ def depth_features(
         units, constants, rule, cem43_threshold, thickness: as :func:`damage_in_depth`.
 
     Returns:
-        :class:`DepthFeatures` (batched: a single video keeps ``B = 1``).
-
-    Shape:
-        ``frames`` ``(B, T, H, W)``; maps ``(B, H, W)``.
+        :class:`DepthFeatures` (batched: a single video keeps ``B = 1``); maps ``(B, H, W)``.
     """
     video = frames if frames.ndim == 4 else frames.unsqueeze(0)
     parameters = fit_depth_parameters(video, dt, dx, units=units)
@@ -148,18 +153,17 @@ def depth_features(
     if bool(used.any()):
         pick = torch.nonzero(used).flatten()
         spacing = [s if not isinstance(s, Tensor) or s.numel() == 1 else s[pick] for s in (dt, dx)]
+        settings = replace(MAP_SETTINGS, constants=constants, rule=rule, cem43_threshold=cem43_threshold)
+        errors = [chosen[name][pick] for name in ("diffusivity_std", "loss_rate_std", "noise_sd")]
         found = damage_in_depth(
             video[pick].to(torch.float32),  # within the error budget (1e-5 K): twice as fast
             *spacing,
-            units=units,
-            constants=constants,
-            rule=rule,
-            cem43_threshold=cem43_threshold,
+            diffusivity=chosen["diffusivity"][pick],
+            loss_rate=chosen["loss_rate"][pick],
+            errors=StandardErrors(*errors),
             thickness=thickness,
-            growth=MAP_GROWTH,
-            margin=MAP_MARGIN,
-            coarse=MAP_COARSE,
-            **{k: v[pick] for k, v in chosen.items()},
+            units=units,
+            settings=settings,
         )
         for name, field_name in _SOURCES.items():
             maps[name][pick] = getattr(found, field_name).to(_F64)

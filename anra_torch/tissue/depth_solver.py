@@ -22,6 +22,7 @@ from anra_torch.checks import as_spacing, as_video, number
 from anra_torch.tissue.dose import to_celsius
 
 __all__ = [
+    "BLOCK_VALUES",
     "DEEP_GROWTH",
     "FIRST_STEP",
     "GROWTH",
@@ -53,6 +54,8 @@ DEEP_GROWTH = 1.25
 """Ratio of consecutive spacings below the reported nodes, down to a bottom no heat reaches."""
 _F64 = torch.float64
 _BLOCK = 2**22  # values of a closed-form sum over frames held at once
+BLOCK_VALUES = 2**22
+"""Temperatures formed per block of frames of the march (32 MiB in float64)."""
 
 
 def depth_nodes(max_depth: float, *, first: float = FIRST_STEP, growth: float = GROWTH) -> np.ndarray:

@@ -25,6 +25,18 @@ PLATE = {"t_heat": -0.1, "plate_time": 8.0, "T_ref": 20.0}
 DEFECT = {"x": 4.0, "y": 3.0, "radius": 1.5, "strength": 1.0, "depth_time": 0.5, **PLATE}
 
 
+@pytest.fixture(scope="module")
+def defect_plate(disk_cache) -> tuple[torch.Tensor, float, float]:
+    """A 3 mm plate with a defect disc (x, y, radius, depth in mm: 5, 4.5, 1.5, 0.6), simulated once per
+    run for the diagnosis and the forecast tests (read only)."""
+
+    def make() -> tuple[torch.Tensor, float, float]:
+        frames, dt, dx = flash_plate_video(size=48, n_frames=120, defect=(5.0, 4.5, 1.5, 0.6), seed=0, pad=48)
+        return frames.to(F64), dt, dx
+
+    return disk_cache("delamination-plate-48-defect-5-4.5-1.5-0.6", make)
+
+
 def test_term_is_the_thin_layers_rate_in_the_disc() -> None:
     grid = Grid((16, 20), 0.5)
     u = torch.full((16, 20), 21.0, dtype=F64)
@@ -55,10 +67,8 @@ def test_plate_with_a_defect_cools_at_the_thin_layers_rate() -> None:
 
 
 @pytest.mark.slow
-def test_diagnosis_finds_the_defect_on_an_independent_3d_plate() -> None:
-    defect = (5.0, 4.5, 1.5, 0.6)  # x, y, radius, depth (mm) in a 3 mm plate
-    frames, dt, dx = flash_plate_video(size=48, n_frames=120, defect=defect, seed=0, pad=48)
-    d = diagnose_terms(frames.to(F64), dt, dx)
+def test_diagnosis_finds_the_defect_on_an_independent_3d_plate(defect_plate) -> None:
+    d = diagnose_terms(*defect_plate)
     assert d.names[0] == "depth_conduction" and "delamination" in d.names, d.names
     assert not {"source", "heterogeneity"} & set(d.names), d.names
     found = next(e["params"] for e in d.effects if e["name"] == "delamination")
@@ -79,14 +89,13 @@ def test_no_localised_effect_on_an_intact_3d_plate() -> None:
 
 
 @pytest.mark.slow
-def test_the_defect_and_the_anisotropy_forecast_better_within_measured_edges() -> None:
+def test_the_defect_and_the_anisotropy_forecast_better_within_measured_edges(defect_plate) -> None:
     """Heat leaves a flash plate's frame within seconds: forecasts bounded by the measured edge ring give
     the delamination and the anisotropy their own held-out gains (zero-flux edges gave -0.06 and -0.04,
     measured 0.73 and 0.82 within the measured edges)."""
     from anra_torch.forecast import assess_gain
 
-    frames, dt, dx = flash_plate_video(size=48, n_frames=120, defect=(5.0, 4.5, 1.5, 0.6), seed=0, pad=48)
-    result = assess_gain(frames.to(F64), dt, dx)
+    result = assess_gain(*defect_plate)
     own = dict(zip(result.diagnosis.names, result.effect_gains, strict=True))
     assert result.diagnosis.names[0] == "depth_conduction" and result.gain > 0.5, own
     assert own["delamination"] > 0.3 and own["anisotropy"] > 0.3, own

@@ -13,14 +13,27 @@ import math
 import pytest
 import torch
 
-from anra_torch.effects import hidden_effect_video
 from anra_torch.forecast import assess_gain
 from anra_torch.forecast.core import split_index
 from anra_torch.selection import diagnose_terms
 
 
-def video(names: list[str], seed: int, **kwargs: float):
-    return hidden_effect_video(names, seed=seed, size=64, duration=3.0, **kwargs)
+@pytest.fixture
+def video(hidden_video):
+    """``video(names, seed, **kwargs)``: the scene at 64 px for 3 s, simulated once per test run."""
+    return lambda names, seed, **kwargs: hidden_video(names, seed=seed, size=64, duration=3.0, **kwargs)
+
+
+@pytest.fixture
+def default_gain(video, disk_cache):
+    """``default_gain(name, seed)``: the video and ``assess_gain`` with its defaults, made once per run for
+    the tests that check the same forecast from two sides."""
+
+    def shared(name: str, seed: int):
+        v = video([name], seed)
+        return v, disk_cache(f"gain-{name}-{seed}-64px", lambda: assess_gain(v.frames, v.dt, v.dx))
+
+    return shared
 
 
 @pytest.mark.slow
@@ -32,10 +45,9 @@ def video(names: list[str], seed: int, **kwargs: float):
     [("linear_loss", 1, 0.9, 1.5), ("advection", 0, 0.9, 1.2), ("source", 0, 0.9, 1.5)],
 )
 def test_gain_is_clearly_positive_and_extended_reaches_noise_floor(
-    name: str, seed: int, min_gain: float, floors: float
+    default_gain, name: str, seed: int, min_gain: float, floors: float
 ) -> None:
-    v = video([name], seed)
-    result = assess_gain(v.frames, v.dt, v.dx)
+    v, result = default_gain(name, seed)
     assert [e.name for e in result.effects] == [name]
     assert result.gain > min_gain and result.effect_gains == (result.gain,)
     assert result.extended_rmse < floors * result.noise_floor < result.base_rmse
@@ -66,7 +78,7 @@ def test_gain_is_clearly_positive_and_extended_reaches_noise_floor(
 )
 @pytest.mark.slow
 def test_diffusion_effects_gain_more_where_heat_moves_further_in_the_forecast(
-    name: str, fine_gain: float, above_floor: float
+    video, name: str, fine_gain: float, above_floor: float
 ) -> None:
     """The same scene on a finer grid: heat crosses more pixels during the forecast, the effect shows more."""
     gains = {}
@@ -83,7 +95,7 @@ def test_diffusion_effects_gain_more_where_heat_moves_further_in_the_forecast(
     ("seed", "dx", "scale"), [(2, 0.5, None), (3, 0.1, None), (4, 0.2, 0.0), (5, 0.1, 1.0)]
 )
 def test_pure_video_has_no_effect_and_plain_forecast_sits_on_the_floor(
-    seed: int, dx: float, scale: float | None
+    video, seed: int, dx: float, scale: float | None
 ) -> None:
     """The noise floor (white noise through the Gaussian and the heat kernel) is what a true model reaches."""
     v = video([], seed, dx=dx)
@@ -100,11 +112,10 @@ def test_pure_video_has_no_effect_and_plain_forecast_sits_on_the_floor(
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["linear_loss", "source"])
-def test_assimilating_the_fit_part_lowers_the_floor_and_raises_the_gain(name: str) -> None:
+def test_assimilating_the_fit_part_lowers_the_floor_and_raises_the_gain(default_gain, name: str) -> None:
     """From the split frame alone its noise is most of the floor; the assimilated state averages it out."""
-    v = video([name], {"linear_loss": 1, "source": 0}[name])
-    alone = assess_gain(v.frames, v.dt, v.dx, assimilate=1)
-    result = assess_gain(v.frames, v.dt, v.dx, diagnosis=alone.diagnosis)
+    v, result = default_gain(name, {"linear_loss": 1, "source": 0}[name])  # every fit frame assimilated
+    alone = assess_gain(v.frames, v.dt, v.dx, assimilate=1, diagnosis=result.diagnosis)
     assert alone.assimilated == 1 and result.assimilated == 55
     assert result.noise_floor < 0.5 * alone.noise_floor  # measured 0.42, 0.34
     assert alone.gain < result.gain and alone.gain_raw < result.gain_raw  # 0.93 -> 0.99; 0.52 -> 0.81
@@ -114,14 +125,14 @@ def test_assimilating_the_fit_part_lowers_the_floor_and_raises_the_gain(name: st
     assert torch.equal(alone.times, result.times) and torch.equal(alone.measured, result.measured)
 
 
-def test_bad_assimilate_is_one_line_error() -> None:
+def test_bad_assimilate_is_one_line_error(video) -> None:
     v = video(["linear_loss"], 1)
     with pytest.raises(ValueError, match="assimilate must be an integer from 1 to 55 frames, got 0"):
         assess_gain(v.frames, v.dt, v.dx, assimilate=0)
 
 
 @pytest.mark.slow
-def test_noise_floor_is_what_the_true_model_reaches_on_average() -> None:
+def test_noise_floor_is_what_the_true_model_reaches_on_average(video) -> None:
     """Mean plain RMSE / floor over 8 pure videos at 0.1-0.5 mm/px (measured 1.02; 0.97-1.15 per video)."""
     ratios = []
     for seed, dx in enumerate((0.5, 0.1, 0.2, 0.3, 0.5, 0.1, 0.2, 0.4)):
@@ -132,21 +143,21 @@ def test_noise_floor_is_what_the_true_model_reaches_on_average() -> None:
 
 
 @pytest.mark.slow
-def test_two_effects_each_get_their_own_gain() -> None:
+def test_two_effects_each_get_their_own_gain(video) -> None:
     v = video(["linear_loss", "advection"], 1)
     result = assess_gain(v.frames, v.dt, v.dx)
     assert sorted(e.name for e in result.effects) == ["advection", "linear_loss"]
     assert len(result.effect_gains) == 2 and all(0 < g < result.gain for g in result.effect_gains)
 
 
-def test_bad_scale_is_one_line_error() -> None:
+def test_bad_scale_is_one_line_error(video) -> None:
     v = video(["linear_loss"], 1)
     with pytest.raises(ValueError, match="scale_px must be a Gaussian sigma >= 0 in px, got -1"):
         assess_gain(v.frames, v.dt, v.dx, scale_px=-1.0)
 
 
 @pytest.mark.slow
-def test_given_diagnosis_is_used() -> None:
+def test_given_diagnosis_is_used(video) -> None:
     v = video(["advection"], 0)
     split = split_index(v.frames.shape[0], 0.5)
     diagnosis = diagnose_terms(v.frames[: split + 1], v.dt, v.dx)

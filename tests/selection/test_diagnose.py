@@ -39,6 +39,18 @@ def diagnose(video: HiddenEffectVideo, **kwargs: object) -> Diagnosis:
     return diagnose_terms(video.frames, video.dt, video.dx, **kwargs)
 
 
+@pytest.fixture
+def diagnosed(hidden_video, disk_cache):
+    """``diagnosed(names, seed)``: the 64 px scene and its default diagnosis, made once per test run for
+    the tests that check the same one."""
+
+    def shared(names: tuple[str, ...], seed: int) -> tuple[HiddenEffectVideo, Diagnosis]:
+        video = hidden_video(names, seed=seed, size=SIZE)
+        return video, disk_cache(f"diagnosis-{'+'.join(names)}-{seed}-{SIZE}px", lambda: diagnose(video))
+
+    return shared
+
+
 def rise(video: HiddenEffectVideo) -> float:
     return float(video.clean[0].max() - video.clean[0].median())
 
@@ -173,11 +185,10 @@ def test_pure_heat_transfer_yields_no_effect(seed: int) -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", list(LIMITS))
-def test_hidden_effect_is_identified_with_its_parameters(name: str) -> None:
+def test_hidden_effect_is_identified_with_its_parameters(diagnosed, name: str) -> None:
     collected: dict[str, list[float]] = {}
     for seed in EFFECT_SEEDS[name]:
-        video = video_of((name,), seed=seed)
-        d = diagnose(video)
+        video, d = diagnosed((name,), seed)
         assert d.names == [name], (seed, d.names, d.scores)
         for key, value in errors(video, d.effects[0]["params"]).items():
             assert value < LIMITS[name][key], (seed, key, value)
@@ -230,12 +241,12 @@ def test_benchmark_cases_once_misnamed_are_named_right(name: str, index: int) ->
         assert ratio == pytest.approx(true["a_inside"] / true["a_outside"], rel=0.05)
 
 
-def test_shape_profile_loss_is_the_fit_residual_above_noise() -> None:
+def test_shape_profile_loss_is_the_fit_residual_above_noise(hidden_video) -> None:
     """The shape fits minimise exactly what the selection compares: rss - expected rss of the full fit."""
     from anra_torch.balance.system import BalanceSystem, NoiseSpec
     from anra_torch.effects.heterogeneity import _disc, _heterogeneity_term
 
-    video = video_of(("heterogeneity",), seed=2)
+    video = hidden_video(("heterogeneity",), seed=2, size=SIZE)
     system = BalanceSystem(video.frames.double(), video.dt, video.dx, 2.0, video.noise_sd)
     theta = torch.tensor([30.0, 34.0, math.log(8.0)], dtype=torch.float64)
     m = system.margin
@@ -248,12 +259,11 @@ def test_shape_profile_loss_is_the_fit_residual_above_noise() -> None:
 
 
 @pytest.mark.slow
-def test_fit_ratio_flags_what_the_candidates_cannot_explain() -> None:
+def test_fit_ratio_flags_what_the_candidates_cannot_explain(diagnosed) -> None:
     """Without the source among the candidates the residual stays far above the noise (3.3-7.3 measured)."""
-    video = video_of(("source",), seed=2)
+    video, complete = diagnosed(("source",), 2)  # as the source's identification test diagnoses it
     global_only = diagnose(video, effects=["linear_loss", "advection", "anisotropy", "nonlinear_diffusion"])
     assert global_only.fit_ratio > 2.0
-    complete = diagnose(video)
     assert complete.names == ["source"]
     assert complete.fit_ratio < 1.05
     # the time-mean residual of the incomplete model peaks on the source's path

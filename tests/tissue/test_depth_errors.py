@@ -10,7 +10,7 @@ import pytest
 import torch
 from depth_scenes import BODY, F64, A, burn_video
 
-from anra_torch.tissue import damage_in_depth, subsurface_temperature
+from anra_torch.tissue import StandardErrors, damage_in_depth, subsurface_temperature
 from anra_torch.tissue.depth_errors import noise_correlation, perturbed_copies, spread
 
 
@@ -76,7 +76,7 @@ def test_the_noise_part_of_the_standard_error_is_the_spread_over_noisy_videos(
     frames, dt, dx = burn
     args = {"diffusivity": A, "loss_rate": 0.003, "body_temperature": BODY}
     sd = 0.3
-    total = damage_in_depth(frames, dt, dx, noise_sd=sd, **args).damage_depth_std
+    total = damage_in_depth(frames, dt, dx, errors=StandardErrors(noise_sd=sd), **args).damage_depth_std
     sampling = damage_in_depth(frames, dt, dx, **args).damage_depth_std  # the frames' sampling in time alone
     error = (total**2 - sampling**2).clamp_min(0.0).sqrt()
     generator = torch.Generator().manual_seed(11)

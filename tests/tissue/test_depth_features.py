@@ -11,11 +11,12 @@ from depth_scenes import (
 
 from anra_torch.tissue import (
     DEPTH_MAPS,
+    StandardErrors,
     TissueFeatures,
     damage_in_depth,
     depth_features,
 )
-from anra_torch.tissue.depth_features import MAP_COARSE, MAP_GROWTH, MAP_MARGIN, PRIOR
+from anra_torch.tissue.depth_features import MAP_SETTINGS, PRIOR
 
 
 @pytest.fixture(scope="module")
@@ -36,14 +37,10 @@ def test_without_cooling_the_maps_use_the_stated_prior(burn: tuple[torch.Tensor,
         frames[:18].float(),  # the maps' settings: float32, the MAP_GROWTH grid
         dt,
         dx,
-        growth=MAP_GROWTH,
-        margin=MAP_MARGIN,
-        coarse=MAP_COARSE,
         diffusivity=0.14,
         loss_rate=0.005,
-        diffusivity_std=0.03,
-        loss_rate_std=0.005,
-        noise_sd=found.parameters.noise_sd,
+        errors=StandardErrors(0.03, 0.005, found.parameters.noise_sd),
+        settings=MAP_SETTINGS,
     )
     torch.testing.assert_close(found.maps["damage_depth_std_mm"][0], maps.damage_depth_std)
     assert float(maps.damage_depth_std[10, 10]) > 0.02  # a wide prior, a wide band

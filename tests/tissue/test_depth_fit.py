@@ -16,6 +16,7 @@ from depth_scenes import (
 from anra_torch.simulation import GreenScene, camera_frames, simulate_bioheat, simulate_spot
 from anra_torch.tissue import (
     DEPTH_MAPS,
+    DepthSettings,
     damage_in_depth,
     depth_features,
     fit_depth_parameters,
@@ -51,7 +52,9 @@ def test_depth_model_matches_the_independent_3d_simulator(surface_burn) -> None:
     assert damaged.sum() >= 12 and 0.2 < result.damage_depth.max() < 0.35
     error = np.abs(maps.damage_depth.numpy() - result.damage_depth)[damaged]
     assert np.median(error) < 0.005 and error.max() < 0.01  # mm
-    one_d = damage_in_depth(frames, result.dt, result.dx, diffusivity=0.15, loss_rate=0.004, lateral=False)
+    one_d = damage_in_depth(
+        frames, result.dt, result.dx, diffusivity=0.15, loss_rate=0.004, settings=DepthSettings(lateral=False)
+    )
     assert np.median(one_d.damage_depth.numpy()[damaged] - result.damage_depth[damaged]) > 0.02  # too deep
 
 

@@ -1,0 +1,416 @@
+"""Damage in depth under every pixel from the measured surface: the doses of the solve of
+:mod:`~anra_torch.tissue.depth`.
+
+Damage in depth (:func:`damage_in_depth`): Omega and CEM43 of every depth node's history
+(:class:`~anra_torch.tissue.depth_doses.DoseAccumulator`, the rules of :mod:`~anra_torch.tissue.dose`), the
+peak-temperature profile, the damage depth (the deepest point with ``Omega >= 1``: ``ln Omega``
+interpolated linearly between nodes) and the depth of a CEM43 threshold, each with a standard error
+propagated from the standard errors of ``a`` and ``b`` (one extra solve each: the linearised propagation),
+from the frames' noise (analytically: :mod:`~anra_torch.tissue.depth_errors`) and from the frames'
+sampling in time (the two dose rules' difference). Memory is flat in the number of frames: the march
+forms the temperatures a block of frames at a time.
+
+Units: mm, s, C, mm^2/s, 1/s.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from anra_torch.checks import number
+from anra_torch.tissue.depth_doses import DOSE_FLOOR, OMEGA_FLOOR, DoseAccumulator
+from anra_torch.tissue.depth_errors import (
+    noise_correlation,
+    perturbed_copies,
+    spread,
+    threshold_depth,
+    threshold_variance,
+)
+from anra_torch.tissue.depth_solver import (
+    BLOCK_VALUES,
+    FIRST_STEP,
+    GROWTH,
+    bottom_depth,
+    check_rate,
+    depth_nodes,
+    frame_problem,
+    march,
+    node_temperatures,
+    solver_nodes,
+    surface_rise,
+    widen,
+)
+from anra_torch.tissue.dose import RULES, SKIN, ArrheniusConstants
+
+__all__ = [
+    "CEM43_THRESHOLD",
+    "DOSE_FLOOR",
+    "OMEGA_FLOOR",
+    "DepthMaps",
+    "DepthSettings",
+    "StandardErrors",
+    "damage_in_depth",
+    "threshold_depth",
+]
+
+CEM43_THRESHOLD = 240.0
+"""Default CEM43 threshold (min) of :attr:`DepthMaps.cem43_depth`: thermal necrosis of most tissues."""
+_COARSE_GROWTH = 1.15  # the depth grid of the pass that finds how deep the heat goes
+_F64 = torch.float64
+_TINY = 1e-300  # a dose floor for logarithms
+
+
+@dataclass(frozen=True)
+class DepthMaps:
+    """Output of :func:`damage_in_depth` (batched: leading ``B``; a single video drops it).
+
+    Attributes:
+        depths: node depths in mm, ``(Z,)``; 0 (the surface) first.
+        peak: peak temperature (C) at every node, ``(B, Z, H, W)``; ``peak_std`` its standard error (K).
+        omega: Arrhenius damage integral at every node, ``(B, Z, H, W)``.
+        cem43: CEM43 (min) at every node, ``(B, Z, H, W)``.
+        damage_depth: deepest point with ``Omega >= 1`` (mm; 0 where none), ``(B, H, W)``;
+            ``damage_depth_std`` its standard error (mm).
+        cem43_depth: deepest point with ``CEM43 >= cem43_threshold`` (mm), ``(B, H, W)``;
+            ``cem43_depth_std`` its standard error (mm).
+        cem43_threshold: the CEM43 threshold (min).
+        diffusivity, loss_rate: the ``a`` (mm^2/s) and ``b`` (1/s) used, ``(B,)``; ``diffusivity_std``,
+            ``loss_rate_std`` and ``noise_sd`` (K) the standard errors propagated.
+        body_temperature: C, ``(B,)``.
+        truncated: pixels whose damage reaches the deepest node (their depth is a lower bound),
+            ``(B, H, W)``; never the case by construction unless ``max_depth`` was given.
+    """
+
+    depths: Tensor
+    peak: Tensor
+    peak_std: Tensor
+    omega: Tensor
+    cem43: Tensor
+    damage_depth: Tensor
+    damage_depth_std: Tensor
+    cem43_depth: Tensor
+    cem43_depth_std: Tensor
+    cem43_threshold: float
+    diffusivity: Tensor
+    diffusivity_std: Tensor
+    loss_rate: Tensor
+    loss_rate_std: Tensor
+    noise_sd: Tensor
+    body_temperature: Tensor
+    truncated: Tensor
+
+    def unbatched(self) -> DepthMaps:
+        """The same maps with the batch dimension of size 1 removed."""
+        keep = ("depths", "cem43_threshold")
+        return replace(self, **{k: v[0] for k, v in self.__dict__.items() if k not in keep})
+
+    def cropped(self, margin: int) -> DepthMaps:
+        """The maps without ``margin`` pixels on every side (a widened frame's own)."""
+        inner = (..., slice(margin, -margin), slice(margin, -margin))
+        return replace(
+            self, **{k: v[inner] for k, v in self.__dict__.items() if isinstance(v, Tensor) and v.ndim >= 3}
+        )
+
+
+def _reach(
+    rise: Tensor, dt: Tensor, dx: Tensor, a: Tensor, b: Tensor, body: Tensor, thickness: object
+) -> float:
+    """Deepest depth (mm) where any video's peak exceeds :data:`DOSE_FLOOR`, one coarse node deeper: the
+    3-D solve on a coarse depth grid (spacings growing :data:`_COARSE_GROWTH`-fold) of the frames averaged
+    over blocks of pixels (at most 32 x 32 of them), peak only."""
+    floor = DOSE_FLOOR - body  # K, (B,)
+    if not bool((rise.detach().flatten(1).amax(1) > floor).any()):
+        return 0.0
+    duration = float(dt.max()) * (rise.shape[1] - 1)
+    reach = 7.0 * math.sqrt(float(a.max()) * duration) + 0.1  # where an erfc tail falls below 1e-6
+    if thickness is not None:
+        reach = min(reach, float(thickness) * (1.0 - 1e-9))
+    reported = _above(depth_nodes(max(reach, 2 * FIRST_STEP), growth=_COARSE_GROWTH), thickness)
+    nodes = solver_nodes(reported, bottom_depth(thickness, float(reported[-1]), a, duration))
+    factor = max(1, math.ceil(max(rise.shape[-2:]) / 32))
+    coarse = rise.detach()
+    if factor > 1:  # block means: a spot's peak at depth is smooth across pixels
+        b_, t, h, w = coarse.shape
+        coarse = torch.nn.functional.avg_pool2d(
+            coarse.reshape(b_ * t, 1, h, w), factor, factor, ceil_mode=True
+        )
+        coarse = coarse.reshape(b_, t, *coarse.shape[-2:])
+    problem = frame_problem(coarse, dt, dx * factor, a.detach(), b.detach(), nodes, len(reported))
+    peak = torch.full((rise.shape[0], len(reported)), -torch.inf, device=rise.device, dtype=rise.dtype)
+    block = max(1, BLOCK_VALUES // coarse[:, 0].numel() // len(reported))
+    for start, states in march(problem, block):
+        peak = torch.maximum(peak, node_temperatures(coarse, problem, start, states).amax((1, 3, 4)))
+    warm = (peak > floor.view(-1, 1)).any(0)
+    deepest = int(torch.nonzero(warm).max()) if bool(warm.any()) else 0
+    return float(reported[min(deepest + 1, len(reported) - 1)])
+
+
+def _above(nodes: np.ndarray, thickness: object) -> np.ndarray:
+    """``nodes`` above a layer's bottom (the grid passes its last depth by up to one spacing)."""
+    if thickness is None:
+        return nodes
+    kept = nodes[nodes < number(thickness, "thickness", "mm", positive=True)]
+    return kept if len(kept) >= 2 else nodes[:2]
+
+
+@dataclass(frozen=True)
+class StandardErrors:
+    """The standard errors :func:`damage_in_depth` propagates (0: not propagated).
+
+    Attributes:
+        diffusivity: of ``a`` (mm^2/s), a number or ``(B,)``.
+        loss_rate: of ``b`` (1/s), a number or ``(B,)``.
+        noise_sd: the frames' white-noise sd (K), a number or ``(B,)``.
+    """
+
+    diffusivity: float | Tensor = 0.0
+    loss_rate: float | Tensor = 0.0
+    noise_sd: float | Tensor = 0.0
+
+
+@dataclass(frozen=True)
+class DepthSettings:
+    """How :func:`damage_in_depth` integrates the doses and lays out its grid.
+
+    Attributes:
+        constants: Arrhenius constants (default skin).
+        rule: how each node's history is integrated (:data:`anra_torch.tissue.RULES`).
+        cem43_threshold: CEM43 (min) whose depth is mapped.
+        max_depth: deepest node (mm); default one coarse node below the deepest point where the peak
+            exceeds :data:`DOSE_FLOOR` (a coarse pass with ``a + 2`` standard errors).
+        growth: ratio of consecutive depth spacings (from :data:`~anra_torch.tissue.depth_solver.FIRST_STEP`
+            at the surface).
+        lateral: False: each pixel's column on its own (1-D, no heat sideways; too deep under small spots).
+        margin: mm by which the frames are continued beyond every edge
+            (:func:`anra_torch.tissue.depth_solver.widen`; 0: the frame's edges hold the heat in); the maps
+            are the frame's.
+        coarse: the perturbed solves (``a + se``, ``b + se``) on the frames' ``coarse x coarse`` px means,
+            the base at full resolution.
+    """
+
+    constants: ArrheniusConstants = SKIN
+    rule: str = "linear"
+    cem43_threshold: float = CEM43_THRESHOLD
+    max_depth: float | None = None
+    growth: float = GROWTH
+    lateral: bool = True
+    margin: float = 0.0
+    coarse: int = 1
+
+
+def _parameters(values: dict[str, object], like: Tensor) -> list[Tensor]:
+    """``a``, ``b`` and the three standard errors (detached) as ``(B,)``, checked."""
+    units = {"diffusivity": "mm^2/s", "loss_rate": "1/s", "diffusivity_std": "mm^2/s", "loss_rate_std": "1/s"}
+    out = []
+    for name, value in values.items():
+        x = check_rate(value, name, units.get(name, "K"), like.shape[0], like, positive=name == "diffusivity")
+        out.append(x if name in ("diffusivity", "loss_rate") else x.detach())
+    return out
+
+
+def _checked(settings: DepthSettings) -> DepthSettings:
+    """``settings`` with its rule, constants, threshold and coarse factor checked."""
+    if not isinstance(settings, DepthSettings):
+        raise TypeError(f"settings must be DepthSettings, got {type(settings).__name__}")
+    if settings.rule not in RULES:
+        raise ValueError(f"rule must be one of {', '.join(map(repr, RULES))}, got {settings.rule!r}")
+    if not isinstance(settings.constants, ArrheniusConstants):
+        raise TypeError(f"constants must be ArrheniusConstants, got {type(settings.constants).__name__}")
+    threshold = number(settings.cem43_threshold, "cem43_threshold", "min", positive=True)
+    return replace(
+        settings, cem43_threshold=threshold, coarse=int(number(settings.coarse, "coarse", "px", minimum=1))
+    )
+
+
+def damage_in_depth(
+    frames: Tensor,
+    dt: float | Tensor,
+    dx: float | Tensor,
+    *,
+    diffusivity: float | Tensor,
+    loss_rate: float | Tensor = 0.0,
+    errors: StandardErrors = StandardErrors(),
+    body_temperature: float | Tensor | None = None,
+    thickness: float | None = None,
+    units: str = "C",
+    settings: DepthSettings = DepthSettings(),
+) -> DepthMaps:
+    """Omega, CEM43 and the peak temperature at every depth node under every pixel, the damage depth and
+    the depth of a CEM43 threshold, each with its standard error.
+
+    The standard errors propagate those of ``a`` and ``b`` to first order (one extra solve with each
+    shifted by its standard error: the root sum of squares of the changes), the frames' white noise
+    analytically (:mod:`anra_torch.tissue.depth_errors`) and the frames' sampling in time (half the
+    difference between the depths by the two rules of :data:`anra_torch.tissue.RULES`), in quadrature.
+
+    Args:
+        frames: surface temperatures in ``units`` (finite), ``(T, H, W)`` or ``(B, T, H, W)``; the solve
+            runs in their dtype (float32 is within the error budget: 1e-5 K).
+        dt: frame period in s; dx: pixel size in mm (numbers or ``(B,)``).
+        diffusivity: ``a`` (mm^2/s); loss_rate: ``b`` (1/s); numbers or ``(B,)``.
+        errors: the standard errors to propagate (:class:`StandardErrors`).
+        body_temperature: C; default the median of each video's first frame.
+        thickness: None for a half-space, else a layer's thickness (mm) over tissue at ``T_body``.
+        units: ``"C"`` or ``"K"``.
+        settings: the doses' rule and constants, the grid (:class:`DepthSettings`).
+
+    Returns:
+        :class:`DepthMaps`; differentiable with respect to ``frames``, ``diffusivity`` and ``loss_rate``.
+
+    Raises:
+        ValueError: bad shapes, spacings, rates, rule, threshold or non-finite frames.
+        TypeError: rates that are not numbers, ``constants`` not :class:`ArrheniusConstants`.
+
+    Shape:
+        ``frames`` ``(B, T, H, W)``; maps ``(B, H, W)``; profiles ``(B, Z, H, W)``.
+    """
+    settings = _checked(settings)
+    rise, batched, dt_, dx_, body = surface_rise(frames, dt, dx, units, body_temperature)
+    given = {"diffusivity": diffusivity, "loss_rate": loss_rate, "diffusivity_std": errors.diffusivity}
+    a, b, *stds = _parameters(given | {"loss_rate_std": errors.loss_rate, "noise_sd": errors.noise_sd}, rise)
+    pixels = math.ceil(number(settings.margin, "margin", "mm", minimum=0.0) / float(dx_.min()) - 1e-9)
+    rise = widen(rise, pixels) if pixels else rise
+    grid = (thickness, settings.max_depth, settings.growth)
+    nodes, reported = _grid(rise, dt_, dx_, (a, b), stds, body, grid)
+    maps = _solve(rise, (dt_, dx_, body), (a, b), stds, (nodes, reported), settings)
+    maps = maps.cropped(pixels) if pixels else maps
+    return maps if batched else maps.unbatched()
+
+
+def _grid(
+    rise: Tensor, dt: Tensor, dx: Tensor, rates: tuple, errors: list, body: Tensor, settings: tuple
+) -> tuple[tuple[float, ...], int]:
+    """The solver's depth nodes and how many of them are reported: down to ``max_depth`` (default where the
+    peak with ``a + 2 se`` exceeds :data:`DOSE_FLOOR`), then to a bottom no heat reaches in the record."""
+    thickness, max_depth, growth = settings
+    a, b = rates
+    if max_depth is None:
+        bounds = (a.detach() + 2 * errors[0], (b.detach() - 2 * errors[1]).clamp_min(0.0))
+        max_depth = _reach(rise, dt, dx, *bounds, body, thickness)
+    reported = depth_nodes(
+        max(number(max_depth, "max_depth", "mm", minimum=0.0), 2 * FIRST_STEP), growth=growth
+    )
+    reported = _above(reported, thickness) if max_depth < float(thickness or math.inf) else reported
+    duration = float(dt.max()) * (rise.shape[1] - 1)
+    bottom = bottom_depth(thickness, float(reported[-1]), a + 2 * errors[0], duration)
+    return solver_nodes(reported, bottom), len(reported)
+
+
+def _solve(
+    rise: Tensor,
+    per_video: tuple[Tensor, Tensor, Tensor],
+    rates: tuple[Tensor, Tensor],
+    errors: list[Tensor],
+    grid: tuple[tuple, int],
+    settings: DepthSettings,
+) -> DepthMaps:
+    """The march of the base problem and its perturbed copies (on ``coarse x coarse`` pixel means), their
+    doses and the maps with their spread. ``per_video``: ``dt``, ``dx``, the body temperature."""
+    dt, dx, body = per_video
+    a, b = rates
+    coarse, batch, (h, w) = settings.coarse, rise.shape[0], rise.shape[-2:]
+    depths = torch.tensor(grid[0][: grid[1]], dtype=_F64, device="cpu").to(rise.device)
+    variance, rho = noise_correlation(depths, a, b, dt, dx, (h, w), errors[2])
+    if coarse > 1:  # the base at full resolution, the copies' changes on pixel means
+        doses = copies = _march_doses(rise, per_video, (a, b), rho, settings, grid)
+        pooled = F.avg_pool2d(rise.reshape(-1, 1, h, w), coarse, coarse, ceil_mode=True)
+        pooled = pooled.reshape(batch, -1, *pooled.shape[-2:])
+        stacked, diffusivities, losses, weights = perturbed_copies(pooled, a, b, errors[:2])
+        if len(weights):
+            coarser = (dt, dx * coarse, body)
+            copies = _march_doses(stacked, coarser, (diffusivities, losses), rho[:0], settings, grid)
+    else:
+        stacked, diffusivities, losses, weights = perturbed_copies(rise, a, b, errors[:2])
+        doses = copies = _march_doses(stacked, per_video, (diffusivities, losses), rho, settings, grid)
+    node_variance = variance.view(batch, -1, 1, 1)
+    maps = {
+        name: _depth_map(name, (doses, copies, weights), depths, node_variance, (threshold, coarse))
+        for name, threshold in (("omega", 1.0), ("cem43", settings.cem43_threshold))
+    }
+    peak_std = spread(copies.peak, weights)[1]
+    peak = doses.peak[:batch]
+    return DepthMaps(
+        depths=depths,
+        peak=peak,
+        peak_std=torch.sqrt(_upsampled(peak_std, h, w) ** 2 + node_variance.to(peak.dtype)),
+        omega=doses.omega[:batch],
+        cem43=doses.cem43[:batch],
+        damage_depth=maps["omega"][0],
+        damage_depth_std=maps["omega"][1],
+        cem43_depth=maps["cem43"][0],
+        cem43_depth_std=maps["cem43"][1],
+        cem43_threshold=settings.cem43_threshold,
+        diffusivity=a,
+        diffusivity_std=errors[0],
+        loss_rate=b,
+        loss_rate_std=errors[1],
+        noise_sd=errors[2],
+        body_temperature=body,
+        truncated=doses.omega[:batch, -1] >= 1.0,
+    )
+
+
+def _depth_map(
+    name: str, marched: tuple, depths: Tensor, node_variance: Tensor, levels: tuple[float, int]
+) -> tuple[Tensor, Tensor]:
+    """The depth where dose ``name`` reaches its threshold and its standard error: the parameters' part
+    (the copies' spread), the frames' sampling in time and their noise, in quadrature."""
+    doses, copies, weights = marched
+    threshold, coarse = levels
+    batch, (h, w) = node_variance.shape[0], doses.peak.shape[-2:]
+    dose = getattr(doses, name)[:batch]
+    value = threshold_depth(dose, depths, threshold)
+    if coarse == 1:  # the copies' own depths
+        parameters = spread(threshold_depth(getattr(copies, name), depths, threshold), weights)[1] ** 2
+    else:  # the copies' change of ln D at every node, interpolated to the pixels, at the base's crossing
+        log = torch.log(getattr(copies, name).clamp_min(_TINY))  # (V B, Z, H', W')
+        cold = (log <= math.log(_TINY)).reshape(-1, batch, *log.shape[1:]).any(0)  # never hot: no rate
+        change = _upsampled(spread(log, weights)[1].masked_fill(cold, 0.0), h, w)
+        parameters = threshold_variance(dose, change.to(dose.dtype) ** 2 * dose**2, depths, threshold)
+    sampling = 0.5 * (threshold_depth(doses.other(name), depths, threshold) - value)
+    noise = threshold_variance(dose, doses.variance[name] * node_variance, depths, threshold)
+    return value, torch.sqrt(parameters + sampling**2 + noise).to(value.dtype)
+
+
+def _upsampled(x: Tensor, h: int, w: int) -> Tensor:
+    """``(B, Z, H', W')`` values at the centres of blocks of ``ceil(H / H')`` px, interpolated bilinearly to
+    the ``(B, Z, H, W)`` pixels (the same tensor when ``H' = H``)."""
+    if x.shape[-2:] == (h, w):
+        return x
+    factor = math.ceil(h / x.shape[-2])
+    size = (x.shape[-2] * factor, x.shape[-1] * factor)
+    return F.interpolate(x, size=size, mode="bilinear", align_corners=False)[..., :h, :w]
+
+
+def _march_doses(
+    stacked: Tensor,
+    per_video: tuple[Tensor, Tensor, Tensor],
+    rates: tuple[Tensor, Tensor],
+    rho: Tensor,
+    settings: DepthSettings,
+    grid: tuple[tuple, int],
+) -> DoseAccumulator:
+    """Peak, Omega and CEM43 at the reported nodes of the stacked ``(V B, T, H, W)`` rises (the base videos
+    first), and for the base videos the doses by the other rule and their noise variance.
+    ``per_video``: ``dt``, ``dx`` and the body temperature, ``(B,)`` each; ``rho`` ``(B, Z)`` (``(0, Z)``:
+    no video gets the other rule nor the noise)."""
+    nodes, reported = grid
+    n, (h, w) = stacked.shape[0], stacked.shape[-2:]
+    batch = per_video[0].numel()
+    index = (torch.arange(n, device="cpu") % batch).to(stacked.device)
+    spacing, size, warm = (x[index] for x in per_video)
+    problem = frame_problem(stacked, spacing, size, *rates, nodes, reported, lateral=settings.lateral)
+    doses = DoseAccumulator(
+        stacked, (n, reported, h, w), spacing, settings.rule, settings.constants, len(rho), rho
+    )
+    offset = warm.view(-1, 1, 1, 1, 1)
+    block = max(1, BLOCK_VALUES // (n * reported * h * w))
+    for start, states in march(problem, block):
+        doses.add(offset + node_temperatures(stacked, problem, start, states))
+    return doses
