@@ -56,6 +56,7 @@ from anra_torch.simulation.plate import flash_plate_video, plate_factor, with_de
 from anra_torch.simulation.plate_reference import (
     DEFECT_KINDS,
     Defect,
+    PlateSetup,
     ReferencePlate,
     default_flash,
     reference_plate_video,
@@ -105,6 +106,7 @@ __all__ = [
     "plant",
     "plate_factor",
     "random_scene",
+    "PlateSetup",
     "reference_plate_video",
     "simulate_bioheat",
     "simulate_continuum",
