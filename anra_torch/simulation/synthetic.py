@@ -222,15 +222,9 @@ def blobs_video(
     generator = torch.Generator().manual_seed(seed)
     peaks, sigma_px, centre_px = _draw_blobs(generator, n_videos, n_blobs, size, peaks_range, sigmas_range)
     times = torch.arange(n_frames, dtype=torch.float64, device="cpu") / fps
+    shape, sigmas, centres = (size, size), sigma_px * dx, centre_px * dx
     clean = gaussian_blobs(
-        times,
-        shape=(size, size),
-        dx=dx,
-        a=a,
-        peaks=peaks,
-        sigmas=sigma_px * dx,
-        centres=centre_px * dx,
-        background=background,
+        times, shape=shape, dx=dx, a=a, peaks=peaks, sigmas=sigmas, centres=centres, background=background
     ).to(dtype)
     frames = clean + noise_sd * torch.randn(clean.shape, generator=generator, dtype=dtype, device="cpu")
     return SyntheticVideo(frames=frames, clean=clean, dt=1.0 / fps, dx=dx, a=a, times=times.to(dtype))
