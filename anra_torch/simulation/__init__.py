@@ -56,11 +56,12 @@ from anra_torch.simulation.plate import flash_plate_video, plate_factor, with_de
 from anra_torch.simulation.plate_reference import (
     DEFECT_KINDS,
     Defect,
+    PlateSetup,
     ReferencePlate,
     default_flash,
     reference_plate_video,
 )
-from anra_torch.simulation.synthetic import SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation.synthetic import Blobs, SyntheticVideo, blobs_video, paper_video
 from anra_torch.simulation.tissue import MovingSource, TissueRHS, simulate_tissue
 
 __all__ = [
@@ -74,6 +75,7 @@ __all__ = [
     "SAFETY",
     "SPECTRAL_BOUNDARIES",
     "BioheatResult",
+    "Blobs",
     "BioheatScene",
     "Contact",
     "Continuum",
@@ -104,6 +106,7 @@ __all__ = [
     "plant",
     "plate_factor",
     "random_scene",
+    "PlateSetup",
     "reference_plate_video",
     "simulate_bioheat",
     "simulate_continuum",
