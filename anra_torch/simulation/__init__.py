@@ -61,7 +61,7 @@ from anra_torch.simulation.plate_reference import (
     default_flash,
     reference_plate_video,
 )
-from anra_torch.simulation.synthetic import SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation.synthetic import Blobs, SyntheticVideo, blobs_video, paper_video
 from anra_torch.simulation.tissue import MovingSource, TissueRHS, simulate_tissue
 
 __all__ = [
@@ -75,6 +75,7 @@ __all__ = [
     "SAFETY",
     "SPECTRAL_BOUNDARIES",
     "BioheatResult",
+    "Blobs",
     "BioheatScene",
     "Contact",
     "Continuum",

@@ -216,9 +216,8 @@ def gaussian_blob(
 ) -> Tensor:
     """Exact heat-equation solution on the infinite plane for one Gaussian, at the pixel centres.
 
-    ``T(x, y, t) = background + peak s0^2 / (s0^2 + 2 a t) exp(-r^2 / (2 (s0^2 + 2 a t)))`` with
-    ``s0 = sigma`` and ``r`` the distance to ``centre``. The full width at half maximum at t = 0 is
-    ``2 sqrt(2 ln 2) sigma``.
+    ``T(x, y, t) = background + peak s0^2 / (s0^2 + 2 a t) exp(-r^2 / (2 (s0^2 + 2 a t)))``, ``s0 = sigma``
+    and ``r`` the distance to ``centre`` (full width at half maximum at t = 0: ``2 sqrt(2 ln 2) sigma``).
 
     Args:
         times: sample times in s (>= 0).
@@ -251,8 +250,7 @@ def gaussian_blob(
         raise ValueError(f"centre must be (x, y) in mm, got {centre!r}")
     if not isinstance(sigma, Tensor) and not (math.isfinite(float(sigma)) and float(sigma) > 0):
         raise ValueError(f"sigma must be a positive finite number in mm, got {sigma!r}")
-    peaks = peak.reshape(1) if isinstance(peak, Tensor) else [peak]
-    sigmas = sigma.reshape(1) if isinstance(sigma, Tensor) else [sigma]
+    peaks, sigmas = (x.reshape(1) if isinstance(x, Tensor) else [x] for x in (peak, sigma))
     return gaussian_blobs(
         times,
         shape=(height, width),
