@@ -28,6 +28,7 @@ from torch import Tensor
 from anra_torch.checks import check_choice, check_int, number, positive
 
 __all__ = [
+    "Solver",
     "ADAPTIVE_METHODS",
     "FIXED_STEP_METHODS",
     "POLICIES",
@@ -105,6 +106,25 @@ POLICIES: dict[str, StepPolicy] = {
 """Step policies of :func:`stable_substeps`. Both use the same stability limit; the tissue model's
 ``"stable"`` drops the monotone limit (about 30 % fewer steps for pure diffusion) and keeps the safety
 margin in the minimum."""
+
+
+@dataclass(frozen=True)
+class Solver:
+    """How a simulation integrates in time (:func:`integrate`'s settings).
+
+    Attributes:
+        method: a key of :data:`FIXED_STEP_METHODS` or one of :data:`ADAPTIVE_METHODS`.
+        substeps: solver steps per frame for fixed-step methods (None: automatic, :func:`stable_substeps`).
+        rtol: relative tolerance of adaptive methods.
+        atol: absolute tolerance of adaptive methods (units of the state).
+        adjoint: integrate by the adjoint method (memory O(1) in the number of steps).
+    """
+
+    method: str = "rk4"
+    substeps: int | None = None
+    rtol: float = 1e-7
+    atol: float = 1e-9
+    adjoint: bool = False
 
 
 class StepCount(NamedTuple):
