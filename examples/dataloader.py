@@ -15,14 +15,14 @@ import torch
 from torch.utils.data import DataLoader
 
 from anra_torch import ANRAEstimator, ThermalVideoDataset
-from anra_torch.simulation import blobs_video
+from anra_torch.simulation import Blobs, blobs_video
 from anra_torch.video import save_npz
 
 folder = Path(tempfile.mkdtemp())
 for k, a in enumerate([0.1, 0.15, 0.2, 0.25]):
     size = 40 if k % 2 else 48
     video = blobs_video(
-        n_videos=1, a=a, size=size, n_frames=16, noise_sd=0.01, seed=k, sigma_range_px=(4.0, 8.0)
+        n_videos=1, a=a, size=size, n_frames=16, noise_sd=0.01, seed=k, blobs=Blobs(sigma_range_px=(4.0, 8.0))
     )
     save_npz(folder / f"v{k}.npz", video.frames[0].numpy(), dt=video.dt, dx=video.dx)
 

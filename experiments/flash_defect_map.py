@@ -38,7 +38,7 @@ import torch
 
 from anra_torch.cli import main
 from anra_torch.flash import flash_maps
-from anra_torch.simulation.plate_reference import Defect, reference_plate_video
+from anra_torch.simulation.plate_reference import Defect, PlateSetup, reference_plate_video
 from anra_torch.video import load_video
 
 SHAPE, DX, FRAMES = (48, 48), 0.4, 300
@@ -93,7 +93,7 @@ PLATES: dict[str, dict] = {
     ),
     "1.5 mm, intact, to 2.4 L^2/a_z": dict(thickness=1.5, duration=12.0),
 }
-"""The plates: :func:`reference_plate_video`'s keyword arguments (48 x 48 px at 0.4 mm, 300 frames)."""
+"""The plates: :class:`PlateSetup`'s fields (48 x 48 px at 0.4 mm, 300 frames)."""
 
 
 def auc(scores: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -176,7 +176,7 @@ def _maps_only(path: Path, maps_path: Path) -> dict:
 def evaluate(name: str, case: dict, out: Path, seed: int, *, diagnose: bool = True) -> dict:
     """Simulate one plate, run ``anra diagnose --maps`` (or only its map), score the maps."""
     path, maps_path = out / f"plate{seed}.npz", out / f"plate{seed}_maps.npz"
-    plate = reference_plate_video(shape=SHAPE, dx=DX, n_frames=FRAMES, seed=seed, **case)
+    plate = reference_plate_video(PlateSetup(shape=SHAPE, dx=DX, n_frames=FRAMES, seed=seed, **case))
     np.savez(path, frames=plate.frames.numpy(), dt=plate.dt, dx=plate.dx)
     start = time.perf_counter()
     if diagnose:

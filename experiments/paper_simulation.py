@@ -26,7 +26,7 @@ from tqdm import tqdm
 from anra_torch import ANRAEstimator
 from anra_torch.estimation import BASELINES
 from anra_torch.layers import RTCAttention
-from anra_torch.simulation import blobs_video, paper_video
+from anra_torch.simulation import Blobs, blobs_video, paper_video
 from experiments.peers import numpy_direct_estimate, pde_find_estimate, spectral_fit, weak_sindy_estimate
 
 A_TRUE = 0.2
@@ -166,7 +166,7 @@ def sweeps(n_seeds: int) -> dict[str, list[dict[str, object]]]:
 
 GEOMETRIES = {
     "3 blobs on 30 C, 96 px, dx 0.5 mm, 30 fps, a 0.15": dict(),
-    "6 blobs, 128 px": dict(n_blobs=6, size=128),
+    "6 blobs, 128 px": dict(blobs=Blobs(n_blobs=6), size=128),
     "a 0.05 mm^2/s": dict(a=0.05),
     "a 0.5 mm^2/s at 60 fps": dict(a=0.5, fps=60.0),
     "dx 0.2 mm, a 0.1": dict(dx=0.2, a=0.1),

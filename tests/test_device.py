@@ -20,7 +20,7 @@ import torch
 from anra_torch import ANRAEstimator, StreamingEstimator, TissueFeatures, diagnose_terms, simulate_heat
 from anra_torch.cli import main
 from anra_torch.effects import Effect, hidden_effect_video, simulate_effects
-from anra_torch.estimation import estimate_chunked
+from anra_torch.estimation import Chunking, estimate_chunked
 from anra_torch.forecast import fit_source_map
 from anra_torch.simulation import gaussian_blob
 
@@ -109,7 +109,7 @@ def test_streaming_and_chunked(video: torch.Tensor) -> None:
         stream = StreamingEstimator(dt=1 / 27, dx=0.1, smoothing=1.0)
         for frame in video:
             last = stream.push(frame)
-        chunked = estimate_chunked(video, 1 / 27, 0.1, chunk_frames=4, pilot_frames=8)
+        chunked = estimate_chunked(video, 1 / 27, 0.1, chunking=Chunking(chunk_frames=4, pilot_frames=8))
         return last, chunked.result, chunked.gain
 
     assert_same(on_meta_default(run), run())
@@ -127,6 +127,7 @@ def test_tissue_features(dtype: torch.dtype) -> None:
     assert_same(on_meta_default(run), run())
 
 
+@pytest.mark.slow
 def test_diagnose_terms() -> None:
     video = hidden_effect_video(["advection"], seed=1, size=40, duration=1.0)
     frames = video.frames.to("cpu")

@@ -29,7 +29,8 @@ from anra_torch.balance.batch_noise import (
 from anra_torch.balance.filters import MatchedFilters
 from anra_torch.balance.loss import fit_loss_windows
 from anra_torch.balance.moments import Moments, TermNoise, accumulate
-from anra_torch.balance.noise import NoiseModel, estimate_noise_sd, measure_noise
+from anra_torch.balance.noise import estimate_noise_sd, measure_noise
+from anra_torch.balance.noise_model import NoiseModel
 from anra_torch.balance.spectral import (
     SpectralStage,
     pushed_back,

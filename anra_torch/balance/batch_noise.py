@@ -19,7 +19,8 @@ from torch import Tensor
 
 from anra_torch.balance.artefacts import Artefacts, find_artefacts, stuck_pixels
 from anra_torch.balance.moments import within
-from anra_torch.balance.noise import NoiseModel, estimate_noise_sd, measure_noise
+from anra_torch.balance.noise import estimate_noise_sd, measure_noise
+from anra_torch.balance.noise_model import NoiseModel
 from anra_torch.balance.robust import pixel_stats
 from anra_torch.balance.spectral import pushed_back, pushed_norm
 

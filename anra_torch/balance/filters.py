@@ -40,7 +40,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from anra_torch.balance.noise import NoiseModel
+from anra_torch.balance.noise_model import NoiseModel
 from anra_torch.layers import GaussianSmoothing, Gradient, Laplacian, SecondDerivatives, TimeDerivative
 
 __all__ = ["TERMS", "MatchedFilters", "TermSpec"]

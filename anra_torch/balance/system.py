@@ -19,7 +19,7 @@ from torch import Tensor
 
 from anra_torch.balance.filters import TERMS, MatchedFilters
 from anra_torch.balance.moments import TermNoise, accumulate, extend, pushback, sandwich, within
-from anra_torch.balance.noise import NoiseModel
+from anra_torch.balance.noise_model import NoiseModel
 
 __all__ = ["REGRESSORS", "BalanceSystem", "Fit", "NoiseSpec"]
 

@@ -183,17 +183,8 @@ def hidden_effect_video(
         ((16, 32, 32), ['advection'])
     """
     noise_frac, noise_sd = _check_noise(noise_frac, noise_sd, dtype)
-    scene = draw_scene(
-        effect_names,
-        seed=seed,
-        size=size,
-        dx=dx,
-        fps=fps,
-        duration=duration,
-        a=a,
-        params=params,
-        background=background,
-    )
+    grid = {"size": size, "dx": dx, "fps": fps, "duration": duration, "a": a}
+    scene = draw_scene(effect_names, seed=seed, **grid, params=params, background=background)
     clean = simulate_effects(
         scene.initial, a=scene.a, dx=scene.dx, dt=scene.dt, n_frames=scene.n_frames, effects=scene.effects
     )

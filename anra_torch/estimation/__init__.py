@@ -8,7 +8,13 @@
 """
 
 from anra_torch.estimation.baselines import BASELINES, backward_log_estimate, log_kernel
-from anra_torch.estimation.chunked import CHUNK_BYTES, CHUNKED_VALUES, ChunkedEstimate, estimate_chunked
+from anra_torch.estimation.chunked import (
+    CHUNK_BYTES,
+    CHUNKED_VALUES,
+    ChunkedEstimate,
+    Chunking,
+    estimate_chunked,
+)
 from anra_torch.estimation.estimator import AUTO_SMOOTHING, MODES, POOR_FIT, ANRAEstimator, ANRAResult
 from anra_torch.estimation.small_box import (
     MODELS,
@@ -30,6 +36,7 @@ __all__ = [
     "CHUNKED_VALUES",
     "CHUNK_BYTES",
     "ChunkedEstimate",
+    "Chunking",
     "MODELS",
     "MODES",
     "NpyFrames",

@@ -70,6 +70,22 @@ class TSRResult:
     samples: Tensor
 
 
+def _flash_times(times: Tensor, video: Tensor, degree: int) -> Tensor:
+    """:func:`tsr`'s ``times`` checked, float64 on the video's device."""
+    if not isinstance(times, Tensor):
+        times = torch.as_tensor(times, dtype=torch.float64, device=video.device)
+    times = times.to(device=video.device, dtype=torch.float64)
+    if times.shape != (video.shape[1],):
+        raise ValueError(
+            f"times must have shape ({video.shape[1]},) (one per frame), got {tuple(times.shape)}"
+        )
+    if not bool((times > 0).all()) or not bool(torch.isfinite(times).all()):
+        raise ValueError("times must be positive seconds since the flash; shift them by the flash's time")
+    if video.shape[1] <= degree:
+        raise ValueError(f"frames need more than degree = {degree} frames, got {video.shape[1]}")
+    return times
+
+
 def tsr(frames: Tensor, times: Tensor, *, degree: int = 7, baseline: float | Tensor = 0.0) -> TSRResult:
     """Thermographic signal reconstruction: ``ln (T - baseline)`` as a polynomial in ``ln t`` per pixel.
 
@@ -98,17 +114,7 @@ def tsr(frames: Tensor, times: Tensor, *, degree: int = 7, baseline: float | Ten
     """
     video, batched = _video(frames)
     degree = check_int(degree, "degree", 1)
-    if not isinstance(times, Tensor):
-        times = torch.as_tensor(times, dtype=torch.float64, device=video.device)
-    times = times.to(device=video.device, dtype=torch.float64)
-    if times.shape != (video.shape[1],):
-        raise ValueError(
-            f"times must have shape ({video.shape[1]},) (one per frame), got {tuple(times.shape)}"
-        )
-    if not bool((times > 0).all()) or not bool(torch.isfinite(times).all()):
-        raise ValueError("times must be positive seconds since the flash; shift them by the flash's time")
-    if video.shape[1] <= degree:
-        raise ValueError(f"frames need more than degree = {degree} frames, got {video.shape[1]}")
+    times = _flash_times(times, video, degree)
     excess = video - _as_map(baseline, video, "baseline")[:, None]
     log_t = times.log()
     centre, scale = float(0.5 * (log_t.max() + log_t.min())), float(0.5 * (log_t.max() - log_t.min())) or 1.0

@@ -13,18 +13,29 @@ and leaves one weighted residual per pixel and grid point (:func:`profile_rss`).
 the half-space (the back wall beyond the recording).
 
 :func:`time_bins` averages the frames over bins that grow geometrically (the cooling is a function of
-``ln t``), with each bin's weight from the noise.
+``ln t``), with each bin's weight from the noise. :func:`nelder_mead` is the small two-parameter search
+of the defect map's shared unknowns.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-__all__ = ["TauGrid", "TimeBins", "log_surface", "profile_rss", "refine_minimum", "tau_grid", "time_bins"]
+__all__ = [
+    "TauGrid",
+    "TimeBins",
+    "log_surface",
+    "nelder_mead",
+    "profile_rss",
+    "refine_minimum",
+    "tau_grid",
+    "time_bins",
+]
 
 _TERMS = 8  # each series' terms on its side of t = tau / 4: the first left out is below exp(-39)
 
@@ -173,3 +184,46 @@ def time_bins(frames: int, dt: float, first: float, *, start: int = 3, ratio: fl
         / counts
     )
     return TimeBins(index, counts, elapsed)
+
+
+def nelder_mead(
+    loss: Callable[[Tensor], float],
+    start: Tensor,
+    value: float,
+    *,
+    step: float,
+    tolerance: float,
+    iterations: int,
+) -> Tensor:
+    """Minimise ``loss`` over two parameters by Nelder-Mead from ``start`` (whose loss is ``value``), the
+    first simplex's edges ``step``; stops when the simplex is smaller than ``tolerance`` or after
+    ``iterations``. Returns the best vertex, ``(2,)`` float64 on the CPU."""
+    simplex = [
+        start,
+        start + torch.tensor([step, 0.0], dtype=torch.float64, device="cpu"),
+        start + torch.tensor([0.0, step], dtype=torch.float64, device="cpu"),
+    ]
+    values = [value, loss(simplex[1]), loss(simplex[2])]
+    for _ in range(iterations):
+        order = sorted(range(3), key=values.__getitem__)
+        simplex, values = [simplex[i] for i in order], [values[i] for i in order]
+        centre = (simplex[0] + simplex[1]) / 2
+        reflected = 2 * centre - simplex[2]
+        v_r = loss(reflected)
+        if v_r < values[0]:
+            expanded = 3 * centre - 2 * simplex[2]
+            v_e = loss(expanded)
+            simplex[2], values[2] = (expanded, v_e) if v_e < v_r else (reflected, v_r)
+        elif v_r < values[1]:
+            simplex[2], values[2] = reflected, v_r
+        else:
+            contracted = (centre + simplex[2]) / 2
+            v_c = loss(contracted)
+            if v_c < values[2]:
+                simplex[2], values[2] = contracted, v_c
+            else:
+                simplex = [simplex[0]] + [(simplex[0] + s) / 2 for s in simplex[1:]]
+                values = [values[0]] + [loss(s) for s in simplex[1:]]
+        if max(float((s - simplex[0]).abs().max()) for s in simplex[1:]) < tolerance:
+            break
+    return simplex[min(range(3), key=values.__getitem__)]

@@ -32,7 +32,7 @@ from torch import Tensor
 
 from anra_torch.balance import estimate_noise_sd
 from anra_torch.checks import as_video, spacing_in_range
-from anra_torch.flash.cooling import profile_rss, refine_minimum, tau_grid, time_bins
+from anra_torch.flash.cooling import nelder_mead, profile_rss, refine_minimum, tau_grid, time_bins
 from anra_torch.flash.lateral import fit_lateral, lateral_integrals, local_quadratic, value_noise_gain
 from anra_torch.flash.regions import components, dilate, erode
 
@@ -210,44 +210,9 @@ def _fit_globals(
     ]
     values = [loss(p) for p in points]
     best = points[min(range(len(points)), key=values.__getitem__)]
-    point = _nelder_mead(loss, best, min(values), step=0.3, tolerance=0.001, iterations=200)
+    point = nelder_mead(loss, best, min(values), step=0.3, tolerance=0.001, iterations=200)
     point = torch.maximum(torch.minimum(point, high), low)
     return cooling.low - cooling.span * math.exp(float(point[0])), cooling.dt * math.exp(float(point[1]))
-
-
-def _nelder_mead(
-    loss, start: Tensor, value: float, *, step: float, tolerance: float, iterations: int
-) -> Tensor:
-    """A two-parameter Nelder-Mead from ``start`` (its loss ``value``) with simplex edges ``step``."""
-    simplex = [
-        start,
-        start + torch.tensor([step, 0.0], dtype=_F64, device="cpu"),
-        start + torch.tensor([0.0, step], dtype=_F64, device="cpu"),
-    ]
-    values = [value, loss(simplex[1]), loss(simplex[2])]
-    for _ in range(iterations):
-        order = sorted(range(3), key=values.__getitem__)
-        simplex, values = [simplex[i] for i in order], [values[i] for i in order]
-        centre = (simplex[0] + simplex[1]) / 2
-        reflected = 2 * centre - simplex[2]
-        v_r = loss(reflected)
-        if v_r < values[0]:
-            expanded = 3 * centre - 2 * simplex[2]
-            v_e = loss(expanded)
-            simplex[2], values[2] = (expanded, v_e) if v_e < v_r else (reflected, v_r)
-        elif v_r < values[1]:
-            simplex[2], values[2] = reflected, v_r
-        else:
-            contracted = (centre + simplex[2]) / 2
-            v_c = loss(contracted)
-            if v_c < values[2]:
-                simplex[2], values[2] = contracted, v_c
-            else:
-                simplex = [simplex[0]] + [(simplex[0] + s) / 2 for s in simplex[1:]]
-                values = [values[0]] + [loss(s) for s in simplex[1:]]
-        if max(float((s - simplex[0]).abs().max()) for s in simplex[1:]) < tolerance:
-            break
-    return simplex[min(range(3), key=values.__getitem__)]
 
 
 def _check(frames: object, dt: float, dx: float) -> Tensor:

@@ -220,6 +220,23 @@ class _Block:
         return float(total) / self.pixels, float(noise) / self.pixels
 
 
+def _block(dy: Tensor, a: Tensor, steps: Tensor, spread: Tensor, covariance: Tensor) -> _Block:
+    """One block's sums from its increments ``dy`` ``(P,)`` and regressors ``a`` ``(P, 3)`` (demeaned), its
+    samples' trapezoidal weights ``steps`` and noise variances over ``u^2`` summed over the pixels
+    ``spread`` (both ``(n,)``), and the filters' noise ``covariance`` ``(4, 4)``."""
+    noise_aa = covariance[1:, 1:] * (steps.square() * spread).sum()
+    noise_ay = covariance[1:, 0] * (steps[-1] * spread[-1] - steps[0] * spread[0])
+    return _Block(
+        gram=a.T @ a - noise_aa,
+        rhs=a.T @ dy - noise_ay,
+        noise_aa=noise_aa,
+        noise_ay=noise_ay,
+        noise_yy=covariance[0, 0] * (spread[-1] + spread[0]),
+        yy=dy @ dy,
+        pixels=len(dy),
+    )
+
+
 def _solve(blocks: list[_Block], weights: list[float]) -> Tensor:
     """The blocks' weighted errors-in-variables solution."""
     gram = torch.stack([w * b.gram for b, w in zip(blocks, weights, strict=True)]).sum(0)
@@ -275,20 +292,11 @@ def fit_lateral(
     for i0, i1 in zip(edges[:-1], edges[1:], strict=False):
         dy = _demean((logs[i1] - logs[i0])[keep], region, regions)
         a = _demean((integrals[:, i1] - integrals[:, i0])[:, keep].T, region, regions)
-        steps = _trapezoid(elapsed, i0, i1)
-        block = _Block(
-            gram=a.T @ a - covariance[1:, 1:] * (steps.square() * spread[i0 : i1 + 1]).sum(),
-            rhs=a.T @ dy - covariance[1:, 0] * (steps[-1] * spread[i1] - steps[0] * spread[i0]),
-            noise_aa=covariance[1:, 1:] * (steps.square() * spread[i0 : i1 + 1]).sum(),
-            noise_ay=covariance[1:, 0] * (steps[-1] * spread[i1] - steps[0] * spread[i0]),
-            noise_yy=covariance[0, 0] * (spread[i1] + spread[i0]),
-            yy=dy @ dy,
-            pixels=len(dy),
-        )
+        block = _block(dy, a, _trapezoid(elapsed, i0, i1), spread[i0 : i1 + 1], covariance)
         if len(blocks) >= 2 and _breaks(block, _solve(blocks, [1.0] * len(blocks))):
             break
         blocks.append(block)
-    if len(blocks) < 4:
+    if len(blocks) < 2:
         return frames.new_zeros(3), len(blocks)
     a = _solve(blocks, [1.0] * len(blocks))
     for _ in range(3):  # each block weighted by its residuals' mean square

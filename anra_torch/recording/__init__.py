@@ -6,8 +6,10 @@ argument parsing and printing around it):
 - :mod:`~anra_torch.recording.read`: :func:`open_recording`, in memory or left on disk to be read in chunks;
 - :mod:`~anra_torch.recording.phases`: :func:`find_phases` (baseline, heating, cooling, after the camera's
   artefacts are repaired) and which phase describes the recording;
+- :mod:`~anra_torch.recording.plan`: a recording's phases and the route of each (small box, whole, in
+  chunks); :mod:`~anra_torch.recording.records`: the records of a recording's estimate;
 - :mod:`~anra_torch.recording.estimate`: :func:`estimate_recording` / :func:`estimate_recordings`, each phase
-  by its route (small box, whole, in chunks), the described phase and its record;
+  by its route, the described phase and its record;
 - :mod:`~anra_torch.recording.decimate`: the block-averaged copy a camera-sized recording is diagnosed on;
 - :mod:`~anra_torch.recording.phase_diagnosis`: :func:`diagnose_recording`, every phase diagnosed on its own;
 - :mod:`~anra_torch.recording.diagnose`: :func:`open_for_diagnosis` and :func:`diagnose_video`, the
@@ -28,15 +30,7 @@ from anra_torch.recording.diagnose import (
     diagnosis_copy,
     open_for_diagnosis,
 )
-from anra_torch.recording.estimate import (
-    PhaseEstimate,
-    RecordingEstimate,
-    estimate_recording,
-    estimate_recordings,
-    on_disk_above,
-    phase_diffusivities,
-    reads_in_chunks,
-)
+from anra_torch.recording.estimate import estimate_recording, estimate_recordings, phase_diffusivities
 from anra_torch.recording.phase_diagnosis import INNER_SPLITS, PhaseDiagnosis, diagnose_recording
 from anra_torch.recording.phases import (
     MIN_PHASE_FRAMES,
@@ -46,7 +40,9 @@ from anra_torch.recording.phases import (
     phase_preference,
     whole_recording,
 )
+from anra_torch.recording.plan import on_disk_above, reads_in_chunks
 from anra_torch.recording.read import input_record, open_recording
+from anra_torch.recording.records import PhaseEstimate, RecordingEstimate
 
 __all__ = [
     "DIAGNOSE_VALUES",

@@ -96,6 +96,25 @@ def _chunk(frames: Any, start: int, stop: int) -> Tensor:
     return part if part.dtype == torch.float64 else part.float()
 
 
+def _block_means(frames: Any, box: tuple[int, int, int, int], k: int, m: int) -> tuple[Tensor, int, int]:
+    """The ``box`` ``(x0, y0, width, height)`` px of ``frames`` averaged over ``k x k`` px and ``m`` frames,
+    read a chunk at a time and repaired first; with the spikes and the distinct elements repaired."""
+    x0, y0, w, h = box
+    out_t, out_h, out_w = frames.shape[0] // m, h // k, w // k
+    step = m * max(1, _CHUNK_VALUES // (m * h * w))  # whole blocks per chunk
+    parts, spikes, elements = [], 0, torch.zeros(h, w, dtype=torch.bool)
+    for start in range(0, out_t * m, step):
+        chunk = _chunk(frames, start, min(start + step, out_t * m))[:, y0 : y0 + h, x0 : x0 + w]
+        repaired, found = find_artefacts(chunk)
+        spikes += found.spikes
+        if found.bad_pixels:
+            elements[tuple(torch.tensor(found.bad_pixels).T)] = True
+        cut = repaired[:, : out_h * k, : out_w * k]
+        parts.append(F.avg_pool3d(cut.double()[None, None], (m, k, k))[0, 0])
+        del chunk, repaired, cut
+    return torch.cat(parts), spikes, int(elements.sum())
+
+
 def decimated_video(video: Video, k: int, m: int, region: ROI | None = None) -> tuple[Video, dict[str, Any]]:
     """The recording averaged over blocks of ``k x k`` pixels and ``m`` frames, its camera artefacts
     repaired at full resolution first, and what was done.
@@ -112,8 +131,7 @@ def decimated_video(video: Video, k: int, m: int, region: ROI | None = None) -> 
 
     Returns:
         The copy in float64 (pixel size ``k dx``, frame period ``m dt``, timestamps the blocks' mean times,
-        no truth)
-        and its record: ``space_px`` (k), ``time_frames`` (m), ``shape`` (the copy's ``[T, H, W]``),
+        no truth) and its record: ``space_px`` (k), ``time_frames`` (m), ``shape`` (the copy's ``[T, H, W]``),
         ``dropped_frames`` / ``dropped_rows`` / ``dropped_columns`` (beyond the last whole block),
         ``repaired_spikes`` and ``repaired_elements`` (dead or hot elements, distinct pixels), and
         ``region`` (``[x0, y0, width, height]`` px of the recording, or null for the whole frame).
@@ -132,18 +150,7 @@ def decimated_video(video: Video, k: int, m: int, region: ROI | None = None) -> 
     if k < 1 or m < 1 or k > min(h, w) or m > t:
         raise ValueError(f"k and m must be in [1, min(H, W)] and [1, T], got k={k}, m={m} for {t}x{h}x{w}")
     out_t, out_h, out_w = t // m, h // k, w // k
-    step = m * max(1, _CHUNK_VALUES // (m * h * w))  # whole blocks per chunk
-    parts, spikes, elements = [], 0, torch.zeros(h, w, dtype=torch.bool)
-    for start in range(0, out_t * m, step):
-        chunk = _chunk(video.frames, start, min(start + step, out_t * m))[:, y0 : y0 + h, x0 : x0 + w]
-        repaired, found = find_artefacts(chunk)
-        spikes += found.spikes
-        if found.bad_pixels:
-            elements[tuple(torch.tensor(found.bad_pixels).T)] = True
-        cut = repaired[:, : out_h * k, : out_w * k]
-        parts.append(F.avg_pool3d(cut.double()[None, None], (m, k, k))[0, 0])
-        del chunk, repaired, cut
-    frames = torch.cat(parts)
+    frames, spikes, elements = _block_means(video.frames, (x0, y0, w, h), k, m)
     t_in = video.t.double() if video.t is not None else torch.arange(t, dtype=torch.float64) * video.dt
     times = t_in[: out_t * m].reshape(out_t, m).mean(1)
     record = {
@@ -154,7 +161,7 @@ def decimated_video(video: Video, k: int, m: int, region: ROI | None = None) -> 
         "dropped_rows": h - out_h * k,
         "dropped_columns": w - out_w * k,
         "repaired_spikes": spikes,
-        "repaired_elements": int(elements.sum()),
+        "repaired_elements": elements,
         "region": None if region is None else [x0, y0, w, h],
     }
     dx = None if video.dx is None else video.dx * k

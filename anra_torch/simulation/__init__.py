@@ -46,6 +46,7 @@ from anra_torch.simulation.integrator import (
     FIXED_STEP_METHODS,
     POLICIES,
     SAFETY,
+    Solver,
     StabilityRegion,
     StepCount,
     StepPolicy,
@@ -56,11 +57,12 @@ from anra_torch.simulation.plate import flash_plate_video, plate_factor, with_de
 from anra_torch.simulation.plate_reference import (
     DEFECT_KINDS,
     Defect,
+    PlateSetup,
     ReferencePlate,
     default_flash,
     reference_plate_video,
 )
-from anra_torch.simulation.synthetic import SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation.synthetic import Blobs, SyntheticVideo, blobs_video, paper_video
 from anra_torch.simulation.tissue import MovingSource, TissueRHS, simulate_tissue
 
 __all__ = [
@@ -74,6 +76,7 @@ __all__ = [
     "SAFETY",
     "SPECTRAL_BOUNDARIES",
     "BioheatResult",
+    "Blobs",
     "BioheatScene",
     "Contact",
     "Continuum",
@@ -84,6 +87,7 @@ __all__ = [
     "HeatRHS",
     "MovingSource",
     "ReferencePlate",
+    "Solver",
     "StabilityRegion",
     "StepCount",
     "StepPolicy",
@@ -104,6 +108,7 @@ __all__ = [
     "plant",
     "plate_factor",
     "random_scene",
+    "PlateSetup",
     "reference_plate_video",
     "simulate_bioheat",
     "simulate_continuum",

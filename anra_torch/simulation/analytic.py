@@ -123,6 +123,29 @@ def heat_spectral(
 
 
 # ----------------------------------------------------------------------------------------- analytic
+def _check_blobs(peak: Tensor, sigma: Tensor, centre: Tensor, a: Tensor, bg: Tensor) -> torch.Size:
+    """The leading (batch) shape of :func:`gaussian_blobs`' parameters, after checking them (its
+    ``Raises``)."""
+    if peak.ndim not in (1, 2) or peak.shape[-1] == 0:
+        raise ValueError(f"peaks must have shape (N,) or (B, N), got {tuple(peak.shape)}")
+    lead = peak.shape[:-1]
+    if tuple(sigma.shape) != tuple(peak.shape):
+        raise ValueError(f"sigmas must have the shape of peaks {tuple(peak.shape)}, got {tuple(sigma.shape)}")
+    if tuple(centre.shape) != (*peak.shape, 2):
+        raise ValueError(
+            f"centres must have shape {(*peak.shape, 2)} (x, y in mm), got {tuple(centre.shape)}"
+        )
+    if bool((sigma.detach() <= 0).any()):
+        raise ValueError(f"sigmas must be positive in mm, got min {sigma.detach().min().item():g}")
+    if a.ndim > 1 or a.numel() not in (1, *lead):
+        raise ValueError(f"a must be a number or have shape {tuple(lead)}, got {tuple(a.shape)}")
+    if bool((a.detach() < 0).any()):
+        raise ValueError(f"a must be finite and non-negative in mm^2/s, got {a.detach().tolist()}")
+    if bg.ndim > 1 or bg.numel() not in (1, *lead):
+        raise ValueError(f"background must be a number or have shape {tuple(lead)}, got {tuple(bg.shape)}")
+    return lead
+
+
 def gaussian_blobs(
     times: Sequence[float] | Tensor,
     *,
@@ -167,25 +190,8 @@ def gaussian_blobs(
     peak = _as_param(peaks, "peaks", dtype)
     sigma = _as_param(sigmas, "sigmas", dtype)
     centre = _as_param(centres, "centres", dtype)
-    if peak.ndim not in (1, 2) or peak.shape[-1] == 0:
-        raise ValueError(f"peaks must have shape (N,) or (B, N), got {tuple(peak.shape)}")
-    lead = peak.shape[:-1]
-    if tuple(sigma.shape) != tuple(peak.shape):
-        raise ValueError(f"sigmas must have the shape of peaks {tuple(peak.shape)}, got {tuple(sigma.shape)}")
-    if tuple(centre.shape) != (*peak.shape, 2):
-        raise ValueError(
-            f"centres must have shape {(*peak.shape, 2)} (x, y in mm), got {tuple(centre.shape)}"
-        )
-    if bool((sigma.detach() <= 0).any()):
-        raise ValueError(f"sigmas must be positive in mm, got min {sigma.detach().min().item():g}")
-    a_t = _as_param(a, "a", dtype)
-    if a_t.ndim > 1 or a_t.numel() not in (1, *lead):
-        raise ValueError(f"a must be a number or have shape {tuple(lead)}, got {tuple(a_t.shape)}")
-    if bool((a_t.detach() < 0).any()):
-        raise ValueError(f"a must be finite and non-negative in mm^2/s, got {a_t.detach().tolist()}")
-    bg = _as_param(background, "background", dtype)
-    if bg.ndim > 1 or bg.numel() not in (1, *lead):
-        raise ValueError(f"background must be a number or have shape {tuple(lead)}, got {tuple(bg.shape)}")
+    a_t, bg = _as_param(a, "a", dtype), _as_param(background, "background", dtype)
+    lead = _check_blobs(peak, sigma, centre, a_t, bg)
 
     a_t = a_t.reshape(*lead, 1, 1) if lead and a_t.numel() > 1 else a_t.reshape(())
     variance = sigma.unsqueeze(-1) ** 2 + 2.0 * a_t * t  # (..., N, T)
@@ -216,9 +222,8 @@ def gaussian_blob(
 ) -> Tensor:
     """Exact heat-equation solution on the infinite plane for one Gaussian, at the pixel centres.
 
-    ``T(x, y, t) = background + peak s0^2 / (s0^2 + 2 a t) exp(-r^2 / (2 (s0^2 + 2 a t)))`` with
-    ``s0 = sigma`` and ``r`` the distance to ``centre``. The full width at half maximum at t = 0 is
-    ``2 sqrt(2 ln 2) sigma``.
+    ``T(x, y, t) = background + peak s0^2 / (s0^2 + 2 a t) exp(-r^2 / (2 (s0^2 + 2 a t)))``, ``s0 = sigma``
+    and ``r`` the distance to ``centre`` (full width at half maximum at t = 0: ``2 sqrt(2 ln 2) sigma``).
 
     Args:
         times: sample times in s (>= 0).
@@ -251,8 +256,7 @@ def gaussian_blob(
         raise ValueError(f"centre must be (x, y) in mm, got {centre!r}")
     if not isinstance(sigma, Tensor) and not (math.isfinite(float(sigma)) and float(sigma) > 0):
         raise ValueError(f"sigma must be a positive finite number in mm, got {sigma!r}")
-    peaks = peak.reshape(1) if isinstance(peak, Tensor) else [peak]
-    sigmas = sigma.reshape(1) if isinstance(sigma, Tensor) else [sigma]
+    peaks, sigmas = (x.reshape(1) if isinstance(x, Tensor) else [x] for x in (peak, sigma))
     return gaussian_blobs(
         times,
         shape=(height, width),

@@ -85,8 +85,8 @@ def bad_elements(
 
     Spikes: ``spikes`` samples at distinct (frame, pixel), each ``+-U(spike_range)`` K added to one sample.
     Dead: ``dead`` pixels stuck at a constant drawn uniformly in the video's range. Hot: ``hot`` pixels
-    either stuck high (the video's maximum plus ``U(hot_range)``) or strongly offset (their signal plus
-    ``U(hot_range)``), a fair coin each. Dead, hot and spiked pixels are distinct.
+    stuck at the video's maximum plus ``U(hot_range)`` (``"stuck"``) or offset by ``U(hot_range)``
+    (``"offset"``), a fair coin each. Dead, hot and spiked pixels are distinct.
 
     Args:
         frames: one video.
@@ -99,8 +99,7 @@ def bad_elements(
 
     Returns:
         The video with the bad elements, and ``{"kind": "bad_elements", "seed", "spikes": [{"frame", "row",
-        "col", "size"}], "dead": [{"row", "col", "value"}], "hot": [{"row", "col", "mode": "stuck" |
-        "offset", "value" (the stuck value or the offset)}]}``.
+        "col", "size"}], "dead": [{"row", "col", "value"}], "hot": [{"row", "col", "mode", "value"}]}``.
 
     Shape:
         ``frames`` ``(T, H, W)``; output like it.
@@ -114,9 +113,8 @@ def bad_elements(
     spike_lo, spike_hi = _range(spike_range, "spike_range")
     hot_lo, hot_hi = _range(hot_range, "hot_range")
     low, high = float(video.min()), float(video.max())
-    chosen = _pixels(
-        rng, counts["dead"] + counts["hot"] + counts["spikes"], (height, width), "dead + hot + spikes"
-    )
+    total = counts["dead"] + counts["hot"] + counts["spikes"]
+    chosen = _pixels(rng, total, (height, width), "dead + hot + spikes")
     record.update(kind="bad_elements", spikes=[], dead=[], hot=[])
     for row, col in chosen[: counts["dead"]]:
         value = float(rng.uniform(low, high))

@@ -22,6 +22,7 @@ from anra_torch.checks import as_fields, as_spacing, check_choice, check_int, po
 from anra_torch.simulation.integrator import (
     ADAPTIVE_METHODS,
     FIXED_STEP_METHODS,
+    Solver,
     integrate,
     stable_substeps,
 )
@@ -215,11 +216,7 @@ def simulate_heat(
     n_frames: int,
     boundary: str = "neumann",
     boundary_value: float | Tensor = 0.0,
-    method: str = "rk4",
-    substeps: int | None = None,
-    rtol: float = 1e-7,
-    atol: float = 1e-9,
-    adjoint: bool = False,
+    solver: Solver | None = None,
 ) -> Tensor:
     """Simulate a thermal video: 5-point Laplacian in space, :func:`~anra_torch.simulation.integrate` in time.
 
@@ -227,7 +224,7 @@ def simulate_heat(
     ``a_max dt / (substeps dx^2) <= 0.9 * 0.25`` (:func:`~anra_torch.simulation.stable_substeps`): stable,
     and monotone (no new extrema: the maximum principle holds). The count is a step function of ``a``:
     when fitting ``a`` by gradient descent pass ``substeps`` so the objective stays smooth. Adaptive
-    methods use ``rtol`` / ``atol``. The semi-discrete system is solved, so the result differs from the
+    methods use the tolerances. The semi-discrete system is solved, so the result differs from the
     continuous equation by O(dx^2) (see :func:`~anra_torch.simulation.heat_spectral`).
 
     Args:
@@ -239,12 +236,8 @@ def simulate_heat(
         n_frames: number of output frames; frame 0 is ``initial``, frame k is at ``t = k dt``.
         boundary: a key of :data:`BOUNDARIES` (``"neumann"``, ``"dirichlet"``, ``"periodic"``).
         boundary_value: ghost-pixel temperature for ``"dirichlet"``, a number or ``(B,)``.
-        method: a key of :data:`~anra_torch.simulation.FIXED_STEP_METHODS` or one of
-            :data:`~anra_torch.simulation.ADAPTIVE_METHODS`.
-        substeps: solver steps per frame for fixed-step methods (default: automatic, see above).
-        rtol: relative tolerance of adaptive methods.
-        atol: absolute tolerance of adaptive methods (units of T).
-        adjoint: integrate by the adjoint method (memory O(1) in the number of steps, see :func:`integrate`).
+        solver: the time integration (:class:`~anra_torch.simulation.Solver`: method, substeps,
+            tolerances, adjoint); default ``Solver()``, RK4 with automatic substeps.
 
     Returns:
         The video, in the dtype of ``initial``.
@@ -263,6 +256,8 @@ def simulate_heat(
         >>> video.shape, round(video[-1].sum().item(), 12)
         (torch.Size([3, 16, 16]), 1.0)
     """
+    s = Solver() if solver is None else solver
+    method, substeps, adjoint = s.method, s.substeps, s.adjoint
     u0, batched = as_fields(initial)
     batch, height, width = u0.shape
     n_frames = check_int(n_frames, "n_frames", 1)
@@ -275,7 +270,7 @@ def simulate_heat(
     if substeps is not None and method not in FIXED_STEP_METHODS:
         raise ValueError(f"substeps applies to fixed-step methods only, got method={method!r}")
     substeps = None if substeps is None else check_int(substeps, "substeps", 1)
-    rtol, atol = positive(rtol, "rtol", "relative units"), positive(atol, "atol", "units of T")
+    rtol, atol = positive(s.rtol, "rtol", "relative units"), positive(s.atol, "atol", "units of T")
     if n_frames == 1:
         out = u0.unsqueeze(1)
         return out if batched else out[0]

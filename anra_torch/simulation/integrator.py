@@ -28,6 +28,7 @@ from torch import Tensor
 from anra_torch.checks import check_choice, check_int, number, positive
 
 __all__ = [
+    "Solver",
     "ADAPTIVE_METHODS",
     "FIXED_STEP_METHODS",
     "POLICIES",
@@ -107,6 +108,25 @@ POLICIES: dict[str, StepPolicy] = {
 margin in the minimum."""
 
 
+@dataclass(frozen=True)
+class Solver:
+    """How a simulation integrates in time (:func:`integrate`'s settings).
+
+    Attributes:
+        method: a key of :data:`FIXED_STEP_METHODS` or one of :data:`ADAPTIVE_METHODS`.
+        substeps: solver steps per frame for fixed-step methods (None: automatic, :func:`stable_substeps`).
+        rtol: relative tolerance of adaptive methods.
+        atol: absolute tolerance of adaptive methods (units of the state).
+        adjoint: integrate by the adjoint method (memory O(1) in the number of steps).
+    """
+
+    method: str = "rk4"
+    substeps: int | None = None
+    rtol: float = 1e-7
+    atol: float = 1e-9
+    adjoint: bool = False
+
+
 class StepCount(NamedTuple):
     """Substeps per frame: the automatic choice and the fewest accepted (both ``>= 1``).
 
@@ -152,9 +172,8 @@ def stable_substeps(
 
     The eigenvalues lie in the box ``[-(8 a / dx^2 + b), 0] x i [-speed / dx, speed / dx]`` (1/s); one
     frame of ``n`` substeps is stable when ``|lambda| dt / n`` fits the method's region: its real-axis
-    limit for a real spectrum, else its largest left half-disc. Any consistent units work; with
-    ``dt = dx = 1`` the diffusivity is the mesh Fourier number ``a dt / dx^2`` (how a batch with
-    different spacings passes its largest).
+    limit for a real spectrum, else its largest left half-disc. With ``dt = dx = 1`` the diffusivity is
+    the mesh Fourier number ``a dt / dx^2`` (how a batch with different spacings passes its largest).
 
     Args:
         dt: frame period in s.
@@ -168,9 +187,6 @@ def stable_substeps(
     Returns:
         ``(automatic, minimum)`` substeps per frame.
 
-    Shape:
-        No tensors.
-
     Raises:
         ValueError: non-positive ``dt`` / ``dx``, negative rates, unknown ``method`` / ``policy``, or
             advection with a method that is unstable on the imaginary axis.
@@ -181,25 +197,19 @@ def stable_substeps(
         >>> stable_substeps(0.1, 0.1, diffusivity=1.0, policy="stable")  # 80 / (0.9 * 2.7853)
         StepCount(automatic=32, minimum=32)
     """
-    dt = positive(dt, "dt", "s")
-    dx = positive(dx, "dx", "mm")
+    dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
     diffusivity = number(diffusivity, "diffusivity", "mm^2/s", minimum=0.0)
-    speed = number(speed, "speed", "mm/s", minimum=0.0)
-    decay = number(decay, "decay", "1/s", minimum=0.0)
+    speed, decay = number(speed, "speed", "mm/s", minimum=0.0), number(decay, "decay", "1/s", minimum=0.0)
     region = FIXED_STEP_METHODS[check_choice(method, "method", list(FIXED_STEP_METHODS))]
     rule = POLICIES[check_choice(policy, "policy", list(POLICIES))]
     real, imag = 8.0 * diffusivity / dx**2 + decay, speed / dx
-    if imag == 0:
-        radius = region.real
-    elif region.half_disc is None:
+    radius = region.half_disc if imag else region.real
+    if radius is None:
         raise ValueError(
             f"speed must be 0 mm/s for method {method!r} (unstable for advection), got {speed:g}"
         )
-    else:
-        radius = region.half_disc
     size = math.hypot(real, imag) * dt  # the box's far corner: the largest |lambda| dt over one frame
-    stable = max(1, math.ceil(size / radius))
-    safe = max(1, math.ceil(size / (SAFETY * radius)))
+    stable, safe = max(1, math.ceil(size / radius)), max(1, math.ceil(size / (SAFETY * radius)))
     minimum = safe if rule.strict else stable
     if not rule.monotone:
         return StepCount(max(minimum, safe), minimum)

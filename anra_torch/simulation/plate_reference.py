@@ -39,12 +39,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["DEFECT_KINDS", "Defect", "ReferencePlate", "default_flash", "reference_plate_video"]
+from anra_torch.simulation.plate_solver import PlateSolver, centres
+
+__all__ = ["DEFECT_KINDS", "Defect", "PlateSetup", "ReferencePlate", "default_flash", "reference_plate_video"]
 
 DEFECT_KINDS = ("ellipse", "rectangle", "polygon")
 """Shapes of :class:`Defect`."""
 
-_SUBSAMPLES = 8  # points per cell side for a defect's coverage
 _T_REF = 20.0
 
 
@@ -147,26 +148,11 @@ def default_flash(width: float, height: float) -> Callable[[np.ndarray, np.ndarr
     return flash
 
 
-def reference_plate_video(
-    *,
-    thickness: float,
-    duration: float,
-    shape: tuple[int, int] = (96, 96),
-    dx: float = 0.3,
-    n_frames: int = 1000,
-    diffusivity: tuple[float, float, float] = (7.3, 1.1, 0.45),
-    defects: Sequence[Defect] = (),
-    energy: float = 3.0,
-    flash: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-    noise_sd: float = 0.02,
-    mesh_noise: float = 0.03,
-    cell: float | None = None,
-    growth: float = 1.25,
-    seed: int = 0,
-) -> ReferencePlate:
-    """Simulate a flash recording of a plate (see the module text).
+@dataclass(frozen=True)
+class PlateSetup:
+    """What :func:`reference_plate_video` simulates.
 
-    Args:
+    Attributes:
         thickness: plate thickness ``L`` in mm.
         duration: time of the last frame after the flash in s (frames at ``k duration / n_frames``,
             ``k = 1 .. n_frames``).
@@ -183,78 +169,104 @@ def reference_plate_video(
         growth: ratio of neighbouring cells' sizes outside the frame and through the thickness.
         seed: seed of the mesh's jitter, the per-cell error and the camera noise.
 
-    Returns:
-        :class:`ReferencePlate`.
-
     Raises:
         ValueError: a non-positive size or time, a defect not inside the plate's thickness.
+    """
+
+    thickness: float
+    duration: float
+    shape: tuple[int, int] = (96, 96)
+    dx: float = 0.3
+    n_frames: int = 1000
+    diffusivity: tuple[float, float, float] = (7.3, 1.1, 0.45)
+    defects: Sequence[Defect] = ()
+    energy: float = 3.0
+    flash: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    noise_sd: float = 0.02
+    mesh_noise: float = 0.03
+    cell: float | None = None
+    growth: float = 1.25
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        height, width = self.shape
+        if min(height, width) < 2 or self.n_frames < 2:
+            raise ValueError(
+                f"shape must be at least 2 x 2 px and n_frames >= 2, got {self.shape!r}, {self.n_frames}"
+            )
+        sizes = (self.thickness, self.duration, self.dx, *self.diffusivity)
+        if not (all(size > 0 for size in sizes) and self.growth > 1):
+            raise ValueError(
+                "thickness, duration, dx and the diffusivities must be positive and growth > 1, got "
+                f"{self.thickness!r}, {self.duration!r}, {self.dx!r}, {self.diffusivity!r}, {self.growth!r}"
+            )
+        for defect in self.defects:
+            if not defect.depth < self.thickness:
+                raise ValueError(
+                    f"a defect's depth must be below {self.thickness} mm (the plate), got {defect.depth}"
+                )
+
+
+def reference_plate_video(setup: PlateSetup) -> ReferencePlate:
+    """Simulate a flash recording of a plate (see the module text).
+
+    Args:
+        setup: the plate, its defects, the flash, the camera and the mesh.
+
+    Returns:
+        :class:`ReferencePlate`.
 
     Shape:
         ``frames`` ``(n_frames, H, W)``.
     """
-    height, width = shape
-    _check(shape, n_frames, (thickness, duration, dx, growth), diffusivity, defects)
-    rng = np.random.default_rng(seed)
-    a_x, a_y, a_z = diffusivity
-    step = duration / n_frames
-    cell = dx if cell is None else cell
-    x_edges = _lateral_edges(width * dx, cell, 3.0 * math.sqrt(a_x * duration), growth, rng)
-    y_edges = _lateral_edges(height * dx, cell, 3.0 * math.sqrt(a_y * duration), growth, rng)
-    top = min(0.5 * math.sqrt(a_z * step), thickness / 20)
-    z_edges = _depth_edges(thickness, top, growth, sorted({d.depth for d in defects}))
-    solver = _Solver(x_edges, y_edges, z_edges, (a_x, a_y, a_z), 2.0 / step)
-    solver.cut(defects)
-
-    flash = default_flash(width * dx, height * dx) if flash is None else flash
-    xc, yc = _centres(x_edges), _centres(y_edges)
-    deposit = (
-        energy * flash(xc[None, :], yc[:, None]) * (1 + mesh_noise * rng.standard_normal(solver.lateral))
-    )
+    rng = np.random.default_rng(setup.seed)
+    step = setup.duration / setup.n_frames
+    solver, top = _mesh(setup, rng)
     state = np.zeros(solver.shape)
-    state[0] = deposit / (z_edges[1] - z_edges[0])
-
-    surface = np.empty((n_frames, *solver.lateral))
-    for index in range(n_frames):
+    state[0] = _deposit(setup, solver, rng) / solver.sizes[0][0]
+    surface = np.empty((setup.n_frames, *solver.lateral))
+    for index in range(setup.n_frames):
         for _ in range(2 if index < 2 else 1):  # Rannacher: 4 implicit-Euler half steps, then CN
             state = solver.euler(state) if index < 2 else solver.crank_nicolson(state)
         surface[index] = solver.surface(state)
-    wy, wx = _camera(yc, height, dx), _camera(xc, width, dx)
+    (height, width), dx = setup.shape, setup.dx
+    _, y_edges, x_edges = solver.edges
+    wy, wx = _camera(centres(y_edges), height, dx), _camera(centres(x_edges), width, dx)
     frames = np.einsum("hj,tji,wi->thw", wy, surface, wx, optimize=True)
-    frames += _T_REF + noise_sd * rng.standard_normal(frames.shape)
-    mask, fraction = _truth(defects, shape, dx, thickness)
+    frames += _T_REF + setup.noise_sd * rng.standard_normal(frames.shape)
+    mask, fraction = _truth(setup.defects, setup.shape, dx, setup.thickness)
     info = {"cells": solver.shape, "cut_faces": solver.cut_faces, "top_cell_mm": top}
+    plate_time = setup.thickness**2 / setup.diffusivity[2]
     return ReferencePlate(
-        torch.from_numpy(frames.astype(np.float32)), step, dx, thickness**2 / a_z, mask, fraction, info
+        torch.from_numpy(frames.astype(np.float32)), step, dx, plate_time, mask, fraction, info
     )
 
 
-def _check(
-    shape: tuple[int, int],
-    n_frames: int,
-    sizes: tuple[float, float, float, float],
-    diffusivity: tuple[float, float, float],
-    defects: Sequence[Defect],
-) -> None:
-    """:func:`reference_plate_video`'s arguments checked (``sizes``: thickness, duration, dx, growth)."""
-    height, width = shape
-    thickness, duration, dx, growth = sizes
-    if min(height, width) < 2 or n_frames < 2:
-        raise ValueError(f"shape must be at least 2 x 2 px and n_frames >= 2, got {shape!r}, {n_frames}")
-    if not (thickness > 0 and duration > 0 and dx > 0 and min(diffusivity) > 0 and growth > 1):
-        raise ValueError(
-            "thickness, duration, dx and the diffusivities must be positive and growth > 1, got "
-            f"{thickness!r}, {duration!r}, {dx!r}, {diffusivity!r}, {growth!r}"
-        )
-    for defect in defects:
-        if not defect.depth < thickness:
-            raise ValueError(f"a defect's depth must be below {thickness} mm (the plate), got {defect.depth}")
+def _mesh(setup: PlateSetup, rng: np.random.Generator) -> tuple[PlateSolver, float]:
+    """The solver on the plate's mesh with the defects cut, and the top cells' thickness in mm."""
+    (height, width), dx, growth = setup.shape, setup.dx, setup.growth
+    a_x, a_y, a_z = setup.diffusivity
+    step = setup.duration / setup.n_frames
+    cell = dx if setup.cell is None else setup.cell
+    x_edges = _lateral_edges(width * dx, cell, 3.0 * math.sqrt(a_x * setup.duration), growth, rng)
+    y_edges = _lateral_edges(height * dx, cell, 3.0 * math.sqrt(a_y * setup.duration), growth, rng)
+    top = min(0.5 * math.sqrt(a_z * step), setup.thickness / 20)
+    z_edges = _depth_edges(setup.thickness, top, growth, sorted({d.depth for d in setup.defects}))
+    solver = PlateSolver(x_edges, y_edges, z_edges, (a_x, a_y, a_z), 2.0 / step)
+    solver.cut(setup.defects)
+    return solver, top
+
+
+def _deposit(setup: PlateSetup, solver: PlateSolver, rng: np.random.Generator) -> np.ndarray:
+    """The flash's energy per top cell column, K mm, with the mesh's per-cell error."""
+    (height, width), dx = setup.shape, setup.dx
+    flash = default_flash(width * dx, height * dx) if setup.flash is None else setup.flash
+    _, y_edges, x_edges = solver.edges
+    intensity = flash(centres(x_edges)[None, :], centres(y_edges)[:, None])
+    return setup.energy * intensity * (1 + setup.mesh_noise * rng.standard_normal(solver.lateral))
 
 
 # ------------------------------------------------------------------------------------------- mesh
-def _centres(edges: np.ndarray) -> np.ndarray:
-    return 0.5 * (edges[1:] + edges[:-1])
-
-
 def _lateral_edges(
     frame: float, cell: float, margin: float, growth: float, rng: np.random.Generator
 ) -> np.ndarray:
@@ -318,134 +330,3 @@ def _truth(
     for defect in sorted(defects, key=lambda d: -d.depth):  # the shallowest last: it is what the surface sees
         fraction[defect.inside(x[None, :], y[:, None])] = defect.depth / thickness
     return np.isfinite(fraction), fraction
-
-
-# ----------------------------------------------------------------------------------------- solver
-class _Solver:
-    """``(M / tau + K) x = b`` for the plate's finite volumes, ``M`` the cell volumes, ``K`` the
-    conductances; exact for the intact plate by fast diagonalisation, for cut faces by Woodbury."""
-
-    def __init__(
-        self,
-        x_edges: np.ndarray,
-        y_edges: np.ndarray,
-        z_edges: np.ndarray,
-        diffusivity: tuple[float, float, float],
-        shift: float,
-    ) -> None:
-        self.edges = (z_edges, y_edges, x_edges)
-        self.sizes = tuple(np.diff(e) for e in self.edges)  # (dz, dy, dx) per cell
-        self.shape = tuple(len(s) for s in self.sizes)
-        self.lateral = self.shape[1:]
-        self.shift = shift  # 1 / tau: 2 / step for a half step of implicit Euler and for Crank-Nicolson
-        a_x, a_y, a_z = diffusivity
-        self.diffusivity, self.a_z = diffusivity, a_z
-        self.axes = [self._axis(e, a) for e, a in zip(self.edges, (a_z, a_y, a_x), strict=True)]
-        self.volume = (
-            self.sizes[0][:, None, None] * self.sizes[1][None, :, None] * self.sizes[2][None, None, :]
-        )
-        lam = [ax[0] for ax in self.axes]
-        self.denominator = shift + lam[0][:, None, None] + lam[1][None, :, None] + lam[2][None, None, :]
-        self.cut_faces = 0
-        self.faces: tuple[np.ndarray, np.ndarray] | None = None
-        self.capacitance: np.ndarray | None = None
-
-    @staticmethod
-    def _axis(edges: np.ndarray, a: float) -> tuple[np.ndarray, np.ndarray]:
-        """Eigenvalues and mass-orthonormal eigenvectors of one axis' ``K v = lambda M v``."""
-        size, centres = np.diff(edges), _centres(edges)
-        conductance = a / np.diff(centres)
-        k = np.diag(np.concatenate([conductance, [0.0]]) + np.concatenate([[0.0], conductance]))
-        k -= np.diag(conductance, 1) + np.diag(conductance, -1)
-        scale = 1.0 / np.sqrt(size)
-        values, vectors = np.linalg.eigh(scale[:, None] * k * scale[None, :])
-        return np.clip(values, 0.0, None), scale[:, None] * vectors
-
-    def _forward(self, b: np.ndarray) -> np.ndarray:
-        (_, vz), (_, vy), (_, vx) = self.axes
-        b = b @ vx
-        b = np.matmul(vy.T, b)
-        return (vz.T @ b.reshape(self.shape[0], -1)).reshape(self.shape)
-
-    def _back(self, c: np.ndarray) -> np.ndarray:
-        (_, vz), (_, vy), (_, vx) = self.axes
-        c = (vz @ c.reshape(self.shape[0], -1)).reshape(self.shape)
-        c = np.matmul(vy, c)
-        return c @ vx.T
-
-    def _intact(self, b: np.ndarray) -> np.ndarray:
-        return self._back(self._forward(b) / self.denominator)
-
-    def cut(self, defects: Sequence[Defect]) -> None:
-        """Remove the covered share of the conductance of the faces at each defect's depth."""
-        if not defects:
-            return
-        z_edges, y_edges, x_edges = self.edges
-        sub = (np.arange(_SUBSAMPLES) + 0.5) / _SUBSAMPLES
-        xs = (x_edges[:-1, None] + np.diff(x_edges)[:, None] * sub[None, :]).ravel()
-        ys = (y_edges[:-1, None] + np.diff(y_edges)[:, None] * sub[None, :]).ravel()
-        removed = {}  # face index below the cut -> removed share per lateral cell
-        for defect in defects:
-            cover = defect.inside(xs[None, :], ys[:, None]).reshape(
-                self.shape[1], _SUBSAMPLES, self.shape[2], _SUBSAMPLES
-            )
-            share = cover.mean((1, 3)) * (1.0 - defect.transmission)
-            k = int(np.argmin(np.abs(z_edges - defect.depth)))
-            removed[k] = np.maximum(removed.get(k, 0.0), share)
-        zc = _centres(z_edges)
-        above, below, weights, groups = [], [], [], []
-        area = self.sizes[1][:, None] * self.sizes[2][None, :]
-        for k, share in removed.items():
-            rows, cols = np.nonzero(share > 0)
-            g = share[rows, cols] * area[rows, cols] * self.a_z / (zc[k] - zc[k - 1])
-            above.append(np.ravel_multi_index((np.full_like(rows, k - 1), rows, cols), self.shape))
-            below.append(np.ravel_multi_index((np.full_like(rows, k), rows, cols), self.shape))
-            weights.append(g)
-            groups.append((k, rows, cols))
-        self.faces = (np.concatenate(above), np.concatenate(below))
-        self.cut_faces = len(self.faces[0])
-        s = self._cut_products(groups)
-        self.capacitance = np.linalg.inv(np.diag(1.0 / np.concatenate(weights)) - s)
-
-    def _cut_products(self, groups: list[tuple[int, np.ndarray, np.ndarray]]) -> np.ndarray:
-        """``U^T (M / tau + K_intact)^-1 U`` for the cut faces' vectors ``U`` (+1 above, -1 below)."""
-        (lz, vz), (ly, vy), (lx, vx) = self.axes
-        lateral = self.shift + ly[:, None] + lx[None, :]  # (ny, nx)
-        blocks = []
-        for ka, ra, ca in groups:
-            wa = vz[ka - 1] - vz[ka]
-            pa = (vy[ra][:, :, None] * vx[ca][:, None, :]).reshape(len(ra), -1)
-            row = []
-            for kb, rb, cb in groups:
-                wb = vz[kb - 1] - vz[kb]
-                kernel = ((wa * wb)[:, None, None] / (lz[:, None, None] + lateral[None])).sum(0).ravel()
-                pb = (vy[rb][:, :, None] * vx[cb][:, None, :]).reshape(len(rb), -1)
-                row.append((pa * kernel[None, :]) @ pb.T)
-            blocks.append(row)
-        return np.block(blocks)
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        """``(M / tau + K)^-1 b`` with the cut faces."""
-        x = self._intact(b)
-        if self.faces is None:
-            return x
-        above, below = self.faces
-        flat = x.ravel()
-        y = self.capacitance @ (flat[above] - flat[below])
-        r = np.zeros(x.size)
-        np.add.at(r, above, y)
-        np.add.at(r, below, -y)
-        return x + self._intact(r.reshape(self.shape))
-
-    def euler(self, state: np.ndarray) -> np.ndarray:
-        """One implicit-Euler step of ``tau`` (half the frame step)."""
-        return self.solve(self.shift * self.volume * state)
-
-    def crank_nicolson(self, state: np.ndarray) -> np.ndarray:
-        """One Crank-Nicolson step of ``2 tau``: ``x = 2 (M / tau + K)^-1 (M / tau) T - T``."""
-        return 2.0 * self.euler(state) - state
-
-    def surface(self, state: np.ndarray) -> np.ndarray:
-        """The surface temperature, extrapolated linearly from the two top cells' centres."""
-        dz = self.sizes[0]
-        return state[0] + (state[0] - state[1]) * (0.5 * dz[0]) / (0.5 * (dz[0] + dz[1]))

@@ -22,7 +22,7 @@ from anra_torch.checks import check_dtype, check_int, number, positive
 from anra_torch.simulation.analytic import gaussian_blob, gaussian_blobs
 from anra_torch.video import save_npz
 
-__all__ = ["SyntheticVideo", "blobs_video", "paper_video"]
+__all__ = ["Blobs", "SyntheticVideo", "blobs_video", "paper_video"]
 
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 """Full width at half maximum of a Gaussian in units of its standard deviation (2.3548...)."""
@@ -151,19 +151,33 @@ def _centre(frames: Tensor, crop: int) -> Tensor:
     return frames[..., start : start + crop, start : start + crop].contiguous()
 
 
+@dataclass(frozen=True)
+class Blobs:
+    """The hot spots :func:`blobs_video` draws on each video.
+
+    Attributes:
+        n_blobs: hot spots per video.
+        background: uniform temperature under the blobs.
+        peak_range: ``(low, high)`` initial peak above the background.
+        sigma_range_px: ``(low, high)`` initial standard deviation in pixels; ``high < size / 4``.
+    """
+
+    n_blobs: int = 3
+    background: float = 30.0
+    peak_range: tuple[float, float] = (3.0, 10.0)
+    sigma_range_px: tuple[float, float] = (4.0, 12.0)
+
+
 def blobs_video(
     *,
     n_videos: int = 1,
     seed: int = 0,
-    n_blobs: int = 3,
+    blobs: Blobs | None = None,
     size: int = 96,
     dx: float = 0.5,
     fps: float = 30.0,
     n_frames: int = 40,
     a: float = 0.15,
-    background: float = 30.0,
-    peak_range: tuple[float, float] = (3.0, 10.0),
-    sigma_range_px: tuple[float, float] = (4.0, 12.0),
     noise_sd: float = 0.02,
     dtype: torch.dtype = torch.float64,
 ) -> SyntheticVideo:
@@ -175,15 +189,12 @@ def blobs_video(
     Args:
         n_videos: number of videos B, each with its own geometry and noise.
         seed: seed of geometry and noise.
-        n_blobs: hot spots per video.
+        blobs: the hot spots drawn (:class:`Blobs`); default ``Blobs()``.
         size: frame side in pixels.
         dx: pixel size in mm.
         fps: frame rate in Hz.
         n_frames: number of frames T (frame k at ``t = k / fps``).
         a: diffusivity in mm^2/s.
-        background: uniform temperature under the blobs.
-        peak_range: ``(low, high)`` initial peak above the background.
-        sigma_range_px: ``(low, high)`` initial standard deviation in pixels; ``high < size / 4``.
         noise_sd: noise standard deviation, units of temperature (>= 0).
         dtype: floating dtype of the frames.
 
@@ -196,29 +207,24 @@ def blobs_video(
     Raises:
         ValueError: non-positive sizes or rates, bad ranges, blobs too wide to fit in the frame.
     """
+    blobs = Blobs() if blobs is None else blobs
     n_videos, seed = check_int(n_videos, "n_videos", 1), check_int(seed, "seed", 0)
-    n_blobs, size = check_int(n_blobs, "n_blobs", 1), check_int(size, "size", 1)
+    n_blobs, size = check_int(blobs.n_blobs, "n_blobs", 1), check_int(size, "size", 1)
     n_frames, dx = check_int(n_frames, "n_frames", 1), positive(dx, "dx", "mm")
     fps = positive(fps, "fps", "Hz")
     a = number(a, "a", "mm^2/s", minimum=0.0)
-    background = number(background, "background", "units of temperature")
+    background = number(blobs.background, "background", "units of temperature")
     noise_sd = number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
-    peaks_range = _check_range(peak_range, "peak_range", "units of temperature", minimum=-math.inf)
-    sigmas_range = _check_sigma_range(sigma_range_px, size)
+    peaks_range = _check_range(blobs.peak_range, "peak_range", "units of temperature", minimum=-math.inf)
+    sigmas_range = _check_sigma_range(blobs.sigma_range_px, size)
     check_dtype(dtype)
 
     generator = torch.Generator().manual_seed(seed)
     peaks, sigma_px, centre_px = _draw_blobs(generator, n_videos, n_blobs, size, peaks_range, sigmas_range)
     times = torch.arange(n_frames, dtype=torch.float64, device="cpu") / fps
+    shape, sigmas, centres = (size, size), sigma_px * dx, centre_px * dx
     clean = gaussian_blobs(
-        times,
-        shape=(size, size),
-        dx=dx,
-        a=a,
-        peaks=peaks,
-        sigmas=sigma_px * dx,
-        centres=centre_px * dx,
-        background=background,
+        times, shape=shape, dx=dx, a=a, peaks=peaks, sigmas=sigmas, centres=centres, background=background
     ).to(dtype)
     frames = clean + noise_sd * torch.randn(clean.shape, generator=generator, dtype=dtype, device="cpu")
     return SyntheticVideo(frames=frames, clean=clean, dt=1.0 / fps, dx=dx, a=a, times=times.to(dtype))

@@ -2,7 +2,9 @@
 below the surface.
 
 - :mod:`~anra_torch.tissue.dose`: CEM43 and the Arrhenius damage integral of temperature histories;
-- :mod:`~anra_torch.tissue.features`: :class:`TissueFeatures`, per-pixel maps for damage classification;
+- :mod:`~anra_torch.tissue.features`: :class:`TissueFeatures`, per-pixel maps for damage classification,
+  and :func:`feature_summary`, the ``anra features`` record; :mod:`~anra_torch.tissue.feature_maps`: what
+  they return and write (:class:`TissueFeatureMaps`, :func:`save_feature_maps`);
 - :mod:`~anra_torch.tissue.learned`: :class:`LearnedTissueModel`, fitted end to end through the simulator,
   and :func:`omega_with_constants`, the Arrhenius dose with per-pixel constants that learn;
 - :mod:`~anra_torch.tissue.depth`: the subsurface temperature under every pixel from the measured surface
@@ -15,7 +17,9 @@ below the surface.
   :class:`DepthParameters`);
 - :mod:`~anra_torch.tissue.depth_features`: both together, the maps of ``TissueFeatures(depth=True)`` and
   ``anra features --depth`` (:func:`depth_features`);
+- :mod:`~anra_torch.tissue.depth_cooling`: what that fit sees of the cooling and the cooling it forecasts;
 - :mod:`~anra_torch.tissue.depth_solver`: the engine the others share (depth grid, operator, the march);
+- :mod:`~anra_torch.tissue.depth_window`: the frames continued beyond their edges (the frame is a window);
 - :mod:`~anra_torch.tissue.depth_errors`: the maps' standard errors (perturbed copies, the noise's analytic
   part);
 - :mod:`~anra_torch.tissue.depth_doses`: the doses of the depth march and the noise carried through them.
@@ -47,16 +51,15 @@ from anra_torch.tissue.dose import (
     time_above,
     to_celsius,
 )
-from anra_torch.tissue.features import (
+from anra_torch.tissue.feature_maps import (
     DOSE_MAPS,
     MAPS,
     MAX_LOSS_ERROR,
     MIN_CONFIDENCE,
     TissueFeatureMaps,
-    TissueFeatures,
-    feature_summary,
     save_feature_maps,
 )
+from anra_torch.tissue.features import TissueFeatures, feature_summary
 from anra_torch.tissue.learned import LearnedTissueModel, omega_with_constants, relative_error
 
 __all__ = [

@@ -14,7 +14,7 @@ How it is solved (chosen by measuring, see ``experiments/damage_depth.py``): the
 3-D problem. With uniform ``a`` and ``b`` it separates exactly:
 
 * laterally, the cosine modes (DCT-II) of the frame, or of the frame continued ``margin`` mm beyond its
-  edges (:func:`~anra_torch.tissue.depth_solver.widen`: the frame is a window, and its edges then neither
+  edges (:func:`~anra_torch.tissue.depth_window.widen`: the frame is a window, and its edges then neither
   hold the heat in nor invent it), each with its own decay ``c = a |k|^2 + b`` (``k = pi (p / H, q / W) /
   dx``, the continuous wavenumbers); a node at depth ``z`` takes the modes with ``|k| z < 9.2`` (the
   others reach it below 1e-4 of their surface amplitude);

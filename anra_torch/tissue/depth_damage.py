@@ -44,8 +44,8 @@ from anra_torch.tissue.depth_solver import (
     node_temperatures,
     solver_nodes,
     surface_rise,
-    widen,
 )
+from anra_torch.tissue.depth_window import widen
 from anra_torch.tissue.dose import RULES, SKIN, ArrheniusConstants
 
 __all__ = [
@@ -188,7 +188,7 @@ class DepthSettings:
             at the surface).
         lateral: False: each pixel's column on its own (1-D, no heat sideways; too deep under small spots).
         margin: mm by which the frames are continued beyond every edge
-            (:func:`anra_torch.tissue.depth_solver.widen`; 0: the frame's edges hold the heat in); the maps
+            (:func:`anra_torch.tissue.depth_window.widen`; 0: the frame's edges hold the heat in); the maps
             are the frame's.
         coarse: the perturbed solves (``a + se``, ``b + se``) on the frames' ``coarse x coarse`` px means,
             the base at full resolution.

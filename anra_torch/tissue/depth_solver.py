@@ -15,7 +15,6 @@ from functools import lru_cache
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.checks import as_spacing, as_video, number
@@ -42,7 +41,6 @@ __all__ = [
     "state_at",
     "surface_rise",
     "wavenumbers",
-    "widen",
 ]
 
 FIRST_STEP = 0.01
@@ -333,64 +331,6 @@ def _bands(depths: tuple[float, ...], h: int, w: int, step: float) -> tuple[tupl
         else:
             out.append([j, j + 1, p, q])
     return tuple(tuple(band) for band in out)
-
-
-_FIT_PIXELS = 6  # the edge's value and slope: a least-squares line through its last pixels
-
-
-def widen(rise: Tensor, margin: int, *, mirrored: bool = False, noise: Tensor | None = None) -> Tensor:
-    """The frames continued ``margin`` px beyond every edge: the frame is a window, not the world.
-
-    Each row (then each column) is continued by the straight line fitted (least squares) to its last
-    :data:`_FIT_PIXELS` values of the frames' 5 x 5 px means (the frame's edge replicated for them, which
-    flattens the line's slope: a spot's tail falls more slowly beyond the frame than at its edge), kept
-    between 0 (the body temperature) and the frame's largest rise. No curvature is guessed: a spot wider than
-    the frame or off its centre keeps falling outside as it falls at the edge, a cold edge stays cold.
-    Inside the frame, the frames themselves (chosen by measuring, ``experiments/damage_depth.py``). With
-    ``mirrored`` the curvature at the edge is continued mirrored (odd reflection about the edge value,
-    ``2 g_e - g_(e-s)``): the other plausible continuation, whose difference bounds the edges' part of an
-    error. With ``noise`` (the frames' white-noise sd, K, ``(B,)`` for ``(B, ..., H, W)``), an edge whose
-    mean stands less than half of it above the body temperature (3.5 times the noise of that mean) is
-    continued by 0: a cold edge's noise, continued and kept above 0, would put heat where there is none.
-    Shape: ``(..., H, W)`` -> ``(..., H + 2 m, W + 2 m)``."""
-    shape = rise.shape
-    h, w = shape[-2:]
-    flat = rise.reshape(-1, 1, h, w)
-    out = F.avg_pool2d(F.pad(flat, (2, 2, 2, 2), mode="replicate"), 5, 1).reshape(shape)
-    top = rise.amax((-2, -1), keepdim=True).unsqueeze(-1)
-    floor = None if noise is None else 0.5 * noise.reshape(-1, *[1] * (rise.ndim - 1)).unsqueeze(-1)
-    for dim in (-1, -2):
-        x = out.movedim(dim, -1)
-        sides = [
-            _continue(x.flip(-1), margin, top, mirrored).flip(-1),
-            x,
-            _continue(x, margin, top, mirrored),
-        ]
-        if floor is not None:
-            for i, edge in ((0, x[..., :1]), (2, x[..., -1:])):
-                sides[i] = torch.where(edge > floor.squeeze(-1), sides[i], torch.zeros_like(sides[i]))
-        out = torch.cat(sides, -1).movedim(-1, dim)
-    out = out.clone()
-    out[..., margin : margin + h, margin : margin + w] = rise
-    return out
-
-
-def _continue(x: Tensor, margin: int, top: Tensor, mirrored: bool) -> Tensor:
-    """``margin`` values beyond the last of ``x`` ``(..., N)`` on its fitted line (or odd reflection), in
-    ``[0, top]``."""
-    ahead = torch.arange(1, margin + 1, dtype=x.dtype, device=x.device)
-    if mirrored:
-        reach = min(margin, x.shape[-1] - 1)
-        values = 2 * x[..., -1:] - x[..., -1 - reach : -1].flip(-1)
-        values = torch.cat([values, values[..., -1:].expand(*values.shape[:-1], margin - reach)], -1)
-    else:
-        n = min(_FIT_PIXELS, x.shape[-1])
-        s = torch.arange(1 - n, 1, dtype=x.dtype, device=x.device)  # the last pixels' offsets, the edge at 0
-        centred = s - s.mean()
-        tail = x[..., -n:]
-        slope = (tail * centred).sum(-1, keepdim=True) / (centred**2).sum().clamp_min(1e-12)
-        values = tail.mean(-1, keepdim=True) - slope * s.mean() + slope * ahead
-    return torch.minimum(values.clamp_min(0.0), top.squeeze(-1))
 
 
 # ------------------------------------------------------------------------------------------ inputs

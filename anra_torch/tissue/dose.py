@@ -32,14 +32,25 @@ Computation is in float64 whatever the input dtype; gradients flow to the temper
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from anra_torch.checks import as_spacing
+from anra_torch.tissue.histories import (
+    KELVIN_AT_ZERO_CELSIUS,
+    RULES,
+    UNITS,
+    Step,
+    count_masked,
+    counted,
+    divided,
+    masked,
+    prepare,
+    stepper,
+    to_celsius,
+)
 
 __all__ = [
     "CEM43_R",
@@ -57,18 +68,6 @@ __all__ = [
 
 GAS_CONSTANT = 8.314462618
 """Molar gas constant in J/(mol K)."""
-
-KELVIN_AT_ZERO_CELSIUS = 273.15
-
-UNITS: dict[str, float] = {"C": 0.0, "K": -KELVIN_AT_ZERO_CELSIUS}
-"""Temperature units accepted and the offset that turns them into Celsius."""
-
-RULES = ("hold", "linear")
-"""How a frame history is integrated (see the module docstring)."""
-
-_IMPLAUSIBLE_CELSIUS = 200.0
-"""A dose computation where every value is at least this many Celsius (or below this many kelvin,
-i.e. colder than -73 C) was given the wrong unit: living tissue is neither."""
 
 _F64 = torch.float64
 _GL = tuple(v.tolist() for v in np.polynomial.legendre.leggauss(8))  # nodes, weights on [-1, 1]
@@ -100,142 +99,6 @@ class ArrheniusConstants:
 
 SKIN = ArrheniusConstants(frequency=3.1e98, activation_energy=6.28e5)
 """Henriques & Moritz skin constants (``A = 3.1e98 1/s``, ``Ea = 6.28e5 J/mol``)."""
-
-
-# ------------------------------------------------------------------------------------- validation
-def _as_history(temperatures: object) -> tuple[Tensor, tuple[int, ...]]:
-    """``(B, T, P)`` float64 view of a history or video, and the output shape (time axis dropped)."""
-    if not isinstance(temperatures, Tensor):
-        try:
-            temperatures = torch.as_tensor(temperatures, device="cpu")
-        except (TypeError, ValueError, RuntimeError) as err:
-            raise TypeError(
-                f"temperatures must be a tensor or array, got {type(temperatures).__name__}"
-            ) from err
-    if temperatures.dtype == torch.bool or temperatures.is_complex():
-        raise TypeError(f"temperatures must be real numbers, got dtype {temperatures.dtype}")
-    x = temperatures.to(_F64)  # gradients flow (the depth maps differentiate through the doses)
-    if x.ndim == 1:
-        return x.reshape(1, -1, 1), ()
-    if x.ndim == 3:
-        return x.reshape(1, x.shape[0], -1), tuple(x.shape[1:])
-    if x.ndim == 4:
-        return x.reshape(x.shape[0], x.shape[1], -1), (x.shape[0], *x.shape[2:])
-    raise ValueError(
-        f"temperatures must have shape (T,), (T, H, W) or (B, T, H, W), got {tuple(temperatures.shape)}"
-    )
-
-
-def to_celsius(temperatures: Tensor, units: str = "C") -> Tensor:
-    """Temperatures in Celsius (float64), after checking that ``units`` fits the values.
-
-    Args:
-        temperatures: any shape, in ``units``.
-        units: ``"C"`` or ``"K"`` (:data:`UNITS`).
-
-    Returns:
-        The values in Celsius, same shape; non-finite values stay non-finite.
-
-    Raises:
-        ValueError: unknown ``units``; a finite value below absolute zero for ``units``; or a range only
-            plausible in the other unit (every finite value >= 200 declared Celsius, or every finite value
-            below 200 K declared kelvin).
-
-    Shape:
-        Any; output like the input.
-    """
-    if units not in UNITS:
-        raise ValueError(f"units must be one of {', '.join(map(repr, UNITS))}, got {units!r}")
-    x = temperatures.to(_F64)
-    values = x.detach()
-    finite = torch.isfinite(values)
-    if bool(finite.any()):
-        if bool(finite.all()):
-            low, high = (float(v) for v in torch.aminmax(values))
-        else:
-            low = float(torch.where(finite, values, torch.inf).amin())
-            high = float(torch.where(finite, values, -torch.inf).amax())
-        zero = -KELVIN_AT_ZERO_CELSIUS if units == "C" else 0.0
-        other = "K" if units == "C" else "C"
-        if low < zero:
-            raise ValueError(
-                f"units={units!r} (--units {units}) but temperatures go down to {low:.6g}, below absolute "
-                f"zero ({zero:g} {units}); pass the unit the data is in"
-            )
-        wrong = low >= _IMPLAUSIBLE_CELSIUS if units == "C" else high < _IMPLAUSIBLE_CELSIUS
-        if wrong:
-            raise ValueError(
-                f"units={units!r} (--units {units}) but every temperature lies in {low:.4g}-{high:.4g}, "
-                f"a range that only makes sense in {other} for tissue; pass units={other!r} "
-                f"(--units {other})"
-            )
-    return x if UNITS[units] == 0.0 and x is not temperatures else x + UNITS[units]  # always a new tensor
-
-
-def count_masked(temperatures: Tensor) -> Tensor:
-    """Number of non-finite samples per pixel (they add nothing to any dose).
-
-    Shape:
-        Like the dose functions: ``(T,)`` -> ``()``, ``(T, H, W)`` -> ``(H, W)``,
-        ``(B, T, H, W)`` -> ``(B, H, W)``.
-    """
-    x, shape = _as_history(temperatures)
-    return (~torch.isfinite(x)).sum(1).reshape(shape)
-
-
-def _check_rule(rule: str) -> None:
-    if rule not in RULES:
-        raise ValueError(f"rule must be one of {', '.join(map(repr, RULES))}, got {rule!r}")
-
-
-def _prepare(temperatures: object, dt: object, units: str, rule: str) -> tuple[Tensor, Tensor, tuple]:
-    _check_rule(rule)
-    x, shape = _as_history(temperatures)
-    if x.shape[1] < (2 if rule == "linear" else 1):
-        raise ValueError(
-            f"rule={rule!r} needs at least {2 if rule == 'linear' else 1} frames, got {x.shape[1]}"
-        )
-    step = as_spacing(dt, name="dt", unit="s", batch=x.shape[0], like=x)  # the one spacing check
-    return to_celsius(x, units), step.reshape(-1, 1, 1), shape
-
-
-def _frames(x: Tensor, rule: str, finite: Tensor | None = None) -> tuple[Tensor, Tensor | None]:
-    """Histories with masked samples at 43 C (finite, so that no branch makes a NaN) and the weights (1 or 0)
-    of the frames (``"hold"``) or segments (``"linear"``) that count; None when every one counts."""
-    finite = torch.isfinite(x) if finite is None else finite
-    if bool(finite.all()):
-        return x, None
-    keep = finite if rule == "hold" else finite[:, :-1] & finite[:, 1:]
-    return torch.nan_to_num(x, nan=43.0, posinf=43.0, neginf=43.0), keep.to(_F64)
-
-
-def _counted(values: Tensor, weights: Tensor | None, step: Step) -> Tensor:
-    """``values`` summed over frames or segments ``(B, S, P) -> (B, P)``, the masked ones left out."""
-    return (values if weights is None else step(values, "mul", weights)).sum(1)
-
-
-Step = Callable[..., Tensor]
-
-
-def _stepper(x: Tensor) -> Step:
-    """``step(t, "mul", y)``: ``t.mul_(y)`` where no gradient is tracked through ``x`` (a pass over memory,
-    ~4x faster than a fresh video-sized float64 tensor on CPU), ``t.mul(y)`` otherwise. Only for
-    temporaries the caller made itself."""
-    inplace = not (torch.is_grad_enabled() and x.requires_grad)
-
-    def step(t: Tensor, name: str, *args: object) -> Tensor:
-        return getattr(t, name + "_")(*args) if inplace else getattr(t, name)(*args)
-
-    return step
-
-
-def _divided(change: Tensor, rise: Tensor, limit: Tensor, scale: float, step: Step) -> Tensor:
-    """``change / rise`` where ``|rise|`` is well above ``scale``, ``limit`` (its value as ``rise -> 0``)
-    well below: ``(change rise + scale^2 limit) / (rise^2 + scale^2)``, smooth, without a branch. Consumes
-    ``change`` and ``limit``."""
-    square = scale * scale
-    top = step(step(change, "mul", rise), "add", step(limit, "mul", square))
-    return step(top, "div", step(rise * rise, "add", square))
 
 
 # ------------------------------------------------------------------------------------------ CEM43
@@ -273,18 +136,18 @@ def cem43(temperatures: Tensor, dt: float | Tensor, *, units: str = "C", rule: s
         >>> float(cem43(torch.full((300,), 44.0), 1.0))  # 5 min at 44 C
         10.0
     """
-    x, period, shape = _prepare(temperatures, dt, units, rule)
-    return (_cem43(*_frames(x, rule), rule) * period[:, 0] / 60.0).reshape(shape)
+    x, period, shape = prepare(temperatures, dt, units, rule)
+    return (_cem43(*masked(x, rule), rule) * period[:, 0] / 60.0).reshape(shape)
 
 
 def _cem43(x: Tensor, weights: Tensor | None, rule: str, rise: Tensor | None = None) -> Tensor:
-    """CEM43 seconds per unit ``dt`` of Celsius histories ``(B, T, P)`` (see :func:`_frames`; ``rise`` the
+    """CEM43 seconds per unit ``dt`` of Celsius histories ``(B, T, P)`` (see :func:`masked`; ``rise`` the
     segments' ``x[:, 1:] - x[:, :-1]`` when known)."""
-    step = _stepper(x)
+    step = stepper(x)
     c = step(step((x >= 43.0).to(_F64), "mul", _LOG_R_HIGH - _LOG_R_LOW), "add", _LOG_R_LOW)  # -ln R
     rate = step(step(x - 43.0, "mul", c), "exp")  # R^(43 - T)
     if rule == "hold":
-        return _counted(rate, weights, step)
+        return counted(rate, weights, step)
     # The antiderivative (rate - 1) / c is continuous (0 at 43 C): each segment's mean rate is its change
     # over the segment's rise, the constant part (1 / c) changing only on segments that cross 43 C.
     inverse = c.reciprocal()
@@ -292,8 +155,8 @@ def _cem43(x: Tensor, weights: Tensor | None, rule: str, rise: Tensor | None = N
     change = step(step(scaled[:, 1:] - scaled[:, :-1], "sub", inverse[:, 1:]), "add", inverse[:, :-1])
     rise = x[:, 1:] - x[:, :-1] if rise is None else rise
     middle = step(rate[:, 1:] + rate[:, :-1], "mul", 0.5)
-    mean = _divided(change, rise, middle, _CEM_STEP, step)
-    return _counted(mean, weights, step)
+    mean = divided(change, rise, middle, _CEM_STEP, step)
+    return counted(mean, weights, step)
 
 
 # --------------------------------------------------------------------------------------- Arrhenius
@@ -335,7 +198,7 @@ def _omega_segments(x: Tensor, constants: ArrheniusConstants, terms: int, rise: 
     with ``r0`` the rate at ``K0``, ``lam = theta / K0 - theta / K1`` the change of the exponent,
     ``phi(z) = expm1(z) / z``, and ``(P1 - P0) / d -> P'(K) = 1 - S(y)`` as ``d -> 0``.
     """
-    step = _stepper(x)
+    step = stepper(x)
     log_a = math.log(constants.frequency)
     theta = constants.activation_energy / GAS_CONSTANT  # K
     kelvin = x + KELVIN_AT_ZERO_CELSIUS  # per frame: shared by the segments either side
@@ -345,11 +208,11 @@ def _omega_segments(x: Tensor, constants: ArrheniusConstants, terms: int, rise: 
     antiderivative = step(step(kelvin * kelvin, "mul", series), "div", theta)  # P(K)
     lam = exponent[:, :-1] - exponent[:, 1:]
     # phi(lam) = expm1(lam) / lam, blended into 1 + lam / 2 below |lam| ~ 1e-50 (flat segments: lam = 0).
-    phi = _divided(torch.expm1(lam), lam, step(lam * 0.5, "add", 1.0), 1e-50, step)
+    phi = divided(torch.expm1(lam), lam, step(lam * 0.5, "add", 1.0), 1e-50, step)
     growth = step(step(kelvin[:, 1:] / kelvin[:, :-1], "mul", series[:, 1:]), "mul", phi)
     change = antiderivative[:, 1:] - antiderivative[:, :-1]
     rise = x[:, 1:] - x[:, :-1] if rise is None else rise
-    slope = _divided(change, rise, 1.0 - series[:, :-1], _OMEGA_STEP, step)
+    slope = divided(change, rise, 1.0 - series[:, :-1], _OMEGA_STEP, step)
     return step(step(growth, "add", slope), "mul", rate[:, :-1])
 
 
@@ -423,21 +286,21 @@ def arrhenius_omega(
         64.15
     """
     _check_constants(constants)
-    x, period, shape = _prepare(temperatures, dt, units, rule)
-    return (_omega(*_frames(x, rule), constants, rule) * period[:, 0]).reshape(shape)
+    x, period, shape = prepare(temperatures, dt, units, rule)
+    return (_omega(*masked(x, rule), constants, rule) * period[:, 0]).reshape(shape)
 
 
 def _omega(
     x: Tensor, weights: Tensor | None, constants: ArrheniusConstants, rule: str, rise: Tensor | None = None
 ) -> Tensor:
-    """Omega per unit ``dt`` of Celsius histories ``(B, T, P)`` (see :func:`_frames`)."""
-    step = _stepper(x)
+    """Omega per unit ``dt`` of Celsius histories ``(B, T, P)`` (see :func:`masked`)."""
+    step = stepper(x)
     if rule == "hold":
         log_a = math.log(constants.frequency)
         theta = constants.activation_energy / GAS_CONSTANT
         exponent = step(step((x + KELVIN_AT_ZERO_CELSIUS).reciprocal(), "mul", -theta), "add", log_a)
-        return _counted(step(exponent, "exp"), weights, step)
-    return _counted(_omega_linear(x, constants, rise), weights, step)
+        return counted(step(exponent, "exp"), weights, step)
+    return counted(_omega_linear(x, constants, rise), weights, step)
 
 
 # -------------------------------------------------------------------------------- time above
@@ -464,17 +327,17 @@ def time_above(
     """
     if not (isinstance(threshold, int | float) and math.isfinite(threshold)):
         raise ValueError(f"threshold must be a finite temperature in Celsius, got {threshold!r}")
-    x, period, shape = _prepare(temperatures, dt, units, rule)
-    return (_above(*_frames(x, rule), (float(threshold),), rule)[0] * period[:, 0]).reshape(shape)
+    x, period, shape = prepare(temperatures, dt, units, rule)
+    return (_above(*masked(x, rule), (float(threshold),), rule)[0] * period[:, 0]).reshape(shape)
 
 
 def _above(
     x: Tensor, weights: Tensor | None, thresholds: tuple[float, ...], rule: str, rise: Tensor | None = None
 ) -> list[Tensor]:
-    """Time above each threshold per unit ``dt`` of Celsius histories ``(B, T, P)`` (see :func:`_frames`)."""
-    step = _stepper(x)
+    """Time above each threshold per unit ``dt`` of Celsius histories ``(B, T, P)`` (see :func:`masked`)."""
+    step = stepper(x)
     if rule == "hold":
-        return [_counted((x >= t).to(_F64), weights, step) for t in thresholds]
+        return [counted((x >= t).to(_F64), weights, step) for t in thresholds]
     rise = x[:, 1:] - x[:, :-1] if rise is None else rise
     high = torch.maximum(x[:, :-1], x[:, 1:])
     # The fraction of a segment above t, (high - t) / |rise| clipped to [0, 1]; a flat one is wholly above or
@@ -542,7 +405,7 @@ def _doses(
     x: Tensor, finite: Tensor | None, thresholds: tuple[float, ...], constants: ArrheniusConstants, rule: str
 ) -> list[Tensor]:
     """The times above, CEM43 (s) and Omega per unit ``dt`` of histories ``(B, T, P)``, each ``(B, P)``."""
-    x, weights = _frames(x, rule, finite)
+    x, weights = masked(x, rule, finite)
     rise = x[:, 1:] - x[:, :-1] if rule == "linear" else None  # shared by every dose
     return [
         *_above(x, weights, thresholds, rule, rise),

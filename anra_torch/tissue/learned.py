@@ -228,6 +228,29 @@ def relative_error(estimate: Tensor, truth: Tensor, mask: Tensor | None = None) 
     return float(ratio[mask].median() if mask is not None else ratio.median())
 
 
+def _pixel_constants(given: dict[str, float | Tensor], kelvin: Tensor) -> list[Tensor]:
+    """The constants as float64 tensors on ``kelvin``'s device, checked to broadcast with its pixels and be
+    finite (``Ea > 0``), with the time axis added: ``(..., H, W)`` -> ``(..., 1, H, W)``."""
+    pixels = (*kelvin.shape[:-3], *kelvin.shape[-2:])
+    out = []
+    for name, value in given.items():
+        c = torch.as_tensor(value, dtype=_F64, device=kelvin.device)
+        try:
+            fits = len(torch.broadcast_shapes(pixels, c.shape)) <= 3
+        except RuntimeError:
+            fits = False
+        if not fits:
+            raise ValueError(
+                f"{name} must broadcast with the pixels {pixels} (3 dimensions at most), got {tuple(c.shape)}"
+            )
+        if not bool(torch.isfinite(c.detach()).all()):
+            raise ValueError(f"{name} must be finite, got {c.detach().flatten()[:4].tolist()}")
+        if name == "activation_energy" and bool((c.detach() <= 0).any()):
+            raise ValueError(f"activation_energy must be > 0 J/mol, got min {float(c.detach().min()):g}")
+        out.append(c.unsqueeze(-3) if c.ndim >= 2 else c)
+    return out
+
+
 def omega_with_constants(
     temperatures: Tensor,
     dt: float | Tensor,
@@ -246,16 +269,13 @@ def omega_with_constants(
     history goes through ``arrhenius_omega`` as the equivalent temperature ``T*`` whose rate under
     :data:`anra_torch.tissue.SKIN` is the pixel's rate, ``1 / T* = (Ea / T_K - R_gas ln A + R_gas ln A_skin)
     / Ea_skin``, the frames' equivalent temperatures joined by straight lines (not the frames): a relative
-    difference of order ``(dT / T)^2`` per segment, below 1e-4 for tissue histories sampled every 0.5 s
-    (``tests/tissue/test_learned.py``). Constants with a leading axis of
-    their own evaluate one history ``(T, H, W)`` under several pairs at once (e.g. ``(K, 1, 1)``).
+    difference of order ``(dT / T)^2`` per segment. Constants with a leading axis of their own evaluate one
+    history ``(T, H, W)`` under several pairs at once (e.g. ``(K, 1, 1)``).
 
     Args:
-        temperatures: video in ``units``.
-        dt: frame period in s, a number or ``(B,)``.
+        temperatures: video in ``units`` (``"C"`` or ``"K"``); dt: frame period in s, a number or ``(B,)``.
         log_frequency: ``ln A`` with ``A`` in 1/s, a number or a tensor that broadcasts with the output.
         activation_energy: ``Ea`` in J/mol (> 0), likewise.
-        units: ``"C"`` or ``"K"``.
         rule: ``"hold"`` (default) or ``"linear"`` (:data:`anra_torch.tissue.RULES`).
 
     Returns:
@@ -266,31 +286,15 @@ def omega_with_constants(
             or so far from the skin constants that an equivalent temperature is not positive.
 
     Shape:
-        ``temperatures`` ``(T, H, W)`` or ``(B, T, H, W)``; constants broadcast with ``(H, W)`` or
-        ``(B, H, W)``; output their broadcast shape (at most 3 dimensions), e.g. ``(B, H, W)``.
+        ``(T, H, W)`` or ``(B, T, H, W)``, constants broadcast with ``(H, W)`` or ``(B, H, W)`` -> their
+        broadcast shape (at most 3 dimensions).
     """
     if getattr(temperatures, "ndim", None) not in (3, 4):
         shape = tuple(getattr(temperatures, "shape", ()))
         raise ValueError(f"temperatures must have shape (T, H, W) or (B, T, H, W), got {shape}")
     kelvin = to_celsius(temperatures, units) + 273.15
-    pixels = (*kelvin.shape[:-3], *kelvin.shape[-2:])
     given = {"log_frequency": log_frequency, "activation_energy": activation_energy}
-    constants = {k: torch.as_tensor(v, dtype=_F64, device=kelvin.device) for k, v in given.items()}
-    for name, c in constants.items():
-        try:
-            fits = len(torch.broadcast_shapes(pixels, c.shape)) <= 3
-        except RuntimeError:
-            fits = False
-        if not fits:
-            raise ValueError(
-                f"{name} must broadcast with the pixels {pixels} (3 dimensions at most), got {tuple(c.shape)}"
-            )
-        if not bool(torch.isfinite(c.detach()).all()):
-            raise ValueError(f"{name} must be finite, got {c.detach().flatten()[:4].tolist()}")
-    # The time axis: constants (..., H, W) -> (..., 1, H, W).
-    log_a, energy = (c.unsqueeze(-3) if c.ndim >= 2 else c for c in constants.values())
-    if bool((energy.detach() <= 0).any()):
-        raise ValueError(f"activation_energy must be > 0 J/mol, got min {float(energy.detach().min()):g}")
+    log_a, energy = _pixel_constants(given, kelvin)
     excess = GAS_CONSTANT * (log_a - math.log(SKIN.frequency))
     # The denominator falls as T rises: its smallest value is at each pixel's hottest frame.
     finite = torch.isfinite(kelvin)

@@ -39,13 +39,9 @@ def resample_uniform(video: Video, dt: float | None = None, *, method: str = "cu
 
     ``"cubic"`` (default): within each phase (:func:`~anra_torch.video.recording_phases` of the
     linear interpolant), a cubic Hermite curve through the samples whose slope at each sample is the
-    derivative of the parabola through it and its neighbours at their real times (non-uniform three-point
-    weights; one-sided at a phase's ends). Between two samples seconds apart a diffusing field is convex
-    in time, and a straight line between them is biased: the balance fits the interpolation, and on frames
-    5-60 s apart the plain forecast's error rose well above the noise floor and a loss was named
-    (``tests/recording/test_phase_diagnosis.py -k 12x`` holds it under 1.5 floors with the cubic). Across a
-    phase switch (a kink in time), after a heating's hot-spot peak sample and next to a masked sample the
-    interpolation is linear. ``"linear"``: linear interpolation throughout.
+    derivative of the parabola through it and its neighbours at their real times; linear across a phase
+    switch, after a heating's peak sample and next to a masked sample (why: ``docs/results/sparse.md``).
+    ``"linear"``: linear interpolation throughout.
 
     Args:
         video: a video with timestamps ``t`` (strictly increasing, s).

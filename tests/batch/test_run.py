@@ -18,7 +18,7 @@ from anra_torch.batch import BATCH_COLUMNS, expand_inputs, read_table, run_batch
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
 from anra_torch.estimation.estimator import ANRAEstimator, ANRAResult
-from anra_torch.recording import estimate as estimate_policy
+from anra_torch.recording import plan as recording_plan
 from anra_torch.recording import read as read_module
 from anra_torch.simulation.synthetic import paper_video
 from anra_torch.video import prepare_video, save_npz
@@ -179,6 +179,7 @@ def test_roi_and_calibration_are_applied_and_recorded(
     not (DATA / "laser_silicone").is_dir(),
     reason="../shared/data/laser_silicone is absent",
 )
+@pytest.mark.slow
 def test_flir_jpeg_folders_run_as_videos_with_resample(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -205,7 +206,7 @@ def test_a_large_recording_is_read_in_chunks_and_a_bad_one_gets_its_row(
     from anra_torch.estimation.chunked import estimate_chunked
     from anra_torch.video.lazy import LazyFrames
 
-    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 100_000)  # p*.npz: 28 x 64 x 64 = 114688 values
+    monkeypatch.setattr(recording_plan, "CHUNKED_VALUES", 100_000)  # p*.npz: 28 x 64 x 64 = 114688 values
     truncated = tmp_path / "cut.npy"
     np.save(truncated, np.zeros((40, 64, 64), dtype=np.float32))
     truncated.write_bytes(truncated.read_bytes()[:-5000])
@@ -246,7 +247,7 @@ def test_a_recording_read_in_chunks_gets_the_row_of_its_cooling(tmp_path: Path, 
     noise = 0.01 * torch.randn(120, 48, 48, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     path = tmp_path / "laser.npy"
     np.save(path, (torch.cat([heat, cool]) + noise).float().numpy())
-    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 100_000)  # 120 x 48 x 48 = 276480 values
+    monkeypatch.setattr(recording_plan, "CHUNKED_VALUES", 100_000)  # 120 x 48 x 48 = 276480 values
     out = tmp_path / "r.csv"
     run_batch([path], out, dt=0.1, dx=0.25, progress=False)
     (row,) = read_table(out)
@@ -266,7 +267,7 @@ def test_recordings_read_in_chunks_run_side_by_side_with_the_rows_of_one_at_a_ti
 ) -> None:
     """With two torch threads, two chunked recordings run at once, one thread each: the same rows in the
     same order as one at a time, the truncated file's error row among them, and the thread count restored."""
-    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 100_000)
+    monkeypatch.setattr(recording_plan, "CHUNKED_VALUES", 100_000)
     truncated = tmp_path / "cut.npy"
     np.save(truncated, np.zeros((40, 64, 64), dtype=np.float32))
     truncated.write_bytes(truncated.read_bytes()[:-5000])
@@ -330,7 +331,7 @@ def test_diagnose_of_a_large_recording_reads_it_in_chunks_and_diagnoses_its_copy
     from anra_torch.recording import decimate
 
     path = hidden_effect_video(["advection"], seed=1, size=64, duration=6.0).to_npz(tmp_path / "adv.npz")
-    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 100_000)  # 181 x 64 x 64 = 741376 values
+    monkeypatch.setattr(recording_plan, "CHUNKED_VALUES", 100_000)  # 181 x 64 x 64 = 741376 values
     monkeypatch.setattr(decimate, "DIAGNOSE_VALUES", 400_000)
     loaded = []
     never = lambda *a, **k: loaded.append(a)  # noqa: E731 - the recording is never loaded whole

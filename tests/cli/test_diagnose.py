@@ -15,7 +15,7 @@ from scenes import DT, DX, blob_video, quasi_steady_box
 import anra_torch.recording.decimate as decimate
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
-from anra_torch.simulation import Defect, reference_plate_video
+from anra_torch.simulation import Defect, PlateSetup, reference_plate_video
 from anra_torch.video import Video, save_npz
 
 
@@ -110,6 +110,7 @@ def test_report_draws_source_path(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert "source path (" in (tmp_path / "r" / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_pure_video_has_no_effects(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = hidden_effect_video([], seed=0, size=64, duration=3.0).to_npz(tmp_path / "pure.npz")
     code, out, err = run(capsys, "diagnose", path, "--json")
@@ -239,13 +240,14 @@ def test_cli_diagnoses_an_8x8_box_and_estimate_flags_it_unresolved(
     assert out["valid"] is False and out["diffusivity"] is None and "unresolved" in out["message"]
 
 
+@pytest.mark.slow
 def test_maps_of_a_flash_plate_summary_file_and_report(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    plate = reference_plate_video(
+    plate = reference_plate_video(PlateSetup(
         thickness=1.3, duration=3.8, shape=(24, 24), dx=0.4, n_frames=80,
         defects=(Defect("ellipse", centre=(7.5, 5.0), size=(3.0, 2.0), depth=0.87, angle=20.0),), seed=1,
-    )  # fmt: skip
+    ))  # fmt: skip
     path = save_npz(tmp_path / "plate.npz", plate.frames.numpy(), dt=plate.dt, dx=plate.dx)
     maps = tmp_path / "maps.npz"
     code, out, err = run(capsys, "diagnose", path, "--maps", maps, "--report", tmp_path / "r")

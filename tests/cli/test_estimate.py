@@ -207,7 +207,7 @@ def test_a_large_recording_is_read_in_chunks_with_the_same_estimate(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Above CHUNKED_VALUES an uncompressed .npz is read chunk by chunk: same diffusivity within its error."""
-    from anra_torch.recording import estimate as estimate_policy
+    from anra_torch.recording import plan as recording_plan
     from anra_torch.simulation import gaussian_blob
     from anra_torch.video import save_npz
 
@@ -219,7 +219,7 @@ def test_a_large_recording_is_read_in_chunks_with_the_same_estimate(
     path = save_npz(tmp_path / "v.npz", noisy.float(), dt=1 / 27, dx=0.1)
     whole = estimate_json(capsys, path)
     assert whole["chunked"] is None
-    monkeypatch.setattr(estimate_policy, "CHUNKED_VALUES", 10_000)  # the name the recording policy reads
+    monkeypatch.setattr(recording_plan, "CHUNKED_VALUES", 10_000)  # the name the recording policy reads
     chunked = estimate_json(capsys, path)
     assert set(chunked) == JSON_KEYS and chunked["frames"] == 90
     # The pilot reads at most a third of a recording: one block of 16 frames here, in its middle.

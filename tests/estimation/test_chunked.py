@@ -8,7 +8,7 @@ import pytest
 import torch
 from tolerances import assert_rounding_close
 
-from anra_torch.estimation.chunked import estimate_chunked
+from anra_torch.estimation.chunked import Chunking, estimate_chunked
 from anra_torch.estimation.estimator import ANRAEstimator
 from anra_torch.simulation import gaussian_blob
 from anra_torch.video.lazy import LazyFrames as NpyFrames
@@ -29,7 +29,9 @@ def test_chunks_give_the_whole_videos_sums_to_rounding(chunk: int) -> None:
     video = _video(37)
     est = ANRAEstimator(smoothing=1.0, noise_sd=NOISE, strict=False)
     whole = est(video, DT, DX)
-    chunked = estimate_chunked(video, DT, DX, estimator=est, chunk_frames=chunk, error_every=1)
+    chunked = estimate_chunked(
+        video, DT, DX, estimator=est, chunking=Chunking(chunk_frames=chunk, error_every=1)
+    )
     result = chunked.result
     assert_rounding_close(result.per_frame, whole.per_frame, ops=64)
     assert_rounding_close(result.diffusivity, whole.diffusivity, ops=64)
@@ -44,8 +46,12 @@ def test_sampled_standard_error_matches_the_exact_one() -> None:
     """The lever pushed back on every 4th chunk's interior, scaled by the energy, against every frame's."""
     video = _video(300, side=64, seed=1).float()
     est = ANRAEstimator(smoothing=2.0, strict=False)
-    exact = estimate_chunked(video, DT, DX, estimator=est, chunk_frames=16, error_every=1).result
-    sampled = estimate_chunked(video, DT, DX, estimator=est, chunk_frames=16, error_every=4).result
+    exact = estimate_chunked(
+        video, DT, DX, estimator=est, chunking=Chunking(chunk_frames=16, error_every=1)
+    ).result
+    sampled = estimate_chunked(
+        video, DT, DX, estimator=est, chunking=Chunking(chunk_frames=16, error_every=4)
+    ).result
     whole = est(video, DT, DX)
     # The noise level is measured on the pilot's 48 frames, not on all 300: a 0.3 % difference here.
     assert float(exact.std_error) == pytest.approx(float(whole.std_error), rel=0.01)
@@ -65,9 +71,9 @@ def test_default_estimator_chooses_a_smoothing_near_the_whole_videos() -> None:
 
 def test_precision_stops_reading_once_reached() -> None:
     video = _video(200, side=48, seed=3).float()
-    full = estimate_chunked(video, DT, DX, chunk_frames=10)
+    full = estimate_chunked(video, DT, DX, chunking=Chunking(chunk_frames=10))
     target = 2 * float(full.result.std_error / full.result.diffusivity)
-    early = estimate_chunked(video, DT, DX, chunk_frames=10, precision=target)
+    early = estimate_chunked(video, DT, DX, precision=target, chunking=Chunking(chunk_frames=10))
     assert early.frames_used < full.frames_used == 200
     relative = float(early.result.std_error / early.result.diffusivity)
     assert relative <= target * 1.001
@@ -78,15 +84,15 @@ def test_reads_an_npy_file_chunk_by_chunk(tmp_path) -> None:
     video = _video(60, side=48, seed=4).float()
     path = tmp_path / "v.npy"
     np.save(path, video.numpy())
-    from_file = estimate_chunked(NpyFrames(path), DT, DX, chunk_frames=12).result
-    in_memory = estimate_chunked(video, DT, DX, chunk_frames=12).result
+    from_file = estimate_chunked(NpyFrames(path), DT, DX, chunking=Chunking(chunk_frames=12)).result
+    in_memory = estimate_chunked(video, DT, DX, chunking=Chunking(chunk_frames=12)).result
     assert float(from_file.diffusivity) == float(in_memory.diffusivity)
 
 
 def test_a_dead_element_is_masked_and_constant_frames_are_flagged() -> None:
     video = _video(60, side=48, seed=5).float()
     video[:, 20, 20] = 7.0  # stuck
-    result = estimate_chunked(video, DT, DX, chunk_frames=12).result
+    result = estimate_chunked(video, DT, DX, chunking=Chunking(chunk_frames=12)).result
     assert float(result.diffusivity) == pytest.approx(0.2, rel=0.02)
     assert int(result.n_masked) == 60
     flat = estimate_chunked(torch.zeros(30, 48, 48), DT, DX).result
@@ -97,11 +103,14 @@ def test_a_dead_element_is_masked_and_constant_frames_are_flagged() -> None:
     ("kwargs", "message"),
     [
         ({"precision": 0.0}, "precision must be a relative standard error in (0, 1), got 0.0"),
-        ({"chunk_frames": 0}, "chunk_frames must be an integer >= 1 (frames), got 0"),
-        ({"error_every": 0}, "error_every must be an integer >= 1 (chunks), got 0"),
-        ({"pilot_side": 0}, "pilot_side must be an integer >= 1 (px), got 0"),
-        ({"pilot_frames": 2.5}, "pilot_frames must be an integer >= 1 (frames), got 2.5"),
-        ({"pilot_blocks": True}, "pilot_blocks must be an integer >= 1 (blocks), got True"),
+        ({"chunking": Chunking(chunk_frames=0)}, "chunk_frames must be an integer >= 1 (frames), got 0"),
+        ({"chunking": Chunking(error_every=0)}, "error_every must be an integer >= 1 (chunks), got 0"),
+        ({"chunking": Chunking(pilot_side=0)}, "pilot_side must be an integer >= 1 (px), got 0"),
+        ({"chunking": Chunking(pilot_frames=2.5)}, "pilot_frames must be an integer >= 1 (frames), got 2.5"),
+        (
+            {"chunking": Chunking(pilot_blocks=True)},
+            "pilot_blocks must be an integer >= 1 (blocks), got True",
+        ),
         ({"estimator": ANRAEstimator(mode="ratio")}, "needs an estimator with mode='lsq'"),
         ({"estimator": ANRAEstimator(window=5)}, "use window=None, got 5"),
         ({"dtype": torch.int32}, "dtype must be torch.float32 or torch.float64, got torch.int32"),
@@ -122,7 +131,7 @@ def test_too_few_frames_and_a_wrong_shape_are_refused() -> None:
 def test_spikes_are_repaired_in_every_chunk_and_counted_once() -> None:
     """30 single-sample spikes of 50 K, some on chunk edges: all repaired, counted once, a as unspiked."""
     video = _video(120, side=64, seed=6).float()
-    clean = estimate_chunked(video, DT, DX, chunk_frames=12).result
+    clean = estimate_chunked(video, DT, DX, chunking=Chunking(chunk_frames=12)).result
     generator = torch.Generator().manual_seed(1)
     rows, cols = (
         torch.randint(0, 60, (30,), generator=generator),
@@ -131,20 +140,9 @@ def test_spikes_are_repaired_in_every_chunk_and_counted_once() -> None:
     frames = torch.randperm(120, generator=generator)[:30]
     frames[:3] = torch.tensor([12, 15, 24])  # a chunk's first frame, the last of its halo, the next's first
     video[frames, rows, cols] += 50.0
-    result = estimate_chunked(video, DT, DX, chunk_frames=12).result
+    result = estimate_chunked(video, DT, DX, chunking=Chunking(chunk_frames=12)).result
     assert result.artefacts[0]["spikes"] == 30
     assert abs(float(result.diffusivity) - float(clean.diffusivity)) < 0.2 * float(clean.std_error)
-
-
-@pytest.mark.parametrize(("frames", "blocks"), [(30, 1), (96, 2), (200, 3)])
-def test_the_pilot_reads_at_most_a_third_of_a_recording(frames: int, blocks: int) -> None:
-    """Three blocks of 16 frames where they fit in a third of the recording, fewer (at least one) below."""
-    pilot = estimate_chunked(_video(frames), DT, DX, estimator=ANRAEstimator(strict=False)).pilot
-    assert len(pilot) == blocks
-    assert all(stop - start == 16 for start, stop in pilot)
-    assert pilot[0][0] >= 0 and pilot[-1][1] <= frames
-    if blocks > 1:  # spread from the first frame to the last
-        assert pilot[0][0] == 0 and pilot[-1][1] == frames
 
 
 def test_the_computation_dtype_is_the_callers_not_the_files() -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.simulation.synthetic import FWHM_PER_SIGMA, SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation.synthetic import FWHM_PER_SIGMA, Blobs, SyntheticVideo, blobs_video, paper_video
 
 
 @pytest.fixture(scope="module")
@@ -112,7 +112,7 @@ def test_blobs_video_shapes_and_determinism() -> None:
 
 
 def test_blobs_video_blobs_stay_inside_on_the_background() -> None:
-    video = blobs_video(n_videos=4, seed=5, n_blobs=4, n_frames=10, fps=2.0)
+    video = blobs_video(n_videos=4, seed=5, blobs=Blobs(n_blobs=4), n_frames=10, fps=2.0)
     excess = video.clean - 30.0
     assert excess.min() >= 0
     peak0 = excess[:, 0].amax((-2, -1))
@@ -151,11 +151,11 @@ def test_to_npz_round_trip(tmp_path, n_videos: int) -> None:
         ),
         (lambda: paper_video(fps=0.0), r"fps must be a positive finite number in Hz, got 0.0"),
         (
-            lambda: blobs_video(sigma_range_px=(4.0, 30.0)),
+            lambda: blobs_video(blobs=Blobs(sigma_range_px=(4.0, 30.0))),
             r"sigma_range_px must stay below size / 4 = 24 px",
         ),
         (
-            lambda: blobs_video(peak_range=(5.0, 1.0)),
+            lambda: blobs_video(blobs=Blobs(peak_range=(5.0, 1.0))),
             r"peak_range must be a finite pair with low <= high",
         ),
         (lambda: blobs_video(dx=-0.5), r"dx must be a positive finite number in mm, got -0.5"),

@@ -17,7 +17,6 @@ from anra_torch.tissue.dose import (
     count_masked,
     dose_maps,
     time_above,
-    to_celsius,
 )
 
 R_GAS = 8.314462618
@@ -235,8 +234,6 @@ def test_celsius_range_declared_wrongly_names_units() -> None:
         arrhenius_omega(torch.tensor([37.0, 45.0]), 1.0, units="K")
     with pytest.raises(ValueError, match=r"units='C'.*below absolute zero"):
         time_above(torch.tensor([37.0, -300.0]), 1.0, 43.0)
-    with pytest.raises(ValueError, match="units must be one of 'C', 'K', got 'F'"):
-        to_celsius(torch.zeros(3), "F")
 
 
 def test_bad_arguments() -> None:

@@ -13,7 +13,8 @@ from reference import cem43_constant, omega_constant
 from anra_torch.simulation import MovingSource, gaussian_blob, simulate_tissue
 from anra_torch.simulation.synthetic import paper_video
 from anra_torch.tissue.dose import arrhenius_omega, cem43, time_above
-from anra_torch.tissue.features import MAPS, MAX_LOSS_ERROR, MIN_CONFIDENCE, TissueFeatures, feature_summary
+from anra_torch.tissue.feature_maps import MAPS, MAX_LOSS_ERROR, MIN_CONFIDENCE
+from anra_torch.tissue.features import TissueFeatures, feature_summary
 
 DX, DT = 0.2, 0.1
 

@@ -1,4 +1,4 @@
-"""FLIR FFF frames: the record directory, the camera record, the raw counts and the Planck formula.
+"""FLIR FFF frames: the record directory, the camera record and where the raw image lies.
 
 An FFF frame is the container of every radiometric FLIR format: a ``.fff`` file is one, a ``.seq`` is
 several one after another, a ``.csq`` the same with JPEG-LS counts, a radiometric JPEG carries one in its
@@ -19,23 +19,19 @@ APP1 segments. The layout is ExifTool's (``Image::ExifTool::FLIR``: ``ProcessFLI
   humidity a fraction (above 2: a percentage), the capture time at 0x384: ``int32u`` Unix s, ``int32u``
   whose low 16 bits are ms, ``int16s`` minutes west of UTC.
 
-Counts become temperatures by the Planck formula with the atmosphere's and the IR window's transmission
-as Thermimage's ``raw2temp``, flirpy and flyr compute it (:func:`celsius`). Emissivity, reflected apparent
-temperature, object distance, atmospheric temperature and relative humidity can be replaced after capture
-(:mod:`~anra_torch.video.formats.flir_objects`, which also states the values used and where each came from).
+The raw image becomes counts in :mod:`~anra_torch.video.formats.flir_counts`, counts become temperatures in
+:mod:`~anra_torch.video.formats.flir_planck`.
 """
 
 from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-
-from anra_torch.checks import one_line
 
 __all__ = [
     "CAMERA_INFO",
@@ -46,10 +42,7 @@ __all__ = [
     "Frame",
     "RawImage",
     "TruncatedFrame",
-    "celsius",
-    "decode_counts",
     "read_frame",
-    "swapped_rougher",
 ]
 
 RAW_DATA = 0x01
@@ -403,131 +396,3 @@ def _camera_info(data: bytes, frame_order: str, where: str, start: int) -> Camer
     seconds, sub, zone = struct.unpack_from(order + "IIh", data, _TIME)
     camera = {name: _tag(data, order, at, kind) for name, (at, kind) in _CAMERA_TAGS.items()}
     return CameraInfo(values, 1000 * seconds + (sub & 0xFFFF), -zone, camera)
-
-
-# ------------------------------------------------------------------------------------------- counts
-def _imagecodecs() -> Any:
-    try:
-        import imagecodecs
-    except ImportError as err:
-        raise ImportError(
-            "decoding FLIR PNG or JPEG-LS counts needs imagecodecs: pip install anra_torch[formats]"
-        ) from err
-    return imagecodecs
-
-
-def decode_counts(raw: RawImage, data: bytes, *, where: str = "FFF") -> np.ndarray:
-    """The raw counts of one frame from its image ``data`` (``raw.length`` bytes at ``raw.offset``).
-
-    ``uint16`` counts are read in the record's byte order; PNG and JPEG-LS images are decoded by
-    ``imagecodecs`` (its CharLS JPEG-LS decoder), PNG counts then byte-swapped as FLIR stores them.
-
-    Shape:
-        ``(raw.height, raw.width)``, ``uint16``.
-
-    Raises:
-        ValueError: the data do not decode to ``raw.height x raw.width`` counts.
-        ImportError: a PNG or JPEG-LS image without imagecodecs (the ``formats`` extra).
-    """
-    if raw.encoding == "uint16":
-        count = raw.width * raw.height
-        if len(data) < 2 * count:
-            raise TruncatedFrame(f"{where}: truncated: the raw counts at byte {raw.offset} are cut off")
-        counts = np.frombuffer(data, dtype=raw.order + "u2", count=count).reshape(raw.height, raw.width)
-    else:
-        codecs = _imagecodecs()
-        decoder = codecs.png_decode if raw.encoding == "png" else codecs.jpegls_decode
-        try:
-            counts = np.asarray(decoder(data))
-        except Exception as err:  # the codecs raise their own error types on damaged data
-            raise ValueError(
-                f"{where}: cannot decode the {raw.encoding} counts at byte {raw.offset} "
-                f"({one_line(err, kind=True)}); the file may be corrupt"
-            ) from err
-        if counts.shape != (raw.height, raw.width) or counts.dtype.kind not in "ui":
-            raise ValueError(
-                f"{where}: the {raw.encoding} image at byte {raw.offset} is {counts.shape} {counts.dtype}, "
-                f"not the {raw.height} x {raw.width} counts its RawData record gives"
-            )
-    counts = counts.astype(np.uint16, copy=False)
-    return counts.byteswap() if raw.swapped else counts.astype("=u2", copy=False)
-
-
-def swapped_rougher(counts: np.ndarray) -> bool:
-    """Whether ``counts`` read byte-swapped would be far smoother than as given (stored in the other byte
-    order than documented: a scene varies by a few counts between neighbours, swapped its noisy low byte
-    steps by hundreds). Only on overwhelming evidence (a mean step along rows 16x smaller swapped, and of
-    at least one count); a flat frame keeps the documented order.
-
-    Shape:
-        ``(..., H, W)`` ``uint16``.
-    """
-    if counts.shape[-1] < 2:  # one column: no step to judge by
-        return False
-    given = np.abs(np.diff(counts.astype(np.int32), axis=-1)).mean()
-    other = np.abs(np.diff(counts.byteswap().astype(np.int32), axis=-1)).mean()
-    return bool(given >= 16 * max(other, 1.0))
-
-
-# ------------------------------------------------------------------------------------------- Planck
-def celsius(counts: np.ndarray, planck: Mapping[str, Any]) -> np.ndarray:
-    """Object temperatures in degC from raw counts by the Planck formula with the atmosphere's and the IR
-    window's transmission (Thermimage ``raw2temp``; flyr): the counts are corrected for the radiance the
-    object reflects (at the reflected temperature, weight ``1 - E``), the atmosphere's emission on either
-    side of the window (transmission ``tau`` each, over half the object distance) and the window's
-    emission, then inverted through ``T = B / ln(R1 / (R2 (S + O)) + F)``.
-
-    Args:
-        counts: raw counts, any integer or float dtype.
-        planck: the :data:`PLANCK_KEYS` values (temperatures degC, distance m, humidity a fraction), each a
-            scalar or, for ``(T, H, W)`` counts, a ``(T,)`` vector of per-frame values.
-
-    Returns:
-        float64 temperatures; NaN where the counts lie outside the formula's range (no object radiance).
-
-    Shape:
-        ``(H, W)`` or ``(T, H, W)`` -> the same.
-
-    Example:
-        >>> values = [1, 0, 20, 20, 20, 1, 0.5, 21106.77, 1501, 1, -7340, 0.012545258, 0.006569, 0.01262]
-        >>> p = dict(zip(PLANCK_KEYS, values + [-0.002276, -0.00667, 1.9]))  # Thermimage's defaults
-        >>> round(float(celsius(np.array([[18109]]), p)[0, 0]), 2)
-        23.62
-    """
-    with np.errstate(all="ignore"):  # damaged constants (an emissivity of 0, ...): NaN, masked below
-        return _celsius(counts, planck)
-
-
-def _celsius(counts: np.ndarray, planck: Mapping[str, Any]) -> np.ndarray:
-    ndim = np.ndim(counts)
-
-    def value(key: str) -> Any:
-        v = np.asarray(planck[key], dtype=np.float64)
-        return v.reshape(v.shape + (1,) * (ndim - v.ndim)) if v.ndim else np.float64(v)  # numpy: errstate
-
-    e, od, rt, at, wt, wtr, rh = (value(k) for k in PLANCK_KEYS[:7])
-    r1, b, f, o, r2, a1, a2, b1, b2, x = (value(k) for k in PLANCK_KEYS[7:])
-    h2o = rh * np.exp(1.5587 + 0.06939 * at - 0.00027816 * at**2 + 0.00000068455 * at**3)
-    half = np.sqrt(od / 2)
-    tau = x * np.exp(-half * (a1 + b1 * np.sqrt(h2o))) + (1 - x) * np.exp(-half * (a2 + b2 * np.sqrt(h2o)))
-
-    def radiance(temp_c: Any) -> Any:
-        return r1 / (r2 * (np.exp(b / (temp_c + _KELVIN)) - f)) - o
-
-    atmosphere = radiance(at)
-    stray = (
-        (1 - e) / e * radiance(rt)  # reflected by the object
-        + (1 - tau) / e / tau * atmosphere  # the atmosphere between object and window
-        + (1 - wtr) / e / tau / wtr * radiance(wt)  # the window's own emission
-        + (1 - tau) / e / tau / wtr / tau * atmosphere  # the atmosphere between window and camera
-    )
-    # r2 (S + O) with S = counts / (e tau wtr tau) - stray, in one multiply and one subtraction
-    signal = np.multiply(counts, r2 / (e * tau * wtr * tau), dtype=np.float64)
-    signal -= (stray - o) * r2
-    np.divide(r1, signal, out=signal)
-    signal += f
-    np.log(signal, out=signal)
-    np.divide(b, signal, out=signal)
-    signal -= _KELVIN
-    signal[~((signal >= -_KELVIN) & (signal < np.inf))] = np.nan  # NaN, infinities, below 0 K
-    return signal

@@ -3,9 +3,9 @@
 A radiometric JPEG (e.g. FLIR C3-X, 128 x 96 px thermal) carries, in its APP1 ``FLIR`` segments, an FFF
 frame with a RawData record (the counts, PNG or uint16) and a CameraInfo record (Planck constants R1, R2,
 B, F, O, emissivity, distance, reflected and atmospheric temperatures). The segments are joined here; the
-frame is read and its counts turned into temperatures by :mod:`~anra_torch.video.formats.flir_fff`, as
-for ``.fff``, ``.seq`` and ``.csq`` files (Planck formula with atmospheric transmission, with the object
-parameters the camera set or the caller's :class:`~anra_torch.video.formats.flir_fff.ObjectParameters`);
+frame is read (:mod:`~anra_torch.video.formats.flir_fff`) and its counts turned into temperatures
+(:mod:`~anra_torch.video.formats.flir_planck`), as for ``.fff``, ``.seq`` and ``.csq`` files, with the object
+parameters the camera set or the caller's :class:`~anra_torch.video.formats.flir_objects.ObjectParameters`;
 the visible 640 x 480 picture is NOT the thermal data. Timestamps come from CameraInfo's DateTimeOriginal
 (Unix seconds plus milliseconds), the EXIF capture time to the millisecond (EXIF ``DateTimeOriginal``
 alone has whole seconds).
@@ -24,8 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from anra_torch.video.core import RawVideo, stack_frames
-from anra_torch.video.formats.flir_fff import Frame, celsius, decode_counts, read_frame
+from anra_torch.video.formats.flir_counts import decode_counts
+from anra_torch.video.formats.flir_fff import Frame, read_frame
 from anra_torch.video.formats.flir_objects import ObjectParameters, object_record
+from anra_torch.video.formats.flir_planck import celsius
 
 __all__ = ["flir_timestamp", "load_flir_jpeg", "load_flir_jpeg_folder"]
 

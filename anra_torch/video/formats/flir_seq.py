@@ -17,16 +17,13 @@ their RawData records). A trailing partial frame (its records run past the end o
 bytes that hold no frame, and frames without a RawData or CameraInfo record are left out and flagged in
 ``meta["input_warnings"]``; bytes that hold no frame header but could hold a frame are a one-line error.
 A frame whose counts are far smoother read in the other byte order than documented
-(:func:`~anra_torch.video.formats.flir_fff.swapped_rougher`, judged on the first frame of each layout) is
+(:func:`~anra_torch.video.formats.flir_counts.swapped_rougher`, judged on the first frame of each layout) is
 read that way, and ``meta["camera"]["counts_byteswapped"]`` says so.
 Times are each frame's capture time (s, to the millisecond) from the first frame's; ``meta["t_resolution"]``
 (0.001 s) lets :func:`~anra_torch.video.load_video` take steps that differ by that clock resolution as
 uniform.
 
-``.csq`` counts are JPEG-LS. They are decoded by ``imagecodecs`` (the ``formats`` extra): a maintained
-package (regular releases, wheels for every platform) that wraps CharLS, the JPEG-LS reference
-implementation, and decodes FLIR's PNG counts too; the pure-Python or single-purpose alternatives
-(``pillow-jpls``, ``charpyls``) are older and less kept.
+``.csq`` counts are JPEG-LS, decoded by ``imagecodecs`` (the ``formats`` extra; see ``docs/architecture.md``).
 """
 
 from __future__ import annotations
@@ -40,6 +37,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from anra_torch.video.core import RawVideo, stack_frames
+from anra_torch.video.formats.flir_counts import decode_counts, swapped_rougher
 from anra_torch.video.formats.flir_fff import (
     MAGIC,
     PLANCK_KEYS,
@@ -47,12 +45,10 @@ from anra_torch.video.formats.flir_fff import (
     IncompleteFrame,
     RawImage,
     TruncatedFrame,
-    celsius,
-    decode_counts,
     read_frame,
-    swapped_rougher,
 )
 from anra_torch.video.formats.flir_objects import ObjectParameters, object_record
+from anra_torch.video.formats.flir_planck import celsius
 
 __all__ = [
     "FLIRFrames",

@@ -133,9 +133,8 @@ def save_npz(
         dt: frame period in s.
         dx: pixel size in mm (None leaves it out).
         t: optional timestamps in s.
-        batch: also accept a batch ``(B, T, H, W)``, stored as is (for
-            :meth:`anra_torch.simulation.SyntheticVideo.to_npz`; :func:`~anra_torch.video.load_video` reads
-            one video per file, so the default refuses it).
+        batch: also accept a batch ``(B, T, H, W)``, stored as is (:func:`~anra_torch.video.load_video`
+            reads one video per file: the default refuses it).
         **extra: more arrays or scalars, e.g. ``a_true=0.2`` (mm^2/s) or ``unit="degC"``.
 
     Returns:

@@ -22,7 +22,8 @@ from shared_data import DATA as SHARED_DATA
 
 from anra_torch.cli import main
 from anra_torch.video import load_video, save_npz
-from anra_torch.video.formats.flir_fff import decode_counts, read_frame
+from anra_torch.video.formats.flir_counts import decode_counts
+from anra_torch.video.formats.flir_fff import read_frame
 from anra_torch.video.formats.flir_objects import ObjectParameters
 from anra_torch.video.formats.flir_seq import index_sequence
 

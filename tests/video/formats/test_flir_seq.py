@@ -23,7 +23,7 @@ from fff_writer import (
 from shared_data import DATA as SHARED_DATA
 
 from anra_torch.cli import main
-from anra_torch.estimation import estimate_chunked
+from anra_torch.estimation import Chunking, estimate_chunked
 from anra_torch.video import input_warnings, load_video, prepare_video
 from anra_torch.video.formats.flir_seq import FLIRFrames, index_sequence
 from anra_torch.video.lazy import FrameSource, frame_span, in_memory, lazy_video
@@ -122,6 +122,7 @@ def test_counts_stored_byte_swapped_are_recognised_and_flagged(tmp_path: Path) -
     np.testing.assert_array_equal(FLIRFrames(index).counts(slice(None)), counts)
 
 
+@pytest.mark.slow
 def test_csq_jpeg_ls_decodes_100_frames(tmp_path: Path) -> None:
     """100 JPEG-LS frames of 640 x 512 decode to finite temperatures, each frame's own counts exactly (the
     decode time is measured by ``python -m benchmarks.bench_sequence``, not here)."""
@@ -243,8 +244,8 @@ def test_a_sequence_is_read_lazily_and_estimates_as_in_memory(tmp_path: Path) ->
     np.testing.assert_array_equal(in_memory(lazy.frames).numpy(), whole.frames.numpy())
     np.testing.assert_array_equal(frame_span(lazy.frames, 5, 9)[1:3], whole.frames[6:8].numpy())
     np.testing.assert_allclose(whole.frames.numpy(), celsius, atol=0.05)  # one count is ~0.03 K here
-    a = estimate_chunked(lazy.frames, lazy.dt, lazy.dx, chunk_frames=12)
-    b = estimate_chunked(whole.frames, whole.dt, whole.dx, chunk_frames=12)
+    a = estimate_chunked(lazy.frames, lazy.dt, lazy.dx, chunking=Chunking(chunk_frames=12))
+    b = estimate_chunked(whole.frames, whole.dt, whole.dx, chunking=Chunking(chunk_frames=12))
     assert a.result.diffusivity == b.result.diffusivity
     assert abs(a.result.diffusivity - 0.2) < 0.03  # the Gaussian's diffusivity, mm^2/s
 
