@@ -27,7 +27,9 @@ pixel (Henriques-Moritz skin). What is measured (``deep``: true damage deeper th
   ``experiments/tissue_damage.py``);
 * the fitted ``a`` against the truth on every scene whose cooling is recorded (within 10 %?), the volumetric
   flag (none of the surface-heated scenes, all of the near-infrared ones), and the coverage of the +-2
-  standard-error band over damaged pixels (all scenes and per kind).
+  standard-error band over damaged pixels (all scenes and per kind), also of each part of the error alone:
+  the parameters' (the map against the map with the true ``a`` and ``b``) and the solver's (that map
+  against the truth).
 
     python -m experiments.damage_depth                          # 24 + 24 scenes + 6 near-infrared
     python -m experiments.damage_depth --shard 0/2 &            # fill the cache in two processes, then
@@ -298,22 +300,32 @@ def depth_table(records: list[dict], rng: np.random.Generator) -> dict:
 
 
 def calibration(records: list[dict]) -> dict:
-    """Share of damaged pixels whose true depth lies within the reported depth +- 2 standard errors."""
+    """Share of damaged pixels whose true depth lies within the reported depth +- 2 standard errors; and
+    the error split in two (the map with the TRUE ``a`` and ``b`` between them): the parameters' part
+    (reported - true-parameter map) and the solver's (true-parameter map - truth, the frame's edges and the
+    reference's own error among it), each's coverage by the same band, as if it were the only error."""
     out = {}
     for name, floor in (("damaged (true depth > 0)", 0.0), ("true depth > 0.2 mm", DAMAGED)):
         inside, total, z = 0, 0, []
+        parts: dict[str, list[np.ndarray]] = {"parameters": [], "solver": []}
         for r in records:
             if MODEL not in r:
                 continue
             mask = r["truth"] > floor
+            band = 2.0 * r["std"][mask]
             err = np.abs(r[MODEL][mask] - r["truth"][mask])
-            inside += int((err <= 2.0 * r["std"][mask]).sum())
+            inside += int((err <= band).sum())
             total += int(mask.sum())
             z.append(err / np.maximum(r["std"][mask], 1e-12))
+            parts["parameters"].append(np.abs(r[MODEL][mask] - r[TRUE][mask]) <= band)
+            parts["solver"].append(np.abs(r[TRUE][mask] - r["truth"][mask]) <= band)
         out[name] = {
             "coverage": inside / max(total, 1),
             "pixels": total,
             "median_abs_z": float(np.median(np.concatenate(z))) if z else float("nan"),
+        } | {
+            f"coverage_{part}_only": float(np.concatenate(v).mean()) if v else float("nan")
+            for part, v in parts.items()
         }
     return out
 
@@ -338,10 +350,14 @@ def parameters(records: list[dict]) -> dict:
 
 
 def scene_errors(r: dict) -> dict:
-    """A scene's deepest true damage and its median depth error where deeper than 0.2 mm."""
+    """A scene's deepest true damage and its median depth error where deeper than 0.2 mm, also with the true
+    ``a`` and ``b``."""
     deep = (r["truth"] > DAMAGED).any()
-    median = float(np.median(errors([r], MODEL)[0])) if deep else None
-    return {"max_true_depth": float(r["truth"].max()), "median_error_deeper_0.2": median}
+    median = {
+        key: float(np.median(errors([r], method)[0])) if deep else None
+        for key, method in (("median_error_deeper_0.2", MODEL), ("median_error_true_ab_deeper_0.2", TRUE))
+    }
+    return {"max_true_depth": float(r["truth"].max())} | median
 
 
 def near_infrared(records: list[dict]) -> dict:
@@ -387,14 +403,17 @@ def table(results: dict) -> str:
         "",
         "Calibration (true depth inside the reported depth +- 2 standard errors): "
         + "; ".join(
-            f"{k}: {v['coverage']:.1%} of {v['pixels']} pixels (median |z| {v['median_abs_z']:.2f})"
+            f"{k}: {v['coverage']:.1%} of {v['pixels']} pixels (median |z| {v['median_abs_z']:.2f}; were "
+            f"the parameters' part the only error {v['coverage_parameters_only']:.1%}, the solver's "
+            f"{v['coverage_solver_only']:.1%})"
             for k, v in c.items()
         )
         + ".",
         "",
         "By kind (damaged pixels): "
         + "; ".join(
-            f"{kind}: {v['coverage']:.1%} of {v['pixels']} (median |z| {v['median_abs_z']:.2f})"
+            f"{kind}: {v['coverage']:.1%} of {v['pixels']} (median |z| {v['median_abs_z']:.2f}; parameters' "
+            f"part only {v['coverage_parameters_only']:.1%}, solver's {v['coverage_solver_only']:.1%})"
             for kind, v in (
                 (k, by_kind["damaged (true depth > 0)"])
                 for k, by_kind in results.get("calibration_by_kind", {}).items()

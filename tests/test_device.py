@@ -127,6 +127,7 @@ def test_tissue_features(dtype: torch.dtype) -> None:
     assert_same(on_meta_default(run), run())
 
 
+@pytest.mark.slow
 def test_diagnose_terms() -> None:
     video = hidden_effect_video(["advection"], seed=1, size=40, duration=1.0)
     frames = video.frames.to("cpu")

@@ -25,7 +25,8 @@ EXPECTED = {
 }
 """Script -> (a line its output must hold, whether it reads the shared data)."""
 
-SLOW = {"diagnose_simulated.py", "tissue_features.py"}  # over ~10 s on 2 shared cores
+SLOW = {"diagnose_simulated.py", "tissue_features.py", "flir_folder.py", "dataloader.py", "convert_flir.py"}
+"""Over ~2 s each on a quiet 2-core machine (a fresh process each): out of `make test-fast`."""
 
 
 def test_every_example_is_listed() -> None:

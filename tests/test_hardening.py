@@ -273,6 +273,7 @@ def test_dx_in_metres_gets_a_plausibility_warning(
 
 
 # ------------------------------------------------------------------------------------- model failure
+@pytest.mark.slow
 def test_a_time_reversed_video_is_reported_as_not_explained(
     clean: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -296,7 +296,7 @@ def fit_lateral(
         if len(blocks) >= 2 and _breaks(block, _solve(blocks, [1.0] * len(blocks))):
             break
         blocks.append(block)
-    if len(blocks) < 4:
+    if len(blocks) < 2:
         return frames.new_zeros(3), len(blocks)
     a = _solve(blocks, [1.0] * len(blocks))
     for _ in range(3):  # each block weighted by its residuals' mean square

@@ -179,6 +179,7 @@ def test_roi_and_calibration_are_applied_and_recorded(
     not (DATA / "laser_silicone").is_dir(),
     reason="../shared/data/laser_silicone is absent",
 )
+@pytest.mark.slow
 def test_flir_jpeg_folders_run_as_videos_with_resample(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

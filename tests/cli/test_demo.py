@@ -13,6 +13,7 @@ from anra_torch.simulation.synthetic import paper_video
 
 
 # ------------------------------------------------------------------------------------------------ demo
+@pytest.mark.slow
 def test_demo_writes_report_and_figures(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -109,6 +109,7 @@ def test_report_draws_source_path(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert "source path (" in (tmp_path / "r" / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_pure_video_has_no_effects(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = hidden_effect_video([], seed=0, size=64, duration=3.0).to_npz(tmp_path / "pure.npz")
     code, out, err = run(capsys, "diagnose", path, "--json")
@@ -238,6 +239,7 @@ def test_cli_diagnoses_an_8x8_box_and_estimate_flags_it_unresolved(
     assert out["valid"] is False and out["diffusivity"] is None and "unresolved" in out["message"]
 
 
+@pytest.mark.slow
 def test_maps_of_a_flash_plate_summary_file_and_report(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -136,6 +136,7 @@ def test_bad_input_is_one_line(
     not (DATA / "laser_silicone").is_dir(),
     reason="../shared/data/laser_silicone is absent",
 )
+@pytest.mark.slow
 def test_features_read_a_flir_folder_with_resampling(capsys: pytest.CaptureFixture[str]) -> None:
     folder = DATA / "laser_silicone" / "Nov19_2"
     # Non-uniform EXIF times are resampled by default (--resample is kept, and changes nothing).
@@ -147,6 +148,7 @@ def test_features_read_a_flir_folder_with_resampling(capsys: pytest.CaptureFixtu
     assert 200 < record["peak_temperature_max"] < 220  # the ~210 C peak of this run (data README)
 
 
+@pytest.mark.slow
 def test_a_recording_with_a_heating_and_a_cooling_reports_the_cooling_diffusivity(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -343,6 +345,7 @@ THICKNESS = ("2", "0.05", "0", "-1", "nan", "inf", "-inf", "1e300", "1001", "1e-
 """--thickness values the depth fuzz draws from."""
 
 
+@pytest.mark.slow
 def test_fuzzed_depth_options_end_cleanly(depth_burn: dict, tmp_path: Path) -> None:
     """``features --depth`` with drawn --thickness, --report, --out, --dx and --rule on 12 x 12 px views of
     the beam (one with depth maps, one flagged as volumetric, one without a pixel size, a constant one):

@@ -77,6 +77,7 @@ def test_param_fixes_one_value_and_the_rest_come_from_the_seed(
     assert aniso1.derived()["ratio"] != aniso0.derived()["ratio"]  # derived values follow the parameters
 
 
+@pytest.mark.slow
 def test_estimate_reads_the_output(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     pure, lossy = tmp_path / "pure.npz", tmp_path / "lossy.npz"
     assert run(capsys, "simulate", "--preset", "hidden", "--size", "64", "-o", pure)[0] == 0

@@ -79,6 +79,7 @@ def mixed_folder(tmp_path: Path) -> dict:
     return {"folder": folder, "csv": written}
 
 
+@pytest.mark.slow
 def test_a_dataloader_with_two_workers_feeds_the_estimator_and_the_features(mixed_folder: dict) -> None:
     dataset = ThermalVideoDataset(mixed_folder["folder"], dt=0.2, dx=0.5, labels=("a_true",))
     assert [p.name for p in dataset.sources] == ["a.npz", "b.npz", "export.csv", "flir_jpeg"]

@@ -55,6 +55,7 @@ def test_hidden_video_is_deterministic_and_records_the_truth() -> None:
     torch.testing.assert_close(pure.frames, simulate_heat(u0, a=0.15, dx=0.5, dt=1 / 30, n_frames=31))
 
 
+@pytest.mark.slow
 def test_hidden_video_time_error_is_negligible() -> None:
     video = hidden_effect_video(
         ["linear_loss", "source", "advection", "anisotropy"], seed=0, size=48, noise_frac=0.0

@@ -243,6 +243,7 @@ def test_rtc_attention_in_lsq_mode(paper96_005: SyntheticVideo) -> None:
     assert abs(np.median(relative_error(a, A_PAPER))) < 0.02
 
 
+@pytest.mark.slow
 def test_stein_correction_removes_the_rtc_weighting_bias(paper96_005: SyntheticVideo) -> None:
     # At 2 px smoothing dT/dt is noisy enough that weights computed from it bias the fit upwards.
     with_stein, _ = estimate_each(

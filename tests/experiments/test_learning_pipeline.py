@@ -90,6 +90,7 @@ def test_the_best_threshold_is_exact() -> None:
     )
 
 
+@pytest.mark.slow
 def test_the_tiny_pipeline_compares_every_method(tmp_path: Path) -> None:
     summary = run(tmp_path, TINY, log=lambda line: None)
     methods = summary["methods"]

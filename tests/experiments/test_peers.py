@@ -111,6 +111,7 @@ def test_numpy_direct_flat_video_fails_explicitly():
     assert "Laplacian identically zero" in res.note
 
 
+@pytest.mark.slow
 def test_weak_sindy_tuned_recovers_a_on_reduced_video(noisy):
     frames, dt, dx = noisy
     res = weak_sindy_estimate(reduced(frames), dt, 2 * dx, memory=False)
@@ -121,6 +122,7 @@ def test_weak_sindy_tuned_recovers_a_on_reduced_video(noisy):
     assert "x0_11" in res.note and "x0_22" in res.note and "x0_1," not in res.note
 
 
+@pytest.mark.slow
 def test_weak_sindy_defaults_return_an_empty_model(noisy):
     # the documented failure: PySINDy's defaults threshold every term away on the paper's case
     frames, dt, dx = noisy
@@ -130,6 +132,7 @@ def test_weak_sindy_defaults_return_an_empty_model(noisy):
     assert "empty model" in res.note
 
 
+@pytest.mark.slow
 def test_weak_sindy_is_reproducible_and_restores_global_rng(noisy):
     frames, dt, dx = noisy
     small = reduced(frames, 8)

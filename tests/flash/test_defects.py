@@ -53,6 +53,7 @@ def defective() -> tuple[object, np.ndarray, np.ndarray]:
     return defect_map(frames, dt, DX), mask, fraction
 
 
+@pytest.mark.slow
 def test_plate_time_defects_outlines_and_depths_on_an_exact_plate(defective) -> None:
     found, mask, fraction = defective
     assert abs(found.plate_time / TAU - 1) < 0.03
@@ -74,6 +75,7 @@ def test_plate_time_defects_outlines_and_depths_on_an_exact_plate(defective) -> 
     assert np.nanmax(np.abs(depth[mask & got] - fraction[mask & got])) < 0.08
 
 
+@pytest.mark.slow
 def test_the_score_ranks_every_defect_pixel_above_the_sound_ones(defective) -> None:
     found, mask, _ = defective
     score = found.defect_score.numpy()
@@ -88,6 +90,7 @@ def test_the_score_ranks_every_defect_pixel_above_the_sound_ones(defective) -> N
     assert score.max() <= 1.0 + 1e-9 or found.defects
 
 
+@pytest.mark.slow
 def test_a_non_uniform_flash_spreading_anisotropically_is_no_defect() -> None:
     frames, dt, _, _ = _plate(lateral=(7.3, 1.1), seed=1)
     found = defect_map(frames, dt, DX)
@@ -97,6 +100,7 @@ def test_a_non_uniform_flash_spreading_anisotropically_is_no_defect() -> None:
     assert abs(found.plate_time / TAU - 1) < 0.03
 
 
+@pytest.mark.slow
 def test_a_recording_that_ends_before_the_back_wall_says_so() -> None:
     frames, dt, _, _ = _plate(size=24, frames=200, dt=0.005, seed=2)  # ends at TAU / 4
     found = defect_map(frames, dt, DX)
@@ -130,6 +134,7 @@ def test_errors() -> None:
         defect_map(frames, -0.1, DX)
 
 
+@pytest.mark.slow
 def test_a_recording_long_past_the_back_wall_keeps_t_ref() -> None:
     frames, dt, _, _ = _plate(size=32, frames=240, dt=0.05, lateral=(7.3, 1.1), seed=5)  # to 3 TAU
     found = defect_map(frames, dt, DX)  # its late frames, only lateral flow, sent T_ref to -58 C

@@ -120,3 +120,20 @@ def test_fit_lateral_is_not_biased_to_zero_where_late_regressors_are_noise() -> 
     )
     assert used >= 4
     torch.testing.assert_close(a, torch.tensor(truth, dtype=F64), rtol=0.05, atol=0.05)
+
+
+def test_fit_lateral_keeps_the_blocks_before_the_model_breaks() -> None:
+    """Half the frame changes depth (a defect showing) after the first two blocks: the stop rule ends the
+    fit there, and the two blocks still give the diffusivities (they were thrown away below four)."""
+    truth = (7.3, 1.1, 0.6)
+    elapsed = torch.logspace(-1.5, 0.5, 60, dtype=F64)
+    generator = torch.Generator().manual_seed(2)
+    excess = _anisotropic_flash(truth, elapsed, 0.3)
+    late = (1 + 4 * (elapsed - 0.05).clamp_min(0)).view(-1, 1, 1)  # warmer: the heat stops above a defect
+    excess[:, :, 24:] *= late
+    frames = 20.0 + excess + 0.005 * torch.randn(60, 40, 48, dtype=F64, generator=generator)
+    a, used = fit_lateral(
+        frames, elapsed, torch.ones(60, dtype=F64), dx=0.3, t_ref=20.0, noise_sd=0.005, sigma=2.5, labels=None
+    )
+    assert 2 <= used < 4
+    torch.testing.assert_close(a, torch.tensor(truth, dtype=F64), rtol=0.1, atol=0.15)

@@ -47,6 +47,7 @@ def test_extended_effects_round_trip_on_noiseless_video(name: str) -> None:
     assert float((ours - truth).abs().max()) < 1e-4 * rise
 
 
+@pytest.mark.slow
 def test_source_path_is_retimed_for_the_forecast() -> None:
     v = video(["source"], 0)
     split = split_index(v.frames.shape[0], 0.6)
@@ -64,6 +65,7 @@ def test_source_path_is_retimed_for_the_forecast() -> None:
         extended_effects(diagnosis, start=1.0)
 
 
+@pytest.mark.slow
 def test_unmappable_effect_raises_clear_error() -> None:
     v = video(["linear_loss"], 1)
     diagnosis = diagnose_terms(v.frames[:40], v.dt, v.dx)

@@ -25,13 +25,27 @@ def video(hidden_video):
 
 
 @pytest.fixture
-def default_gain(video, disk_cache):
+def fit_diagnosis(video, disk_cache):
+    """``fit_diagnosis(name, seed)``: the video and the diagnosis ``assess_gain`` makes of its fit part by
+    default (frames 0-54), made once per test run."""
+
+    def shared(name: str, seed: int):
+        v = video([name], seed)
+        fit = v.frames[: split_index(v.frames.shape[0], 0.6) + 1]
+        return v, disk_cache(f"fit-diagnosis-{name}-{seed}-64px", lambda: diagnose_terms(fit, v.dt, v.dx))
+
+    return shared
+
+
+@pytest.fixture
+def default_gain(fit_diagnosis, disk_cache):
     """``default_gain(name, seed)``: the video and ``assess_gain`` with its defaults, made once per run for
     the tests that check the same forecast from two sides."""
 
     def shared(name: str, seed: int):
-        v = video([name], seed)
-        return v, disk_cache(f"gain-{name}-{seed}-64px", lambda: assess_gain(v.frames, v.dt, v.dx))
+        v, diagnosis = fit_diagnosis(name, seed)
+        made = lambda: assess_gain(v.frames, v.dt, v.dx, diagnosis=diagnosis)  # noqa: E731
+        return v, disk_cache(f"gain-{name}-{seed}-64px", made)
 
     return shared
 
@@ -94,6 +108,7 @@ def test_diffusion_effects_gain_more_where_heat_moves_further_in_the_forecast(
 @pytest.mark.parametrize(
     ("seed", "dx", "scale"), [(2, 0.5, None), (3, 0.1, None), (4, 0.2, 0.0), (5, 0.1, 1.0)]
 )
+@pytest.mark.slow
 def test_pure_video_has_no_effect_and_plain_forecast_sits_on_the_floor(
     video, seed: int, dx: float, scale: float | None
 ) -> None:
@@ -125,10 +140,10 @@ def test_assimilating_the_fit_part_lowers_the_floor_and_raises_the_gain(default_
     assert torch.equal(alone.times, result.times) and torch.equal(alone.measured, result.measured)
 
 
-def test_bad_assimilate_is_one_line_error(video) -> None:
-    v = video(["linear_loss"], 1)
+def test_bad_assimilate_is_one_line_error(fit_diagnosis) -> None:
+    v, diagnosis = fit_diagnosis("linear_loss", 1)
     with pytest.raises(ValueError, match="assimilate must be an integer from 1 to 55 frames, got 0"):
-        assess_gain(v.frames, v.dt, v.dx, assimilate=0)
+        assess_gain(v.frames, v.dt, v.dx, assimilate=0, diagnosis=diagnosis)
 
 
 @pytest.mark.slow
@@ -150,10 +165,10 @@ def test_two_effects_each_get_their_own_gain(video) -> None:
     assert len(result.effect_gains) == 2 and all(0 < g < result.gain for g in result.effect_gains)
 
 
-def test_bad_scale_is_one_line_error(video) -> None:
-    v = video(["linear_loss"], 1)
+def test_bad_scale_is_one_line_error(fit_diagnosis) -> None:
+    v, diagnosis = fit_diagnosis("linear_loss", 1)
     with pytest.raises(ValueError, match="scale_px must be a Gaussian sigma >= 0 in px, got -1"):
-        assess_gain(v.frames, v.dt, v.dx, scale_px=-1.0)
+        assess_gain(v.frames, v.dt, v.dx, scale_px=-1.0, diagnosis=diagnosis)
 
 
 @pytest.mark.slow

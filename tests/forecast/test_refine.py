@@ -36,6 +36,7 @@ def test_refinement_recovers_a_perturbed_parameter(name: str, key: str) -> None:
     assert result.evaluations >= result.iterations >= 1 and result.seconds > 0
 
 
+@pytest.mark.slow
 def test_plain_model_refines_a() -> None:
     v = small([])
     diagnosis = diagnose_terms(v.frames, v.dt, v.dx)

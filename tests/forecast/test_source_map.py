@@ -72,6 +72,7 @@ def test_recovers_diffusivity_loss_and_the_beam_map() -> None:
     assert torch.allclose(model.equilibrium * model.b, model.forcing)
 
 
+@pytest.mark.slow
 def test_map_forecast_beats_plain_and_gaussian_source_on_a_ring_beam() -> None:
     """Fit on 25 frames, forecast 15: the map model is near the noise floor, a Gaussian spot is not."""
     frames, dt, dx, _ = _beam_video(noise=0.05)
@@ -133,6 +134,7 @@ def _decaying_beam(n: int = 16, dt: float = 1.0, dx: float = 0.5, a: float = 0.1
     return torch.stack(frames)
 
 
+@pytest.mark.slow
 def test_a_decaying_map_assimilated_over_every_fit_frame_does_not_step_over_its_switch_on() -> None:
     """A dense recording assimilates all its fit frames; frame 0's interval holds the switch-on, where the
     input ``(t - t_on)^-p`` is unbounded (stepped there, the forecast erred 1e3 times the plain one)."""

@@ -44,6 +44,7 @@ def test_the_copy_is_the_recording_within_the_budget_and_a_block_average_above(
     assert diagnosis_copy(video, full_resolution=True) == (video, None)
 
 
+@pytest.mark.slow
 def test_the_longest_analysed_phase_is_described_and_every_phase_recorded() -> None:
     frames = torch.as_tensor(heated_then_cooled(off=7, n=30))  # 8 heating frames, 22 cooling
     done = diagnose_video(Video(frames, DT, DX))

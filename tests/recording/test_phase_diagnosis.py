@@ -40,6 +40,7 @@ def test_diagnose_recording_analyses_each_phase_on_its_own() -> None:
     assert record["kind"] == "heating" and record["gain"] > 0.2 and "candidates" in record
 
 
+@pytest.mark.slow
 def test_a_short_heating_keeps_seven_fit_frames_or_says_why_its_candidates_were_not_compared() -> None:
     """8 heating frames leave 6 to fit (a short phase keeps 2 held out, and up to 7 to fit): too few to
     compare the source candidates inside them. Both are forecast; the parametric source is kept, and the
@@ -56,6 +57,7 @@ def test_a_short_heating_keeps_seven_fit_frames_or_says_why_its_candidates_were_
     assert all(c["validation_rmse"] is not None for c in longer.to_record()["candidates"].values())
 
 
+@pytest.mark.slow
 def test_a_parametric_source_that_cannot_be_simulated_loses_to_the_maps(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -88,6 +90,7 @@ def test_a_parametric_source_that_cannot_be_simulated_loses_to_the_maps(
     assert any(w.startswith("the parametric extension was not forecast: ") for w in heating.warnings)
 
 
+@pytest.mark.slow
 def test_the_candidates_are_compared_over_several_inner_splits(monkeypatch: pytest.MonkeyPatch) -> None:
     """A fit part of 20 frames is validated at three inner splits (12, 14 and 16 frames diagnosed), one of
     7 frames at the only one it has (5 diagnosed); the validation is each candidate's RMSE over the plain

@@ -15,6 +15,7 @@ def depth_burn(tmp_path_factory: pytest.TempPathFactory) -> dict:
     return beam_recording(tmp_path_factory.mktemp("depth"))
 
 
+@pytest.mark.slow
 def test_depth_report_draws_the_map_and_profiles(
     depth_burn: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

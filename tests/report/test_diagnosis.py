@@ -15,6 +15,7 @@ from anra_torch.video import Video
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_the_report_states_the_diagnosis_and_the_forecasts(tmp_path: Path) -> None:
     truth = hidden_effect_video(["source"], seed=1, size=40, duration=1.0)  # 31 frames: a moving source
     video = Video(truth.frames, truth.dt, truth.dx)

@@ -43,6 +43,7 @@ def _maps(found: tuple[FoundDefect, ...]) -> FlashMaps:
     )
 
 
+@pytest.mark.slow
 def test_the_report_draws_the_maps_and_lists_the_defects(tmp_path: Path) -> None:
     found = (FoundDefect(x=2.0, y=1.5, area=1.8, depth_fraction=0.4, touches_edge=True),)
     path = write_flash_report(tmp_path / "r", _maps(found), 0.3)

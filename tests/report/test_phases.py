@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 from scenes import DT, DX, heated_then_cooled, short_heating_phases
 
@@ -16,6 +17,7 @@ from anra_torch.video import Video
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_the_table_holds_each_phases_analysis_and_the_figures_exist(tmp_path: Path) -> None:
     phases = short_heating_phases(9)  # 10 heating frames, then cooling (shared with the analysis's tests)
     video = Video(torch.as_tensor(heated_then_cooled(off=9, n=30)), DT, DX, source=tmp_path / "spot.npz")

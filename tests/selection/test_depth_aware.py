@@ -32,6 +32,7 @@ def test_exact_on_a_separable_depth_problem() -> None:
     assert plain > 1.5 * A
 
 
+@pytest.mark.slow
 def test_a_beam_heated_slab_once_the_heat_has_spread_in_depth() -> None:
     """Right after the switch-off the heat sits under the beam and the depth problem does not separate:
     the fit is then biased too (measured +59 %), but less than the plain estimate (+147 %). From 60 s on

@@ -367,6 +367,7 @@ def pure():
     return camera_scene()
 
 
+@pytest.mark.slow
 def test_a_known_noise_model_is_used_as_given(pure) -> None:
     """``noise_sd`` takes a whole noise model (the planted one: what ``experiments/noise_information.py``
     measures the balance's limits with); a model known exactly carries no variance error."""

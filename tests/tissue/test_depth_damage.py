@@ -38,6 +38,7 @@ def test_threshold_depth_interpolates_log_dose() -> None:
     assert torch.all(depth[1] == 0.0)
 
 
+@pytest.mark.slow
 def test_shapes_units_and_batches(burn: tuple[torch.Tensor, float, float]) -> None:
     frames, dt, dx = burn
     batch = torch.stack([frames, frames])

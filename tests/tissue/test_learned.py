@@ -37,6 +37,7 @@ def planted_scene(seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tens
     return video, a_true, b_true, dx, dt
 
 
+@pytest.mark.slow
 def test_short_training_lowers_the_loss() -> None:
     video, a_true, _, dx, dt = planted_scene()
     model = LearnedTissueModel.from_video(video, dt, dx)

@@ -67,6 +67,7 @@ def test_single_phase_recordings_stay_whole() -> None:
     assert [p.name for p in recording_phases(flat)] == ["steady"]
 
 
+@pytest.mark.slow
 def test_a_heating_and_cooling_30_s_apart_are_two_phases() -> None:
     """Frames 30 s apart of a beam on a thick body (independent explicit 3-D conduction): the frame mean's
     steps are all signal, so its noise is bounded by one pixel's (before, the steps' 'noise' hid the heating

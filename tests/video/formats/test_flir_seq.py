@@ -122,6 +122,7 @@ def test_counts_stored_byte_swapped_are_recognised_and_flagged(tmp_path: Path) -
     np.testing.assert_array_equal(FLIRFrames(index).counts(slice(None)), counts)
 
 
+@pytest.mark.slow
 def test_csq_jpeg_ls_decodes_100_frames(tmp_path: Path) -> None:
     """100 JPEG-LS frames of 640 x 512 decode to finite temperatures, each frame's own counts exactly (the
     decode time is measured by ``python -m benchmarks.bench_sequence``, not here)."""
