@@ -62,7 +62,7 @@ from anra_torch.simulation.plate_reference import (
     default_flash,
     reference_plate_video,
 )
-from anra_torch.simulation.synthetic import Blobs, SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation.synthetic import Blobs, PaperSpot, SyntheticVideo, blobs_video, paper_video
 from anra_torch.simulation.tissue import MovingSource, TissueRHS, simulate_tissue
 
 __all__ = [
@@ -86,6 +86,7 @@ __all__ = [
     "DepthGrid",
     "HeatRHS",
     "MovingSource",
+    "PaperSpot",
     "ReferencePlate",
     "Solver",
     "StabilityRegion",
