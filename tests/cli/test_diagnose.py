@@ -65,7 +65,8 @@ def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[st
     assert set(record["extended"]) == {"equation", "params", "prediction_rmse"}
     assert sorted(e["name"] for e in record["effects"]) == ["advection", "linear_loss"]
     for effect in record["effects"]:
-        assert set(effect) == {"name", "params", "gain"}
+        assert set(effect) == {"name", "params", "share", "forecast_cost", "gain"}
+        assert effect["share"] >= 0.01 and effect["forecast_cost"] > 0.1  # material, earned by its forecast
         # each alone already helps: measured 0.56 (loss) and 0.045 (advection; 0.07 from the split frame
         # alone: assimilated without the loss, the advection-only state is off by the missing loss)
         assert effect["gain"] > 0.03
