@@ -40,7 +40,13 @@ from anra_torch.simulation.bioheat_reference import (
 from anra_torch.simulation.bioheat_scenes import random_scene
 from anra_torch.simulation.camera import ARTEFACTS, plant
 from anra_torch.simulation.heat import BOUNDARIES, HeatRHS, simulate_heat
-from anra_torch.simulation.independent import METHODS, Continuum, gaussian_cells, simulate_continuum
+from anra_torch.simulation.independent import (
+    METHODS,
+    Continuum,
+    ContinuumGrid,
+    gaussian_cells,
+    simulate_continuum,
+)
 from anra_torch.simulation.integrator import (
     ADAPTIVE_METHODS,
     FIXED_STEP_METHODS,
@@ -80,6 +86,7 @@ __all__ = [
     "BioheatScene",
     "Contact",
     "Continuum",
+    "ContinuumGrid",
     "Defect",
     "GreenResult",
     "GreenScene",
