@@ -89,7 +89,7 @@ FUNCTIONS_OVER_THE_CAP = {
     "anra_torch.selection.diagnose._result": 68,
     "anra_torch.selection.diagnose.diagnose_terms": 63,
     "anra_torch.selection.diagnose.fit_effects": 61,
-    "anra_torch.simulation.independent.simulate_continuum": 77,
+    "anra_torch.simulation.independent.simulate_continuum": 73,
     "anra_torch.simulation.integrator.integrate": 78,
     "anra_torch.simulation.plate.flash_plate_video": 78,
     "anra_torch.simulation.synthetic.paper_video": 77,
@@ -98,8 +98,7 @@ FUNCTIONS_OVER_THE_CAP = {
 }
 PUBLIC_FUNCTIONS_OVER_THE_CAP = {
     "anra_torch.batch.run.run_batch": 15,
-    "anra_torch.effects.independent.independent_effect_video": 15,
-    "anra_torch.effects.independent.simulate_independent": 11,
+    "anra_torch.effects.independent.independent_effect_video": 13,
     "anra_torch.effects.model.simulate_effects": 11,
     "anra_torch.effects.scene.hidden_effect_video": 12,
     "anra_torch.estimation.estimator.ANRAEstimator.candidate_sums": 11,
