@@ -41,6 +41,7 @@ from experiments.benchmark_cases import (
     GROUPS,
     PURE,
     classify_error,
+    diagnose,
     diagnosis_record,
     gain_available,
     jsonable,
@@ -55,7 +56,11 @@ KINDS = ("none", "bad_elements", "fixed_pattern", "correlated_noise", "offset_st
 SIZE, DX, FRAMES, A = 128, 0.05, 81, 0.15
 
 EXACT_TARGET = 0.90
-PURE_CLEAN_TARGET = 0.95
+CLEAN_EXACT_TARGET = 0.95  # without artefacts
+PURE_CLEAN_TARGET = 0.98
+INFORMATION_LIMITED = ("correlated_noise",)
+"""Kinds reported against the information limit ``experiments/noise_information.py`` measured (with the
+noise known exactly the true set is out of reach in most videos), not held to the targets."""
 A_TARGET = 0.02
 
 
@@ -75,12 +80,10 @@ def draw_case(group_index: int, index: int) -> dict:
 
 def _diagnose(frames: object, video: object, group: str) -> dict:
     """``diagnose_terms`` on ``frames``: what it named against the truth, or the error and its class."""
-    from anra_torch.selection import diagnose_terms
-
     truth = set() if group == PURE else {group}
     t0 = time.perf_counter()
     try:
-        diag = diagnose_terms(frames, video.dt, video.dx)
+        stepwise, diag = diagnose(frames, video.dt, video.dx)
     except Exception as err:  # noqa: BLE001 - an error is a result, classified
         cls = classify_error(err)
         rec = {"outcome": "internal_error" if cls == "internal" else "refused", "found": None}
@@ -89,7 +92,7 @@ def _diagnose(frames: object, video: object, group: str) -> dict:
             rec["traceback"] = traceback.format_exc()
         rec["seconds"] = time.perf_counter() - t0
         return rec
-    rec = {"seconds": time.perf_counter() - t0, **diagnosis_record(diag)}
+    rec = {"seconds": time.perf_counter() - t0, **diagnosis_record(diag), "stepwise": stepwise.names}
     found = rec["found"]
     rec["exact"] = set(found) == truth
     rec["top"] = found[0] if found else None
@@ -278,19 +281,22 @@ def acceptance(summary: dict) -> tuple[str, bool]:
         return x is not None and x >= target
 
     for kind, s in summary.items():
+        if kind in INFORMATION_LIMITED:
+            exact, clean = _pct(s["exact_set"]), _pct(s["pure_no_effect"])
+            lines.append(
+                f"- REPORTED: {kind}: named set == true set {exact}, pure videos name no effect {clean} "
+                "(against the information limit of experiments/noise_information.py)"
+            )
+            continue
+        target = CLEAN_EXACT_TARGET if kind == "none" else EXACT_TARGET
         check(
-            f"{kind}: named set == true set >= 90 %",
-            at_least(s["exact_set"], EXACT_TARGET),
+            f"{kind}: named set == true set >= {100 * target:.0f} %",
+            at_least(s["exact_set"], target),
             _pct(s["exact_set"]),
         )
-        if kind == "none":
-            fp = s["pure_false_positive"]
-            check("none: pure false positives 0 %", fp == 0.0, _pct(fp))
-        else:
-            clean = s["pure_no_effect"]
-            check(
-                f"{kind}: pure videos name no effect >= 95 %", at_least(clean, PURE_CLEAN_TARGET), _pct(clean)
-            )
+        clean = s["pure_no_effect"]
+        check(f"{kind}: pure videos name no effect >= 98 %", at_least(clean, PURE_CLEAN_TARGET), _pct(clean))
+        if kind != "none":
             worst = s["a_error_max"]
             check(f"{kind}: pure diffusivity within 2 % of the clean estimate", worst is not None
                   and worst <= A_TARGET, f"max {_pct1(worst)}")  # fmt: skip
@@ -308,11 +314,12 @@ def run_artefact_benchmark(args: object) -> None:
     gain = args.artefact_gain and gain_available(args.no_gain)
     kinds = ["none", *(k for k in KINDS if k in args.kinds and k != "none")]
     options = {"sindy_threshold": args.sindy_threshold, "gain": gain, "kinds": kinds}
+    first = args.first_case
     jobs = [
-        (group, i, gi, {"sindy": i < sindy_n, **options})
+        (group, i, gi, {"sindy": i - first < sindy_n, **options})
         for gi, group in enumerate(GROUPS)
         if group in args.effects
-        for i in range(cases)
+        for i in range(first, first + cases)
     ]
     records, wall = run_jobs(run_case, jobs, args.workers, out)
     records.sort(key=lambda r: (GROUPS.index(r["group"]), r["index"], KINDS.index(r["kind"])))

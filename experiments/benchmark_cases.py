@@ -258,14 +258,27 @@ def classify_error(err: BaseException) -> str:
     return "internal" if any(p.search(text) for p in _INTERNAL_VALUE_ERRORS) else "input"
 
 
+def diagnose(frames: object, dt: float, dx: float) -> tuple[object, object]:
+    """What the library names in a video: :func:`anra_torch.selection.diagnose_terms` (the stepwise
+    selection) and the model whose effects earn their place by their own forecast inside the frames
+    (:func:`anra_torch.forecast.earned_diagnosis`, what ``anra diagnose`` reports)."""
+    from anra_torch.forecast import earned_diagnosis
+    from anra_torch.selection import diagnose_terms
+
+    stepwise = diagnose_terms(frames, dt, dx)
+    return stepwise, earned_diagnosis(frames, dt, dx, stepwise)
+
+
 def measure_gain(frames: object, dt: float, dx: float) -> dict:
     """The forecast gain of :func:`anra_torch.forecast.assess_gain` as record fields (``gain_error``
-    instead when it fails)."""
+    instead when it fails): the earned model of the fit part (:func:`diagnose` of its frames) against
+    the plain one on the held-out frames."""
     try:
-        from anra_torch.forecast import assess_gain
+        from anra_torch.forecast import assess_gain, earned_diagnosis, split_index
 
         t0 = time.perf_counter()
-        g = assess_gain(frames, dt, dx)
+        fit = frames[: split_index(frames.shape[0], 0.6) + 1]
+        g = assess_gain(frames, dt, dx, diagnosis=earned_diagnosis(fit, dt, dx))
         return {
             "gain_seconds": time.perf_counter() - t0,
             "gain": float(g.gain),

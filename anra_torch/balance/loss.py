@@ -75,6 +75,26 @@ def _sums(moments: Moments) -> tuple[Tensor, ...]:
     return c[:, 1, 1], c[:, 1, 2], c[:, 2, 2], c[:, 0, 1], c[:, 0, 2]
 
 
+def _per_pixel(terms: dict[str, Tensor], weights: Tensor, covariance: Tensor) -> Moments:
+    """Each pixel's weighted sums of ``terms`` (``U``, ``L``, ``R``, each ``(B, K, H, W)``) over its frames,
+    noise-corrected, as ``(B, 3, 3, H, W)`` moments; in blocks of rows whose products stay in the cache."""
+    rate = terms["U"]
+    rows = max(1, _BLOCK_VALUES // max(rate.shape[0] * rate.shape[1] * rate.shape[-1], 1))
+    blocks = [
+        accumulate(
+            {name: term[..., r : r + rows, :] for name, term in terms.items()},
+            ("U", "L", "R"),
+            dims=(1,),
+            weights=weights[..., r : r + rows, :],
+            noise=TermNoise(covariance),
+        )
+        for r in range(0, rate.shape[-2], rows)
+    ]
+    return Moments(
+        blocks[0].names, torch.cat([m.raw for m in blocks], 1), torch.cat([m.noise for m in blocks], 1)
+    ).map(lambda x: x.movedim((-2, -1), (1, 2)))
+
+
 def fit_loss_windows(
     filters: MatchedFilters,
     terms: dict[str, Tensor],
@@ -110,25 +130,7 @@ def fit_loss_windows(
     # The noise of U and L (rise's is left uncorrected: it enters b only through its own energy).
     covariance = torch.zeros(len(noise_sd), 3, 3, dtype=_F64, device=noise_sd.device)
     covariance[:, :2, :2] = filters.noise_covariance(("U", "L"), noise_sd**2, dt, dx)
-    # Each pixel's sums over its frames, in blocks of rows whose products stay in the cache.
-    rows = max(1, _BLOCK_VALUES // max(rate.shape[0] * rate.shape[1] * rate.shape[-1], 1))
-    blocks = [
-        accumulate(
-            {
-                "U": rate[..., r : r + rows, :],
-                "L": lap[..., r : r + rows, :],
-                "R": rise[..., r : r + rows, :],
-            },
-            ("U", "L", "R"),
-            dims=(1,),
-            weights=cooling[..., r : r + rows, :],
-            noise=TermNoise(covariance),
-        )
-        for r in range(0, rate.shape[-2], rows)
-    ]
-    per_pixel = Moments(
-        blocks[0].names, torch.cat([m.raw for m in blocks], 1), torch.cat([m.noise for m in blocks], 1)
-    ).map(lambda x: x.movedim((-2, -1), (1, 2)))  # (B, 3, 3, H, W)
+    per_pixel = _per_pixel({"U": rate, "L": lap, "R": rise}, cooling, covariance)
     # Whole video first (the fallback), then each window.
     a_video, b_video, ok_video = _solve(*_sums(per_pixel.map(lambda x: x.sum((-2, -1), keepdim=True))))
     a_video = torch.where(ok_video, a_video, fallback.flatten(1).median(1).values.view(-1, 1, 1))

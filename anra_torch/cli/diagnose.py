@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -49,20 +50,26 @@ MAP_VALUES = 2**25
 diagnosis' block-averaged copy."""
 
 
+_DESCRIPTION = (
+    "Diagnose which effects beyond heat diffusion (linear_loss, source, advection, "
+    "anisotropy, heterogeneity, nonlinear_diffusion) act in the first part of a video, then forecast "
+    "the rest with the plain heat equation and with the extended model (RK4, bounded by the measured "
+    "frame edges), each "
+    "from its own state assimilated from the fit frames, and compare their RMSE on the interior at "
+    "the evaluation scale (forecasts and held-out frames smoothed alike by the diagnosis' Gaussian "
+    "and a 9-frame moving average in time). gain = 1 - RMSE_extended / "
+    "RMSE_plain; the noise floor is a perfect model's RMSE at that scale; 'raw' holds the same against "
+    "unsmoothed frames. Exit status 2 on bad input."
+)
+"""``anra diagnose --help``'s description."""
+
+
 def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``diagnose`` to the ``anra`` subcommands (``commands``: what ``add_subparsers`` returned)."""
     parser = commands.add_parser(
         "diagnose",
         help="find hidden effects and test whether they forecast held-out frames better",
-        description="Diagnose which effects beyond heat diffusion (linear_loss, source, advection, "
-        "anisotropy, heterogeneity, nonlinear_diffusion) act in the first part of a video, then forecast "
-        "the rest with the plain heat equation and with the extended model (RK4, bounded by the measured "
-        "frame edges), each "
-        "from its own state assimilated from the fit frames, and compare their RMSE on the interior at "
-        "the evaluation scale (forecasts and held-out frames smoothed alike by the diagnosis' Gaussian "
-        "and a 9-frame moving average in time). gain = 1 - RMSE_extended / "
-        "RMSE_plain; the noise floor is a perfect model's RMSE at that scale; 'raw' holds the same against "
-        "unsmoothed frames. Exit status 2 on bad input.",
+        description=_DESCRIPTION,
     )
     add_video_arguments(parser, format_list())
     add_device_argument(parser)
@@ -127,6 +134,20 @@ def _print_decimated(d: dict[str, Any]) -> None:
     )
 
 
+def _write_reports(folder: Any, recording: Video, done: Any, maps: Any) -> list[Path]:
+    """The phase report, the longest phase's diagnosis report (when the balance analysed it) and the
+    defect map's report (with ``--maps``), written to ``folder``."""
+    written = [write_phase_report(folder, recording, done.phases)]
+    if done.result is not None:
+        result = done.result
+        written.append(
+            write_diagnosis_report(folder, done.video, result.diagnosis, result, source_map=done.source_map)
+        )
+    if maps is not None:
+        written.append(write_flash_report(folder, maps, recording.dx))
+    return written
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``anra diagnose`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     try:
@@ -181,15 +202,7 @@ def run(args: argparse.Namespace) -> int:
         for line in shown["warnings"]:
             print(f"  warning: {line}")
     if args.report is not None:
-        written = [write_phase_report(args.report, recording, done.phases)]
-        if result is not None:  # the longest phase in detail, when the balance analysed it
-            written.append(
-                write_diagnosis_report(
-                    args.report, video, result.diagnosis, result, source_map=done.source_map
-                )
-            )
-        if maps is not None:
-            written.append(write_flash_report(args.report, maps, recording.dx))
+        written = _write_reports(args.report, recording, done, maps)
         if not args.json:
             print(f"  report: {', '.join(str(p) for p in written)}")
     return 0

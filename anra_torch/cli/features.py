@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 import torch
 
@@ -19,6 +20,7 @@ from anra_torch.cli.arguments import (
 from anra_torch.recording import input_record, phase_diffusivities
 from anra_torch.report import write_depth_report
 from anra_torch.tissue import RULES, feature_summary, save_feature_maps
+from anra_torch.video import Video
 
 __all__ = ["MAX_THICKNESS", "add_parser", "run"]
 
@@ -82,6 +84,32 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=run)
 
 
+def _print_summary(video: Video, record: dict[str, Any], depth: bool, depth_absent: str) -> None:
+    """The text ``anra features`` prints without ``--json``: the record's headline values, with units."""
+    print(f"{video.source}: {record['frames']} frames of {record['height']} x {record['width']} px")
+    print_input(video)
+    for key in (
+        "peak_temperature_max",
+        "cem43_minutes_max",
+        "omega_max",
+        "damaged_fraction",
+        "diffusivity_global",
+        *(("damage_depth_mm_max",) if depth else ()),
+    ):
+        value = record.get(key)
+        shown = "n/a" if value is None else f"{value:.4g} {record['units'][key]}"
+        if value is None and key == "damage_depth_mm_max" and depth_absent:
+            shown += f" ({depth_absent})"
+        of_phase = key == "diffusivity_global" and record["diffusivity_phase"]
+        print(f"  {key}: {shown}" + (f" (the {record['diffusivity_phase']} phase's)" if of_phase else ""))
+    if record["message"]:
+        print(f"  note: {record['message']}")
+    if record["out"]:
+        print(f"  maps: {record['out']}")
+    if record.get("report"):
+        print(f"  report: {record['report']}")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``anra features`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     if args.report is not None and not args.depth:
@@ -126,26 +154,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json_line(record))
         return 0
-    print(f"{video.source}: {record['frames']} frames of {record['height']} x {record['width']} px")
-    print_input(video)
-    for key in (
-        "peak_temperature_max",
-        "cem43_minutes_max",
-        "omega_max",
-        "damaged_fraction",
-        "diffusivity_global",
-        *(("damage_depth_mm_max",) if args.depth else ()),
-    ):
-        value = record.get(key)
-        shown = "n/a" if value is None else f"{value:.4g} {record['units'][key]}"
-        if value is None and key == "damage_depth_mm_max" and depth_absent:
-            shown += f" ({depth_absent})"
-        of_phase = key == "diffusivity_global" and record["diffusivity_phase"]
-        print(f"  {key}: {shown}" + (f" (the {record['diffusivity_phase']} phase's)" if of_phase else ""))
-    if record["message"]:
-        print(f"  note: {record['message']}")
-    if record["out"]:
-        print(f"  maps: {record['out']}")
-    if record.get("report"):
-        print(f"  report: {record['report']}")
+    _print_summary(video, record, args.depth, depth_absent)
     return 0

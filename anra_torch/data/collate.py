@@ -205,6 +205,33 @@ class VideoBatch:
 
 
 # -------------------------------------------------------------------------------------------- collate
+def _check(videos: Sequence[Video], mode: str, dtype: torch.dtype | None) -> None:
+    """:func:`collate`'s checks of its arguments (its ``Raises``, but for what the videos hold)."""
+    if mode not in COLLATE_MODES:
+        raise ValueError(f"mode must be one of {', '.join(COLLATE_MODES)}, got {mode!r}")
+    if isinstance(videos, Video) or not isinstance(videos, Sequence) or not videos:
+        raise TypeError(f"videos must be a non-empty sequence of Video, got {type(videos).__name__}")
+    wrong = next((v for v in videos if not isinstance(v, Video | SkippedVideo)), None)
+    if wrong is not None:
+        raise TypeError(
+            f"videos must be a non-empty sequence of Video, got an item of {type(wrong).__name__}"
+        )
+    if dtype is not None and not dtype.is_floating_point:
+        raise TypeError(f"dtype must be a floating dtype, got {dtype}")
+
+
+def _aligned(
+    videos: list[Video], shapes: list[tuple[int, ...]], mode: str
+) -> tuple[list[Video], tuple[int, ...], list[tuple[int, int]]]:
+    """The videos cropped to their common centre (``"crop"``) or as they are, the batch's ``(T, H, W)``,
+    and each video's ``(x, y)`` offset (px) in its own frame."""
+    if mode == "crop":
+        target = tuple(min(s[k] for s in shapes) for k in range(3))
+        offsets = [((s[2] - target[2]) // 2, (s[1] - target[1]) // 2) for s in shapes]
+        return [_crop(v, target, o) for v, o in zip(videos, offsets, strict=True)], target, offsets
+    return videos, tuple(max(s[k] for s in shapes) for k in range(3)), [(0, 0)] * len(videos)
+
+
 def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | None = None) -> VideoBatch:
     """Stack videos into a :class:`VideoBatch`; videos of different shapes are padded or cropped (``mode``).
 
@@ -230,17 +257,7 @@ def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | 
         ValueError: an unknown ``mode``; different shapes with ``"same"``; some videos with a pixel size and
             some without; a label of different shapes that is not a per-pixel map.
     """
-    if mode not in COLLATE_MODES:
-        raise ValueError(f"mode must be one of {', '.join(COLLATE_MODES)}, got {mode!r}")
-    if isinstance(videos, Video) or not isinstance(videos, Sequence) or not videos:
-        raise TypeError(f"videos must be a non-empty sequence of Video, got {type(videos).__name__}")
-    wrong = next((v for v in videos if not isinstance(v, Video | SkippedVideo)), None)
-    if wrong is not None:
-        raise TypeError(
-            f"videos must be a non-empty sequence of Video, got an item of {type(wrong).__name__}"
-        )
-    if dtype is not None and not dtype.is_floating_point:
-        raise TypeError(f"dtype must be a floating dtype, got {dtype}")
+    _check(videos, mode, dtype)
     skipped = tuple(v for v in videos if isinstance(v, SkippedVideo))
     videos = [v for v in videos if isinstance(v, Video)]
     if not videos:
@@ -255,13 +272,7 @@ def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | 
     dtype = dtype or _common_dtype(videos)
     device = videos[0].frames.device  # every tensor of the batch is made there
     mode = "same" if len(set(shapes)) == 1 else mode
-    if mode == "crop":
-        target = tuple(min(s[k] for s in shapes) for k in range(3))
-        offsets = [((s[2] - target[2]) // 2, (s[1] - target[1]) // 2) for s in shapes]
-        videos = [_crop(v, target, o) for v, o in zip(videos, offsets, strict=True)]
-    else:
-        target = tuple(max(s[k] for s in shapes) for k in range(3))
-        offsets = [(0, 0)] * len(videos)
+    videos, target, offsets = _aligned(videos, shapes, mode)
     frames = torch.stack([_padded(v.frames.to(device, dtype), target) for v in videos])
     times = torch.stack([_padded(_times(v, device), target[:1]) for v in videos])
     sizes = torch.tensor([tuple(v.frames.shape) for v in videos], dtype=torch.int64, device=device)

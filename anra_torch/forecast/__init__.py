@@ -14,29 +14,37 @@ Source map and refinement call :mod:`~anra_torch.forecast.core`, not each other
 from anra_torch.forecast.core import (
     AT_FLOOR,
     DIAGNOSED_FRAMES,
+    INNER_SPLITS,
     TIME_WINDOW,
     assimilated_state,
     extended_effects,
     simulate_model,
     split_index,
 )
+from anra_torch.forecast.earn import EARN_MARGIN, EARN_SPLITS, WEAK_SIGNAL, earned_diagnosis, signal_to_noise
 from anra_torch.forecast.gain import GainResult, assess_gain
 from anra_torch.forecast.refine import Refinement, refine_model
 from anra_torch.forecast.source_map import SourceMapGain, SourceMapModel, fit_source_map, source_map_gain
 
 __all__ = [
     "AT_FLOOR",
+    "EARN_MARGIN",
+    "EARN_SPLITS",
     "DIAGNOSED_FRAMES",
     "GainResult",
+    "INNER_SPLITS",
     "Refinement",
     "SourceMapGain",
     "SourceMapModel",
     "TIME_WINDOW",
+    "WEAK_SIGNAL",
     "assess_gain",
+    "earned_diagnosis",
     "assimilated_state",
     "extended_effects",
     "fit_source_map",
     "refine_model",
+    "signal_to_noise",
     "simulate_model",
     "source_map_gain",
     "split_index",

@@ -184,7 +184,13 @@ class RecordingDiagnosis:
         record: dict[str, Any] = {
             "base": {"diffusivity": diagnosis.a_plain, "prediction_rmse": result.base_rmse},
             "effects": [
-                {"name": effect["name"], "params": dict(effect["params"]), "gain": gain}
+                {
+                    "name": effect["name"],
+                    "params": dict(effect["params"]),
+                    "share": effect.get("share"),
+                    "forecast_cost": effect.get("forecast_cost"),
+                    "gain": gain,
+                }
                 for effect, gain in zip(diagnosis.effects, result.effect_gains, strict=True)
             ],
             "extended": {

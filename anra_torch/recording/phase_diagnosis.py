@@ -34,9 +34,13 @@ from anra_torch.effects import EFFECTS
 from anra_torch.estimation import fit_small_box, forecast_small_box, unresolved_bound
 from anra_torch.forecast import (
     DIAGNOSED_FRAMES,
+    INNER_SPLITS,
     TIME_WINDOW,
+    WEAK_SIGNAL,
     GainResult,
     assess_gain,
+    earned_diagnosis,
+    signal_to_noise,
     source_map_gain,
     split_index,
 )
@@ -83,7 +87,10 @@ class PhaseDiagnosis:
         forecasts: the held-out frames as ``"measured"``, ``"plain"`` and ``"extended"`` (the chosen
             model) forecasts, at the scale their RMSE was taken on (for figures); None when not analysed.
         warnings: signs of a missing term: an effect whose own held-out gain is not positive, or placed
-            outside the field of view (:func:`_implausible`).
+            outside the field of view (:func:`_implausible`); a weak signal.
+        signal_to_noise: how much the fit frames change, in noise sds
+            (:func:`~anra_torch.forecast.signal_to_noise`; the balance family only): under
+            :data:`~anra_torch.forecast.WEAK_SIGNAL` the signal is weak, and a warning says so.
 
     Shape:
         each of ``forecasts`` ``(K, H, W)``.
@@ -106,6 +113,7 @@ class PhaseDiagnosis:
     result: GainResult | None = None
     forecasts: dict[str, Tensor] | None = None
     warnings: list[str] = field(default_factory=list)
+    signal_to_noise: float | None = None
 
     def to_record(self) -> dict[str, Any]:
         """The phase as a JSON-ready dict (the ``"phases"`` element of ``anra diagnose --json``)."""
@@ -133,6 +141,8 @@ class PhaseDiagnosis:
             record["base"]["std_error"] = self.diffusivity_std_error
         if self.diffusivity_bound is not None:
             record["base"]["diffusivity_lower_bound"] = self.diffusivity_bound
+        if self.signal_to_noise is not None:
+            record["signal_to_noise"] = self.signal_to_noise
         if self.reason is not None:
             record["reason"] = self.reason
         return record
@@ -251,6 +261,12 @@ def _balance_phase(
     if result.diagnosis.a_plain < 0:
         diagnosis.flags.append("negative")
     diagnosis.warnings = _implausible(effects, part.shape[1] * dx, part.shape[2] * dx)
+    diagnosis.signal_to_noise = signal_to_noise(clean[: result.split + 1], result.diagnosis)
+    if diagnosis.signal_to_noise < WEAK_SIGNAL:
+        diagnosis.warnings.append(
+            f"weak signal: the fit frames change by {diagnosis.signal_to_noise:.2g} noise sds (under "
+            f"{WEAK_SIGNAL:g}); only effects whose own forecast beats the noise are named, the fewest that do"
+        )
     diagnosis.warnings.extend(_extended_conduction(result, effects))
     if unsimulated:
         diagnosis.warnings.append(f"the parametric extension was not forecast: {unsimulated}")
@@ -293,13 +309,20 @@ def _balance_phase(
 
 
 def _assessed(
-    part: Tensor, dt: float, dx: float, fit_fraction: float, options: dict[str, Any]
+    part: Tensor, dt: float, dx: float, fit_fraction: float, options: dict[str, Any], *, earn: bool = True
 ) -> tuple[GainResult, list[dict[str, Any]], str | None]:
     """:func:`~anra_torch.forecast.assess_gain` of the phase, its named effects ``{"name", "params",
-    "gain"}`` and None; or, when the diagnosed extension cannot be simulated over the held-out frames (a
-    conductivity that turns negative over the temperatures they reach), the plain model's assessment, the
-    effects named without a held-out gain (None), and why: the source maps still compete."""
-    found = diagnose_terms(part[: split_index(part.shape[0], fit_fraction) + 1], dt, dx)
+    "share", "forecast_cost", "gain"}`` and None; or, when the diagnosed extension cannot be simulated over
+    the held-out frames (a conductivity that turns negative over the temperatures they reach), the plain
+    model's assessment, the effects named without a held-out gain (None), and why: the source maps still
+    compete. ``earn``: the named effects are those that earn their place by their own forecast inside the
+    fit frames (:func:`~anra_torch.forecast.earned_diagnosis`; not for the inner comparisons of the
+    source candidates, which keep the stepwise model)."""
+    fit = part[: split_index(part.shape[0], fit_fraction) + 1]
+    found = diagnose_terms(fit, dt, dx)
+    if earn:
+        window, assimilate = options.get("time_window"), options.get("assimilate")
+        found = earned_diagnosis(fit, dt, dx, found, time_window=window, assimilate=assimilate)
     unsimulated = None
     try:
         result = assess_gain(part, dt, dx, fit_fraction=fit_fraction, diagnosis=found, **options)
@@ -311,7 +334,13 @@ def _assessed(
         result = assess_gain(part, dt, dx, fit_fraction=fit_fraction, diagnosis=plain, **options)
         gains, unsimulated = [None] * len(found.effects), str(err)
     effects = [
-        {"name": e["name"], "params": {k: float(v) for k, v in e["params"].items()}, "gain": g}
+        {
+            "name": e["name"],
+            "params": {k: float(v) for k, v in e["params"].items()},
+            "share": e.get("share"),
+            "forecast_cost": e.get("forecast_cost"),
+            "gain": g,
+        }
         for e, g in zip(found.effects, gains, strict=True)
     ]
     return result, effects, unsimulated
@@ -367,12 +396,6 @@ _INNER_FRAMES = DIAGNOSED_FRAMES + 2
 """Fit frames the inner comparison of the source candidates needs: 5 to diagnose, 2 to validate."""
 
 
-INNER_SPLITS = (0.0, 0.1, 0.2)
-"""Inner fit fractions of the balance family's comparison, added to the first (the phase's fit fraction, or
-5 frames to diagnose): one split's validation frames are few and a map can win it by chance (a sparse
-cooling chose a map at +0.02 held out where the average over three splits chose one at +0.49)."""
-
-
 def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, options: dict) -> dict[str, float]:
     """Each candidate's validation error inside the fit frames: its RMSE over the plain model's on the same
     split, averaged over the distinct splits of :data:`INNER_SPLITS` that leave 2 frames to validate (as the
@@ -391,7 +414,7 @@ def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, optio
         fractions.setdefault(split_index(n, fraction), fraction)
     ratios: dict[str, list[float]] = {}
     for fraction in fractions.values():
-        inner, _, unsimulated = _assessed(fit, dt, dx, fraction, options)
+        inner, _, unsimulated = _assessed(fit, dt, dx, fraction, options, earn=False)
         rmse = {"parametric": math.inf if unsimulated else inner.extended_rmse}  # unphysical there: it loses
         for name, decay in SOURCE_MAPS.items():
             rmse[name] = source_map_gain(fit, dt, dx, inner, decay=decay, t_on=_T_ON * dt).rmse

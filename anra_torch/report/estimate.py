@@ -192,6 +192,51 @@ def _per_frame_figure(result: ANRAResult, truth: float | None, path: Path, mpl: 
 
 
 # ------------------------------------------------------------------------------------------- report
+def _report_lines(
+    video: Video,
+    record: dict[str, Any],
+    truth: float | None,
+    estimator: ANRAEstimator | None,
+    when: float,
+    field_stats: Any,
+) -> list[str]:
+    """The lines of ``report.md``: the table of :func:`_rows`, then each figure with its caption."""
+    sigma = record["smoothing_px"]
+    return [
+        f"# ANRA diffusivity estimate: {video.name}",
+        "",
+        "Model dT/dt = a (d11 + d22) T, estimated directly from the frames "
+        "(ANRA: El-Kebir et al., arXiv 2203.13148).",
+        "",
+        "| quantity | value |",
+        "|---|---|",
+        *(f"| {name} | {value} |" for name, value in _rows(video, record, truth, estimator)),
+        "",
+        "## Frames",
+        "",
+        "![first, middle and last frame](frames.png)",
+        "",
+        f"First, middle and last frame on one colour scale ({video.unit}); axes in mm.",
+        "",
+        "## Attention",
+        "",
+        "![RTC attention](attention.png)",
+        "",
+        f"RTC attention weights (fastest temperature change gets most weight) at t = {when:.3f} s, after "
+        f"{sigma:g} px smoothing. Grey: border the filters cannot reach. {_attention_usage(estimator)}",
+        "",
+        *_field_section(field_stats, estimator),
+        "## Per-frame estimates",
+        "",
+        "![per-frame diffusivity](per_frame.png)",
+        "",
+        "a[k] per time window against time (s); the line is the global estimate with its ±2 standard-error "
+        "band" + (", dashed: the truth" if truth is not None else "") + ". Single frames scatter far more "
+        "than the band: the noise of consecutive time derivatives largely cancels in the global sums.",
+        "",
+    ]
+
+
 def write_estimate_report(
     out_dir: str | os.PathLike[str],
     video: Video,
@@ -233,40 +278,7 @@ def write_estimate_report(
     _per_frame_figure(result, truth, out / "per_frame.png", mpl)
 
     record = result.to_record(unit=video.unit)
-    sigma = record["smoothing_px"]
-    lines = [
-        f"# ANRA diffusivity estimate: {video.name}",
-        "",
-        "Model dT/dt = a (d11 + d22) T, estimated directly from the frames "
-        "(ANRA: El-Kebir et al., arXiv 2203.13148).",
-        "",
-        "| quantity | value |",
-        "|---|---|",
-        *(f"| {name} | {value} |" for name, value in _rows(video, record, truth, estimator)),
-        "",
-        "## Frames",
-        "",
-        "![first, middle and last frame](frames.png)",
-        "",
-        f"First, middle and last frame on one colour scale ({video.unit}); axes in mm.",
-        "",
-        "## Attention",
-        "",
-        "![RTC attention](attention.png)",
-        "",
-        f"RTC attention weights (fastest temperature change gets most weight) at t = {when:.3f} s, after "
-        f"{sigma:g} px smoothing. Grey: border the filters cannot reach. {_attention_usage(estimator)}",
-        "",
-        *_field_section(field_stats, estimator),
-        "## Per-frame estimates",
-        "",
-        "![per-frame diffusivity](per_frame.png)",
-        "",
-        "a[k] per time window against time (s); the line is the global estimate with its ±2 standard-error "
-        "band" + (", dashed: the truth" if truth is not None else "") + ". Single frames scatter far more "
-        "than the band: the noise of consecutive time derivatives largely cancels in the global sums.",
-        "",
-    ]
+    lines = _report_lines(video, record, truth, estimator, when, field_stats)
     return write_text(out / "report.md", "\n".join(lines))
 
 

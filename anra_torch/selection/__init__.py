@@ -7,14 +7,24 @@ standard errors (:mod:`~anra_torch.selection.statistics`) and selects them stepw
 """
 
 from anra_torch.selection.depth_aware import DepthAwareFit, depth_aware_diffusivity
-from anra_torch.selection.diagnose import ALPHA, SMOOTHING, Diagnosis, diagnose_terms, minimum_frame_size
+from anra_torch.selection.diagnose import (
+    ALPHA,
+    SMOOTHING,
+    Diagnosis,
+    diagnose_terms,
+    fit_effects,
+    minimum_frame_size,
+)
+from anra_torch.selection.stepwise import MIN_SHARE
 
 __all__ = [
     "ALPHA",
+    "MIN_SHARE",
     "SMOOTHING",
     "DepthAwareFit",
     "Diagnosis",
     "depth_aware_diffusivity",
     "diagnose_terms",
+    "fit_effects",
     "minimum_frame_size",
 ]

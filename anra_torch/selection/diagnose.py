@@ -44,6 +44,16 @@ prefers a disc that keeps the noisy ``L`` where its signal is strong (there it i
 zero) over the disc that explains ``U``, which named a slow disc under a hot spot as loss + advection +
 source.
 
+A significant effect is named only if it is material: its term makes at least :data:`MIN_SHARE` of ``dT/dt``
+(the RMS of its coefficients times its regressors over the RMS of ``U``, noise parts removed: what it does to
+the frames, whatever its parameters), and it reaches its physical size where it states one
+(``EffectSpec.min_size``). At a low noise the balance also sees a camera's departures from the model's
+operators; they make well under 1 % of ``dT/dt``. An effect under the share is not named but stays in the fit
+as a nuisance term: a real small effect left out biases the named ones that share its signal (an intact flash
+plate's loss, 0.94 % of ``dT/dt``: without it the anisotropy's ``a_y`` read 1.83 mm^2/s for a true 1.1). One
+below its physical size leaves the model, as before. Whether an effect earns its place by its own forecast
+is asked one layer up (:func:`anra_torch.forecast.earned_diagnosis`), on models :func:`fit_effects` fits.
+
 Measured by ``python -m experiments.diagnosis_benchmark`` (README): the top effect, parameter errors and
 false positives over 20 random cases per effect and 20 pure videos.
 
@@ -57,6 +67,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -68,7 +79,7 @@ from anra_torch.layers import GaussianSmoothing, TimeDerivative
 from anra_torch.selection.statistics import wald_score
 from anra_torch.selection.stepwise import Selection
 
-__all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms", "minimum_frame_size"]
+__all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms", "fit_effects", "minimum_frame_size"]
 
 ALPHA = 1e-3
 """Family-wise false-positive rate of the model selection on pure heat-transfer video."""
@@ -91,8 +102,9 @@ class Diagnosis:
             anisotropy the mean ``(a_x + a_y) / 2``, for nonlinear diffusion ``a`` at the mean
             temperature, for heterogeneity ``a_outside``).
         base_std_error: its standard error (mm^2/s).
-        effects: the effects found, ``{"name", "params", "score"}`` ranked by score (``score`` is
-            ``-log10`` of the effect's p-value given the rest of the model); empty for pure heat transfer.
+        effects: the effects found, ``{"name", "params", "score", "share"}`` ranked by score (``score`` is
+            ``-log10`` of the effect's p-value given the rest of the model, ``share`` its share of ``dT/dt``:
+            :meth:`~anra_torch.selection.stepwise.Selection.share`); empty for pure heat transfer.
         a_plain: ``a`` of the plain model ``dT/dt = a Lap T``.
         scores: every effect's score when it was last tested.
         thresholds: the score each effect had to beat when it was last tested.
@@ -110,9 +122,12 @@ class Diagnosis:
         noise: the noise model measured from the video (level, correlation in time and space) that the
             standard errors, the errors-in-variables corrections and the tests come from.
         artefacts: the camera artefacts found and what was done (:mod:`anra_torch.balance.artefacts`).
-        negligible: effects that were significant but below their physical size
-            (:attr:`~anra_torch.effects.EffectSpec.min_size`), not named: ``{"name", "params", "size",
-            "min_size"}`` each.
+        negligible: effects that were significant but not material, not named: ``{"name", "params",
+            "share", "min_share", "rule"}`` each, ``rule`` ``"share"`` (under
+            :data:`~anra_torch.selection.MIN_SHARE` of ``dT/dt``: a nuisance term, still in the fit,
+            :attr:`nuisance`) or ``"size"`` (under its physical size, out of the fit,
+            :attr:`~anra_torch.effects.EffectSpec.min_size`: then also ``"size"``, ``"min_size"``; both are
+            there for every effect that states a size).
     """
 
     base: float
@@ -137,6 +152,12 @@ class Diagnosis:
     def names(self) -> list[str]:
         """Names of the effects found, best first."""
         return [e["name"] for e in self.effects]
+
+    @property
+    def nuisance(self) -> list[str]:
+        """The effects fitted beside the named ones but too small to name (``negligible``, rule
+        ``"share"``): their terms are in the fit and in :attr:`coefficients`, not in :attr:`effects`."""
+        return [e["name"] for e in self.negligible if e.get("rule") == "share"]
 
 
 # --------------------------------------------------------------------------------------------- API
@@ -215,18 +236,7 @@ def diagnose_terms(
     for name in names:
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
-    sigmas = _usable_smoothing(video, smoothing)
-    video, artefacts = find_artefacts(video)
-    if float(video.amax() - video.amin()) == 0.0:
-        raise ValueError("frames are constant: no thermal activity to diagnose")
-    if noise_sd is None:
-        noise = measure_noise(video, static_pattern=artefacts.fixed_pattern)
-    elif isinstance(noise_sd, NoiseModel):
-        noise = noise_sd
-    else:
-        noise = NoiseModel(positive(noise_sd, "noise_sd", "data units"))
-    options = {"time_family": time_family, "noise": noise, "within": artefacts.within}
-    system, plain = _least_noisy(video, dt, dx, sigmas, float(noise.sd), options)
+    video, artefacts, system, plain = _balance(video, dt, dx, smoothing, noise_sd, time_family)
     selection = Selection(system, alpha, names, _background(video[0]))
     selection.forward()
     selection.backward()
@@ -236,6 +246,69 @@ def diagnose_terms(
             selection.refit(name)
     selection.drop_unphysical()
     return _result(system, selection, plain, artefacts)
+
+
+def fit_effects(
+    frames: Tensor,
+    dt: float,
+    dx: float,
+    models: Sequence[Sequence[str]],
+    *,
+    smoothing: float,
+    noise_sd: float | NoiseModel | None = None,
+    time_family: str = "smooth",
+    nuisance: Sequence[str] = (),
+) -> list[Diagnosis]:
+    """Fit given models on a video as they are: no test, no size rule, nothing added or dropped.
+
+    What :func:`diagnose_terms` does to the model it selected, for models chosen elsewhere (each effect
+    the model holds, in order: one that requires another comes after it): one balance at ``smoothing``
+    for every model, a localised effect's shape fitted to what the model's other effects leave.
+
+    Args:
+        frames: temperatures of one video, ``(T, H, W)`` (computed in float64).
+        dt: frame period in s.
+        dx: pixel size in mm.
+        models: each a sequence of names in :data:`anra_torch.effects.EFFECTS` (empty: the plain model).
+        smoothing: the Gaussian sigma (px) of the balance.
+        noise_sd: as :func:`diagnose_terms` (e.g. the noise model a diagnosis of the whole video measured).
+        time_family: as :func:`diagnose_terms`.
+        nuisance: effects fitted beside every model but not named (a diagnosis'
+            :attr:`Diagnosis.nuisance`; listed in ``negligible``, rule ``"share"``); one whose required
+            effect a model lacks is left out of that model.
+
+    Returns:
+        One :class:`Diagnosis` per model, its ``effects`` in the model's order.
+
+    Raises:
+        ValueError: as :func:`diagnose_terms`, and an unknown or repeated effect in a model.
+
+    Shape:
+        ``frames`` ``(T, H, W)`` as :func:`diagnose_terms`.
+    """
+    video = _as_frames(frames)
+    dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
+    for model in [*models, nuisance]:
+        for name in model:
+            if name not in EFFECTS:
+                raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
+        if len(set(model)) != len(model):
+            raise ValueError(f"a model names each effect once, got {list(model)}")
+    video, artefacts, system, plain = _balance(video, dt, dx, float(smoothing), noise_sd, time_family)
+    out = []
+    for model in models:
+        extra = [n for n in nuisance if n not in model]
+        fitted = [*model, *(n for n in extra if all(r in model or r in extra for r in EFFECTS[n].requires))]
+        fitted.sort(key=lambda n: bool(EFFECTS[n].requires))  # a required effect's shape is fitted first
+        selection = Selection(system, ALPHA, fitted, _background(video[0]))
+        for name in fitted:
+            selection.prepare(name, system.fit(selection.columns(selection.selected)))
+            selection.selected.append(name)
+        for name in fitted:
+            if name in selection.shapes and len(fitted) > 1:
+                selection.refit(name)
+        out.append(_result(system, selection, plain, artefacts, given=model))
+    return out
 
 
 def minimum_frame_size(smoothing: float | Sequence[float] | None = None) -> int:
@@ -273,6 +346,31 @@ def _usable_smoothing(video: Tensor, smoothing: float | Sequence[float] | None) 
     return usable
 
 
+def _balance(
+    video: Tensor,
+    dt: float,
+    dx: float,
+    smoothing: float | Sequence[float] | None,
+    noise_sd: float | NoiseModel | None,
+    time_family: str,
+) -> tuple[Tensor, Artefacts, BalanceSystem, Fit]:
+    """The repaired video, its artefacts, and the balance at the least noisy usable smoothing with its plain
+    fit (:func:`diagnose_terms`' set-up: the noise measured unless given)."""
+    sigmas = _usable_smoothing(video, smoothing)
+    video, artefacts = find_artefacts(video)
+    if float(video.amax() - video.amin()) == 0.0:
+        raise ValueError("frames are constant: no thermal activity to diagnose")
+    if noise_sd is None:
+        noise = measure_noise(video, static_pattern=artefacts.fixed_pattern)
+    elif isinstance(noise_sd, NoiseModel):
+        noise = noise_sd
+    else:
+        noise = NoiseModel(positive(noise_sd, "noise_sd", "data units"))
+    options = {"time_family": time_family, "noise": noise, "within": artefacts.within}
+    system, plain = _least_noisy(video, dt, dx, sigmas, float(noise.sd), options)
+    return video, artefacts, system, plain
+
+
 def _least_noisy(
     video: Tensor, dt: float, dx: float, sigmas: Sequence[float], sd: float, options: dict
 ) -> tuple[BalanceSystem, Fit]:
@@ -288,28 +386,51 @@ def _least_noisy(
     return best[1], best[2]
 
 
-def _result(system: BalanceSystem, selection: Selection, plain: Fit, artefacts: Artefacts) -> Diagnosis:
-    """The :class:`Diagnosis` of the selected model (refitted), effects ranked by score.
+def _result(
+    system: BalanceSystem,
+    selection: Selection,
+    plain: Fit,
+    artefacts: Artefacts,
+    *,
+    given: Sequence[str] | None = None,
+) -> Diagnosis:
+    """The :class:`Diagnosis` of the selected model (refitted), named effects ranked by score, the selected
+    effects under :data:`MIN_SHARE` of ``dT/dt`` kept in the fit as nuisance terms (listed in
+    ``negligible``, rule ``"share"``). ``given``: the effects of a model fitted as given (named in its
+    order, whatever their share; the other selected effects are its nuisance terms), and no thermal
+    activity is no error.
 
     Raises:
         ValueError: no effect and a plain ``a`` within 3 standard errors of 0 (no thermal activity).
     """
     final = system.fit(selection.columns(selection.selected))
     coefficients = final.coefficients()
-    found = [
-        {
-            "name": name,
-            "params": EFFECTS[name].from_coefficients(coefficients, selection.context()),
-            "score": wald_score(final, EFFECTS[name].regressors),
-        }
-        for name in selection.selected
-    ]
-    found.sort(key=lambda e: -e["score"])
+    found: list[dict[str, Any]] = []
+    nuisance: list[dict] = []
+    for name in selection.selected:
+        params = EFFECTS[name].from_coefficients(coefficients, selection.context())
+        small = selection.nuisance_record(name, params, final)
+        if (given is None and small is not None) or (given is not None and name not in given):
+            nuisance.append(small or {**selection.entry(name, params, final), "rule": "share"})
+            continue
+        found.append(
+            {
+                "name": name,
+                "params": params,
+                "score": wald_score(final, EFFECTS[name].regressors),
+                "share": selection.share(name, final),
+            }
+        )
+    if given is None:
+        found.sort(key=lambda e: -e["score"])
+    else:
+        order = list(given)
+        found.sort(key=lambda e: order.index(str(e["name"])))
     expected = system.expected_rss(final)  # 0 for noiseless (e.g. quantised, noise-free) frames
     fit_ratio = final.rss / expected if expected > 0 else (math.inf if final.rss > 0 else 1.0)
     a_plain = float(plain.beta[0])
     a_se = float(plain.cov[0, 0].clamp_min(0).sqrt())
-    if not found and abs(a_plain) < _MIN_SIGNIFICANCE * a_se:
+    if given is None and not found and not nuisance and abs(a_plain) < _MIN_SIGNIFICANCE * a_se:
         raise ValueError(
             f"frames show no thermal activity above the noise (a = {a_plain:.3g} +- {a_se:.2g} mm^2/s, "
             "no effect found); nothing to diagnose"
@@ -331,5 +452,5 @@ def _result(system: BalanceSystem, selection: Selection, plain: Fit, artefacts: 
         margin=system.margin,
         noise=system.measured_noise,
         artefacts=artefacts,
-        negligible=[v for k, v in selection.negligible.items() if k not in selection.selected],
+        negligible=[*nuisance, *(v for k, v in selection.negligible.items() if k not in selection.selected)],
     )

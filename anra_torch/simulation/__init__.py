@@ -46,6 +46,7 @@ from anra_torch.simulation.integrator import (
     FIXED_STEP_METHODS,
     POLICIES,
     SAFETY,
+    Solver,
     StabilityRegion,
     StepCount,
     StepPolicy,
@@ -61,7 +62,7 @@ from anra_torch.simulation.plate_reference import (
     default_flash,
     reference_plate_video,
 )
-from anra_torch.simulation.synthetic import Blobs, SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation.synthetic import Blobs, PaperSpot, SyntheticVideo, blobs_video, paper_video
 from anra_torch.simulation.tissue import MovingSource, TissueRHS, simulate_tissue
 
 __all__ = [
@@ -85,7 +86,9 @@ __all__ = [
     "DepthGrid",
     "HeatRHS",
     "MovingSource",
+    "PaperSpot",
     "ReferencePlate",
+    "Solver",
     "StabilityRegion",
     "StepCount",
     "StepPolicy",

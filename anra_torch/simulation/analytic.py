@@ -123,6 +123,29 @@ def heat_spectral(
 
 
 # ----------------------------------------------------------------------------------------- analytic
+def _check_blobs(peak: Tensor, sigma: Tensor, centre: Tensor, a: Tensor, bg: Tensor) -> torch.Size:
+    """The leading (batch) shape of :func:`gaussian_blobs`' parameters, after checking them (its
+    ``Raises``)."""
+    if peak.ndim not in (1, 2) or peak.shape[-1] == 0:
+        raise ValueError(f"peaks must have shape (N,) or (B, N), got {tuple(peak.shape)}")
+    lead = peak.shape[:-1]
+    if tuple(sigma.shape) != tuple(peak.shape):
+        raise ValueError(f"sigmas must have the shape of peaks {tuple(peak.shape)}, got {tuple(sigma.shape)}")
+    if tuple(centre.shape) != (*peak.shape, 2):
+        raise ValueError(
+            f"centres must have shape {(*peak.shape, 2)} (x, y in mm), got {tuple(centre.shape)}"
+        )
+    if bool((sigma.detach() <= 0).any()):
+        raise ValueError(f"sigmas must be positive in mm, got min {sigma.detach().min().item():g}")
+    if a.ndim > 1 or a.numel() not in (1, *lead):
+        raise ValueError(f"a must be a number or have shape {tuple(lead)}, got {tuple(a.shape)}")
+    if bool((a.detach() < 0).any()):
+        raise ValueError(f"a must be finite and non-negative in mm^2/s, got {a.detach().tolist()}")
+    if bg.ndim > 1 or bg.numel() not in (1, *lead):
+        raise ValueError(f"background must be a number or have shape {tuple(lead)}, got {tuple(bg.shape)}")
+    return lead
+
+
 def gaussian_blobs(
     times: Sequence[float] | Tensor,
     *,
@@ -167,25 +190,8 @@ def gaussian_blobs(
     peak = _as_param(peaks, "peaks", dtype)
     sigma = _as_param(sigmas, "sigmas", dtype)
     centre = _as_param(centres, "centres", dtype)
-    if peak.ndim not in (1, 2) or peak.shape[-1] == 0:
-        raise ValueError(f"peaks must have shape (N,) or (B, N), got {tuple(peak.shape)}")
-    lead = peak.shape[:-1]
-    if tuple(sigma.shape) != tuple(peak.shape):
-        raise ValueError(f"sigmas must have the shape of peaks {tuple(peak.shape)}, got {tuple(sigma.shape)}")
-    if tuple(centre.shape) != (*peak.shape, 2):
-        raise ValueError(
-            f"centres must have shape {(*peak.shape, 2)} (x, y in mm), got {tuple(centre.shape)}"
-        )
-    if bool((sigma.detach() <= 0).any()):
-        raise ValueError(f"sigmas must be positive in mm, got min {sigma.detach().min().item():g}")
-    a_t = _as_param(a, "a", dtype)
-    if a_t.ndim > 1 or a_t.numel() not in (1, *lead):
-        raise ValueError(f"a must be a number or have shape {tuple(lead)}, got {tuple(a_t.shape)}")
-    if bool((a_t.detach() < 0).any()):
-        raise ValueError(f"a must be finite and non-negative in mm^2/s, got {a_t.detach().tolist()}")
-    bg = _as_param(background, "background", dtype)
-    if bg.ndim > 1 or bg.numel() not in (1, *lead):
-        raise ValueError(f"background must be a number or have shape {tuple(lead)}, got {tuple(bg.shape)}")
+    a_t, bg = _as_param(a, "a", dtype), _as_param(background, "background", dtype)
+    lead = _check_blobs(peak, sigma, centre, a_t, bg)
 
     a_t = a_t.reshape(*lead, 1, 1) if lead and a_t.numel() > 1 else a_t.reshape(())
     variance = sigma.unsqueeze(-1) ** 2 + 2.0 * a_t * t  # (..., N, T)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import torch
@@ -28,6 +28,7 @@ from torch import Tensor
 from anra_torch.checks import check_choice, check_int, number, positive
 
 __all__ = [
+    "Solver",
     "ADAPTIVE_METHODS",
     "FIXED_STEP_METHODS",
     "POLICIES",
@@ -105,6 +106,39 @@ POLICIES: dict[str, StepPolicy] = {
 """Step policies of :func:`stable_substeps`. Both use the same stability limit; the tissue model's
 ``"stable"`` drops the monotone limit (about 30 % fewer steps for pure diffusion) and keeps the safety
 margin in the minimum."""
+
+
+@dataclass(frozen=True)
+class Solver:
+    """How a simulation integrates in time (:func:`integrate`'s settings).
+
+    Attributes:
+        method: a key of :data:`FIXED_STEP_METHODS` or one of :data:`ADAPTIVE_METHODS`.
+        substeps: solver steps per frame for fixed-step methods (None: automatic, :func:`stable_substeps`).
+        rtol: relative tolerance of adaptive methods.
+        atol: absolute tolerance of adaptive methods (units of the state).
+        adjoint: integrate by the adjoint method (memory O(1) in the number of steps).
+    """
+
+    method: str = "rk4"
+    substeps: int | None = None
+    rtol: float = 1e-7
+    atol: float = 1e-9
+    adjoint: bool = False
+
+    def checked(self) -> Solver:
+        """These settings checked (``substeps`` an int).
+
+        Raises:
+            ValueError: an unknown method, ``substeps`` not an integer >= 1 or given for an adaptive
+                method, non-positive tolerances.
+        """
+        check_choice(self.method, "method", [*FIXED_STEP_METHODS, *ADAPTIVE_METHODS])
+        if self.substeps is not None and self.method not in FIXED_STEP_METHODS:
+            raise ValueError(f"substeps applies to fixed-step methods only, got method={self.method!r}")
+        substeps = None if self.substeps is None else check_int(self.substeps, "substeps", 1)
+        rtol, atol = positive(self.rtol, "rtol", "relative units"), positive(self.atol, "atol", "units of T")
+        return replace(self, substeps=substeps, rtol=rtol, atol=atol)
 
 
 class StepCount(NamedTuple):

@@ -119,39 +119,46 @@ def _pixel_noise(frames: Tensor) -> float:
     return float(estimate_noise_sd(frames[::stride]))
 
 
+def _heat_content(frames: Tensor) -> tuple[Tensor, Tensor, float]:
+    """The frames in float64 with masked samples at their frame's mean (no signal is NaN), the frame-mean
+    temperature ``(T,)`` and its noise (from its steps, at most one pixel's noise: :func:`_pixel_noise`)."""
+    n = frames.shape[0]
+    frames = frames.double()
+    finite = torch.isfinite(frames)
+    if not bool(finite.all()):
+        fill = torch.where(finite, frames, 0.0).sum((1, 2)) / finite.sum((1, 2)).clamp_min(1)
+        frames = torch.where(finite, frames, fill[:, None, None])
+    content = frames.reshape(n, -1).mean(1)
+    steps = content[1:] - content[:-1]
+    noise = float((steps - steps.median()).abs().median()) * 1.4826 / 2**0.5 if n > 2 else 0.0
+    if n > 2 and float(content.max() - content.min()) > 0:  # frames far apart: their steps are signal
+        noise = min(noise, _pixel_noise(frames))
+    return frames, content, noise
+
+
 def recording_phases(frames: Tensor, t: Tensor | None = None) -> list[Phase]:
     """The phases of a recording that change what acts in it: baseline, heating, cooling, or one phase.
 
-    :func:`segment_phases` places the source's switch-on and switch-off from the hot-spot signal; a
-    boundary is kept only where the data say a source really switched: heating and cooling are separate
-    phases only when the frame-mean temperature (the heat content) rises over the heating by at least a
-    fifth of its range and ten times its noise (measured from its steps, at most one pixel's noise:
-    :func:`_pixel_noise`), and over the cooling the hot spot falls by at least a fifth
-    of its rise while the heat content no longer rises materially (a hot spot passing by, as in a flow,
-    moves heat without adding any); a baseline only when it is flat (its heat content changes under a tenth
-    as fast as during the heating's fastest rise). Otherwise the recording
-    is one phase, named by its heat content: ``"heating"`` (rises materially), ``"cooling"`` (falls) or
-    ``"steady"`` (neither: diffusion alone, or a balance of input and loss). Unlike :func:`segment_phases`,
-    heating and cooling share no frame: the interval in which the source switched off belongs to neither.
-    Phases shorter than :data:`MIN_PHASE_FRAMES` are returned too; the analysis says they are too short.
-    Non-finite samples count as their frame's mean here.
+    :func:`segment_phases` places the source's switch-on and switch-off from the hot-spot signal; a boundary
+    is kept only where the data say a source really switched: heating and cooling are separate phases only
+    when the frame-mean temperature (the heat content) rises over the heating by at least a fifth of its range
+    and ten times its noise (measured from its steps, at most one pixel's noise: :func:`_pixel_noise`), and
+    over the cooling the hot spot falls by at least a fifth of its rise while the heat content no longer rises
+    materially (a hot spot passing by, as in a flow, moves heat without adding any); a baseline only when it
+    is flat (its heat content changes under a tenth as fast as during the heating's fastest rise). Otherwise
+    the recording is one phase, named by its heat content: ``"heating"`` (rises materially), ``"cooling"``
+    (falls) or ``"steady"`` (neither: diffusion alone, or a balance of input and loss). Unlike
+    :func:`segment_phases`, heating and cooling share no frame: the interval in which the source switched off
+    belongs to neither. Phases shorter than :data:`MIN_PHASE_FRAMES` are returned too; non-finite samples
+    count as their frame's mean.
 
     Shape:
         ``frames`` ``(T, H, W)``; ``t`` ``(T,)``.
     """
     n = frames.shape[0]
     times = torch.arange(n, dtype=torch.float64) if t is None else torch.as_tensor(t, dtype=torch.float64)
-    frames = frames.double()
-    finite = torch.isfinite(frames)
-    if not bool(finite.all()):  # masked samples: their frame's mean, so no signal is NaN
-        fill = torch.where(finite, frames, 0.0).sum((1, 2)) / finite.sum((1, 2)).clamp_min(1)
-        frames = torch.where(finite, frames, fill[:, None, None])
-    content = frames.reshape(n, -1).mean(1)
-    steps = content[1:] - content[:-1]
-    noise = float((steps - steps.median()).abs().median()) * 1.4826 / 2**0.5 if n > 2 else 0.0
-    span = float(content.max() - content.min())
-    if n > 2 and span > 0:  # frames far apart: their steps are signal, not noise
-        noise = min(noise, _pixel_noise(frames))
+    frames, content, noise = _heat_content(frames)
+    steps, span = content[1:] - content[:-1], float(content.max() - content.min())
 
     def material(change: float) -> bool:
         return abs(change) >= _MATERIAL * span and abs(change) >= _NOISE_MULTIPLE * noise and span > 0

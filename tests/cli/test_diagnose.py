@@ -65,7 +65,8 @@ def test_json_schema_is_exact(loss_video: Path, capsys: pytest.CaptureFixture[st
     assert set(record["extended"]) == {"equation", "params", "prediction_rmse"}
     assert sorted(e["name"] for e in record["effects"]) == ["advection", "linear_loss"]
     for effect in record["effects"]:
-        assert set(effect) == {"name", "params", "gain"}
+        assert set(effect) == {"name", "params", "share", "forecast_cost", "gain"}
+        assert effect["share"] >= 0.01 and effect["forecast_cost"] > 0.1  # material, earned by its forecast
         # each alone already helps: measured 0.56 (loss) and 0.045 (advection; 0.07 from the split frame
         # alone: assimilated without the loss, the advection-only state is off by the missing loss)
         assert effect["gain"] > 0.03
@@ -137,6 +138,7 @@ def test_too_short_video_is_one_line_error(
         assert out == ""
 
 
+@pytest.mark.slow
 def test_no_activity_is_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     frames = np.random.default_rng(0).normal(30.0, 0.1, (40, 40, 40))
     path = save_npz(tmp_path / "noise.npz", frames, dt=0.05, dx=0.5)
@@ -222,6 +224,7 @@ def test_anra_diagnose_states_the_copy_and_counts_phases_in_recording_frames(
     assert math.isfinite(record["gain"])
 
 
+@pytest.mark.slow
 def test_cli_diagnoses_an_8x8_box_and_estimate_flags_it_unresolved(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -50,6 +50,7 @@ def pure_pair() -> tuple[torch.Tensor, torch.Tensor]:
      ("nonlinear_diffusion",), ("periodic_source",), ("linear_loss", "advection", "source")],
     ids="+".join,
 )  # fmt: skip
+@pytest.mark.slow
 def test_agrees_with_library_on_a_smooth_scene(names: tuple[str, ...], pure_pair) -> None:
     library = hidden_effect_video(names, **SMOOTH).clean
     ours = independent_effect_video(names, **SMOOTH).clean

@@ -98,7 +98,8 @@ def test_summary_and_acceptance() -> None:
     assert math.isclose(steps["a_error_max"], 0.151 / 0.150 - 1)
     text, ok = acceptance(summary)
     assert not ok
-    assert "- PASS: none: named set == true set >= 90 %: 100 %" in text
+    assert "- PASS: none: named set == true set >= 95 %: 100 %" in text
+    assert "- PASS: none: pure videos name no effect >= 98 %: 100 %" in text
     assert "- FAIL: bad_elements: no internal error: 1" in text
     assert "- PASS: offset_steps: pure diffusivity within 2 % of the clean estimate" in text
     assert "- FAIL: offset_steps: named set == true set >= 90 %: 50 %" in text

@@ -91,3 +91,20 @@ def test_forecast_errors_exclude_margin() -> None:
     per_frame, rmse, sse = forecast_errors(predicted, measured, 2)
     assert per_frame.tolist() == [0.0, math.sqrt(4 / 36), 0.0]
     assert sse == 4.0 and math.isclose(rmse, math.sqrt(4 / 108))
+
+
+def test_forecast_errors_within_pixels_and_frames_leave_out_a_static_pattern_and_offsets() -> None:
+    """A static pattern (a camera's fixed pattern, which every model smooths away) and a global offset per
+    frame are no forecast error with the per-pixel and per-frame fixed effects; what changes over both
+    stays."""
+    gen = torch.Generator().manual_seed(0)
+    measured = torch.zeros(4, 8, 8, dtype=torch.float64)
+    change = torch.randn(4, 8, 8, generator=gen, dtype=torch.float64)
+    change = change - change.mean(0) - change.mean((1, 2), keepdim=True) + change.mean()  # neither part
+    pattern = torch.randn(8, 8, generator=gen, dtype=torch.float64)
+    offsets = torch.tensor([0.0, 0.3, 0.3, -0.2], dtype=torch.float64)[:, None, None]
+    predicted = measured + change + pattern + offsets
+    _, rmse, _ = forecast_errors(predicted, measured, 0, within_pixels=True, within_frames=True)
+    assert math.isclose(rmse, float(change.pow(2).mean().sqrt()))
+    _, pattern_only, _ = forecast_errors(measured + pattern, measured, 0, within_pixels=True)
+    assert pattern_only < 1e-12 < forecast_errors(measured + pattern, measured, 0)[1]

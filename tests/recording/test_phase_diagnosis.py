@@ -101,9 +101,9 @@ def test_the_candidates_are_compared_over_several_inner_splits(monkeypatch: pyte
     real = recording._assessed
     splits: list[int] = []
 
-    def recorded(part, dt, dx, fit_fraction, options):
+    def recorded(part, dt, dx, fit_fraction, options, **kwargs):
         splits.append(split_index(part.shape[0], fit_fraction))
-        return real(part, dt, dx, fit_fraction, options)
+        return real(part, dt, dx, fit_fraction, options, **kwargs)
 
     monkeypatch.setattr(recording, "_assessed", recorded)
     frames = torch.as_tensor(heated_then_cooled(off=40, n=60))[:20]

@@ -22,7 +22,7 @@ from anra_torch.effects import (
     independent_effect_video,
 )
 from anra_torch.estimation.estimator import ANRAEstimator
-from anra_torch.selection import Diagnosis, diagnose_terms
+from anra_torch.selection import Diagnosis, diagnose_terms, fit_effects
 from anra_torch.simulation.camera import correlated_noise, plant
 
 SIZE = 64
@@ -141,6 +141,7 @@ def test_terms_balance_a_noiseless_video_exactly(name: str) -> None:
         assert found[key] == pytest.approx(value, rel=2e-4, abs=1e-3), key
 
 
+@pytest.mark.slow
 def test_plain_diffusivity_equals_the_estimator_with_the_same_filters() -> None:
     """The base model is the ANRA estimator (lsq, uniform weights, errors-in-variables correction)."""
     video = video_of((), seed=7)
@@ -159,7 +160,8 @@ def test_result_fields_and_ranking() -> None:
     assert sorted(d.names) == ["advection", "linear_loss"]
     assert [e["score"] for e in d.effects] == sorted((e["score"] for e in d.effects), reverse=True)
     for entry in d.effects:
-        assert set(entry) == {"name", "params", "score"}
+        assert set(entry) == {"name", "params", "score", "share"}
+        assert 0.01 <= entry["share"] < 1  # each a material part of dT/dt
         spec = EFFECTS[entry["name"]]  # the registry's parameter names: a valid effect record
         Effect(entry["name"], {k: entry["params"][k] for k in spec.params})
         assert entry["score"] > d.thresholds[entry["name"]]
@@ -239,6 +241,30 @@ def test_benchmark_cases_once_misnamed_are_named_right(name: str, index: int) ->
         assert math.dist((true["x"], true["y"]), (found["x"], found["y"])) < 0.2 * true["radius"]
         ratio = found["a_inside"] / found["a_outside"]
         assert ratio == pytest.approx(true["a_inside"] / true["a_outside"], rel=0.05)
+
+
+def test_given_models_are_fitted_as_they_are() -> None:
+    """:func:`fit_effects` fits each model as given on one balance: no test adds or drops an effect, and the
+    model the selection chose comes out with the selection's own coefficients."""
+    video = hidden_effect_video(("linear_loss",), seed=3, size=40, duration=1.0)
+    models = [[], ["linear_loss"], ["linear_loss", "advection"]]
+    plain, loss, both = fit_effects(video.frames, video.dt, video.dx, models, smoothing=2.0)
+    assert plain.names == [] and plain.base == pytest.approx(plain.a_plain)
+    assert loss.names == ["linear_loss"] and both.names == ["linear_loss", "advection"]
+    assert loss.effects[0]["params"]["b"] == pytest.approx(video.effects[0].params["b"], rel=0.05)
+    assert 0.05 < loss.effects[0]["share"] < 1  # a strong loss: a good part of dT/dt
+    selected = diagnose(video, smoothing=2.0)
+    assert selected.names == ["linear_loss"] and selected.coefficients == pytest.approx(loss.coefficients)
+    # a nuisance term is fitted beside the model, not named: the same fit as the model that names it
+    (nuisance,) = fit_effects(video.frames, video.dt, video.dx, [["linear_loss"]], smoothing=2.0,
+                              nuisance=["advection"])  # fmt: skip
+    assert nuisance.names == ["linear_loss"] and nuisance.nuisance == ["advection"]
+    assert nuisance.coefficients == pytest.approx(both.coefficients)
+    assert nuisance.negligible[0]["rule"] == "share" and nuisance.negligible[0]["share"] < 0.01
+    with pytest.raises(ValueError, match="unknown effect 'perfusion'"):
+        fit_effects(video.frames, video.dt, video.dx, [["perfusion"]], smoothing=2.0)
+    with pytest.raises(ValueError, match="names each effect once"):
+        fit_effects(video.frames, video.dt, video.dx, [["advection", "advection"]], smoothing=2.0)
 
 
 def test_shape_profile_loss_is_the_fit_residual_above_noise(hidden_video) -> None:
@@ -321,7 +347,8 @@ def test_a_significant_effect_below_its_physical_size_is_listed_as_negligible() 
     listed = {n["name"]: n for n in small.negligible}  # measured: 0.0095, and a disc of 0.4 % beside it
     assert listed["nonlinear_diffusion"]["min_size"] == 0.02
     assert listed["nonlinear_diffusion"]["size"] == pytest.approx(0.01, rel=0.1)
-    assert all(n["size"] < n["min_size"] for n in small.negligible)
+    assert listed["nonlinear_diffusion"]["rule"] in ("share", "size")  # under 1 % of dT/dt, or 2 % of a
+    assert all(n["share"] < n["min_share"] or n["size"] < n["min_size"] for n in small.negligible)
     assert small.scores["nonlinear_diffusion"] > small.thresholds["nonlinear_diffusion"]  # significant
     assert large.names == ["nonlinear_diffusion"] and large.negligible == []
 

@@ -15,6 +15,7 @@ from tolerances import assert_rounding_close
 from anra_torch.simulation import (
     BOUNDARIES,
     HeatRHS,
+    Solver,
     gaussian_blob,
     simulate_heat,
 )
@@ -22,7 +23,7 @@ from anra_torch.simulation import (
 F64 = torch.float64
 
 
-TIGHT = {"method": "dopri5", "rtol": 1e-11, "atol": 1e-13}
+TIGHT = {"solver": Solver(method="dopri5", rtol=1e-11, atol=1e-13)}
 """Adaptive solver settings whose time error is far below every tolerance used here."""
 
 
@@ -36,7 +37,7 @@ def rough_field(batch: int, height: int, width: int) -> torch.Tensor:
 # --------------------------------------------------------------------------- Fourier modes
 @pytest.mark.parametrize(
     ("settings", "tol"),
-    [(TIGHT, 1e-10), ({"method": "rk4", "substeps": 20}, 1e-9), ({"method": "rk4"}, 5e-8)],
+    [(TIGHT, 1e-10), ({"solver": Solver(method="rk4", substeps=20)}, 1e-9), ({"solver": Solver()}, 5e-8)],
     ids=["dopri5", "rk4-20-substeps", "rk4-auto"],
 )
 def test_fourier_mode_decays_with_discrete_eigenvalue(settings: dict, tol: float) -> None:
@@ -105,7 +106,7 @@ def test_convergence_in_dt(method: str, order: int) -> None:
     kwargs = {"a": 0.1, "dx": 0.5, "dt": 1.0, "n_frames": 3}
     reference = simulate_heat(u0, **kwargs, **TIGHT)
     errors = [
-        (simulate_heat(u0, **kwargs, method=method, substeps=s) - reference).abs().max().item()
+        (simulate_heat(u0, **kwargs, solver=Solver(method=method, substeps=s)) - reference).abs().max().item()
         for s in (4, 8)
     ]
     assert errors[0] / errors[1] == pytest.approx(2.0**order, rel=0.15)
@@ -218,7 +219,14 @@ def test_long_run_with_large_dt_obeys_maximum_principle(boundary: str, method: s
     dt = 40 * 0.25 * dx**2 / 1.0
     value = 0.5 if boundary == "dirichlet" else 0.0
     video = simulate_heat(
-        u0, a=a, dx=dx, dt=dt, n_frames=30, boundary=boundary, boundary_value=value, method=method
+        u0,
+        a=a,
+        dx=dx,
+        dt=dt,
+        n_frames=30,
+        boundary=boundary,
+        boundary_value=value,
+        solver=Solver(method=method),
     )
     assert torch.isfinite(video).all()
     assert video.max() <= u0.max() + 1e-12
@@ -259,7 +267,7 @@ def test_batched_per_video_parameters_equal_separate_runs() -> None:
     value = torch.tensor([0.0, 1.0, -1.0], dtype=F64)
     for boundary in BOUNDARIES:
         bv = value if boundary == "dirichlet" else 0.0
-        kwargs = {"n_frames": 4, "boundary": boundary, "substeps": 12}
+        kwargs = {"n_frames": 4, "boundary": boundary, "solver": Solver(substeps=12)}
         batched = simulate_heat(u0, a=a, dx=dx, dt=dt, boundary_value=bv, **kwargs)
         assert batched.shape == (3, 4, 9, 11)
         for i in range(3):
@@ -278,7 +286,7 @@ def test_batched_per_video_parameters_equal_separate_runs() -> None:
 def test_gradient_in_scalar_a_matches_finite_difference() -> None:
     u0 = rough_field(1, 8, 10)[0]
     weight = torch.rand(5, 8, 10, dtype=F64)
-    kwargs = {"dx": 0.2, "dt": 0.05, "n_frames": 5, "substeps": 8}
+    kwargs = {"dx": 0.2, "dt": 0.05, "n_frames": 5, "solver": Solver(substeps=8)}
 
     def loss(a: torch.Tensor | float) -> torch.Tensor:
         return (simulate_heat(u0, a=a, **kwargs) * weight).sum()
@@ -307,7 +315,7 @@ def test_gradcheck_field_a_and_initial(boundary: str) -> None:
             n_frames=3,
             boundary=boundary,
             boundary_value=value,
-            substeps=4,
+            solver=Solver(substeps=4),
         )
 
     assert torch.autograd.gradcheck(run, (u0, a))
@@ -322,10 +330,10 @@ def test_adjoint_gradient_matches_backprop(a_kind: str) -> None:
         a = (0.1 + 0.2 * torch.rand(2, 8, 9, dtype=F64)).requires_grad_()
     weight = torch.rand(2, 4, 8, 9, dtype=F64)
     # The adjoint solves the continuous adjoint ODE; it differs from backprop through RK4 by O(ds^4)
-    kwargs = {"dx": 0.2, "dt": 0.05, "n_frames": 4, "substeps": 64}
+    kwargs = {"dx": 0.2, "dt": 0.05, "n_frames": 4}
     grads = []
     for adjoint in (False, True):
-        out = simulate_heat(u0, a=a, adjoint=adjoint, **kwargs)
+        out = simulate_heat(u0, a=a, solver=Solver(substeps=64, adjoint=adjoint), **kwargs)
         grads.append(torch.autograd.grad((out * weight).sum(), (u0, a)))
     for backprop, adjoint in zip(*grads, strict=True):
         torch.testing.assert_close(adjoint, backprop, rtol=1e-6, atol=1e-8)
@@ -376,22 +384,22 @@ GOOD = {"a": 0.1, "dx": 0.1, "dt": 0.1, "n_frames": 3}
             r"unknown boundary 'robin'; expected one of: neumann, dirichlet, periodic",
         ),
         (
-            {"method": "rk45"},
+            {"solver": Solver(method="rk45")},
             r"unknown method 'rk45'; expected one of: euler, midpoint, rk4, dopri5",
         ),
         ({"n_frames": 0}, r"n_frames must be an integer >= 1, got 0"),
         ({"n_frames": 2.5}, r"n_frames must be an integer >= 1, got 2.5"),
         (
-            {"substeps": 1, "a": 10.0},
+            {"solver": Solver(substeps=1), "a": 10.0},
             r"substeps=1 is unstable for rk4 at a\*dt/dx\^2=100; need at least 288",
         ),
-        ({"substeps": 4, "method": "dopri5"}, r"substeps applies to fixed-step methods only"),
+        ({"solver": Solver(substeps=4, method="dopri5")}, r"substeps applies to fixed-step methods only"),
         ({"boundary_value": 1.0}, r"boundary_value applies to boundary='dirichlet' only"),
         (
             {"boundary": "dirichlet", "boundary_value": float("nan")},
             r"boundary_value must be finite",
         ),
-        ({"rtol": 0.0}, r"rtol must be a positive finite number"),
+        ({"solver": Solver(rtol=0.0)}, r"rtol must be a positive finite number"),
     ],
 )
 def test_simulate_heat_errors(changes: dict, message: str) -> None:

@@ -24,6 +24,7 @@ from anra_torch.simulation import (
     FIXED_STEP_METHODS,
     SAFETY,
     HeatRHS,
+    Solver,
     integrate,
     simulate_heat,
     simulate_tissue,
@@ -132,7 +133,9 @@ def checkerboard(n: int) -> torch.Tensor:
 def test_automatic_substeps_keep_a_five_point_simulation_stable_and_monotone(method: str) -> None:
     dx, a, dt = 0.1, 0.8, 0.5  # a dt / dx^2 = 40: far beyond one explicit step
     u0 = torch.rand(2, 16, 16, dtype=F64) + 0.3 * checkerboard(16)
-    video = simulate_heat(u0, a=a, dx=dx, dt=dt, n_frames=12, boundary="periodic", method=method)
+    video = simulate_heat(
+        u0, a=a, dx=dx, dt=dt, n_frames=12, boundary="periodic", solver=Solver(method=method)
+    )
     assert bool(torch.isfinite(video).all())
     assert float(video.max()) <= float(u0.max()) + 1e-12  # no new extrema
     assert float(video.min()) >= float(u0.min()) - 1e-12
@@ -147,11 +150,11 @@ def test_one_fewer_than_the_minimum_is_rejected_and_would_blow_up(method: str) -
     dx, a, dt = 0.1, 0.5, 0.1  # a dt / dx^2 = 5, 8 c = 40 per frame
     count = stable_substeps(1.0, 1.0, diffusivity=a * dt / dx**2, method=method)
     u0 = checkerboard(8)
-    kwargs = {"a": a, "dx": dx, "dt": dt, "n_frames": 4, "boundary": "periodic", "method": method}
+    kwargs = {"a": a, "dx": dx, "dt": dt, "n_frames": 4, "boundary": "periodic"}
     with pytest.raises(ValueError, match=rf"substeps={count.minimum - 1} is unstable") as err:
-        simulate_heat(u0, **kwargs, substeps=count.minimum - 1)
+        simulate_heat(u0, **kwargs, solver=Solver(method=method, substeps=count.minimum - 1))
     assert "\n" not in str(err.value) and f"need at least {count.minimum}" in str(err.value)
-    at_minimum = simulate_heat(u0, **kwargs, substeps=count.minimum)
+    at_minimum = simulate_heat(u0, **kwargs, solver=Solver(method=method, substeps=count.minimum))
     assert float(at_minimum[-1].abs().max()) <= 1.0  # the checkerboard does not grow
     # The same run below the minimum, integrated directly: the checkerboard grows, so the minimum is tight.
     s = count.minimum - 1
@@ -323,9 +326,12 @@ def assert_minimum(run: object, minimum: int) -> None:
 @pytest.mark.parametrize(("spacing", "method", "dtype", "counts"), HEAT_COUNTS)
 def test_simulate_heat_keeps_its_substeps(substeps_used, spacing, method, dtype, counts) -> None:
     u0 = torch.rand(2, 6, 6, dtype=dtype)
-    simulate_heat(u0, **spacing, n_frames=2, method=method)
+    simulate_heat(u0, **spacing, n_frames=2, solver=Solver(method=method))
     assert substeps_used == [counts[0]]
-    assert_minimum(lambda s: simulate_heat(u0, **spacing, n_frames=2, method=method, substeps=s), counts[1])
+    assert_minimum(
+        lambda s: simulate_heat(u0, **spacing, n_frames=2, solver=Solver(method=method, substeps=s)),
+        counts[1],
+    )
 
 
 @pytest.mark.parametrize("name", list(EFFECT_COUNTS))
