@@ -17,7 +17,7 @@ from typing import Any
 from anra_torch.checks import check_output
 from anra_torch.cli.arguments import integer, number
 from anra_torch.effects import EFFECTS, HiddenEffectVideo, hidden_effect_video
-from anra_torch.simulation import SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation import PaperSpot, SyntheticVideo, blobs_video, paper_video
 from anra_torch.video import save_npz
 
 __all__ = ["PRESETS", "Preset", "add_parser", "run"]
@@ -54,8 +54,9 @@ def _paper(
     *, a: float, noise: float, seed: int, fps: float, frames: int, size: int, dx: float | None
 ) -> SyntheticVideo:
     extent = 10.0 if dx is None else dx * size  # the paper's 10 mm field of view unless dx is given
+    spot = PaperSpot(extent=extent)
     return paper_video(
-        seed=seed, noise_sd=noise, fps=fps, duration=(frames - 1) / fps, size=size, extent=extent, a=a
+        seed=seed, noise_sd=noise, fps=fps, duration=(frames - 1) / fps, size=size, a=a, spot=spot
     )
 
 

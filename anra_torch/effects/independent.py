@@ -20,7 +20,7 @@ from anra_torch.effects.base import Grid
 from anra_torch.effects.model import Effect, check_effects
 from anra_torch.effects.registry import EFFECTS
 from anra_torch.effects.scene import HiddenEffectVideo, Scene, draw_scene
-from anra_torch.simulation import Continuum, simulate_continuum
+from anra_torch.simulation import Continuum, ContinuumGrid, simulate_continuum
 
 __all__ = ["continuum_of", "independent_effect_video", "simulate_independent", "simulate_scene"]
 
@@ -53,10 +53,7 @@ def simulate_independent(
     dt: float,
     n_frames: int,
     effects: Sequence[Effect] = (),
-    pad: int | None = None,
-    refine: int = 2,
-    substeps: int | None = None,
-    method: str = "auto",
+    grid: ContinuumGrid | None = None,
 ) -> Tensor:
     """Simulate ``dT/dt = a Lap T + effects`` from a continuous initial field, as a camera sees it.
 
@@ -72,7 +69,7 @@ def simulate_independent(
         dt: frame period in s.
         n_frames: number of frames (>= 1).
         effects: distinct :class:`~anra_torch.effects.Effect` s, at most one replacing diffusion.
-        pad, refine, substeps, method: as :func:`~anra_torch.simulation.simulate_continuum`.
+        grid: the discretisation (:class:`~anra_torch.simulation.ContinuumGrid`); default ``ContinuumGrid()``.
 
     Returns:
         The video, float64, ``(n_frames, H, W)``.
@@ -90,27 +87,14 @@ def simulate_independent(
     dt = number(dt, "dt", "s", positive=True)
     duration = (n_frames - 1) * dt if isinstance(n_frames, int) and n_frames >= 1 else 0.0
     model = continuum_of(check_effects(effects), a, Grid(tuple(shape), dx, duration))
-    return simulate_continuum(
-        initial,
-        model,
-        shape=shape,
-        dx=dx,
-        dt=dt,
-        n_frames=n_frames,
-        pad=pad,
-        refine=refine,
-        substeps=substeps,
-        method=method,
-    )
+    return simulate_continuum(initial, model, shape=shape, dx=dx, dt=dt, n_frames=n_frames, grid=grid)
 
 
-def simulate_scene(
-    scene: Scene, *, pad: int | None = None, refine: int = 2, substeps: int | None = None
-) -> Tensor:
+def simulate_scene(scene: Scene, *, grid: ContinuumGrid | None = None) -> Tensor:
     """The clean video of a drawn :class:`~anra_torch.effects.scene.Scene`, simulated independently.
 
     :func:`simulate_independent` from the scene's continuous first field (its hot spots on the background),
-    with its effects, pixel size and frames; ``pad``, ``refine``, ``substeps`` as there.
+    with its effects, pixel size and frames; ``grid`` as there.
 
     Shape:
         Output ``(n_frames, H, W)`` float64, the scene's frame size.
@@ -128,9 +112,7 @@ def simulate_scene(
         dt=scene.dt,
         n_frames=scene.n_frames,
         effects=scene.effects,
-        pad=pad,
-        refine=refine,
-        substeps=substeps,
+        grid=grid,
     )
 
 
@@ -148,9 +130,7 @@ def independent_effect_video(
     params: Mapping[str, Mapping[str, float]] | None = None,
     background: float = 30.0,
     dtype: torch.dtype = torch.float64,
-    pad: int | None = None,
-    refine: int = 2,
-    substeps: int | None = None,
+    grid: ContinuumGrid | None = None,
 ) -> HiddenEffectVideo:
     """The scene of :func:`anra_torch.effects.hidden_effect_video` for ``seed``, simulated independently.
 
@@ -162,9 +142,8 @@ def independent_effect_video(
         effect_names, seed, size, dx, fps, duration, a, noise_frac, noise_sd, params, background, dtype:
             as :func:`anra_torch.effects.hidden_effect_video` (``noise_frac``: white-noise sd as a fraction
             of the peak initial rise; ``duration`` in s gives ``round(duration * fps) + 1`` frames).
-        pad: padding in px on each side of the frame (default half the frame).
-        refine: finite-volume cells per pixel along each axis.
-        substeps: TR-BDF2 steps per frame (default 2).
+        grid: the discretisation (:class:`~anra_torch.simulation.ContinuumGrid`): padding (default half
+            the frame), finite-volume cells per pixel, TR-BDF2 steps per frame (default 2).
 
     Returns:
         A :class:`~anra_torch.effects.HiddenEffectVideo`.
@@ -186,5 +165,5 @@ def independent_effect_video(
     check_dtype(dtype)
     drawn = {"seed": seed, "size": size, "dx": dx, "fps": fps, "duration": duration, "a": a}
     scene = draw_scene(effect_names, **drawn, params=params, background=background)
-    clean = simulate_scene(scene, pad=pad, refine=refine, substeps=substeps)
+    clean = simulate_scene(scene, grid=grid)
     return scene.video(clean, noise_frac=noise_frac, noise_sd=noise_sd, dtype=dtype)

@@ -4,7 +4,8 @@ Every kernel here is a pure function of its size. Taps are in *correlation order
 oldest frame first in time, left to right / top to bottom in space) and are for unit spacing: the layers in
 :mod:`anra_torch.layers.derivatives` divide by ``dt`` or ``dx**order``.
 
-The families (see ``REFERENCE.md``), with ``B_n = binomial(n) / 2**n``:
+The families (P. Holoborodko, *Smooth noise robust differentiators*, 2008, holoborodko.com; what they
+are exact on and how they are tested: ``docs/architecture.md``), with ``B_n = binomial(n) / 2**n``:
 
 * centred first derivative ``D1_N = [-1, 0, 1]/2 * B_{N-3}`` (exact on 1, x, x^2; zero at Nyquist);
 * centred second derivative ``D2_N = [1, 0, -2, 0, 1]/4 * B_{N-5}`` (exact on 1..x^3; zero at Nyquist),

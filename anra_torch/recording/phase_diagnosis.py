@@ -23,15 +23,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from anra_torch.checks import extended_diffusivity_warning, implausible_diffusivity
+from anra_torch.checks import extended_diffusivity_warning
 from anra_torch.effects import EFFECTS
-from anra_torch.estimation import fit_small_box, forecast_small_box, unresolved_bound
 from anra_torch.forecast import (
     DIAGNOSED_FRAMES,
     INNER_SPLITS,
@@ -44,108 +43,15 @@ from anra_torch.forecast import (
     source_map_gain,
     split_index,
 )
+from anra_torch.recording.box_phase import small_box_phase
+from anra_torch.recording.phase_record import PhaseDiagnosis, flag_implausible, implausible
 from anra_torch.recording.phases import MIN_PHASE_FRAMES, recording_phases_of, repaired
 from anra_torch.selection import diagnose_terms, minimum_frame_size
 from anra_torch.video import Phase, measured_frames
 
 __all__ = ["INNER_SPLITS", "PhaseDiagnosis", "diagnose_recording"]
 
-BOX_WINDOW = 100
-"""Frames just before a split that a small-box model is fitted on (the most local of 100, 200 and 400)."""
-
-BOX_HORIZON = 200
-"""Held-out frames forecast at most by a small-box model."""
-
 _F64 = torch.float64
-
-
-@dataclass
-class PhaseDiagnosis:
-    """One phase of a recording and what its analysis found.
-
-    Attributes:
-        phase: the :class:`~anra_torch.video.Phase` (kind, frames, times).
-        family: ``"balance"`` (the filters fit), ``"small_box"`` or ``"none"`` (not analysed).
-        diffusivity: the plain model's ``a`` in mm^2/s (None when unresolved or not analysed).
-        flags: what qualifies the diffusivity (``"unresolved"``, ``"not_significant"``: within 3
-            standard errors of 0, ``"negative"``, ``"implausible"``: outside every known material).
-        diffusivity_std_error: its standard error in mm^2/s, where known (the small-box fit's).
-        diffusivity_bound: the lower bound on ``a`` (mm^2/s) an unresolved diffusivity implies.
-        base_rmse: the plain model's held-out RMSE (data units).
-        model: the extension chosen on the inner split (``parametric``, a name in :data:`SOURCE_MAPS`,
-            ``loss``, ``quasi_steady``; ``plain`` when the diagnosed extension cannot be simulated and no
-            map could be compared).
-        extended_rmse: the chosen extension's held-out RMSE.
-        gain: ``1 - extended_rmse / base_rmse``.
-        noise_floor: a perfect model's RMSE at the same scale.
-        effects: the named causes, ``{"name", "params", "gain"}``.
-        candidates: per candidate extension, its validation error inside the fit frames (``validation_rmse``:
-            its RMSE over the plain model's, averaged over the inner splits) and its held-out gain
-            (``gain``, reported after the choice, never used for it).
-        reason: why the phase was not analysed, else None.
-        result: the balance family's :class:`~anra_torch.forecast.GainResult`.
-        forecasts: the held-out frames as ``"measured"``, ``"plain"`` and ``"extended"`` (the chosen
-            model) forecasts, at the scale their RMSE was taken on (for figures); None when not analysed.
-        warnings: signs of a missing term: an effect whose own held-out gain is not positive, or placed
-            outside the field of view (:func:`_implausible`); a weak signal.
-        signal_to_noise: how much the fit frames change, in noise sds
-            (:func:`~anra_torch.forecast.signal_to_noise`; the balance family only): under
-            :data:`~anra_torch.forecast.WEAK_SIGNAL` the signal is weak, and a warning says so.
-
-    Shape:
-        each of ``forecasts`` ``(K, H, W)``.
-    """
-
-    phase: Phase
-    family: str
-    diffusivity: float | None = None
-    flags: list[str] = field(default_factory=list)
-    diffusivity_std_error: float | None = None
-    diffusivity_bound: float | None = None
-    base_rmse: float | None = None
-    model: str | None = None
-    extended_rmse: float | None = None
-    gain: float | None = None
-    noise_floor: float | None = None
-    effects: list[dict[str, Any]] = field(default_factory=list)
-    candidates: dict[str, dict[str, float | None]] = field(default_factory=dict)
-    reason: str | None = None
-    result: GainResult | None = None
-    forecasts: dict[str, Tensor] | None = None
-    warnings: list[str] = field(default_factory=list)
-    signal_to_noise: float | None = None
-
-    def to_record(self) -> dict[str, Any]:
-        """The phase as a JSON-ready dict (the ``"phases"`` element of ``anra diagnose --json``)."""
-        p = self.phase
-        record: dict[str, Any] = {
-            "kind": p.name,
-            "start_frame": p.start,
-            "stop_frame": p.stop,
-            "t_start": p.t_start,
-            "t_stop": p.t_stop,
-            "analysed": self.reason is None,
-            "family": self.family,
-            "base": {"diffusivity": self.diffusivity, "prediction_rmse": self.base_rmse},
-            "effects": self.effects,
-            "model": self.model,
-            "extended_rmse": self.extended_rmse,
-            "gain": self.gain,
-            "noise_floor": self.noise_floor,
-            "candidates": self.candidates,
-            "warnings": list(self.warnings),
-        }
-        if self.flags:
-            record["base"]["flags"] = list(self.flags)
-        if self.diffusivity_std_error is not None:
-            record["base"]["std_error"] = self.diffusivity_std_error
-        if self.diffusivity_bound is not None:
-            record["base"]["diffusivity_lower_bound"] = self.diffusivity_bound
-        if self.signal_to_noise is not None:
-            record["signal_to_noise"] = self.signal_to_noise
-        if self.reason is not None:
-            record["reason"] = self.reason
-        return record
 
 
 def diagnose_recording(
@@ -198,7 +104,7 @@ def diagnose_recording(
                 fraction = _short_phase_fraction(phase.frames, fit_fraction)
                 out.append(_balance_phase(phase, part, clean, dt, dx, fraction, assimilate, scored))
             else:
-                out.append(_small_box_phase(phase, clean, dt, dx, fit_fraction))
+                out.append(small_box_phase(phase, clean, dt, dx, fit_fraction))
         except ValueError as err:
             out.append(PhaseDiagnosis(phase, "none", reason=str(err)))
     return out
@@ -220,10 +126,6 @@ def _measured_split(fit_fraction: float, scored: Tensor) -> float:
     split = round(fit_fraction * n) - 1
     samples = [int(k) for k in torch.nonzero(scored[: split + 1]).flatten() if k >= DIAGNOSED_FRAMES - 1]
     return (samples[-1] + 1) / n if samples else fit_fraction
-
-
-def _gain(rmse: float, base: float) -> float:
-    return 1.0 - rmse / base if base > 0 else 0.0
 
 
 def _balance_phase(
@@ -260,7 +162,7 @@ def _balance_phase(
     )
     if result.diagnosis.a_plain < 0:
         diagnosis.flags.append("negative")
-    diagnosis.warnings = _implausible(effects, part.shape[1] * dx, part.shape[2] * dx)
+    diagnosis.warnings = implausible(effects, part.shape[1] * dx, part.shape[2] * dx)
     diagnosis.signal_to_noise = signal_to_noise(clean[: result.split + 1], result.diagnosis)
     if diagnosis.signal_to_noise < WEAK_SIGNAL:
         diagnosis.warnings.append(
@@ -270,7 +172,7 @@ def _balance_phase(
     diagnosis.warnings.extend(_extended_conduction(result, effects))
     if unsimulated:
         diagnosis.warnings.append(f"the parametric extension was not forecast: {unsimulated}")
-    _flag_implausible(diagnosis, dt, dx)
+    flag_implausible(diagnosis, dt, dx)
     held = {"parametric": (math.inf, -math.inf) if unsimulated else (result.extended_rmse, result.gain)}
     predicted = {"parametric": result.predicted_extended}
     validation: dict[str, float] = {}
@@ -346,43 +248,11 @@ def _assessed(
     return result, effects, unsimulated
 
 
-def _flag_implausible(diagnosis: PhaseDiagnosis, dt: float, dx: float) -> None:
-    """Flag (``"implausible"``, with a warning line) a diffusivity outside every known material
-    (:data:`~anra_torch.checks.PLAUSIBLE_DIFFUSIVITY`) that no other flag already qualifies: a small box whose
-    significant ``a`` of 4e-4 mm^2/s describes the fit, not the material."""
-    a = diagnosis.diffusivity
-    outside = None if a is None else implausible_diffusivity(a, dt=dt, dx=dx)
-    if outside and not {"unresolved", "not_significant"} & set(diagnosis.flags):
-        diagnosis.flags.append("implausible")
-        diagnosis.warnings.append(outside)
-
-
 def _extended_conduction(result: GainResult, effects: list[dict[str, Any]]) -> list[str]:
     """:func:`~anra_torch.checks.extended_diffusivity_warning` of the phase's extended model."""
     names = [e["name"] for e in effects]
     found = extended_diffusivity_warning(result.diagnosis.base, result.diagnosis.a_plain, names)
     return [found] if found else []
-
-
-def _implausible(effects: list[dict[str, Any]], height: float, width: float) -> list[str]:
-    """Signs of a missing term among the named ``effects`` of a ``height`` x ``width`` mm frame: an own
-    held-out gain of zero or below, or a position (the effect's ``positions``, mm) outside the frame."""
-    out = []
-    for e in effects:
-        name, params = e["name"], e["params"]
-        if e["gain"] is not None and not e["gain"] > 0:
-            out.append(
-                f"{name}: its own held-out gain is {e['gain']:.3g} (not positive): it fits the diagnosed "
-                "frames but does not forecast; a sign of a term the model is missing"
-            )
-        for kx, ky in EFFECTS[name].positions:
-            x, y = params.get(kx, 0.0), params.get(ky, 0.0)
-            if not (0 <= x <= width and 0 <= y <= height):
-                out.append(
-                    f"{name}: {kx}, {ky} = ({x:.3g}, {y:.3g}) mm lies outside the {width:.3g} x "
-                    f"{height:.3g} mm field of view; a sign of a term the model is missing"
-                )
-    return out
 
 
 SOURCE_MAPS = {"source_map": 0.0, "source_map_t^-0.5": 0.5, "source_map_t^-1": 1.0, "source_map_t^-1.5": 1.5}
@@ -399,9 +269,9 @@ _INNER_FRAMES = DIAGNOSED_FRAMES + 2
 def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, options: dict) -> dict[str, float]:
     """Each candidate's validation error inside the fit frames: its RMSE over the plain model's on the same
     split, averaged over the distinct splits of :data:`INNER_SPLITS` that leave 2 frames to validate (as the
-    small-box models are validated over :data:`INNER_ORIGINS`). An inner parametric model that cannot be
-    simulated (a conductivity that turns negative over the reachable temperatures) scores infinity
-    instead of cancelling the comparison."""
+    small-box models are validated over :data:`~anra_torch.recording.box_phase.INNER_ORIGINS`). An inner
+    parametric model that cannot be simulated (a conductivity that turns negative over the reachable
+    temperatures) scores infinity instead of cancelling the comparison."""
     n = fit.shape[0]
     if options.get("scored") is not None:
         options = {**options, "scored": options["scored"][:n]}
@@ -421,98 +291,3 @@ def _inner_balance(fit: Tensor, dt: float, dx: float, fit_fraction: float, optio
         for name, value in rmse.items():
             ratios.setdefault(name, []).append(value / inner.base_rmse if inner.base_rmse > 0 else value)
     return {name: sum(values) / len(values) for name, values in ratios.items()}
-
-
-def _box_forecasts(frames: Tensor, dt: float, dx: float, split: int, horizon: int) -> dict[str, Tensor]:
-    """Each small-box model, fitted on the :data:`BOX_WINDOW` frames up to ``split``, forecasting the
-    ``horizon`` frames after it (and ``"measured"``, those frames)."""
-    fit = frames[max(0, split - BOX_WINDOW) : split + 1]
-    out = {"measured": frames[split + 1 : split + 1 + horizon]}
-    for kind in ("plain", "loss", "quasi_steady"):
-        out[kind] = forecast_small_box(fit_small_box(fit, dt, dx, kind), frames, dt, dx, split, horizon)
-    return out
-
-
-def _box_scores(frames: Tensor, dt: float, dx: float, split: int, horizon: int) -> dict[str, float]:
-    """RMSE on the interior of the frames after ``split`` for each small-box model fitted just before it."""
-    forecasts = _box_forecasts(frames, dt, dx, split, horizon)
-    measured = forecasts.pop("measured")[:, 1:-1, 1:-1]
-    return {k: float((p[:, 1:-1, 1:-1] - measured).pow(2).mean().sqrt()) for k, p in forecasts.items()}
-
-
-INNER_ORIGINS = (0.5, 0.6, 0.7, 0.8)
-"""Forecast origins inside the fit frames (fractions) at which the small-box models are validated."""
-
-
-def _box_validation(fit: Tensor, dt: float, dx: float) -> dict[str, float]:
-    """Each small-box model's validation error: its RMSE over the plain model's, averaged over forecasts
-    from several origins inside the fit frames (:data:`INNER_ORIGINS`), each fitted on the frames before."""
-    n = fit.shape[0]
-    ratios: dict[str, list[float]] = {"loss": [], "quasi_steady": []}
-    for fraction in INNER_ORIGINS:
-        origin = split_index(n, fraction)
-        scores = _box_scores(fit, dt, dx, origin, min(n - 1 - origin, BOX_HORIZON))
-        for kind, values in ratios.items():
-            values.append(scores[kind] / scores["plain"] if scores["plain"] > 0 else 1.0)
-    return {kind: sum(values) / len(values) for kind, values in ratios.items()}
-
-
-def _small_box_phase(phase: Phase, part: Tensor, dt: float, dx: float, fit_fraction: float) -> PhaseDiagnosis:
-    """The small-box family: ``loss`` against ``quasi_steady`` on the inner split, scored on the held-out."""
-    if min(part.shape[1:]) < 3:
-        raise ValueError(f"frames must be at least 3 x 3 px, got {part.shape[1]} x {part.shape[2]}")
-    n = part.shape[0]
-    split = split_index(n, fit_fraction)
-    validation = _box_validation(part[: split + 1], dt, dx)
-    forecasts = _box_forecasts(part, dt, dx, split, min(n - 1 - split, BOX_HORIZON))
-    measured = forecasts["measured"][:, 1:-1, 1:-1]
-    held = {
-        k: float((p[:, 1:-1, 1:-1] - measured).pow(2).mean().sqrt())
-        for k, p in forecasts.items()
-        if k != "measured"
-    }
-    chosen = min(("loss", "quasi_steady"), key=validation.__getitem__)
-    fit = part[max(0, split - BOX_WINDOW) : split + 1]
-    plain = fit_small_box(fit, dt, dx, "plain")
-    model = fit_small_box(fit, dt, dx, chosen)
-    inner_part = part[:, 1:-1, 1:-1]
-    noise = float((inner_part[1 : split + 1] - inner_part[:split]).std()) / math.sqrt(2)
-    gain = _gain(held[chosen], held["plain"])
-    diagnosis = PhaseDiagnosis(
-        phase,
-        "small_box",
-        diffusivity=plain.a,
-        diffusivity_std_error=plain.a_std_error,
-        base_rmse=held["plain"],
-        model=chosen,
-        extended_rmse=held[chosen],
-        gain=gain,
-        noise_floor=noise,
-        candidates={
-            k: {"validation_rmse": validation[k], "gain": _gain(held[k], held["plain"])}
-            for k in ("loss", "quasi_steady")
-        },
-        forecasts={
-            "measured": forecasts["measured"],
-            "plain": forecasts["plain"],
-            "extended": forecasts[chosen],
-        },
-    )
-    bound = unresolved_bound(fit, dt, dx)
-    if bound is not None:
-        diagnosis.diffusivity = diagnosis.diffusivity_std_error = None
-        diagnosis.flags.append("unresolved")
-        diagnosis.diffusivity_bound = bound
-    elif plain.significant is False:  # within 3 standard errors of 0: the box hardly changes
-        diagnosis.flags.append("not_significant")
-    elif plain.a < 0:
-        diagnosis.flags.append("negative")
-    _flag_implausible(diagnosis, dt, dx)
-    if chosen == "quasi_steady":
-        cause = "source"
-    else:  # the sign of the loss model's non-diffusive rate at the split: net heating or net loss
-        cause = (
-            "source" if model.c - model.b * (float(part[split].mean()) - model.t_ref) > 0 else "linear_loss"
-        )
-    diagnosis.effects = [{"name": cause, "params": model.params(), "gain": gain}]
-    return diagnosis

@@ -40,7 +40,13 @@ from anra_torch.simulation.bioheat_reference import (
 from anra_torch.simulation.bioheat_scenes import random_scene
 from anra_torch.simulation.camera import ARTEFACTS, plant
 from anra_torch.simulation.heat import BOUNDARIES, HeatRHS, simulate_heat
-from anra_torch.simulation.independent import METHODS, Continuum, gaussian_cells, simulate_continuum
+from anra_torch.simulation.independent import (
+    METHODS,
+    Continuum,
+    ContinuumGrid,
+    gaussian_cells,
+    simulate_continuum,
+)
 from anra_torch.simulation.integrator import (
     ADAPTIVE_METHODS,
     FIXED_STEP_METHODS,
@@ -62,7 +68,7 @@ from anra_torch.simulation.plate_reference import (
     default_flash,
     reference_plate_video,
 )
-from anra_torch.simulation.synthetic import Blobs, SyntheticVideo, blobs_video, paper_video
+from anra_torch.simulation.synthetic import Blobs, PaperSpot, SyntheticVideo, blobs_video, paper_video
 from anra_torch.simulation.tissue import MovingSource, TissueRHS, simulate_tissue
 
 __all__ = [
@@ -80,12 +86,14 @@ __all__ = [
     "BioheatScene",
     "Contact",
     "Continuum",
+    "ContinuumGrid",
     "Defect",
     "GreenResult",
     "GreenScene",
     "DepthGrid",
     "HeatRHS",
     "MovingSource",
+    "PaperSpot",
     "ReferencePlate",
     "Solver",
     "StabilityRegion",

@@ -13,14 +13,13 @@ spans ``[0, W dx] x [0, H dx]``. Units: mm, s, mm^2/s.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor, nn
 
-from anra_torch.checks import as_fields, as_spacing, check_choice, check_int, positive
+from anra_torch.checks import as_fields, as_spacing, check_choice, check_int
 from anra_torch.simulation.integrator import (
-    ADAPTIVE_METHODS,
     FIXED_STEP_METHODS,
     Solver,
     integrate,
@@ -220,12 +219,9 @@ def simulate_heat(
 ) -> Tensor:
     """Simulate a thermal video: 5-point Laplacian in space, :func:`~anra_torch.simulation.integrate` in time.
 
-    Fixed-step methods take an integer number of substeps per frame, by default the fewest with
-    ``a_max dt / (substeps dx^2) <= 0.9 * 0.25`` (:func:`~anra_torch.simulation.stable_substeps`): stable,
-    and monotone (no new extrema: the maximum principle holds). The count is a step function of ``a``:
-    when fitting ``a`` by gradient descent pass ``substeps`` so the objective stays smooth. Adaptive
-    methods use the tolerances. The semi-discrete system is solved, so the result differs from the
-    continuous equation by O(dx^2) (see :func:`~anra_torch.simulation.heat_spectral`).
+    Fixed-step methods take by default the fewest substeps per frame that keep it stable and monotone
+    (:func:`~anra_torch.simulation.stable_substeps`), a step function of ``a``: fix ``substeps`` to fit ``a``
+    by gradient descent. The result differs from the continuous equation by O(dx^2) (``heat_spectral``).
 
     Args:
         initial: first frame, temperature in any unit.
@@ -247,8 +243,8 @@ def simulate_heat(
 
     Raises:
         TypeError: ``initial`` or ``a`` not real numbers.
-        ValueError: bad shapes, non-positive ``dx``/``dt``, negative ``a``, unknown
-            ``boundary``/``method``, or ``substeps`` below the stability limit.
+        ValueError: bad shapes, non-positive ``dx``/``dt``, negative ``a``, unknown ``boundary``, a bad
+            ``solver`` (:meth:`Solver.checked`), or ``substeps`` below the stability limit.
 
     Example:
         >>> u0 = torch.zeros(16, 16, dtype=torch.float64); u0[8, 8] = 1.0
@@ -256,31 +252,20 @@ def simulate_heat(
         >>> video.shape, round(video[-1].sum().item(), 12)
         (torch.Size([3, 16, 16]), 1.0)
     """
-    s = Solver() if solver is None else solver
-    method, substeps, adjoint = s.method, s.substeps, s.adjoint
+    s = (Solver() if solver is None else solver).checked()
     u0, batched = as_fields(initial)
     batch, height, width = u0.shape
-    n_frames = check_int(n_frames, "n_frames", 1)
-    check_choice(boundary, "boundary", list(BOUNDARIES))
-    check_choice(method, "method", [*FIXED_STEP_METHODS, *ADAPTIVE_METHODS])
+    n_frames, _ = check_int(n_frames, "n_frames", 1), check_choice(boundary, "boundary", list(BOUNDARIES))
     dx_b = as_spacing(dx, name="dx", unit="mm", batch=batch, like=u0)
     dt_b = as_spacing(dt, name="dt", unit="s", batch=batch, like=u0)
     a_t, _ = as_diffusivity(a, batch=batch, height=height, width=width, like=u0)
     value = _boundary_value(boundary_value, boundary, batch=batch, like=u0)
-    if substeps is not None and method not in FIXED_STEP_METHODS:
-        raise ValueError(f"substeps applies to fixed-step methods only, got method={method!r}")
-    substeps = None if substeps is None else check_int(substeps, "substeps", 1)
-    rtol, atol = positive(s.rtol, "rtol", "relative units"), positive(s.atol, "atol", "units of T")
     if n_frames == 1:
-        out = u0.unsqueeze(1)
-        return out if batched else out[0]
-    substeps, time_scale = _time_step(a_t, dx_b, dt_b, method=method, substeps=substeps)
+        return u0.unsqueeze(1) if batched else u0
+    substeps, time_scale = _time_step(a_t, dx_b, dt_b, method=s.method, substeps=s.substeps)
     rhs = HeatRHS(a_t, dx=dx_b, boundary=boundary, boundary_value=value, time_scale=time_scale)
-    out = integrate(
-        rhs, u0, n_frames=n_frames, method=method, substeps=substeps, rtol=rtol, atol=atol, adjoint=adjoint
-    )
-    out = out.movedim(0, 1)  # (T, B, H, W) -> (B, T, H, W)
-    return out if batched else out[0]
+    out = integrate(rhs, u0, n_frames=n_frames, **vars(replace(s, substeps=substeps))).movedim(0, 1)
+    return out if batched else out[0]  # (T, B, H, W) -> (B, T, H, W)
 
 
 def _time_step(

@@ -42,11 +42,11 @@ from anra_torch.checks import check_choice, check_int, check_shape, number
 from anra_torch.simulation.krylov import gmres
 from anra_torch.simulation.plate import with_depth
 
-__all__ = ["METHODS", "Continuum", "Forcing", "gaussian_cells", "simulate_continuum"]
+__all__ = ["METHODS", "Continuum", "ContinuumGrid", "Forcing", "gaussian_cells", "simulate_continuum"]
 
 _F64 = torch.float64
 METHODS = ("auto", "spectral", "finite_volume")
-"""``simulate_independent(method=...)``: ``"auto"`` takes the spectral solution when the model allows it."""
+"""``ContinuumGrid(method=...)``: ``"auto"`` takes the spectral solution when the model allows it."""
 
 _GAMMA = 2.0 - math.sqrt(2.0)  # TR-BDF2: both stages then solve (I - (gamma / 2) h F)
 _STAGE = 0.5 * _GAMMA
@@ -334,6 +334,23 @@ def _finite_volume(
 
 
 # ------------------------------------------------------------------------------------------ API
+@dataclass(frozen=True)
+class ContinuumGrid:
+    """How :func:`simulate_continuum` discretises the continuous PDE.
+
+    Attributes:
+        pad: camera px of padding on each side (>= 0); None: half the larger frame side.
+        refine: finite-volume cells per camera pixel along each axis (>= 1).
+        substeps: TR-BDF2 steps per frame (finite volumes); None: 2 (see the module docs).
+        method: one of :data:`METHODS`.
+    """
+
+    pad: int | None = None
+    refine: int = 2
+    substeps: int | None = None
+    method: str = "auto"
+
+
 def simulate_continuum(
     initial: Callable[[Tensor, Tensor], Tensor],
     model: Continuum,
@@ -342,18 +359,14 @@ def simulate_continuum(
     dx: float,
     dt: float,
     n_frames: int,
-    pad: int | None = None,
-    refine: int = 2,
-    substeps: int | None = None,
-    method: str = "auto",
+    grid: ContinuumGrid | None = None,
 ) -> Tensor:
     """Simulate the continuous PDE ``model`` from a continuous initial field, as a camera sees it.
 
     The frame (pixel ``(i, j)`` covers ``[j dx, (j + 1) dx]`` in x, ``[i dx, (i + 1) dx]`` in y) lies in a
     periodic domain ``pad`` px wider on each side, where ``initial`` should reach the edges smoothly (hot
     spots on a uniform background, or a field periodic over the frame with ``pad=0``). Frame ``k`` is the
-    solution at ``k dt`` averaged over each pixel (methods: module docs; ``depth``: the plate's exact
-    factor times the rest of the solution).
+    solution at ``k dt`` averaged over each pixel (methods: module docs; ``depth``: the plate's factor).
 
     Args:
         initial: ``T0(x, y)`` at points in mm (float64 tensors that broadcast).
@@ -362,10 +375,7 @@ def simulate_continuum(
         dx: pixel size in mm.
         dt: frame period in s.
         n_frames: number of frames (>= 1).
-        pad: camera px of padding on each side (>= 0); default half the larger frame side.
-        refine: finite-volume cells per camera pixel along each axis (>= 1).
-        substeps: TR-BDF2 steps per frame (finite volumes); default 2 (see the module docs).
-        method: one of :data:`METHODS`.
+        grid: the padding, refinement, steps and method (:class:`ContinuumGrid`); default ``ContinuumGrid()``.
 
     Returns:
         The video, float64, ``(n_frames, H, W)``.
@@ -383,7 +393,7 @@ def simulate_continuum(
         >>> k = 2 * math.pi / 16  # one period over a 16 px frame of 1 mm pixels, periodic with pad=0
         >>> video = simulate_continuum(
         ...     lambda x, y: 30 + torch.cos(k * x) + 0 * y, Continuum(tensor=(0.2, 0.2, 0.0)), shape=(8, 16),
-        ...     dx=1.0, dt=1.0, n_frames=3, pad=0)
+        ...     dx=1.0, dt=1.0, n_frames=3, grid=ContinuumGrid(pad=0))
         >>> ratio = float(video[2, 0].max() - 30) / float(video[0, 0].max() - 30)
         >>> round(ratio, 6) == round(math.exp(-0.2 * k * k * 2.0), 6)
         True
@@ -391,10 +401,11 @@ def simulate_continuum(
     height, width = check_shape(shape)
     dx, dt = number(dx, "dx", "mm", positive=True), number(dt, "dt", "s", positive=True)
     n_frames = check_int(n_frames, "n_frames", 1)
-    pad = (max(height, width) + 1) // 2 if pad is None else check_int(pad, "pad", 0)
-    refine = check_int(refine, "refine", 1)
-    substeps = 2 if substeps is None else check_int(substeps, "substeps", 1)
-    check_choice(method, "method", METHODS)
+    g = ContinuumGrid() if grid is None else grid
+    pad = (max(height, width) + 1) // 2 if g.pad is None else check_int(g.pad, "pad", 0)
+    refine = check_int(g.refine, "refine", 1)
+    substeps = 2 if g.substeps is None else check_int(g.substeps, "substeps", 1)
+    method = check_choice(g.method, "method", METHODS)
     if not callable(initial):
         raise TypeError(f"initial must be a function T0(x, y) of points in mm, got {type(initial).__name__}")
     if method == "spectral" and not model.spectral:
@@ -403,8 +414,10 @@ def simulate_continuum(
             f"{_varying(model)}; use method='finite_volume' or 'auto'"
         )
     if model.depth is not None:  # exact: the rest of the model times the plate's depth factor
-        settings = {"shape": shape, "dx": dx, "dt": dt, "n_frames": n_frames, "pad": pad, "refine": refine}
-        return _with_plate(initial, model, {**settings, "substeps": substeps, "method": method})
+        checked = ContinuumGrid(pad, refine, substeps, method)
+        return _with_plate(
+            initial, model, {"shape": shape, "dx": dx, "dt": dt, "n_frames": n_frames, "grid": checked}
+        )
     if method == "finite_volume" or not model.spectral:
         domain = _Domain((height, width), dx, pad, refine)
         return torch.from_numpy(_finite_volume(model, initial, domain, dt, n_frames, substeps))

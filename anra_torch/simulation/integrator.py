@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import torch
@@ -125,6 +125,20 @@ class Solver:
     rtol: float = 1e-7
     atol: float = 1e-9
     adjoint: bool = False
+
+    def checked(self) -> Solver:
+        """These settings checked (``substeps`` an int).
+
+        Raises:
+            ValueError: an unknown method, ``substeps`` not an integer >= 1 or given for an adaptive
+                method, non-positive tolerances.
+        """
+        check_choice(self.method, "method", [*FIXED_STEP_METHODS, *ADAPTIVE_METHODS])
+        if self.substeps is not None and self.method not in FIXED_STEP_METHODS:
+            raise ValueError(f"substeps applies to fixed-step methods only, got method={self.method!r}")
+        substeps = None if self.substeps is None else check_int(self.substeps, "substeps", 1)
+        rtol, atol = positive(self.rtol, "rtol", "relative units"), positive(self.atol, "atol", "units of T")
+        return replace(self, substeps=substeps, rtol=rtol, atol=atol)
 
 
 class StepCount(NamedTuple):

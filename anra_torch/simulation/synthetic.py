@@ -22,7 +22,7 @@ from anra_torch.checks import check_dtype, check_int, number, positive
 from anra_torch.simulation.analytic import gaussian_blob, gaussian_blobs
 from anra_torch.video import save_npz
 
-__all__ = ["Blobs", "SyntheticVideo", "blobs_video", "paper_video"]
+__all__ = ["Blobs", "PaperSpot", "SyntheticVideo", "blobs_video", "paper_video"]
 
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 """Full width at half maximum of a Gaussian in units of its standard deviation (2.3548...)."""
@@ -63,6 +63,21 @@ class SyntheticVideo:
         save_npz(path, frames, dt=self.dt, dx=self.dx, t=self.times, batch=True, a_true=np.float64(self.a))
 
 
+@dataclass(frozen=True)
+class PaperSpot:
+    """The initial hot spot of the paper's case and the frame it lies in.
+
+    Attributes:
+        peak: initial peak temperature (above a background of 0).
+        diameter_px: initial full width at half maximum in pixels.
+        extent: frame side in mm (the paper's "units"): ``dx = extent / size``.
+    """
+
+    peak: float = 3.8
+    diameter_px: float = 50.0
+    extent: float = 10.0
+
+
 def paper_video(
     *,
     n_videos: int = 1,
@@ -71,18 +86,16 @@ def paper_video(
     fps: float = 27.0,
     duration: float = 1.0,
     size: int = 224,
-    extent: float = 10.0,
     a: float = 0.2,
-    peak: float = 3.8,
-    diameter_px: float = 50.0,
+    spot: PaperSpot | None = None,
     crop: int | None = None,
     dtype: torch.dtype = torch.float64,
 ) -> SyntheticVideo:
     """The simulation case of El-Kebir et al. (arXiv 2203.13148), computed exactly.
 
-    A Gaussian of peak ``peak`` and full width at half maximum ``diameter_px`` pixels, centred in a
-    ``size x size`` frame spanning ``extent x extent`` (so ``dx = extent / size``), diffusing with
-    ``a``, sampled at ``fps`` for ``duration`` seconds (``round(duration * fps) + 1`` frames from
+    A Gaussian (:class:`PaperSpot`: peak ``peak``, full width at half maximum ``diameter_px`` pixels),
+    centred in a ``size x size`` frame spanning ``extent x extent`` mm (``dx = extent / size``), diffusing
+    with ``a``, sampled at ``fps`` for ``duration`` seconds (``round(duration * fps) + 1`` frames from
     t = 0), plus Gaussian noise of sd ``noise_sd`` on every pixel of every frame. The clean field is
     computed once; ``n_videos`` noise draws come from ``torch.Generator().manual_seed(seed)``.
 
@@ -93,10 +106,8 @@ def paper_video(
         fps: frame rate in Hz.
         duration: recording length in s.
         size: frame side in pixels.
-        extent: frame side in mm (the paper's "units").
         a: diffusivity in mm^2/s.
-        peak: initial peak temperature (above a background of 0).
-        diameter_px: initial full width at half maximum in pixels.
+        spot: the initial spot and the frame's side in mm (:class:`PaperSpot`); default the paper's.
         crop: if given, keep only the central ``crop x crop`` pixels (heat then crosses the frame
             edges); the pixels are exactly those of the uncropped video with the same seed.
         dtype: floating dtype of the frames.
@@ -122,10 +133,11 @@ def paper_video(
     noise_sd = number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
     fps = positive(fps, "fps", "Hz")
     duration = positive(duration, "duration", "s")
-    extent = positive(extent, "extent", "mm")
+    spot = PaperSpot() if spot is None else spot
+    extent = positive(spot.extent, "extent", "mm")
     a = number(a, "a", "mm^2/s", minimum=0.0)
-    peak = number(peak, "peak", "units of temperature")
-    diameter_px = positive(diameter_px, "diameter_px", "px")
+    peak = number(spot.peak, "peak", "units of temperature")
+    diameter_px = positive(spot.diameter_px, "diameter_px", "px")
     if crop is not None:
         crop = check_int(crop, "crop", 1)
         if crop > size:

@@ -156,6 +156,7 @@ def test_a_fixed_pattern_beside_a_changing_field_is_not_counted_as_white_noise(s
     assert model.static_sd == pytest.approx(record["pixel_sd_realised"], rel=0.1)
 
 
+@pytest.mark.slow
 def test_the_level_of_correlated_noise_is_not_biased_by_choosing_quiet_pixels() -> None:
     """Noise alone (no thermal field): ranking single pixels by their power picked those whose noise
     happened to be low (sd 0.637-0.657 of 0.7 over these seeds); ranked by the power around them, the

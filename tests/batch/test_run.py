@@ -20,7 +20,7 @@ from anra_torch.effects import hidden_effect_video
 from anra_torch.estimation.estimator import ANRAEstimator, ANRAResult
 from anra_torch.recording import plan as recording_plan
 from anra_torch.recording import read as read_module
-from anra_torch.simulation.synthetic import paper_video
+from anra_torch.simulation.synthetic import PaperSpot, paper_video
 from anra_torch.video import prepare_video, save_npz
 
 
@@ -382,7 +382,7 @@ def test_the_table_is_never_an_input(video_folder: Path, tmp_path: Path) -> None
         run_batch([video_folder, video_folder / "x.csv"], video_folder / "x.csv")
     inside = tmp_path / "videos"
     inside.mkdir()
-    video = paper_video(size=32, extent=32 * 10 / 224, seed=1)
+    video = paper_video(size=32, spot=PaperSpot(extent=32 * 10 / 224), seed=1)
     save_npz(inside / "v.npz", video.frames[0], dt=video.dt, dx=video.dx)
     table = inside / "rows.csv"
     for _ in range(2):  # the second run finds rows.csv in the folder

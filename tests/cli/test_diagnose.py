@@ -138,6 +138,7 @@ def test_too_short_video_is_one_line_error(
         assert out == ""
 
 
+@pytest.mark.slow
 def test_no_activity_is_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     frames = np.random.default_rng(0).normal(30.0, 0.1, (40, 40, 40))
     path = save_npz(tmp_path / "noise.npz", frames, dt=0.05, dx=0.5)
@@ -223,6 +224,7 @@ def test_anra_diagnose_states_the_copy_and_counts_phases_in_recording_frames(
     assert math.isfinite(record["gain"])
 
 
+@pytest.mark.slow
 def test_cli_diagnoses_an_8x8_box_and_estimate_flags_it_unresolved(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -255,6 +255,7 @@ def depth_burn(tmp_path_factory: pytest.TempPathFactory) -> dict:
     return beam_recording(tmp_path_factory.mktemp("depth"))
 
 
+@pytest.mark.slow
 def test_depth_maps_json_and_npz(
     depth_burn: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -190,7 +190,7 @@ def test_simulate_flags(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     assert code == 0 and f"wrote {tmp_path / 'p.npz'}: 9 frames of 40 x 40 px" in out
     with np.load(tmp_path / "p.npz") as data:
         assert (float(data["a_true"]), float(data["dx"]), float(data["dt"])) == (0.1, 0.25, 0.1)
-        clean = paper_video(noise_sd=0.0, fps=10, duration=0.8, size=40, extent=10.0, a=0.1).clean.numpy()
+        clean = paper_video(noise_sd=0.0, fps=10, duration=0.8, size=40, a=0.1).clean.numpy()
         np.testing.assert_allclose(data["frames"], clean, rtol=0, atol=1e-12)
 
 

@@ -16,6 +16,7 @@ from anra_torch.effects.independent import (
     simulate_independent,
 )
 from anra_torch.effects.scene import draw_scene
+from anra_torch.simulation import ContinuumGrid
 
 F64 = torch.float64
 
@@ -50,6 +51,7 @@ def pure_pair() -> tuple[torch.Tensor, torch.Tensor]:
      ("nonlinear_diffusion",), ("periodic_source",), ("linear_loss", "advection", "source")],
     ids="+".join,
 )  # fmt: skip
+@pytest.mark.slow
 def test_agrees_with_library_on_a_smooth_scene(names: tuple[str, ...], pure_pair) -> None:
     library = hidden_effect_video(names, **SMOOTH).clean
     ours = independent_effect_video(names, **SMOOTH).clean
@@ -94,7 +96,14 @@ def test_source_adds_its_heat_and_loss_removes_it() -> None:
     rate, width = 2.0, 1.0
     source = Effect("source", {"x0": 8.0, "y0": 8.0, "x1": 8.0, "y1": 8.0, "rate": rate, "width": width})
     video = simulate_independent(
-        _spot(4.0, 7.0, 9.0, 2.0), shape=(32, 32), a=0.15, dx=dx, dt=dt, n_frames=n, effects=[source], pad=0
+        _spot(4.0, 7.0, 9.0, 2.0),
+        shape=(32, 32),
+        a=0.15,
+        dx=dx,
+        dt=dt,
+        n_frames=n,
+        effects=[source],
+        grid=ContinuumGrid(pad=0),
     )
     heat = _heat(video, dx)
     added = rate * 2 * math.pi * width**2 * torch.arange(n, dtype=F64) * dt  # integral of the Gaussian input
@@ -102,7 +111,14 @@ def test_source_adds_its_heat_and_loss_removes_it() -> None:
     b = 0.4
     loss = Effect("linear_loss", {"b": b, "T_ref": BACKGROUND})
     video = simulate_independent(
-        _spot(4.0, 7.0, 9.0, 2.0), shape=(32, 32), a=0.15, dx=dx, dt=dt, n_frames=n, effects=[loss], pad=0
+        _spot(4.0, 7.0, 9.0, 2.0),
+        shape=(32, 32),
+        a=0.15,
+        dx=dx,
+        dt=dt,
+        n_frames=n,
+        effects=[loss],
+        grid=ContinuumGrid(pad=0),
     )
     heat = _heat(video, dx)
     expected = heat[0] * torch.exp(-b * torch.arange(n, dtype=F64) * dt)
@@ -119,13 +135,15 @@ def test_errors() -> None:
     source = Effect("source", {"x0": 6.0, "y0": 8.0, "x1": 10.0, "y1": 8.0, "rate": 3.0, "width": 1.0})
     common = {"shape": (16, 16), "a": 0.1, "dx": 0.5, "dt": 0.1, "n_frames": 3}
     with pytest.raises(ValueError, match="method='spectral' needs constant coefficients"):
-        simulate_independent(_spot(1.0, 4.0, 4.0, 1.0), effects=[source], method="spectral", **common)
+        simulate_independent(
+            _spot(1.0, 4.0, 4.0, 1.0), effects=[source], grid=ContinuumGrid(method="spectral"), **common
+        )
     with pytest.raises(ValueError, match="unknown method 'rk4'"):
-        simulate_independent(_spot(1.0, 4.0, 4.0, 1.0), method="rk4", **common)
+        simulate_independent(_spot(1.0, 4.0, 4.0, 1.0), grid=ContinuumGrid(method="rk4"), **common)
     with pytest.raises(TypeError, match="initial must be a function"):
         simulate_independent(torch.zeros(16, 16), **common)
     with pytest.raises(ValueError, match="pad must be an integer >= 0"):
-        simulate_independent(_spot(1.0, 4.0, 4.0, 1.0), pad=-1, **common)
+        simulate_independent(_spot(1.0, 4.0, 4.0, 1.0), grid=ContinuumGrid(pad=-1), **common)
     with pytest.raises(ValueError, match="initial must give finite temperatures"):
         simulate_independent(lambda x, y: x / 0.0 + y, **common)
     with pytest.raises(ValueError, match="noise_frac must be a finite number >= 0"):

@@ -48,6 +48,7 @@ def test_plain_model_refines_a() -> None:
     assert result.sse_after < result.sse_before
 
 
+@pytest.mark.slow
 def test_bad_arguments_are_one_line_errors() -> None:
     v = small(["linear_loss"])
     diagnosis = diagnose_terms(v.frames, v.dt, v.dx)

@@ -213,21 +213,6 @@ def test_irregular_times_with_a_12x_step_range_need_no_flag(
     assert np.min(np.abs(t - split_t)) < step / 2  # the forecast starts from a measured sample
 
 
-def test_effects_that_do_not_forecast_or_sit_outside_the_frame_are_flagged() -> None:
-    from anra_torch.recording.phase_diagnosis import _implausible
-
-    effects = [
-        {"name": "source", "params": {"x0": 400.0, "y0": 5.0, "x1": 401.0, "y1": 5.0}, "gain": 0.3},
-        {"name": "advection", "params": {"vx": 1.0, "vy": 0.0}, "gain": -4.0},
-        {"name": "linear_loss", "params": {"b": 0.1, "T_ref": 20.0}, "gain": 0.5},
-    ]
-    flagged = _implausible(effects, height=20.0, width=20.0)
-    assert len(flagged) == 3  # the source's start and end outside the 20 mm frame, the advection's gain
-    assert all("missing" in line for line in flagged)
-    assert flagged[0].startswith("source: x0, y0 = (400, 5) mm lies outside the 20 x 20 mm field of view")
-    assert flagged[2].startswith("advection: its own held-out gain is -4")
-
-
 def _laser_phases(disk_cache: Callable[..., Any], name: str) -> list[PhaseDiagnosis]:
     """The library's default diagnosis of the laser run ``name``, once per test run (two tests read it)."""
 

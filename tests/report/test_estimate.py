@@ -36,6 +36,7 @@ def case(tmp_path_factory: pytest.TempPathFactory) -> tuple[Video, ANRAEstimator
     return video, estimator, estimator(video.frames, video.dt, video.dx)
 
 
+@pytest.mark.slow
 def test_report_writes_markdown_and_all_figures(tmp_path: Path, case: tuple) -> None:
     video, estimator, result = case
     report = write_estimate_report(tmp_path / "out", video, result, truth=0.2, estimator=estimator)
@@ -124,6 +125,7 @@ def test_report_without_matplotlib_names_the_extra(
         write_estimate_report(tmp_path, video, result)
 
 
+@pytest.mark.slow
 def test_report_leaves_the_pyplot_backend_alone(tmp_path: Path, case: tuple) -> None:
     import matplotlib
 

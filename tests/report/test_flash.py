@@ -54,6 +54,7 @@ def test_the_report_draws_the_maps_and_lists_the_defects(tmp_path: Path) -> None
     assert "back wall reached in the recording | yes" in text
 
 
+@pytest.mark.slow
 def test_an_intact_plate_and_a_short_recording_say_so(tmp_path: Path) -> None:
     text = write_flash_report(tmp_path, _maps(()), 0.3).read_text()
     assert "No defect found." in text and "a lower bound" in text

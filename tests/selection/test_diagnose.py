@@ -141,6 +141,7 @@ def test_terms_balance_a_noiseless_video_exactly(name: str) -> None:
         assert found[key] == pytest.approx(value, rel=2e-4, abs=1e-3), key
 
 
+@pytest.mark.slow
 def test_plain_diffusivity_equals_the_estimator_with_the_same_filters() -> None:
     """The base model is the ANRA estimator (lsq, uniform weights, errors-in-variables correction)."""
     video = video_of((), seed=7)

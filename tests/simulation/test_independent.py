@@ -16,6 +16,7 @@ from anra_torch.effects import Effect
 from anra_torch.effects.independent import (
     simulate_independent,
 )
+from anra_torch.simulation import ContinuumGrid
 
 F64 = torch.float64
 
@@ -62,8 +63,8 @@ def test_gaussian_spreads_finite_volume_second_order() -> None:
     errors = []
     for refine in (1, 2):
         video = simulate_independent(
-            _spot(*args), shape=shape, a=a, dx=dx, dt=dt, n_frames=5, method="finite_volume",
-            refine=refine, substeps=4,
+            _spot(*args), shape=shape, a=a, dx=dx, dt=dt, n_frames=5,
+            grid=ContinuumGrid(refine=refine, substeps=4, method="finite_volume"),
         )  # fmt: skip
         errors.append(float((video - expected).abs().max()) / args[0])
     assert errors[1] < 2e-3
@@ -88,7 +89,7 @@ def _mode_video(method: str, **effects: dict) -> tuple[torch.Tensor, torch.Tenso
     ]
     video = simulate_independent(
         lambda x, y: BACKGROUND + amp * torch.cos(kx * x + ky * y),
-        shape=shape, a=0.0, dx=dx, dt=dt, n_frames=n, effects=chosen, pad=0, method=method,
+        shape=shape, a=0.0, dx=dx, dt=dt, n_frames=n, effects=chosen, grid=ContinuumGrid(0, method=method),
     )  # fmt: skip
     x = (torch.arange(shape[1], dtype=F64) + 0.5) * dx
     y = (torch.arange(shape[0], dtype=F64) + 0.5) * dx
@@ -138,7 +139,7 @@ def test_heat_is_conserved_on_a_periodic_frame(effect: Effect | None) -> None:
             continue
         video = simulate_independent(
             _spot(4.0, 8.0, 8.0, 2.0), shape=(32, 32), a=0.15, dx=0.5, dt=0.5, n_frames=6,
-            effects=effects, pad=0, method=method,
+            effects=effects, grid=ContinuumGrid(pad=0, method=method),
         )  # fmt: skip
         heat = _heat(video, 0.5)
         torch.testing.assert_close(heat, heat[:1].expand_as(heat), rtol=1e-12, atol=1e-12 * float(heat[0]))
@@ -156,7 +157,7 @@ def test_finite_volume_time_steps_converge_at_second_order() -> None:
             dt=0.5,
             n_frames=5,
             effects=[source],
-            substeps=s,
+            grid=ContinuumGrid(substeps=s),
         )  # fmt: skip
         for s in (1, 2, 8)
     ]

@@ -45,6 +45,7 @@ def test_static_source_deposits_power_times_duration() -> None:
     assert video[-1, 4, 5].item() == pytest.approx(37.0 + 4.0 * math.exp(-0.5), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_gradients_flow_to_the_fields() -> None:
     u0 = 37.0 + torch.rand(5, 5, dtype=F64)
     a = torch.full((5, 5), 0.1, dtype=F64, requires_grad=True)
