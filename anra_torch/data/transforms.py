@@ -18,8 +18,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from anra_torch.recording import MIN_PHASE_FRAMES, find_phases, phase_preference, whole_recording
-from anra_torch.video import ROI, Phase, Video, crop, parse_roi, resample_uniform
+from anra_torch.recording import MIN_PHASE_FRAMES, find_phases, phase_head, phase_preference, whole_recording
+from anra_torch.video import ROI, Video, crop, parse_roi, resample_uniform
 
 __all__ = ["PHASES", "Compose", "RegionOfInterest", "Resample", "SelectPhase"]
 
@@ -155,17 +155,7 @@ class SelectPhase:
                 raise ValueError(f"{video.name}: {need}; found {listed}")
             chosen = max(kind, key=lambda p: p.frames)
         part = video.span(chosen.start, chosen.stop)
-        return replace(part, meta={**part.meta, "phase": _record(chosen)})
-
-
-def _record(phase: Phase) -> dict[str, Any]:
-    return {
-        "kind": phase.name,
-        "start_frame": phase.start,
-        "stop_frame": phase.stop,
-        "t_start": phase.t_start,
-        "t_stop": phase.t_stop,
-    }
+        return replace(part, meta={**part.meta, "phase": phase_head(chosen)})
 
 
 def _per_pixel(value: Any, height: int, width: int) -> bool:

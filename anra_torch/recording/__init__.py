@@ -42,7 +42,7 @@ from anra_torch.recording.phases import (
 )
 from anra_torch.recording.plan import on_disk_above, reads_in_chunks
 from anra_torch.recording.read import input_record, open_recording
-from anra_torch.recording.records import PhaseEstimate, RecordingEstimate
+from anra_torch.recording.records import PhaseEstimate, RecordingEstimate, phase_head
 
 __all__ = [
     "DIAGNOSE_VALUES",
@@ -69,6 +69,7 @@ __all__ = [
     "open_for_diagnosis",
     "open_recording",
     "phase_diffusivities",
+    "phase_head",
     "phase_preference",
     "reads_in_chunks",
     "signal_box",

@@ -11,6 +11,7 @@ from torch import Tensor
 from anra_torch.checks import implausible_diffusivity
 from anra_torch.effects import EFFECTS
 from anra_torch.forecast import GainResult
+from anra_torch.recording.records import phase_head
 from anra_torch.video import Phase
 
 __all__ = ["PhaseDiagnosis", "flag_implausible", "gain_of", "implausible"]
@@ -74,13 +75,8 @@ class PhaseDiagnosis:
 
     def to_record(self) -> dict[str, Any]:
         """The phase as a JSON-ready dict (the ``"phases"`` element of ``anra diagnose --json``)."""
-        p = self.phase
         record: dict[str, Any] = {
-            "kind": p.name,
-            "start_frame": p.start,
-            "stop_frame": p.stop,
-            "t_start": p.t_start,
-            "t_stop": p.t_stop,
+            **phase_head(self.phase),
             "analysed": self.reason is None,
             "family": self.family,
             "base": {"diffusivity": self.diffusivity, "prediction_rmse": self.base_rmse},

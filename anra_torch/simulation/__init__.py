@@ -27,17 +27,16 @@ right-hand sides with the same :func:`integrate`. Units: mm, s, mm^2/s.
 
 from anra_torch.simulation.analytic import SPECTRAL_BOUNDARIES, gaussian_blob, gaussian_blobs, heat_spectral
 from anra_torch.simulation.bioheat_green import GreenResult, GreenScene, simulate_spot, spot_peak
-from anra_torch.simulation.bioheat_reference import (
+from anra_torch.simulation.bioheat_reference import camera_frames, simulate_bioheat
+from anra_torch.simulation.bioheat_scenes import random_scene
+from anra_torch.simulation.bioheat_setup import (
     BioheatResult,
     BioheatScene,
     Contact,
     DepthGrid,
     SurfaceFlux,
     Tissue,
-    camera_frames,
-    simulate_bioheat,
 )
-from anra_torch.simulation.bioheat_scenes import random_scene
 from anra_torch.simulation.camera import ARTEFACTS, plant
 from anra_torch.simulation.heat import BOUNDARIES, HeatRHS, simulate_heat
 from anra_torch.simulation.independent import (

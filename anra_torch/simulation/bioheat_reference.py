@@ -40,16 +40,9 @@ from anra_torch.simulation.bioheat_setup import (
     Contact,
     DepthGrid,
     SurfaceFlux,
-    Tissue,
 )
 
 __all__ = [
-    "BioheatResult",
-    "BioheatScene",
-    "Contact",
-    "DepthGrid",
-    "SurfaceFlux",
-    "Tissue",
     "camera_frames",
     "flux_centre",
     "simulate_bioheat",

@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-from anra_torch.simulation.bioheat_reference import BioheatScene, Contact, SurfaceFlux, Tissue, flux_centre
+from anra_torch.simulation.bioheat_reference import flux_centre
+from anra_torch.simulation.bioheat_setup import BioheatScene, Contact, SurfaceFlux, Tissue
 
 __all__ = ["KINDS", "flux_peak", "random_scene"]
 

@@ -9,16 +9,9 @@ import numpy as np
 import pytest
 from scipy.special import erf, erfc, erfcx
 
-from anra_torch.simulation.bioheat_reference import (
-    BioheatScene,
-    Contact,
-    DepthGrid,
-    SurfaceFlux,
-    Tissue,
-    camera_frames,
-    simulate_bioheat,
-)
+from anra_torch.simulation.bioheat_reference import camera_frames, simulate_bioheat
 from anra_torch.simulation.bioheat_scenes import flux_peak, random_scene
+from anra_torch.simulation.bioheat_setup import BioheatScene, Contact, DepthGrid, SurfaceFlux, Tissue
 
 A, BODY = 0.15, 37.0
 
