@@ -34,7 +34,7 @@ from anra_torch.balance import estimate_noise_sd
 from anra_torch.checks import as_video, spacing_in_range
 from anra_torch.flash.cooling import nelder_mead, profile_rss, refine_minimum, tau_grid, time_bins
 from anra_torch.flash.lateral import fit_lateral, lateral_integrals, local_quadratic, value_noise_gain
-from anra_torch.flash.regions import components, dilate, erode
+from anra_torch.flash.regions import components, dilate, erode, smooth
 
 __all__ = ["DefectMap", "FoundDefect", "defect_map"]
 
@@ -85,8 +85,8 @@ class DefectMap:
         plate_time_se: its standard error in s.
         back_wall_reached: the recording lasts past ``plate_time / pi``, where the back wall shows.
         defect_score: ``ln(plate_time / tau)`` over the peak of its defect where one is found (1 in its
-            core, 1/2 at its outline), else over the largest such peak; higher = more likely a defect,
-            ``(H, W)``.
+            core, 1/2 at its outline), elsewhere bounded at +-0.2 per pixel, averaged over 3 px and over
+            twice the largest peak; higher = more likely a defect, ``(H, W)``.
         defect_mask: ``(H, W)`` booleans.
         depth_fraction: ``d / L`` of the defect at each pixel, NaN where sound, ``(H, W)``.
         defects: the defects found.
@@ -383,10 +383,7 @@ def _finish(
         fraction[outline] = depth
         peaks.append((outline, peak))
         found.append(_describe(outline, depth, dx))
-    score = contrast.clamp_min(0) / max([float(p) for _, p in peaks], default=1.0) * 0.5
-    for outline, peak in peaks:
-        region = dilate(outline, 2)
-        score = torch.where(region, torch.maximum(score, contrast.clamp_min(0) / peak), score)
+    score = _score(contrast, peaks)
     plate_time = math.exp(float(plate))
     last = first + (cooling.shape[0] - 1) * cooling.dt
     return DefectMap(
@@ -403,6 +400,19 @@ def _finish(
         first_time=first,
         noise_sd=sd,
     )
+
+
+def _score(contrast: Tensor, peaks: list[tuple[Tensor, Tensor]]) -> Tensor:
+    """The defect score: over each defect found (its outline grown by 2 px) its contrast over its peak;
+    elsewhere the contrast, each pixel's bounded at +-:data:`_CONTRAST` (a fit can run far off in noise),
+    averaged over the lateral derivatives' footprint (nothing smaller is resolved) and over twice the
+    largest peak: a defect too faint to outline still ranks above the sound plate."""
+    bounded = smooth(contrast.clamp(-_CONTRAST, _CONTRAST), _SIGMA_LATERAL).clamp_min(0)
+    score = bounded / max([float(p) for _, p in peaks], default=1.0) * 0.5
+    for outline, peak in peaks:
+        region = dilate(outline, 2)
+        score = torch.where(region, torch.maximum(score, contrast.clamp_min(0) / peak), score)
+    return score
 
 
 def _grown(region: Tensor, level: Tensor) -> Tensor:

@@ -151,3 +151,19 @@ def test_the_outline_reaches_the_edge_where_single_pixels_are_not_significant() 
     got = found.defect_mask.numpy()
     assert (got & mask).sum() / (got | mask).sum() > 0.9  # 0.84 when the outline stopped at z = 3
     assert len(found.defects) == 1 and abs(found.defects[0].depth_fraction - 0.7) < 0.05
+
+
+@pytest.mark.slow
+def test_a_defect_too_faint_to_outline_still_ranks_above_the_sound_plate() -> None:
+    # d / L 0.93 (contrast 0.15, under the 0.2 a defect pixel needs) at 0.4 K: no defect is outlined
+    frames, dt, mask, _ = _plate(size=32, defects=((4.8, 4.8, 2.5, 0.93),), seed=4)
+    frames = frames + 0.4 * torch.from_numpy(np.random.default_rng(6).standard_normal(frames.shape))
+    found = defect_map(frames, dt, DX)
+    assert found.defects == ()
+    score = found.defect_score.numpy().ravel()
+    ranks = score.argsort().argsort() + 1.0
+    positives = mask.ravel()
+    auc = (ranks[positives].sum() - positives.sum() * (positives.sum() + 1) / 2) / (
+        positives.sum() * (~positives).sum()
+    )
+    assert auc > 0.95  # 0.72 when each pixel's contrast was the score on its own
