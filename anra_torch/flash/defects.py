@@ -13,7 +13,8 @@ From the map: the plate's ``L^2 / a_z`` (the median of the sound pixels; front-f
 ratio, not ``L`` or ``a_z``) with its standard error over tiles of the frame; defects where ``tau`` is
 significantly shorter than the plate's, each outlined where its log contrast ``ln(plate / tau)`` is above
 half its peak (any shape, running out of the frame or not) with its depth fraction
-``d / L = sqrt(tau / plate)``.
+``d / L = sqrt(tau / plate)`` at the peak (the 95 % quantile; heat flowing sideways across the defect's
+edge only lowers the contrast).
 
 Assumptions (each one a way for a recording to break the map): an instantaneous flash absorbed at the
 surface, smooth across the frame; a plate of uniform thickness and diffusivity (lateral anisotropy with
@@ -365,24 +366,7 @@ def _finish(
     candidate = (
         (contrast > _CONTRAST) & (contrast > _SCATTER * _edge_scatter(contrast, sound)) & (z > _SIGNIFICANCE)
     )
-    labels, count = components(candidate)
-    mask = torch.zeros_like(sound)
-    fraction = torch.full_like(contrast, math.nan)
-    peaks, found = [], []
-    for k in range(1, count + 1):  # a few defects, each a whole region at once
-        region = labels == k
-        if int(region.sum()) < _MIN_PIXELS:
-            continue
-        values = contrast[region]
-        peak = torch.quantile(values, 0.95)
-        if float(peak) < least:  # within the sound plate's own scatter
-            continue
-        outline = _grown(region, contrast >= 0.5 * peak)
-        depth = float(torch.exp(-0.5 * torch.quantile(values, 0.8)))
-        mask |= outline
-        fraction[outline] = depth
-        peaks.append((outline, peak))
-        found.append(_describe(outline, depth, dx))
+    mask, fraction, peaks, found = _outlines(contrast, candidate, least, dx)
     score = _score(contrast, peaks)
     plate_time = math.exp(float(plate))
     last = first + (cooling.shape[0] - 1) * cooling.dt
@@ -400,6 +384,35 @@ def _finish(
         first_time=first,
         noise_sd=sd,
     )
+
+
+def _outlines(
+    contrast: Tensor, candidate: Tensor, least: float, dx: float
+) -> tuple[Tensor, Tensor, list[tuple[Tensor, Tensor]], list[FoundDefect]]:
+    """The defects among the candidate pixels' regions, the strongest first: the mask, the depth fractions,
+    each defect's (outline, peak) and its description. A region inside a stronger defect's outline is
+    part of it (the outline reaches beyond the significant pixels)."""
+    labels, count = components(candidate)
+    regions = []
+    for k in range(1, count + 1):  # a few regions, each whole
+        region = labels == k
+        if int(region.sum()) >= _MIN_PIXELS:
+            peak = torch.quantile(contrast[region], 0.95)
+            if float(peak) >= least:  # above the sound plate's own scatter
+                regions.append((float(peak), k, region, peak))
+    mask = torch.zeros_like(candidate)
+    fraction = torch.full_like(contrast, math.nan)
+    peaks, found = [], []
+    for _, _, region, peak in sorted(regions, key=lambda r: (-r[0], r[1])):
+        if bool((region & mask).any()):
+            continue
+        outline = _grown(region, contrast >= 0.5 * peak) & ~mask
+        depth = float(torch.exp(-0.5 * peak))  # at its peak: sideways flow only lowers the contrast
+        mask |= outline
+        fraction[outline] = depth
+        peaks.append((outline, peak))
+        found.append(_describe(outline, depth, dx))
+    return mask, fraction, peaks, found
 
 
 def _score(contrast: Tensor, peaks: list[tuple[Tensor, Tensor]]) -> Tensor:
