@@ -15,17 +15,20 @@ both. :func:`fit_depth_parameters` finds ``(a, b, beta)`` by Levenberg-Marquardt
 where ``S`` keeps the cosine modes (of the frame and a margin) below ``3.7 / SMOOTHING`` 1/mm whose change
 stands above the noise, Gaussian-weighted (``exp(-k^2 s^2 / 2)``, the same on both sides).
 
-The frame is a window, not the world: the heat crosses its edges. The frames are continued ``MARGIN`` mm
-beyond every edge (:mod:`~anra_torch.tissue.depth_cooling`, :func:`anra_torch.tissue.depth_window.widen`: a
-straight line through each edge's last pixels) so that the heat leaves through them as it does in the
-tissue, the cooling evolves freely there, and the residual is read only inside the frame, away from its
-edges.
+The frame is a window, not the world: the heat crosses its edges. The frames are continued beyond every
+edge (:mod:`~anra_torch.tissue.depth_cooling`, :func:`anra_torch.tissue.depth_window.widen`: a Gaussian
+tail, the logarithm of each edge's last pixels continued by a parabola) by
+:data:`~anra_torch.tissue.depth_cooling.MARGIN` mm, or by :data:`~anra_torch.tissue.depth_cooling.REACH`
+diffusion lengths of the record when the heat reaches further, so that the heat leaves
+through the frame's edges as it does in the tissue, the widened frame's own walls (the cosine modes'
+zero flux) stand where no heat reaches, the cooling evolves freely there, and the residual is read only
+inside the frame, away from its edges.
 
 Standard errors: the larger of the measured white noise's (through the residual's linear operators,
 analytic, first order: the measured side and the forecast's state) and the jackknife's over rings of the
 window by distance from the edges and halves of the cooling (one linearised step each: parts that
 disagree about ``a`` show the model's own error), and in quadrature the edges' part: the change of the fit
-when the frames are continued beyond the window with their curvature mirrored instead of straight.
+when the frames are continued beyond the window with their curvature mirrored instead.
 
 Volumetric heating (a near-infrared laser deposits its heat below the surface) breaks the model: heat
 keeps rising from below after the switch-off and no ``(a, b, beta)`` forecasts the cooling.
