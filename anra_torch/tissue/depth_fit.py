@@ -28,7 +28,8 @@ Standard errors: the larger of the measured white noise's (through the residual'
 analytic, first order: the measured side and the forecast's state) and the jackknife's over rings of the
 window by distance from the edges and halves of the cooling (one linearised step each: parts that
 disagree about ``a`` show the model's own error), and in quadrature the edges' part: the change of the fit
-when the frames are continued beyond the window with their curvature mirrored instead.
+(one linearised step) when the frames are continued beyond the window with their curvature mirrored
+instead.
 
 Volumetric heating (a near-infrared laser deposits its heat below the surface) breaks the model: heat
 keeps rising from below after the switch-off and no ``(a, b, beta)`` forecasts the cooling.
@@ -301,9 +302,13 @@ def fit_depth_parameters(
         misfit = _misfit(c, r, noise)
         # The edges' part: the frames continued with their curvature mirrored instead (the other plausible
         # continuation beyond the window) move the fit by about what the continuation can err.
+        # (one linearised step on the fit's Jacobian: the change of the data moves the minimum by
+        # -(J^T J)^+ J^T (r' - r))
         mirrored = cooling_data(rise, dx_, dt_, noise, start, mirrored=True)
-        other, _, _ = _levenberg_marquardt(mirrored, theta, iterations=6)
-        se = torch.sqrt(se**2 + (other - theta) ** 2)
+        moved = _residual(mirrored, theta.unsqueeze(1))[:, 0, 0] - r
+        jj = torch.einsum("bfpi,bfpj->bij", jac, jac)
+        shift = -(torch.linalg.pinv(jj) @ torch.einsum("bfpi,bfp->bi", jac, moved).unsqueeze(-1))
+        se = torch.sqrt(se**2 + shift.squeeze(-1) ** 2)
     return _result(theta, se, noise, start, misfit, valid, cooling, used, batched)
 
 

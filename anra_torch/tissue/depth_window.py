@@ -93,16 +93,23 @@ def _gaussian_tail(x: Tensor, ahead: Tensor) -> Tensor:
     s = torch.arange(1 - n, 1, dtype=x.dtype, device=x.device)
     tail = x[..., -n:]
     tiny = 1e-9 * float(x.detach().abs().max().clamp_min(1e-30))
-    log = torch.log(tail.clamp_min(tiny))
     weight = tail.clamp_min(0.0) ** 2
-    powers = torch.stack([torch.ones_like(s), s, s * s], -1)  # (n, 3)
-    ridge = 1e-12 * torch.eye(3, dtype=x.dtype, device=x.device)
-    normal = torch.einsum("...n,ni,nj->...ij", weight, powers, powers)
-    scale = normal.diagonal(dim1=-2, dim2=-1).amax(-1, keepdim=True).unsqueeze(-1).clamp_min(tiny)
-    rhs = torch.einsum("...n,ni,...n->...i", weight, powers, log)
-    curvature = torch.linalg.solve(normal + ridge * scale, rhs.unsqueeze(-1))[..., 2, :].clamp_max(0.0)
-    line = powers[:, :2]  # the curvature kept, the level and slope fitted again
-    normal = torch.einsum("...n,ni,nj->...ij", weight, line, line)
-    rhs = torch.einsum("...n,ni,...n->...i", weight, line, log - curvature * s * s)
-    slope = torch.linalg.solve(normal + ridge[:2, :2] * scale, rhs.unsqueeze(-1))[..., 1, :]
-    return tail[..., -1:].clamp_min(0.0) * torch.exp(slope * ahead + curvature * ahead * ahead)
+    m = weight @ torch.stack([s**p for p in range(5)], -1)  # (..., 5): sum w s^p
+    r = (weight * torch.log(tail.clamp_min(tiny))) @ torch.stack([s**p for p in range(3)], -1)
+    m0, m1, m2, m3, m4 = m.unbind(-1)
+    r0, r1, r2 = r.unbind(-1)
+    # the normal equations [[m0 m1 m2] [m1 m2 m3] [m2 m3 m4]] c = r by Cramer's rule: the curvature c2
+    det = m0 * (m2 * m4 - m3 * m3) - m1 * (m1 * m4 - m2 * m3) + m2 * (m1 * m3 - m2 * m2)
+    top = m0 * (m2 * r2 - m3 * r1) - m1 * (m1 * r2 - m2 * r1) + r0 * (m1 * m3 - m2 * m2)
+    scale = (m0 * m2 * m4).abs().clamp_min(tiny)
+    curvature = torch.where(det.abs() > 1e-12 * scale, top / det.where(det != 0, 1.0), 0.0).clamp_max(0.0)
+    # the curvature kept, the level and slope fitted again: [[m0 m1] [m1 m2]] (c0, c1) = r - c2 (m2, m3)
+    q0, q1 = r0 - curvature * m2, r1 - curvature * m3
+    det2 = m0 * m2 - m1 * m1
+    slope = torch.where(
+        det2.abs() > 1e-12 * (m0 * m2).abs().clamp_min(tiny),
+        (m0 * q1 - m1 * q0) / det2.where(det2 != 0, 1.0),
+        0.0,
+    )
+    exponent = slope.unsqueeze(-1) * ahead + curvature.unsqueeze(-1) * ahead * ahead
+    return tail[..., -1:].clamp_min(0.0) * torch.exp(exponent)
