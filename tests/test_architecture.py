@@ -79,7 +79,6 @@ FUNCTIONS_OVER_THE_CAP = {
     "anra_torch.batch.run.run_batch": 80,
     "anra_torch.effects.model.simulate_effects": 80,
     "anra_torch.recording.phase_diagnosis._balance_phase": 80,
-    "anra_torch.simulation.plate.flash_plate_video": 78,
 }
 PUBLIC_FUNCTIONS_OVER_THE_CAP = {
     "anra_torch.batch.run.run_batch": 15,
@@ -87,7 +86,6 @@ PUBLIC_FUNCTIONS_OVER_THE_CAP = {
     "anra_torch.effects.model.simulate_effects": 11,
     "anra_torch.effects.scene.hidden_effect_video": 12,
     "anra_torch.estimation.estimator.ANRAEstimator.candidate_sums": 11,
-    "anra_torch.simulation.plate.flash_plate_video": 13,
 }
 
 
