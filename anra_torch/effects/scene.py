@@ -24,8 +24,9 @@ from torch import Tensor
 
 from anra_torch.checks import check_dtype, check_int, number
 from anra_torch.effects.base import Geometry, Grid
-from anra_torch.effects.model import Effect, check_effects, effects_to_json, simulate_effects
+from anra_torch.effects.model import Effect, check_effects, effects_to_json
 from anra_torch.effects.registry import EFFECTS, unknown_effect
+from anra_torch.effects.simulate import simulate_effects
 from anra_torch.simulation import gaussian_blobs
 from anra_torch.video import save_npz
 
