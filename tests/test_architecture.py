@@ -77,15 +77,12 @@ and ``**kwargs`` not): settings that travel together are a named dataclass."""
 MODULES_OVER_THE_CAP: dict[str, int] = {}
 FUNCTIONS_OVER_THE_CAP = {
     "anra_torch.batch.run.run_batch": 80,
-    "anra_torch.effects.model.simulate_effects": 80,
     "anra_torch.recording.phase_diagnosis._balance_phase": 80,
 }
 PUBLIC_FUNCTIONS_OVER_THE_CAP = {
     "anra_torch.batch.run.run_batch": 15,
     "anra_torch.effects.independent.independent_effect_video": 13,
-    "anra_torch.effects.model.simulate_effects": 11,
     "anra_torch.effects.scene.hidden_effect_video": 12,
-    "anra_torch.estimation.estimator.ANRAEstimator.candidate_sums": 11,
 }
 
 

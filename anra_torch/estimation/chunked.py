@@ -40,6 +40,7 @@ from tqdm.auto import tqdm
 
 from anra_torch.balance import BatchNoise, find_artefacts
 from anra_torch.checks import MIN_RELIABILITY, MIN_SIGNIFICANCE, as_spacing, poor_fit, verdicts
+from anra_torch.estimation.candidates import ErrorPass
 from anra_torch.estimation.chunk_error import NoiseVariance, gain, totals
 from anra_torch.estimation.chunk_pilot import ChunkPilot, choose_on_pilot, pilot_starts
 from anra_torch.estimation.estimator import ANRAEstimator, ANRAResult
@@ -331,8 +332,7 @@ def _accumulate(
             sampled = chained or first or last or j % every == 0
             sums = est.candidate_sums(
                 pilot.index, video[None], None if finite is None else finite[None], dt, dx, noise,
-                with_error=False,
-                back_at=at if sampled else None,
+                error=ErrorPass(with_error=False, back_at=at if sampled else None),
             )  # fmt: skip
             for name, values in sums_of.items():
                 values[start:stop] = getattr(sums, name)[0]
