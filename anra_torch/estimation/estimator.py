@@ -229,10 +229,10 @@ class ANRAEstimator(nn.Module):
     ) -> Candidate:
         """The sums of smoothing candidate ``index`` over a centred ``(B, T, H, W)`` batch.
 
-        ``error`` says what is computed of the standard error (:class:`~.candidates.ErrorPass`; default the
-        batch's standard error). The terms come through the frames' spectra (:mod:`anra_torch.balance.spectral`):
-        ``stage``, the batch's time-filtered spectra, is shared by every candidate (computed here when
-        None)."""
+        ``error`` says what is computed of the standard error (:class:`~.candidates.ErrorPass`; default
+        the batch's standard error). The terms come through the frames' spectra
+        (:mod:`anra_torch.balance.spectral`): ``stage``, the batch's time-filtered spectra, is shared by
+        every candidate (computed here when None)."""
         error = ErrorPass() if error is None else error
         filters = self.filters[index]
         stage = spectral_stage(filters, video, dt) if stage is None else stage
