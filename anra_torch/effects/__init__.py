@@ -35,7 +35,7 @@ from anra_torch.effects.model import (
     equation_text,
 )
 from anra_torch.effects.registry import DIFFUSION_EFFECTS, EFFECTS
-from anra_torch.effects.scene import HiddenEffectVideo, hidden_effect_video
+from anra_torch.effects.scene import HiddenEffectVideo, Medium, Sensor, hidden_effect_video
 from anra_torch.effects.simulate import Boundary, simulate_effects, step_rates
 
 __all__ = [
@@ -49,6 +49,8 @@ __all__ = [
     "Geometry",
     "Grid",
     "HiddenEffectVideo",
+    "Medium",
+    "Sensor",
     "Shape",
     "check_effects",
     "continuum_of",
