@@ -377,7 +377,7 @@ def _finish(
         peak = torch.quantile(values, 0.95)
         if float(peak) < least:  # within the sound plate's own scatter
             continue
-        outline = region & (contrast >= 0.5 * peak)
+        outline = _grown(region, contrast >= 0.5 * peak)
         depth = float(torch.exp(-0.5 * torch.quantile(values, 0.8)))
         mask |= outline
         fraction[outline] = depth
@@ -403,6 +403,13 @@ def _finish(
         first_time=first,
         noise_sd=sd,
     )
+
+
+def _grown(region: Tensor, level: Tensor) -> Tensor:
+    """The connected parts of ``level`` ``(H, W)`` that overlap ``region`` (a defect's outline is where its
+    contrast is above the level, out to its edge, not only where its own fit is significant)."""
+    labels, _ = components(level)
+    return torch.isin(labels, labels[region & level]) & level
 
 
 def _describe(outline: Tensor, depth: float, dx: float) -> FoundDefect:

@@ -140,3 +140,14 @@ def test_a_recording_long_past_the_back_wall_keeps_t_ref() -> None:
     found = defect_map(frames, dt, DX)  # its late frames, only lateral flow, sent T_ref to -58 C
     assert abs(found.t_ref - 20) < 0.05 and abs(found.plate_time / TAU - 1) < 0.1
     assert found.defects == () and found.back_wall_reached
+
+
+@pytest.mark.slow
+def test_the_outline_reaches_the_edge_where_single_pixels_are_not_significant() -> None:
+    # a deep disc (contrast ln 2) at 55 mK: its edge pixels' own fits fall under 3 sd, its contrast does not
+    frames, dt, mask, _ = _plate(size=32, defects=((5.0, 5.0, 2.5, 0.7),), seed=3)
+    frames = frames + 0.05 * torch.from_numpy(np.random.default_rng(5).standard_normal(frames.shape))
+    found = defect_map(frames, dt, DX)
+    got = found.defect_mask.numpy()
+    assert (got & mask).sum() / (got | mask).sum() > 0.9  # 0.84 when the outline stopped at z = 3
+    assert len(found.defects) == 1 and abs(found.defects[0].depth_fraction - 0.7) < 0.05
