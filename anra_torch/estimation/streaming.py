@@ -92,7 +92,7 @@ class StreamingEstimator:
         noise_sd: known noise sd (data units); None estimates it once from the first ``noise_frames``
             frames with :func:`anra_torch.balance.estimate_noise_sd`.
         noise_frames: frames used for that estimate (>= 5).
-        dtype: computation dtype (float32 is ~2x faster; float64 reproduces the offline float64 result).
+        dtype: computation dtype (float64 reproduces the offline float64 result; float32 is faster).
 
     Shape:
         :meth:`push` takes ``(H, W)`` or ``(n, H, W)``; every frame of a stream must have the same ``(H, W)``.
