@@ -35,7 +35,7 @@ from anra_torch.balance import estimate_noise_sd
 from anra_torch.checks import as_video, spacing_in_range
 from anra_torch.flash.cooling import nelder_mead, profile_rss, refine_minimum, tau_grid, time_bins
 from anra_torch.flash.lateral import fit_lateral, lateral_integrals, local_quadratic, value_noise_gain
-from anra_torch.flash.regions import components, dilate, erode, smooth
+from anra_torch.flash.regions import components, dilate, edge_scatter, erode, smooth
 
 __all__ = ["DefectMap", "FoundDefect", "defect_map"]
 
@@ -122,7 +122,7 @@ class _Cooling:
         self.counts = self.bins.counts.to(frames)
         self.offsets = self.bins.elapsed.to(frames) - dt  # each bin's time after the first frame
         value, _ = local_quadratic(self.frames, _SIGMA_VALUE, dx)
-        _, second = local_quadratic(self.frames, _SIGMA_LATERAL, dx)
+        _, second = local_quadratic(self.frames, _SIGMA_LATERAL, dx, cubic=True)
         self.value, self.second = value.flatten(1), second.flatten(2)  # (N, P), (3, N, P)
         self.sd = noise_sd * value_noise_gain(_SIGMA_VALUE)
         self.low = float(self.value[-1].min())  # the coolest late pixel: T_ref lies below it
@@ -285,7 +285,8 @@ def defect_map(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None =
     t_ref, first = _fit_globals(cooling, a, None)
     labels, horizon, last = None, math.inf, float(cooling.offsets[-1]) + first
     for _ in range(_ROUNDS):
-        a = cooling.lateral(t_ref, first, labels)
+        refit = cooling.lateral(t_ref, first, labels)  # a refit without enough sound pixels keeps a
+        a = refit if labels is None or bool(refit.any()) else a
         t_ref, first = _fit_globals(cooling, a, (t_ref, first) if math.isinf(horizon) else None, horizon)
         tau, rss, windowed, taus = _fit_pixels(cooling, a, t_ref, first)
         log_tau = torch.log(tau.clamp(max=float(taus[-2]))).view(height, width)
@@ -319,23 +320,6 @@ def _standard_error(log_tau: Tensor, sound: Tensor) -> float:
     return float(medians.std() / math.sqrt(len(medians)))
 
 
-def _edge_scatter(contrast: Tensor, sound: Tensor) -> Tensor:
-    """Per pixel, the robust sd of the contrast over the sound pixels as far from the frame's edge (up to
-    :data:`_EDGE_RINGS` px; the lateral derivatives are one-sided and noisier near the edge)."""
-    height, width = contrast.shape
-    rows = torch.arange(height, device=contrast.device)[:, None]
-    cols = torch.arange(width, device=contrast.device)[None, :]
-    ring = torch.minimum(torch.minimum(rows, height - 1 - rows), torch.minimum(cols, width - 1 - cols))
-    ring = ring.clamp(max=_EDGE_RINGS)
-    spread = torch.zeros(_EDGE_RINGS + 1, dtype=contrast.dtype, device=contrast.device)
-    for k in range(int(ring.max()) + 1):  # a few rings, each whole
-        values = contrast[(ring == k) & sound]
-        if len(values) < _MIN_PIXELS:
-            values = contrast[ring == k]
-        spread[k] = 1.4826 * (values - values.median()).abs().median()
-    return spread[ring]
-
-
 def _significance(rss: Tensor, windowed: Tensor, plate_index: int) -> Tensor:
     """Per pixel, how many standard deviations of its own fit its ``tau`` is from the plate's."""
     best = rss.min(1).values
@@ -364,7 +348,9 @@ def _finish(
     scatter = 1.4826 * (contrast[sound] - contrast[sound].median()).abs().median()  # the sound plate's
     least = max(_CONTRAST, _SCATTER * float(scatter))
     candidate = (
-        (contrast > _CONTRAST) & (contrast > _SCATTER * _edge_scatter(contrast, sound)) & (z > _SIGNIFICANCE)
+        (contrast > _CONTRAST)
+        & (contrast > _SCATTER * edge_scatter(contrast, sound, _EDGE_RINGS, _MIN_PIXELS))
+        & (z > _SIGNIFICANCE)
     )
     mask, fraction, peaks, found = _outlines(contrast, candidate, least, dx)
     score = _score(contrast, peaks)
