@@ -294,6 +294,7 @@ def defect_map(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None =
         plate_time = math.exp(float(_plate(log_tau)[0]))
         if math.isinf(horizon) and last > _LONG * plate_time:  # long past the back wall: only the lateral
             horizon = max(last / _LONG**2, plate_time)  # flow changes the late frames; the globals end here
+            a = a.new_zeros(3)  # measured at the T_ref the late frames pulled off
             t_ref, first = _fit_globals(cooling, a, None, horizon)  # the next lateral fit needs this T_ref
     return _finish(tau.view(height, width), rss, windowed, taus, dx, (a, t_ref, first, sd), cooling)
 
