@@ -141,10 +141,11 @@ class _Cooling:
         weights = self.counts[:, None] / ((self.sd / excess) ** 2 + _MODEL_FLOOR**2)
         return excess.log().T, integrals.transpose(1, 2), weights.T, elapsed
 
-    def lateral(self, t_ref: float, first: float, labels: Tensor | None) -> Tensor:
-        """The lateral diffusivities (:func:`~anra_torch.flash.lateral.fit_lateral`) at ``T_ref``."""
+    def lateral(self, t_ref: float, first: float, labels: Tensor | None) -> tuple[Tensor, int]:
+        """The lateral diffusivities and the blocks used (:func:`~anra_torch.flash.lateral.fit_lateral`)
+        at ``T_ref``."""
         height, width = self.shape[1:]
-        a, _ = fit_lateral(
+        return fit_lateral(
             self.frames,
             self.offsets + first,
             self.counts,
@@ -154,7 +155,6 @@ class _Cooling:
             sigma=max(2.0, min(height, width) / 16),
             labels=labels,
         )
-        return a
 
 
 def _trimmed_rss(cooling: _Cooling, a: Tensor, pixels: Tensor, point: Tensor, horizon: float) -> float:
@@ -285,8 +285,8 @@ def defect_map(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None =
     t_ref, first = _fit_globals(cooling, a, None)
     labels, horizon, last = None, math.inf, float(cooling.offsets[-1]) + first
     for _ in range(_ROUNDS):
-        refit = cooling.lateral(t_ref, first, labels)  # a refit without enough sound pixels keeps a
-        a = refit if labels is None or bool(refit.any()) else a
+        refit, used = cooling.lateral(t_ref, first, labels)  # too few sound pixels for a refit: a stays
+        a = refit if labels is None or used != 0 else a
         t_ref, first = _fit_globals(cooling, a, (t_ref, first) if math.isinf(horizon) else None, horizon)
         tau, rss, windowed, taus = _fit_pixels(cooling, a, t_ref, first)
         log_tau = torch.log(tau.clamp(max=float(taus[-2]))).view(height, width)
