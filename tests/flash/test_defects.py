@@ -190,3 +190,25 @@ def test_a_shallow_disc_on_the_independent_plate_is_one_defect_at_its_depth() ->
     (disc,) = found.defects
     assert abs(disc.x - 6.4) < 0.5 and abs(disc.y - 6.4) < 0.5
     assert abs(disc.depth_fraction - 0.25) < 0.05
+
+
+@pytest.mark.slow
+def test_a_large_defect_in_a_thick_plate_leaves_the_lateral_fit_physical() -> None:
+    # 4.5 mm, a 9 x 7 mm ellipse at d / L 0.6 in the middle: the late blocks of the lateral fit turned a_y
+    # negative; the map then took nothing off and read the flash's spreading as a defect at the side
+    plate = reference_plate_video(
+        PlateSetup(
+            shape=(48, 48),
+            dx=0.4,
+            n_frames=300,
+            thickness=4.5,
+            duration=50.0,
+            seed=26,
+            defects=(Defect("ellipse", centre=(9.5, 10.5), size=(4.5, 3.5), depth=2.7),),
+        )
+    )
+    found = defect_map(plate.frames, plate.dt, plate.dx)
+    assert abs(found.lateral[0] / 7.3 - 1) < 0.15 and found.lateral[1] > 0  # zeros before
+    assert abs(found.plate_time / plate.plate_time - 1) < 0.1  # +20 % before
+    for defect in found.defects:  # one at the side before
+        assert plate.defect_mask[int(defect.y / plate.dx), int(defect.x / plate.dx)]
