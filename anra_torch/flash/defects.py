@@ -47,6 +47,7 @@ _WINDOW = 0.4  # a pixel's fit reaches window * its tau
 _ODD = 0.3  # |ln tau - ln plate| beyond this: another depth (the lateral fit's regions)
 _CONTRAST = 0.2  # ln(plate / tau) a defect pixel exceeds (d / L < 0.9) ...
 _SIGNIFICANCE = 3.0  # ... at this many standard deviations of its own fit
+_OUTLINE_SIGNIFICANCE = 2.0  # an outline's pixels: above half the peak at this many
 _SCATTER = 4.0  # a defect's peak contrast exceeds this many robust sd of the sound pixels' contrast
 _MIN_PIXELS = math.ceil(math.pi * _SIGMA_LATERAL**2)  # smaller than the lateral derivatives' footprint
 _EDGE_RINGS = 10
@@ -353,7 +354,7 @@ def _finish(
         & (contrast > _SCATTER * edge_scatter(contrast, sound, _EDGE_RINGS, _MIN_PIXELS))
         & (z > _SIGNIFICANCE)
     )
-    mask, fraction, peaks, found = _outlines(contrast, candidate, least, dx)
+    mask, fraction, peaks, found = _outlines(contrast, candidate, z, least, dx)
     score = _score(contrast, peaks)
     plate_time = math.exp(float(plate))
     last = first + (cooling.shape[0] - 1) * cooling.dt
@@ -374,7 +375,7 @@ def _finish(
 
 
 def _outlines(
-    contrast: Tensor, candidate: Tensor, least: float, dx: float
+    contrast: Tensor, candidate: Tensor, z: Tensor, least: float, dx: float
 ) -> tuple[Tensor, Tensor, list[tuple[Tensor, Tensor]], list[FoundDefect]]:
     """The defects among the candidate pixels' regions, the strongest first: the mask, the depth fractions,
     each defect's (outline, peak) and its description. A region inside a stronger defect's outline is
@@ -393,7 +394,7 @@ def _outlines(
     for _, _, region, peak in sorted(regions, key=lambda r: (-r[0], r[1])):
         if bool((region & mask).any()):
             continue
-        outline = _grown(region, contrast >= 0.5 * peak) & ~mask
+        outline = _grown(region, (contrast >= 0.5 * peak) & (z > _OUTLINE_SIGNIFICANCE)) & ~mask
         depth = float(torch.exp(-0.5 * peak))  # at its peak: sideways flow only lowers the contrast
         mask |= outline
         fraction[outline] = depth
