@@ -253,8 +253,10 @@ def fit_effects(
     noise_sd: float | NoiseModel | None = None,
     time_family: str = "smooth",
     nuisance: Sequence[str] = (),
+    physical: bool = False,
 ) -> list[Diagnosis]:
-    """Fit given models on a video as they are: no test, no size rule, nothing added or dropped.
+    """Fit given models on a video as they are: no test, no size rule, nothing added (nor dropped, unless
+    ``physical``).
 
     What :func:`diagnose_terms` does to the model it selected, for models chosen elsewhere (each effect
     the model holds, in order: one that requires another comes after it): one balance at ``smoothing``
@@ -271,6 +273,10 @@ def fit_effects(
         nuisance: effects fitted beside every model but not named (a diagnosis'
             :attr:`Diagnosis.nuisance`; listed in ``negligible``, rule ``"share"``); one whose required
             effect a model lacks is left out of that model.
+        physical: drop from each model, as :func:`diagnose_terms` does from its own, the effects whose
+            fitted parameters are not physical (not valid, or not simulable over the video's temperatures:
+            a delamination of negative strength), the later first, each with the effects that require it;
+            each dropped effect is listed in ``negligible`` (rule ``"unphysical"``).
 
     Returns:
         One :class:`Diagnosis` per model, its ``effects`` in the model's order.
@@ -291,8 +297,21 @@ def fit_effects(
     for model in models:
         selection = Selection(system, ALPHA, _with_nuisance(model, nuisance), _background(video[0]))
         selection.take(selection.names)
-        out.append(_result(system, selection, plain, artefacts, given=model))
+        dropped = _dropped(selection) if physical else []
+        out.append(_result(system, selection, plain, artefacts, given=model, dropped=dropped))
     return out
+
+
+def _dropped(selection: Selection) -> list[dict]:
+    """The ``negligible`` entries (rule ``"unphysical"``) of the effects :meth:`Selection.drop_unphysical`
+    takes out of a given model, with the parameters they had in its fit."""
+    fit = selection.system.fit(selection.columns(selection.selected))
+    coefficients, context = fit.coefficients(), selection.context()
+    before = {name: EFFECTS[name].from_coefficients(coefficients, context) for name in selection.selected}
+    return [
+        {"name": name, "params": before[name], "rule": "unphysical"}
+        for name in selection.drop_unphysical(material=False)
+    ]
 
 
 def _known(names: Sequence[str]) -> list[str]:
@@ -392,12 +411,13 @@ def _result(
     artefacts: Artefacts,
     *,
     given: Sequence[str] | None = None,
+    dropped: Sequence[dict] = (),
 ) -> Diagnosis:
     """The :class:`Diagnosis` of the selected model (refitted), named effects ranked by score, the selected
     effects under :data:`MIN_SHARE` of ``dT/dt`` kept in the fit as nuisance terms (listed in
     ``negligible``, rule ``"share"``). ``given``: the effects of a model fitted as given (named in its
     order, whatever their share; the other selected effects are its nuisance terms), and no thermal
-    activity is no error.
+    activity is no error; ``dropped``: ``negligible`` entries of effects taken out of the given model.
 
     Raises:
         ValueError: no effect and a plain ``a`` within 3 standard errors of 0 (no thermal activity).
@@ -431,5 +451,9 @@ def _result(
         margin=system.margin,
         noise=system.measured_noise,
         artefacts=artefacts,
-        negligible=[*nuisance, *(v for k, v in selection.negligible.items() if k not in selection.selected)],
+        negligible=[
+            *nuisance,
+            *(v for k, v in selection.negligible.items() if k not in selection.selected),
+            *dropped,
+        ],
     )

@@ -235,12 +235,18 @@ class Selection:
             # fitted shape owes to its search (_search_discount).
             self.selected.append(max(eligible, key=eligible.__getitem__))
 
-    def drop_unphysical(self) -> None:
-        """Remove, one at a time, effects whose parameters in the final fit are not physical, or below their
-        physical size (the fit moves when other effects leave or shapes are refitted): the one with the
-        lowest score first."""
-        while bad := self.unphysical(material=True):
-            self.selected.remove(min(bad, key=lambda name: self.scores.get(name, 0.0)))
+    def drop_unphysical(self, *, material: bool = True) -> list[str]:
+        """Remove, one at a time, effects whose parameters in the final fit are not physical, or (with
+        ``material``) below their physical size (the fit moves when other effects leave or shapes are
+        refitted): the one with the lowest score first, the later in the model among equal scores, with the
+        effects that require it. Returns the removed effects in order."""
+        removed: list[str] = []
+        while bad := self.unphysical(material=material):
+            worst = min(bad, key=lambda name: (self.scores.get(name, 0.0), -self.selected.index(name)))
+            gone = [e for e in self.selected if e == worst or worst in EFFECTS[e].requires]
+            self.selected[:] = [e for e in self.selected if e not in gone]
+            removed.extend(gone)
+        return removed
 
     def backward(self) -> Fit:
         """Drop effects that are no longer significant given the others; return the final fit."""
