@@ -28,8 +28,9 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
   would otherwise make most of every model's error and judge the effects by how they smooth it (a true
   disc of lower diffusivity cost -0.9 floors with a pattern of 3 noise sds, +0.27 without it).
 
-Every model, the inner ones and the surviving one, is fitted with the diagnosis' nuisance terms beside
-it (:attr:`~anra_torch.selection.Diagnosis.nuisance`: significant effects too small to name, which stay in
+Every model, the inner ones and the surviving one, is fitted with the diagnosis' hints (candidate shapes
+from outside the balance: a flash map's defects) and its nuisance terms beside it
+(:attr:`~anra_torch.selection.Diagnosis.nuisance`: significant effects too small to name, which stay in
 the fit so that the named ones are not biased by their absence); an effect removed by a forecast rule leaves
 the fit, as the inner forecasts that removed it were fitted. The surviving model is refitted on the whole
 fit frames (:func:`~anra_torch.selection.fit_effects`).
@@ -170,7 +171,7 @@ def _refit(video: Tensor, dt: float, dx: float, diagnosis: Diagnosis, kept: list
     in the held-out forecast); the survivors are then fitted again without it."""
     (final,) = fit_effects(
         video, dt, dx, [kept], smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise,
-        nuisance=diagnosis.nuisance, physical=True,
+        nuisance=diagnosis.nuisance, physical=True, hints=diagnosis.hints,
     )  # fmt: skip
     return final
 
@@ -288,6 +289,7 @@ def _inner_scores(
                     smoothing=diagnosis.smoothing,
                     noise_sd=diagnosis.noise,
                     nuisance=diagnosis.nuisance,
+                    hints=diagnosis.hints,
                 )  # fmt: skip
             )
         except ValueError:

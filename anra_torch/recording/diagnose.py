@@ -239,6 +239,7 @@ def diagnose_video(
     assimilate: int | None = None,
     source_map: bool = False,
     decimated: dict[str, Any] | None = None,
+    hints: dict[str, Any] | None = None,
 ) -> RecordingDiagnosis:
     """Diagnose a recording phase by phase, as ``anra diagnose`` does, and describe its longest analysed
     phase.
@@ -249,6 +250,8 @@ def diagnose_video(
         assimilate: fit frames assimilated into each model's starting state (default: all).
         source_map: also fit the measured source map on the described phase and forecast with it.
         decimated: the copy's record when ``video`` is a block-averaged copy.
+        hints: candidate shapes for every phase's diagnosis (:func:`~anra_torch.recording.flash_hints` of a
+            flash recording's defect map: the delamination looked for at its defects only).
 
     Returns:
         :class:`RecordingDiagnosis`.
@@ -271,6 +274,7 @@ def diagnose_video(
             fit_fraction=fit_fraction,
             assimilate=assimilate,
             measured_t=video.meta.get("measured_t"),
+            hints=hints,
         )
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err

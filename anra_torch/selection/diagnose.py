@@ -65,7 +65,7 @@ one-pixel edge, a source a Gaussian moving on a straight line.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import torch
@@ -126,6 +126,8 @@ class Diagnosis:
             :attr:`nuisance`) or ``"size"`` (under its physical size, out of the fit,
             :attr:`~anra_torch.effects.EffectSpec.min_size`: then also ``"size"``, ``"min_size"``; both are
             there for every effect that states a size).
+        hints: the candidate shapes the diagnosis was given by effect (:func:`diagnose_terms`' ``hints``),
+            for the models fitted after it (:func:`fit_effects`).
     """
 
     base: float
@@ -145,6 +147,7 @@ class Diagnosis:
     noise: NoiseModel | None = None
     artefacts: Artefacts | None = None
     negligible: list[dict] = field(default_factory=list)
+    hints: dict[str, tuple[dict[str, float], ...]] = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -191,6 +194,7 @@ def diagnose_terms(
     noise_sd: float | NoiseModel | None = None,
     effects: Sequence[str] | None = None,
     time_family: str = "smooth",
+    hints: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
 ) -> Diagnosis:
     """Identify the hidden effects of a thermal video by balancing candidate PDE terms on its frames.
 
@@ -207,6 +211,10 @@ def diagnose_terms(
         effects: names in :data:`anra_torch.effects.EFFECTS` to look for; default those searched by
             default (every effect but ``periodic_source``).
         time_family: Holoborodko time family of ``dT/dt`` (:data:`anra_torch.layers.stencils.TIME_FAMILIES`).
+        hints: candidate shapes by effect name from outside the video's balance, each ``{"x", "y",
+            "radius"}`` in mm and the effect's own keys (a flash defect map's defects for ``delamination``,
+            with ``depth_fraction``): the effect's shape fit starts from them and its fitted centre must lie
+            within one's radius; an empty sequence rules the effect out.
 
     Returns:
         :class:`Diagnosis`.
@@ -231,7 +239,9 @@ def diagnose_terms(
     if not (0 < alpha < 1):
         raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
     names = _known([n for n, spec in EFFECTS.items() if spec.searched] if effects is None else effects)
+    checked = _hints(hints)
     video, artefacts, system, plain = _balance(video, dt, dx, smoothing, noise_sd, time_family)
+    system.hints = checked
     selection = Selection(system, alpha, names, _background(video[0]))
     selection.forward()
     selection.backward()
@@ -254,6 +264,7 @@ def fit_effects(
     time_family: str = "smooth",
     nuisance: Sequence[str] = (),
     physical: bool = False,
+    hints: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
 ) -> list[Diagnosis]:
     """Fit given models on a video as they are: no test, no size rule, nothing added (nor dropped, unless
     ``physical``).
@@ -277,6 +288,7 @@ def fit_effects(
             fitted parameters are not physical (not valid, or not simulable over the video's temperatures:
             a delamination of negative strength), the later first, each with the effects that require it;
             each dropped effect is listed in ``negligible`` (rule ``"unphysical"``).
+        hints: as :func:`diagnose_terms` (e.g. the diagnosis' :attr:`Diagnosis.hints`).
 
     Returns:
         One :class:`Diagnosis` per model, its ``effects`` in the model's order.
@@ -292,7 +304,9 @@ def fit_effects(
     for model in [*models, nuisance]:
         if len(set(_known(model))) != len(model):
             raise ValueError(f"a model names each effect once, got {list(model)}")
+    checked = _hints(hints)
     video, artefacts, system, plain = _balance(video, dt, dx, float(smoothing), noise_sd, time_family)
+    system.hints = checked
     out = []
     for model in models:
         selection = Selection(system, ALPHA, _with_nuisance(model, nuisance), _background(video[0]))
@@ -320,6 +334,25 @@ def _known(names: Sequence[str]) -> list[str]:
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
     return list(names)
+
+
+def _hints(
+    hints: Mapping[str, Sequence[Mapping[str, float]]] | None,
+) -> dict[str, tuple[dict[str, float], ...]]:
+    """``hints`` checked: known effects, each candidate with a finite centre and a positive radius (mm).
+
+    Raises:
+        ValueError: an unknown effect or a candidate without them.
+    """
+    out: dict[str, tuple[dict[str, float], ...]] = {}
+    for name, candidates in (hints or {}).items():
+        _known([name])
+        out[name] = tuple({k: float(v) for k, v in c.items()} for c in candidates)
+        for c in out[name]:
+            if not (math.isfinite(c.get("x", math.nan)) and math.isfinite(c.get("y", math.nan))
+                    and c.get("radius", 0.0) > 0):  # fmt: skip
+                raise ValueError(f"hints[{name!r}] need a finite x, y and a positive radius in mm, got {c}")
+    return out
 
 
 def _with_nuisance(model: Sequence[str], nuisance: Sequence[str]) -> list[str]:
@@ -456,4 +489,5 @@ def _result(
             *(v for k, v in selection.negligible.items() if k not in selection.selected),
             *dropped,
         ],
+        hints=dict(system.hints),
     )

@@ -63,7 +63,7 @@ class Selection:
             spec.rates(params, self.span)
         except ValueError:
             return False
-        return spec.valid(params) and self.in_view(name, params)
+        return spec.valid(params) and self.in_view(name, params) and self.in_hint(name, params)
 
     def share(self, name: str, fit: Fit) -> float:
         """The effect's share of ``dT/dt`` in ``fit``: the RMS of its term (its coefficients times its
@@ -145,6 +145,19 @@ class Selection:
                 return False
         return True
 
+    def in_hint(self, name: str, params: dict[str, float]) -> bool:
+        """Whether a localised effect given candidate shapes (the balance's ``hints``: a flash defect
+        map's defects for a delamination) lies in one of them: its first position within the candidate's
+        radius and its own radius (where it has one) at most twice the candidate's; true without hints."""
+        hints = self.system.hints.get(name)
+        if hints is None or not EFFECTS[name].positions:
+            return True
+        x_key, y_key = EFFECTS[name].positions[0]
+        x, y, radius = params[x_key], params[y_key], params.get("radius", 0.0)
+        return any(
+            math.hypot(x - h["x"], y - h["y"]) <= h["radius"] and radius <= 2 * h["radius"] for h in hints
+        )
+
     def threshold(self, name: str, tested: int) -> float:
         return -math.log10(self.alpha / tested) + EFFECTS[name].look_elsewhere
 
@@ -153,6 +166,7 @@ class Selection:
         return (
             name not in effects
             and all(needed in effects for needed in group.requires)
+            and self.system.hints.get(name) != ()  # candidate shapes were looked for and none was found
             and not (group.replaces_diffusion and any(EFFECTS[e].replaces_diffusion for e in effects))
         )
 
