@@ -79,12 +79,7 @@ FUNCTIONS_OVER_THE_CAP = {
     "anra_torch.batch.run.run_batch": 80,
     "anra_torch.effects.model.simulate_effects": 80,
     "anra_torch.recording.phase_diagnosis._balance_phase": 80,
-    "anra_torch.simulation.independent.simulate_continuum": 73,
-    "anra_torch.simulation.integrator.integrate": 78,
     "anra_torch.simulation.plate.flash_plate_video": 78,
-    "anra_torch.simulation.synthetic.paper_video": 77,
-    "anra_torch.video.load.load_video": 68,
-    "anra_torch.video.prepare.prepare_video": 67,
 }
 PUBLIC_FUNCTIONS_OVER_THE_CAP = {
     "anra_torch.batch.run.run_batch": 15,

@@ -246,28 +246,24 @@ def integrate(
 ) -> Tensor:
     """Integrate ``dU/dt = rhs(t, U)`` from ``initial`` and return ``U`` at every frame.
 
-    Fixed-step methods (:data:`FIXED_STEP_METHODS`) take ``substeps`` steps per frame; the solver's time is
-    in units of one substep (``rhs`` scales its time and output by ``dt / substeps``), so frame ``k`` is at
-    ``t = k substeps`` and the unit step hits every frame exactly. Adaptive methods
-    (:data:`ADAPTIVE_METHODS`) use ``rtol`` / ``atol``; their time is in frames (``rhs`` scales by ``dt``).
-    Gradients flow to ``initial`` and to whatever ``rhs`` closes over.
+    Fixed-step methods (:data:`FIXED_STEP_METHODS`) take ``substeps`` steps per frame, in time units of one
+    substep (``rhs`` scales its time and output by ``dt / substeps``; frame ``k`` is at ``t = k substeps``);
+    adaptive methods (:data:`ADAPTIVE_METHODS`) count time in frames (``rhs`` scales by ``dt``). Gradients
+    flow to ``initial`` and to whatever ``rhs`` closes over.
 
     Args:
         rhs: the right-hand side ``(t, U) -> dU/dt`` in the solver's time unit.
         initial: ``U`` at frame 0.
         n_frames: number of frames (>= 1), frame 0 included.
         method: a key of :data:`FIXED_STEP_METHODS` or one of :data:`ADAPTIVE_METHODS`.
-        substeps: steps per frame (>= 1) for fixed-step methods, e.g. from :func:`stable_substeps`; None
-            for adaptive methods.
+        substeps: steps per frame (>= 1) of a fixed-step method (e.g. :func:`stable_substeps`), else None.
         rtol: relative tolerance of adaptive methods.
         atol: absolute tolerance of adaptive methods (units of ``U``).
-        adjoint: use ``odeint_adjoint`` (memory O(1) in the number of steps) instead of backpropagating
-            through the solver.
-        adjoint_params: for ``adjoint=True``, the tensors ``rhs`` uses that need gradients; default
-            ``rhs.adjoint_params`` when ``rhs`` names them (as :class:`~anra_torch.simulation.HeatRHS`
-            does), else the parameters of ``rhs`` (an ``nn.Module``).
-        perturb: fixed-step methods call ``rhs`` just after the start and just before the end of each
-            step, so a forcing that switches on a step boundary is integrated exactly.
+        adjoint: integrate by ``odeint_adjoint`` (memory O(1) in the number of steps).
+        adjoint_params: with ``adjoint``, the tensors ``rhs`` uses that need gradients (default
+            ``rhs.adjoint_params`` when it names them, else the parameters of ``rhs``).
+        perturb: fixed-step methods evaluate ``rhs`` just inside each step, so that a forcing switching on
+            a step boundary is integrated exactly.
 
     Returns:
         ``U`` at frames ``0 .. n_frames - 1``, frame 0 being ``initial``.
@@ -277,9 +273,8 @@ def integrate(
 
     Raises:
         TypeError: ``initial`` not a tensor.
-        ValueError: unknown ``method``; ``substeps`` missing or not an integer ``>= 1`` for a fixed-step
-            method, or given for an adaptive one; non-positive tolerances; ``adjoint_params`` without
-            ``adjoint``.
+        ValueError: unknown ``method``; ``substeps`` missing, not an integer ``>= 1`` or given to an
+            adaptive method; non-positive tolerances; ``adjoint_params`` without ``adjoint``.
 
     Example:
         >>> dt, n = 0.5, 5  # 0.5 s frames in 5 substeps: the solver's time unit is dt / n s
@@ -288,17 +283,43 @@ def integrate(
         >>> u.shape, round(u[-1, 0].item(), 6), round(math.exp(-0.4 * 2 * dt), 6)
         (torch.Size([3, 2]), 0.67032, 0.67032)
     """
+    n_frames = _checked_call(initial, n_frames, method, adjoint=adjoint, adjoint_params=adjoint_params)
+    t, kwargs = _solver_grid(
+        initial, n_frames, method=method, substeps=substeps, rtol=rtol, atol=atol, perturb=perturb
+    )
+    if n_frames == 1:
+        return initial.unsqueeze(0)
+    return _odeint(rhs, initial, t, kwargs, adjoint=adjoint, adjoint_params=adjoint_params)
+
+
+def _checked_call(
+    initial: Tensor,
+    n_frames: int,
+    method: str,
+    *,
+    adjoint: bool,
+    adjoint_params: Sequence[Tensor] | None,
+) -> int:
+    """``n_frames`` checked, after ``initial``'s type, and then ``method`` and ``adjoint_params``."""
     if not isinstance(initial, Tensor):
         raise TypeError(f"initial must be a tensor, got {type(initial).__name__}")
     n_frames = check_int(n_frames, "n_frames", 1)
     check_choice(method, "method", [*FIXED_STEP_METHODS, *ADAPTIVE_METHODS])
     if adjoint_params is not None and not adjoint:
         raise ValueError("adjoint_params applies to adjoint=True only; pass adjoint=True or drop them")
-    t, kwargs = _solver_grid(
-        initial, n_frames, method=method, substeps=substeps, rtol=rtol, atol=atol, perturb=perturb
-    )
-    if n_frames == 1:
-        return initial.unsqueeze(0)
+    return n_frames
+
+
+def _odeint(
+    rhs: Callable[[Tensor, Tensor], Tensor],
+    initial: Tensor,
+    t: Tensor,
+    kwargs: dict[str, object],
+    *,
+    adjoint: bool,
+    adjoint_params: Sequence[Tensor] | None,
+) -> Tensor:
+    """torchdiffeq's ``odeint`` (or ``odeint_adjoint``) on the grid ``t`` with the solver's ``kwargs``."""
     # Imported here: torchdiffeq loads scipy.integrate (~0.4 s), which commands that integrate nothing
     # (estimate, batch) should not pay at every start.
     from torchdiffeq import odeint, odeint_adjoint

@@ -77,6 +77,18 @@ class PaperSpot:
     diameter_px: float = 50.0
     extent: float = 10.0
 
+    def checked(self) -> PaperSpot:
+        """This spot checked (``extent`` and ``diameter_px`` positive, ``peak`` finite).
+
+        Raises:
+            ValueError: a non-positive extent or diameter, a peak that is not a finite number.
+        """
+        extent = positive(self.extent, "extent", "mm")
+        peak = number(self.peak, "peak", "units of temperature")
+        return PaperSpot(
+            peak=peak, diameter_px=positive(self.diameter_px, "diameter_px", "px"), extent=extent
+        )
+
 
 def paper_video(
     *,
@@ -93,11 +105,9 @@ def paper_video(
 ) -> SyntheticVideo:
     """The simulation case of El-Kebir et al. (arXiv 2203.13148), computed exactly.
 
-    A Gaussian (:class:`PaperSpot`: peak ``peak``, full width at half maximum ``diameter_px`` pixels),
-    centred in a ``size x size`` frame spanning ``extent x extent`` mm (``dx = extent / size``), diffusing
-    with ``a``, sampled at ``fps`` for ``duration`` seconds (``round(duration * fps) + 1`` frames from
-    t = 0), plus Gaussian noise of sd ``noise_sd`` on every pixel of every frame. The clean field is
-    computed once; ``n_videos`` noise draws come from ``torch.Generator().manual_seed(seed)``.
+    A Gaussian spot (:class:`PaperSpot`) centred in a ``size x size`` frame, diffusing with ``a``, sampled
+    at ``fps`` for ``duration`` s (``round(duration * fps) + 1`` frames from t = 0), plus Gaussian noise of
+    sd ``noise_sd``: the clean field computed once, ``n_videos`` noise draws seeded by ``seed``.
 
     Args:
         n_videos: number of independent noise realisations B.
@@ -108,8 +118,7 @@ def paper_video(
         size: frame side in pixels.
         a: diffusivity in mm^2/s.
         spot: the initial spot and the frame's side in mm (:class:`PaperSpot`); default the paper's.
-        crop: if given, keep only the central ``crop x crop`` pixels (heat then crosses the frame
-            edges); the pixels are exactly those of the uncropped video with the same seed.
+        crop: keep only the central ``crop x crop`` pixels (those of the uncropped video, same seed).
         dtype: floating dtype of the frames.
 
     Returns:
@@ -119,42 +128,45 @@ def paper_video(
         ``frames`` ``(B, T, S, S)`` and ``clean`` ``(T, S, S)`` with ``S = crop or size``.
 
     Raises:
-        ValueError: non-positive sizes, rates or durations, negative noise, ``crop`` outside
-            ``[1, size]``.
+        ValueError: non-positive sizes, rates or durations, negative noise, ``crop`` outside ``[1, size]``.
 
     Example:
-        >>> video = paper_video(n_videos=2, size=64, crop=32)
-        >>> tuple(video.frames.shape), video.dt == 1 / 27, video.dx == 10.0 / 64
-        ((2, 28, 32, 32), True, True)
+        >>> tuple(paper_video(n_videos=2, size=64, crop=32).frames.shape)  # 1 s at 27 fps: 28 frames
+        (2, 28, 32, 32)
     """
-    n_videos = check_int(n_videos, "n_videos", 1)
-    seed = check_int(seed, "seed", 0)
+    n_videos, seed = check_int(n_videos, "n_videos", 1), check_int(seed, "seed", 0)
     size = check_int(size, "size", 1)
     noise_sd = number(noise_sd, "noise_sd", "units of temperature", minimum=0.0)
-    fps = positive(fps, "fps", "Hz")
-    duration = positive(duration, "duration", "s")
-    spot = PaperSpot() if spot is None else spot
-    extent = positive(spot.extent, "extent", "mm")
+    fps, duration = positive(fps, "fps", "Hz"), positive(duration, "duration", "s")
     a = number(a, "a", "mm^2/s", minimum=0.0)
-    peak = number(spot.peak, "peak", "units of temperature")
-    diameter_px = positive(spot.diameter_px, "diameter_px", "px")
-    if crop is not None:
-        crop = check_int(crop, "crop", 1)
-        if crop > size:
-            raise ValueError(f"crop must be at most size={size} px, got {crop}")
+    spot = (PaperSpot() if spot is None else spot).checked()
+    crop = None if crop is None else _checked_crop(crop, size)
     check_dtype(dtype)
-
-    dx = extent / size
-    dt = 1.0 / fps
     times = torch.arange(round(duration * fps) + 1, dtype=torch.float64, device="cpu") / fps
-    sigma = diameter_px / FWHM_PER_SIGMA * dx
-    clean = gaussian_blob(times, shape=(size, size), dx=dx, a=a, peak=peak, sigma=sigma).to(dtype)
+    clean, dx = _spot_field(times, size, a, spot, dtype)
     generator = torch.Generator().manual_seed(seed)
     noise = torch.randn((n_videos, *clean.shape), generator=generator, dtype=dtype, device="cpu")
     frames = clean + noise_sd * noise
     if crop is not None:
         frames, clean = _centre(frames, crop), _centre(clean, crop)
-    return SyntheticVideo(frames=frames, clean=clean, dt=dt, dx=dx, a=a, times=times.to(dtype))
+    return SyntheticVideo(frames=frames, clean=clean, dt=1.0 / fps, dx=dx, a=a, times=times.to(dtype))
+
+
+def _spot_field(
+    times: Tensor, size: int, a: float, spot: PaperSpot, dtype: torch.dtype
+) -> tuple[Tensor, float]:
+    """The clean field ``(T, size, size)`` of ``spot`` diffusing with ``a`` at ``times`` (s); ``dx`` in mm."""
+    dx = spot.extent / size
+    sigma = spot.diameter_px / FWHM_PER_SIGMA * dx
+    return gaussian_blob(times, shape=(size, size), dx=dx, a=a, peak=spot.peak, sigma=sigma).to(dtype), dx
+
+
+def _checked_crop(crop: int, size: int) -> int:
+    """``crop`` an integer in ``[1, size]``."""
+    crop = check_int(crop, "crop", 1)
+    if crop > size:
+        raise ValueError(f"crop must be at most size={size} px, got {crop}")
+    return crop
 
 
 def _centre(frames: Tensor, crop: int) -> Tensor:

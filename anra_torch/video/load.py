@@ -211,45 +211,37 @@ def load_video(
 ) -> Video:
     """Read a thermal video (a file, or a folder of one file per frame); explicit ``dt`` / ``dx`` win.
 
-    The format is chosen from the file suffix (``anra_torch.video.formats.REGISTRY``) or, for a folder,
-    from the suffix of the frame files in it (``FOLDER_REGISTRY``). Timestamps from the file (``t``, e.g.
-    FLIR EXIF times) are kept in :attr:`Video.t`; an explicit ``dt`` replaces both the file's ``dt`` and
-    its timestamps.
+    The format follows the suffix (``formats.REGISTRY``; a folder's frame files: ``FOLDER_REGISTRY``). The
+    file's timestamps are kept in :attr:`Video.t`; an explicit ``dt`` replaces them and the file's ``dt``.
 
     Args:
         path: the video file or folder.
         dt: frame period in s (required when the file has neither ``dt`` nor ``t``).
         dx: pixel size in mm (optional: :attr:`Video.dx` is None without it).
-        timestamps: what to do when the timestamps are not uniform (:data:`TIMESTAMPS`): ``"uniform"``
-            refuses them, ``"keep"`` keeps them (``dt`` = median step, :attr:`Video.uniform` False),
-            ``"resample"`` interpolates onto a uniform grid
-            (:func:`~anra_torch.video.resample_uniform`) and states it in ``meta["resampled"]``.
+        timestamps: non-uniform timestamps (:data:`TIMESTAMPS`): ``"uniform"`` refuses them, ``"keep"``
+            keeps them (``dt`` the median step), ``"resample"`` interpolates onto a uniform grid
+            (:func:`~anra_torch.video.resample_uniform`; ``meta["resampled"]``).
         mask_values: mask the samples that cannot be measurements (:func:`~anra_torch.checks.in_range_values`)
-            as read, before any resampling could blend them into their neighbours; counted in
-            ``meta["masked_values"]`` when there are any.
-        **objects: ``emissivity`` (0, 1], ``reflected_temp`` (degC), ``distance`` (m), ``atmospheric_temp``
-            (degC), ``humidity`` (%): a FLIR radiometric recording's (``.jpg``, ``.fff``, ``.seq``, ``.csq``)
-            object parameters replacing the file's; ``meta["object_parameters"]`` says what was used.
+            as read, before any resampling; counted in ``meta["masked_values"]``.
+        **objects: a FLIR radiometric file's object parameters replacing the file's (``emissivity``,
+            ``reflected_temp`` degC, ``distance`` m, ``atmospheric_temp`` degC, ``humidity`` %).
 
     Returns:
-        A :class:`Video` with ``frames`` as stored (integer counts stay integers; resampled frames are
-        float64).
+        A :class:`Video`, frames as stored (integer counts stay integers; resampled frames are float64).
 
     Shape:
         The frames must be ``(T, H, W)``.
 
     Raises:
-        ValueError: missing file, unknown suffix, unreadable, truncated or corrupt file, no ``frames``, wrong
-            shape or dtype, mixed frame sizes in a folder, no frame period, non-positive spacing, unsorted or
-            duplicate timestamps, timestamps that are not uniform (with ``"uniform"``) or disagree with
-            ``dt``, an object parameter out of range or given for a file that is not radiometric.
+        ValueError: a missing, unknown, unreadable or corrupt file; no ``frames`` or wrong shape, dtype or
+            frame sizes; no frame period; bad spacing or timestamps (not uniform with ``"uniform"``, or
+            disagreeing with ``dt``); an object parameter out of range or for a file that is not radiometric.
         TypeError: an unknown object parameter, or one that is not a number.
 
     Example:
         >>> import tempfile, numpy as np
         >>> from anra_torch.video import save_npz
-        >>> path = Path(tempfile.mkdtemp()) / "video.npz"
-        >>> _ = save_npz(path, np.zeros((6, 8, 8)), dt=0.04, dx=0.1)
+        >>> path = save_npz(Path(tempfile.mkdtemp()) / "video.npz", np.zeros((6, 8, 8)), dt=0.04, dx=0.1)
         >>> video = load_video(path, dx=0.2)
         >>> tuple(video.frames.shape), video.dt, video.dx
         ((6, 8, 8), 0.04, 0.2)

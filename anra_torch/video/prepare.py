@@ -51,23 +51,16 @@ def prepare_video(
         path: the video file or folder (any format of :func:`~anra_torch.video.load_video`).
         dt: frame period in s (overrides the file).
         dx: pixel size in mm (overrides the file).
-        timestamps: ``"uniform"`` (refuse non-uniform timestamps), ``"keep"`` or ``"resample"`` (interpolate
-            them onto a uniform step, :func:`~anra_torch.video.resample.default_step`); see
-            :func:`~anra_torch.video.load_video`.
+        timestamps: ``"uniform"``, ``"keep"`` or ``"resample"``, as in :func:`~anra_torch.video.load_video`.
         roi: region ``(x0, y0, width, height)`` in px, or its text ``"X0,Y0,W,H"``; None keeps the frame.
         calibration: a :class:`~anra_torch.video.CalibrationTable` or the path of a ``true,apparent`` CSV
             mapping apparent to true temperature; None keeps the values.
         need_dx: require a pixel size (every analysis does; False only to inspect a file).
-        **objects: the object parameters of a FLIR radiometric recording that replace the file's:
-            ``emissivity``, ``reflected_temp`` (degC), ``distance`` (m), ``atmospheric_temp`` (degC),
-            ``humidity`` (%), as in :func:`~anra_torch.video.load_video`.
+        **objects: a FLIR radiometric file's object parameters, as in :func:`~anra_torch.video.load_video`.
 
     Returns:
-        The prepared :class:`~anra_torch.video.Video`. Its ``meta`` says what was done: ``"steps"`` (the names
-        of :data:`STEPS` done, in order), ``"resampled"`` (from what), ``"roi"`` (``[x0, y0, w, h]`` px),
-        ``"calibration"`` (table and extrapolated fraction), ``"masked_values"`` (when samples were masked:
-        counts ``"non_finite"`` and ``"beyond_limit"`` of ``"samples"``, the ``"limit"`` and the ``"largest"``
-        magnitude masked).
+        The prepared :class:`~anra_torch.video.Video`; ``meta["steps"]`` names the :data:`STEPS` done, in
+        order, and ``meta`` what each did (``docs/reference/outputs.md``, the estimate's ``input``).
 
     Shape:
         Frames ``(T, H, W)`` in the file -> ``(T', height, width)`` (``T'`` after resampling).
