@@ -141,13 +141,7 @@ def earned_diagnosis(
         return diagnosis
     repaired = without_offsets(*find_artefacts(video))
     kept, cost, removed = _eliminate(repaired, dt, dx, diagnosis, splits, time_window, assimilate)
-    final = diagnosis if not removed else _refit(video, dt, dx, diagnosis, kept)
-    unphysical: list[dict] = []
-    while dropped := [n for n in final.negligible if n.get("rule") == "unphysical" and n["name"] in kept]:
-        unphysical.extend(dropped)
-        kept = final.names
-        final = _refit(video, dt, dx, diagnosis, kept)
-    unphysical.extend(n for n in final.negligible if n.get("rule") == "unphysical")  # nuisance terms
+    final, unphysical = (diagnosis, []) if not removed else _refit(video, dt, dx, diagnosis, kept)
     ranked = sorted(final.effects, key=lambda e: -e["score"])
     return replace(
         final,
@@ -163,17 +157,26 @@ def earned_diagnosis(
     )
 
 
-def _refit(video: Tensor, dt: float, dx: float, diagnosis: Diagnosis, kept: list[str]) -> Diagnosis:
-    """The kept model fitted on the whole fit frames with the diagnosis' nuisance terms, its effects whose
-    refitted parameters are not physical dropped (``negligible``, rule ``"unphysical"``, last): the inner
-    fits that kept it were each fitted on fewer frames, and a shape refitted on all of them can land where
-    the model cannot be simulated (a plate's delamination of strength -1.7, and with it no effect at all
-    in the held-out forecast); the survivors are then fitted again without it."""
-    (final,) = fit_effects(
-        video, dt, dx, [kept], smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise,
-        nuisance=diagnosis.nuisance, physical=True, hints=diagnosis.hints,
-    )  # fmt: skip
-    return final
+def _refit(
+    video: Tensor, dt: float, dx: float, diagnosis: Diagnosis, kept: list[str]
+) -> tuple[Diagnosis, list]:
+    """The kept model fitted on the whole fit frames with the diagnosis' nuisance terms and hints, and the
+    ``negligible`` entries (rule ``"unphysical"``) of its effects dropped because their refitted parameters
+    are not physical (the survivors fitted again without them): the inner fits that kept an effect were
+    each fitted on fewer frames, and a shape refitted on all of them can land where the model cannot be
+    simulated (a plate's delamination of strength -1.7, and with it no effect at all in the held-out
+    forecast)."""
+    unphysical: list[dict] = []
+    while True:
+        (final,) = fit_effects(
+            video, dt, dx, [kept], smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise,
+            nuisance=diagnosis.nuisance, physical=True, hints=diagnosis.hints,
+        )  # fmt: skip
+        dropped = [n for n in final.negligible if n.get("rule") == "unphysical"]
+        unphysical.extend(n for n in dropped if n not in unphysical)
+        if not any(n["name"] in kept for n in dropped):
+            return final, unphysical
+        kept = final.names
 
 
 def without_offsets(frames: Tensor, artefacts: Artefacts) -> Tensor:

@@ -75,7 +75,7 @@ from anra_torch.balance import Artefacts, BalanceSystem, Fit, NoiseModel, find_a
 from anra_torch.checks import as_video, mostly_finite, positive
 from anra_torch.effects import EFFECTS
 from anra_torch.layers import GaussianSmoothing, TimeDerivative
-from anra_torch.selection.stepwise import Selection
+from anra_torch.selection.stepwise import Selection, checked_hints
 
 __all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms", "fit_effects", "minimum_frame_size"]
 
@@ -126,8 +126,7 @@ class Diagnosis:
             :attr:`nuisance`) or ``"size"`` (under its physical size, out of the fit,
             :attr:`~anra_torch.effects.EffectSpec.min_size`: then also ``"size"``, ``"min_size"``; both are
             there for every effect that states a size).
-        hints: the candidate shapes the diagnosis was given by effect (:func:`diagnose_terms`' ``hints``),
-            for the models fitted after it (:func:`fit_effects`).
+        hints: the candidate shapes it was given (:func:`diagnose_terms`), for later :func:`fit_effects`.
     """
 
     base: float
@@ -211,10 +210,7 @@ def diagnose_terms(
         effects: names in :data:`anra_torch.effects.EFFECTS` to look for; default those searched by
             default (every effect but ``periodic_source``).
         time_family: Holoborodko time family of ``dT/dt`` (:data:`anra_torch.layers.stencils.TIME_FAMILIES`).
-        hints: candidate shapes by effect name from outside the video's balance, each ``{"x", "y",
-            "radius"}`` in mm and the effect's own keys (a flash defect map's defects for ``delamination``,
-            with ``depth_fraction``): the effect's shape fit starts from them and its fitted centre must lie
-            within one's radius; an empty sequence rules the effect out.
+        hints: candidate shapes ``{"x", "y", "radius"}`` (mm) by effect: :meth:`Selection.in_hint`.
 
     Returns:
         :class:`Diagnosis`.
@@ -234,21 +230,17 @@ def diagnose_terms(
         >>> d.names, {k: round(v, 2) for k, v in d.effects[0]["params"].items()}
         (['advection'], {'vx': 1.26, 'vy': -2.37})
     """
-    video = _as_frames(frames)
-    dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
+    video, dt, dx = _as_frames(frames), positive(dt, "dt", "s"), positive(dx, "dx", "mm")
     if not (0 < alpha < 1):
         raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
     names = _known([n for n, spec in EFFECTS.items() if spec.searched] if effects is None else effects)
-    checked = _hints(hints)
-    video, artefacts, system, plain = _balance(video, dt, dx, smoothing, noise_sd, time_family)
-    system.hints = checked
+    video, artefacts, system, plain = _balance(video, dt, dx, smoothing, noise_sd, time_family, hints)
     selection = Selection(system, alpha, names, _background(video[0]))
     selection.forward()
     selection.backward()
     # Localised shapes are refitted to the final model (without themselves).
-    for name in list(selection.shapes):
-        if name in selection.selected:
-            selection.refit(name)
+    for name in [n for n in selection.shapes if n in selection.selected]:
+        selection.refit(name)
     selection.drop_unphysical()
     return _result(system, selection, plain, artefacts)
 
@@ -266,8 +258,7 @@ def fit_effects(
     physical: bool = False,
     hints: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
 ) -> list[Diagnosis]:
-    """Fit given models on a video as they are: no test, no size rule, nothing added (nor dropped, unless
-    ``physical``).
+    """Fit given models on a video as they are: no test, no size rule, nothing added (dropped: ``physical``).
 
     What :func:`diagnose_terms` does to the model it selected, for models chosen elsewhere (each effect
     the model holds, in order: one that requires another comes after it): one balance at ``smoothing``
@@ -284,10 +275,7 @@ def fit_effects(
         nuisance: effects fitted beside every model but not named (a diagnosis'
             :attr:`Diagnosis.nuisance`; listed in ``negligible``, rule ``"share"``); one whose required
             effect a model lacks is left out of that model.
-        physical: drop from each model, as :func:`diagnose_terms` does from its own, the effects whose
-            fitted parameters are not physical (not valid, or not simulable over the video's temperatures:
-            a delamination of negative strength), the later first, each with the effects that require it;
-            each dropped effect is listed in ``negligible`` (rule ``"unphysical"``).
+        physical: drop the effects fitted unphysical (:meth:`Selection.drop_unphysical_given`).
         hints: as :func:`diagnose_terms` (e.g. the diagnosis' :attr:`Diagnosis.hints`).
 
     Returns:
@@ -299,33 +287,19 @@ def fit_effects(
     Shape:
         ``frames`` ``(T, H, W)`` as :func:`diagnose_terms`.
     """
-    video = _as_frames(frames)
-    dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
+    video, dt, dx = _as_frames(frames), positive(dt, "dt", "s"), positive(dx, "dx", "mm")
     for model in [*models, nuisance]:
         if len(set(_known(model))) != len(model):
             raise ValueError(f"a model names each effect once, got {list(model)}")
-    checked = _hints(hints)
-    video, artefacts, system, plain = _balance(video, dt, dx, float(smoothing), noise_sd, time_family)
-    system.hints = checked
+    video, artefacts, system, plain = _balance(video, dt, dx, float(smoothing), noise_sd, time_family, hints)
     out = []
     for model in models:
         selection = Selection(system, ALPHA, _with_nuisance(model, nuisance), _background(video[0]))
         selection.take(selection.names)
-        dropped = _dropped(selection) if physical else []
-        out.append(_result(system, selection, plain, artefacts, given=model, dropped=dropped))
+        if physical:
+            selection.drop_unphysical_given()
+        out.append(_result(system, selection, plain, artefacts, given=model))
     return out
-
-
-def _dropped(selection: Selection) -> list[dict]:
-    """The ``negligible`` entries (rule ``"unphysical"``) of the effects :meth:`Selection.drop_unphysical`
-    takes out of a given model, with the parameters they had in its fit."""
-    fit = selection.system.fit(selection.columns(selection.selected))
-    coefficients, context = fit.coefficients(), selection.context()
-    before = {name: EFFECTS[name].from_coefficients(coefficients, context) for name in selection.selected}
-    return [
-        {"name": name, "params": before[name], "rule": "unphysical"}
-        for name in selection.drop_unphysical(material=False)
-    ]
 
 
 def _known(names: Sequence[str]) -> list[str]:
@@ -334,25 +308,6 @@ def _known(names: Sequence[str]) -> list[str]:
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
     return list(names)
-
-
-def _hints(
-    hints: Mapping[str, Sequence[Mapping[str, float]]] | None,
-) -> dict[str, tuple[dict[str, float], ...]]:
-    """``hints`` checked: known effects, each candidate with a finite centre and a positive radius (mm).
-
-    Raises:
-        ValueError: an unknown effect or a candidate without them.
-    """
-    out: dict[str, tuple[dict[str, float], ...]] = {}
-    for name, candidates in (hints or {}).items():
-        _known([name])
-        out[name] = tuple({k: float(v) for k, v in c.items()} for c in candidates)
-        for c in out[name]:
-            if not (math.isfinite(c.get("x", math.nan)) and math.isfinite(c.get("y", math.nan))
-                    and c.get("radius", 0.0) > 0):  # fmt: skip
-                raise ValueError(f"hints[{name!r}] need a finite x, y and a positive radius in mm, got {c}")
-    return out
 
 
 def _with_nuisance(model: Sequence[str], nuisance: Sequence[str]) -> list[str]:
@@ -404,6 +359,7 @@ def _balance(
     smoothing: float | Sequence[float] | None,
     noise_sd: float | NoiseModel | None,
     time_family: str,
+    hints: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
 ) -> tuple[Tensor, Artefacts, BalanceSystem, Fit]:
     """The repaired video, its artefacts, and the balance at the least noisy usable smoothing with its plain
     fit (:func:`diagnose_terms`' set-up: the noise measured unless given)."""
@@ -419,6 +375,7 @@ def _balance(
         noise = NoiseModel(positive(noise_sd, "noise_sd", "data units"))
     options = {"time_family": time_family, "noise": noise, "within": artefacts.within}
     system, plain = _least_noisy(video, dt, dx, sigmas, float(noise.sd), options)
+    system.hints = checked_hints(hints)
     return video, artefacts, system, plain
 
 
@@ -444,13 +401,12 @@ def _result(
     artefacts: Artefacts,
     *,
     given: Sequence[str] | None = None,
-    dropped: Sequence[dict] = (),
 ) -> Diagnosis:
     """The :class:`Diagnosis` of the selected model (refitted), named effects ranked by score, the selected
     effects under :data:`MIN_SHARE` of ``dT/dt`` kept in the fit as nuisance terms (listed in
     ``negligible``, rule ``"share"``). ``given``: the effects of a model fitted as given (named in its
     order, whatever their share; the other selected effects are its nuisance terms), and no thermal
-    activity is no error; ``dropped``: ``negligible`` entries of effects taken out of the given model.
+    activity is no error.
 
     Raises:
         ValueError: no effect and a plain ``a`` within 3 standard errors of 0 (no thermal activity).
@@ -484,10 +440,6 @@ def _result(
         margin=system.margin,
         noise=system.measured_noise,
         artefacts=artefacts,
-        negligible=[
-            *nuisance,
-            *(v for k, v in selection.negligible.items() if k not in selection.selected),
-            *dropped,
-        ],
+        negligible=[*nuisance, *(v for k, v in selection.negligible.items() if k not in selection.selected)],
         hints=dict(system.hints),
     )
