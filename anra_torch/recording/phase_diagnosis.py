@@ -47,7 +47,7 @@ from anra_torch.forecast import (
 from anra_torch.recording.box_phase import small_box_phase
 from anra_torch.recording.phase_record import PhaseDiagnosis, flag_implausible, implausible
 from anra_torch.recording.phases import MIN_PHASE_FRAMES, recording_phases_of, repaired
-from anra_torch.selection import diagnose_terms, fit_effects, minimum_frame_size
+from anra_torch.selection import diagnose_terms, minimum_frame_size
 from anra_torch.video import Phase, measured_frames
 
 __all__ = ["INNER_SPLITS", "PhaseDiagnosis", "diagnose_recording", "flash_hints"]
@@ -248,8 +248,7 @@ def _assessed(
     model's assessment, the effects named without a held-out gain (None), and why: the source maps still
     compete. ``earn``: the named effects are those that earn their place by their own forecast inside the
     fit frames (:func:`~anra_torch.forecast.earned_diagnosis`; not for the inner comparisons of the
-    source candidates, which keep the stepwise model), and none whose own held-out gain is at most 0
-    (:func:`_held_out_pruned`). ``options["hints"]``: the diagnosis' candidate
+    source candidates, which keep the stepwise model). ``options["hints"]``: the diagnosis' candidate
     shapes (:func:`~anra_torch.selection.diagnose_terms`), the rest :func:`assess_gain`'s keywords."""
     fit = part[: split_index(part.shape[0], fit_fraction) + 1]
     options = dict(options)
@@ -260,9 +259,6 @@ def _assessed(
     unsimulated = None
     try:
         result = assess_gain(part, dt, dx, fit_fraction=fit_fraction, diagnosis=found, **options)
-        if earn:
-            result = _held_out_pruned(part, fit, dt, dx, fit_fraction, result, options)
-            found = result.diagnosis
         gains: list[float | None] = list(result.effect_gains)
     except ValueError as err:
         if not found.effects:
@@ -281,52 +277,6 @@ def _assessed(
         for e, g in zip(found.effects, gains, strict=True)
     ]
     return result, effects, unsimulated
-
-
-def _held_out_pruned(
-    part: Tensor,
-    fit: Tensor,
-    dt: float,
-    dx: float,
-    fit_fraction: float,
-    result: GainResult,
-    options: dict[str, Any],
-) -> GainResult:
-    """``result`` without the effects whose own held-out gain is at most 0: while one has, the worst
-    goes (with the effects that require it; ``negligible``, rule ``"held_out"``, with its ``gain``), the
-    rest is refitted on the fit frames (:func:`~anra_torch.selection.fit_effects`, the diagnosis' smoothing,
-    noise, nuisance terms and hints; unphysical refits dropped) and forecast again. An effect that makes
-    the held-out forecast worse is not named, even where it earned its place inside the fit frames (a
-    flash plate's depth term fitted with a wrong plate time and a negative lateral diffusivity beside it
-    forecast its cooling worse after the fit frames); the phase's gain is then of the pruned model, chosen
-    with the held-out frames' help."""
-    while result.effects and min(result.effect_gains) <= 0:
-        found = result.diagnosis
-        gains = dict(zip(found.names, result.effect_gains, strict=True))
-        worst = min(gains, key=gains.__getitem__)
-        gone = [n for n in found.names if n == worst or worst in EFFECTS[n].requires]
-        removed = [
-            {"name": e["name"], "params": dict(e["params"]), "share": e.get("share"), "rule": "held_out",
-             "gain": gains[e["name"]]}
-            for e in found.effects if e["name"] in gone
-        ]  # fmt: skip
-        kept = [n for n in found.names if n not in gone]
-        (refit,) = fit_effects(
-            fit, dt, dx, [kept], smoothing=found.smoothing, noise_sd=found.noise, nuisance=found.nuisance,
-            physical=True, hints=found.hints,
-        )  # fmt: skip
-        costs = {e["name"]: e.get("forecast_cost") for e in found.effects}
-        listed = [n for n in refit.negligible if n.get("rule") in ("share", "unphysical")]
-        before = [n for n in found.negligible if n.get("rule") != "share" and n not in listed]
-        pruned = replace(
-            refit,
-            effects=[{**e, "forecast_cost": costs.get(e["name"])} for e in refit.effects],
-            scores=found.scores,
-            thresholds=found.thresholds,
-            negligible=[*listed, *before, *removed],
-        )
-        result = assess_gain(part, dt, dx, fit_fraction=fit_fraction, diagnosis=pruned, **options)
-    return result
 
 
 def _extended_conduction(result: GainResult, effects: list[dict[str, Any]]) -> list[str]:
