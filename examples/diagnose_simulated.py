@@ -11,8 +11,9 @@ left out here.
 """
 
 from anra_torch import diagnose_terms, hidden_effect_video
+from anra_torch.effects import Sensor
 
-video = hidden_effect_video("advection", seed=0, size=48, duration=1.5, noise_sd=0.01)
+video = hidden_effect_video("advection", seed=0, size=48, duration=1.5, sensor=Sensor(noise_sd=0.01))
 print("hidden:", [effect.name for effect in video.effects], "a =", video.a, "mm^2/s")
 diagnosis = diagnose_terms(video.frames, video.dt, video.dx)
 print("named:", [effect["name"] for effect in diagnosis.effects], "a =", round(diagnosis.base, 4), "mm^2/s")

@@ -33,17 +33,19 @@ GROUPS = (*EFFECT_NAMES, PURE)
 SIMULATORS = ("library", "independent")
 
 
-def make_video(simulator: str, names: Sequence[str], **kwargs: object):
+def make_video(simulator: str, names: Sequence[str], *, noise_frac: float = 0.01, **kwargs: object):
     """The hidden-effect video of a case from ``"library"`` (:func:`anra_torch.effects.hidden_effect_video`)
     or ``"independent"`` (:func:`anra_torch.effects.independent_effect_video`): the same
-    scene and effect parameters for a seed."""
+    scene and effect parameters for a seed, white noise ``noise_frac`` of the peak initial rise."""
+    from anra_torch.effects import Sensor
+
     if simulator == "library":
         from anra_torch.effects import hidden_effect_video as simulate
     elif simulator == "independent":
         from anra_torch.effects import independent_effect_video as simulate
     else:
         raise ValueError(f"unknown simulator {simulator!r}; expected one of: {', '.join(SIMULATORS)}")
-    return simulate(tuple(names), **kwargs)
+    return simulate(tuple(names), sensor=Sensor(noise_frac=noise_frac), **kwargs)
 
 
 def _rel(est: float, true: float) -> float:

@@ -31,7 +31,7 @@ def main() -> None:
     import torch
     from tqdm import tqdm
 
-    from anra_torch.effects import hidden_effect_video
+    from anra_torch.effects import Sensor, hidden_effect_video
     from anra_torch.selection import diagnose_terms
 
     torch.set_num_threads(1)
@@ -41,7 +41,7 @@ def main() -> None:
     for group, noise, seed in tqdm(jobs, desc="cases"):
         names = () if group == "pure" else (group,)
         video = hidden_effect_video(
-            names, seed=100 + seed, size=64, fps=30.0, duration=3.0, dx=0.15, noise_frac=noise
+            names, seed=100 + seed, size=64, fps=30.0, duration=3.0, dx=0.15, sensor=Sensor(noise_frac=noise)
         )
         found = diagnose_terms(video.frames, video.dt, video.dx).names
         ok = found == [] if group == "pure" else bool(found) and found[0] == group

@@ -25,15 +25,15 @@ from pathlib import Path
 import numpy as np
 
 from anra_torch.cli import main
-from anra_torch.simulation.plate import flash_plate_video
+from anra_torch.simulation.plate import FlashPlate, flash_plate_video
 
-CASES: dict[str, dict] = {
-    "intact 3 mm": {"defect": None},
-    "delamination 0.6 mm deep": {"defect": (12.0, 9.0, 2.0, 0.6)},  # x, y, radius, depth in mm
-    "intact 2 mm": {"defect": None, "thickness": 2.0},
-    "delamination 1.0 mm deep, 2 mm plate": {"defect": (7.0, 12.0, 3.0, 1.0), "thickness": 2.0},
+CASES: dict[str, FlashPlate] = {
+    "intact 3 mm": FlashPlate(defect=None),
+    "delamination 0.6 mm deep": FlashPlate(defect=(12.0, 9.0, 2.0, 0.6)),  # x, y, radius, depth in mm
+    "intact 2 mm": FlashPlate(defect=None, thickness=2.0),
+    "delamination 1.0 mm deep, 2 mm plate": FlashPlate(defect=(7.0, 12.0, 3.0, 1.0), thickness=2.0),
 }
-"""The plates (3 mm thick unless stated): flash_plate_video's keyword arguments."""
+"""The plates (3 mm thick unless stated), for flash_plate_video."""
 
 
 def _run(argv: list[str]) -> dict:
@@ -77,7 +77,7 @@ def run(out: Path) -> list[str]:
     """Simulate every case into ``out``, run both commands, and return the printed lines."""
     lines = []
     for index, (name, case) in enumerate(CASES.items()):
-        frames, dt, dx = flash_plate_video(**case, seed=index + 1)
+        frames, dt, dx = flash_plate_video(plate=case, seed=index + 1)
         path = out / f"case{index}.npz"
         np.savez(path, frames=frames.numpy(), dt=dt, dx=dx)
         start, start_line = time.perf_counter(), len(lines)

@@ -59,3 +59,26 @@ def plane_wave(
     ky = 2.0 * math.pi * n / (height * dx)
     x, y = centres(width, dx, dtype), centres(height, dx, dtype)
     return torch.cos(kx * x[None, :] + ky * y[:, None]), kx, ky
+
+
+EXAMPLES = {
+    "linear_loss": {"b": 0.3, "T_ref": 29.0},
+    "source": {"x0": 6.0, "y0": 7.0, "x1": 9.0, "y1": 5.0, "rate": 4.0, "width": 1.2},
+    "advection": {"vx": 0.8, "vy": -0.5},
+    "anisotropy": {"a_x": 0.2, "a_y": 0.08, "a_xy": 0.06},
+    "heterogeneity": {"x": 8.0, "y": 8.0, "radius": 4.0, "a_inside": 0.3, "a_outside": 0.1},
+    "nonlinear_diffusion": {"a0": 0.1, "beta": 0.05, "T_ref": 30.0},
+    "periodic_source": {"x": 8.0, "y": 7.0, "width": 1.2, "rate": 4.0, "frequency": 0.5, "phase": 1.0},
+    "depth_conduction": {"strength": 1.0, "t_heat": -0.2, "depth_time": 3.0, "T_ref": 29.0},
+    "delamination": {
+        "x": 8.0,
+        "y": 7.0,
+        "radius": 3.0,
+        "strength": 1.0,
+        "depth_time": 0.4,
+        "t_heat": -0.2,
+        "plate_time": 3.0,
+        "T_ref": 29.0,
+    },
+}
+"""Parameters of every effect for the 16 px fields of the effect tests (mm, s, units of T)."""

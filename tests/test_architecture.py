@@ -1,7 +1,7 @@
 """The package's structure, measured from its source: sizes, layers, import cycles, one home per mechanism.
 
 These are the architecture's promises: a module stays under 450 lines, a function under 60 and a public
-function takes at most 10 parameters (named exceptions may only shrink); the top level
+function takes at most 10 parameters, with no exception; the top level
 holds only ``__init__``, ``__main__`` and subpackages, each with a face (``__init__``) that the others import
 from; the subpackages form layers and every import runs down them; no two modules import each other,
 directly or around a circle (the experiments' scripts included); no module hides an import of the package
@@ -71,25 +71,6 @@ MAX_PUBLIC_PARAMETERS = 10
 docstring included), parameters of a public function (``self`` and keyword-only ones counted, ``*args``
 and ``**kwargs`` not): settings that travel together are a named dataclass."""
 
-# Named exceptions, each with its size when the caps were lowered as a ceiling that may only go down (a
-# ratchet): lower a ceiling when the code shrinks, delete the entry when it is under the cap, never raise
-# one and never add one.
-MODULES_OVER_THE_CAP: dict[str, int] = {}
-FUNCTIONS_OVER_THE_CAP = {
-    "anra_torch.batch.run.run_batch": 80,
-    "anra_torch.effects.model.simulate_effects": 80,
-    "anra_torch.recording.phase_diagnosis._balance_phase": 80,
-    "anra_torch.simulation.plate.flash_plate_video": 78,
-}
-PUBLIC_FUNCTIONS_OVER_THE_CAP = {
-    "anra_torch.batch.run.run_batch": 15,
-    "anra_torch.effects.independent.independent_effect_video": 13,
-    "anra_torch.effects.model.simulate_effects": 11,
-    "anra_torch.effects.scene.hidden_effect_video": 12,
-    "anra_torch.estimation.estimator.ANRAEstimator.candidate_sums": 11,
-    "anra_torch.simulation.plate.flash_plate_video": 13,
-}
-
 
 def _functions(path: Path) -> list[tuple[str, ast.FunctionDef | ast.AsyncFunctionDef]]:
     """Every function of a module with its qualified name (``module.Class.method``, ``module.f.inner``)."""
@@ -117,25 +98,21 @@ def _largest(pairs: list[tuple[str, int]]) -> dict[str, int]:
     return out
 
 
-def _over(measured: dict[str, int], cap: int, exceptions: dict[str, int]) -> list[str]:
-    """What is over ``cap`` and not a named exception, or over its exception's ceiling."""
-    return sorted(
-        f"{name}: {size} (cap {cap}, ceiling {exceptions.get(name, cap)})"
-        for name, size in measured.items()
-        if size > exceptions.get(name, cap)
-    )
+def _over(measured: dict[str, int], cap: int) -> list[str]:
+    """What is over ``cap``, with its size (no exceptions: the last ones were brought under the caps)."""
+    return sorted(f"{name}: {size} (cap {cap})" for name, size in measured.items() if size > cap)
 
 
 def test_no_module_over_the_line_cap() -> None:
     sizes = {module_name(p): p.read_text().count("\n") for p in MODULES}
-    assert _over(sizes, MAX_MODULE_LINES, MODULES_OVER_THE_CAP) == []
+    assert _over(sizes, MAX_MODULE_LINES) == []
 
 
 def test_no_function_over_the_line_cap() -> None:
     lengths = _largest(
         [(name, node.end_lineno - node.lineno + 1) for path in MODULES for name, node in _functions(path)]  # type: ignore[operator]
     )
-    assert _over(lengths, MAX_FUNCTION_LINES, FUNCTIONS_OVER_THE_CAP) == []
+    assert _over(lengths, MAX_FUNCTION_LINES) == []
 
 
 def test_no_public_function_over_the_parameter_cap() -> None:
@@ -147,19 +124,7 @@ def test_no_public_function_over_the_parameter_cap() -> None:
             if not node.name.startswith("_")
         ]
     )
-    assert _over(counts, MAX_PUBLIC_PARAMETERS, PUBLIC_FUNCTIONS_OVER_THE_CAP) == []
-
-
-def test_the_exceptions_name_code_that_exists_and_ceilings_above_the_caps() -> None:
-    """A stale entry (its code moved or renamed) would let new code of that name grow unchecked."""
-    functions = {name for path in MODULES for name, _ in _functions(path)}
-    modules = {module_name(p) for p in MODULES}
-    stale = sorted(set(MODULES_OVER_THE_CAP) - modules)
-    stale += sorted((set(FUNCTIONS_OVER_THE_CAP) | set(PUBLIC_FUNCTIONS_OVER_THE_CAP)) - functions)
-    assert stale == []
-    assert min(MODULES_OVER_THE_CAP.values(), default=MAX_MODULE_LINES + 1) > MAX_MODULE_LINES
-    assert min(FUNCTIONS_OVER_THE_CAP.values(), default=MAX_FUNCTION_LINES + 1) > MAX_FUNCTION_LINES
-    assert min(PUBLIC_FUNCTIONS_OVER_THE_CAP.values(), default=11) > MAX_PUBLIC_PARAMETERS
+    assert _over(counts, MAX_PUBLIC_PARAMETERS) == []
 
 
 def module_imports(path: Path) -> set[str]:

@@ -22,7 +22,7 @@ from depth_scenes import burn_video
 from fff_writer import Camera, counts_for, simple_frame
 from shared_data import DATA
 
-from anra_torch.simulation import blobs_video, flash_plate_video
+from anra_torch.simulation import FlashPlate, blobs_video, flash_plate_video
 from anra_torch.video import save_npz
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,7 +82,9 @@ def videos(folder: Path, n: int, size: tuple[int, int] = (54, 76)) -> None:
 
 
 def plate(path: Path) -> None:
-    frames, dt, dx = flash_plate_video(size=24, n_frames=40, layers=12, defect=(2.4, 2.4, 1.0, 0.6))
+    frames, dt, dx = flash_plate_video(
+        size=24, n_frames=40, plate=FlashPlate(layers=12, defect=(2.4, 2.4, 1.0, 0.6))
+    )
     save_npz(path, frames, dt=dt, dx=dx)
 
 

@@ -19,21 +19,12 @@ global offset steps, drift  jumps in the frames' median change                  
                                                                                    the balance (exact)
 ==========================  ====================================================  ==========================
 
-A static pattern ``p`` drops out of ``dT/dt`` but not of the Laplacian. Removing each pixel's time mean
-from every term (per-pixel fixed effects) removes it exactly, whatever its size: the balance then rests on
-each pixel's changes alone. The price: a term constant in time at every pixel (a source held still over
-the whole video) is removed with it, so with a fixed pattern such a source is not named (a moving source
-still is). Measuring the pattern as a static part of the noise instead kept the source but not the
-balance: three noise sds of pattern make most of a small smoothing's Laplacian energy, and a 10 % error of
-its measured variance took ``a`` to near zero and named effects on pure videos. The pattern's parts (per
-pixel, column and row) are still measured (:func:`~anra_torch.balance.measure_noise`) and stated,
-and they are the noise model's static part in a video too short for fixed effects
-(:data:`PIXEL_EFFECTS_FRAMES`).
-
-A global offset ``g(t)`` added to every pixel (a recalibration step, a drift) has no Laplacian but enters
-``dT/dt`` and ``T``: removing each frame's spatial mean from every term (per-frame fixed effects) removes
-it exactly. Each is used only when found,
-so a clean video is analysed exactly as before.
+A static pattern and a global offset (a recalibration step, a drift) are removed exactly, whatever their
+size, by per-pixel and per-frame fixed effects in every term of the balance, each only when found, so a
+clean video is analysed exactly as before. A source held still over the whole video is removed with a
+pattern. In a video shorter than :data:`PIXEL_EFFECTS_FRAMES` the pattern's measured parts
+(:func:`~anra_torch.balance.measure_noise`) are the noise model's static part instead. Why, and what
+was measured: ``docs/results/artefacts.md``.
 
 The thresholds are robust z-scores against the median absolute deviation of the same statistic over the
 whole video (:data:`OUTLIER_Z`), far above what Gaussian noise reaches in a camera-sized video.

@@ -137,10 +137,8 @@ class BatchNoise:
 def batch_noise(video: Tensor, finite: Tensor | None, *, noise_sd: float | None = None) -> BatchNoise:
     """Repair, measure and choose for each video of a batch (see the module docs).
 
-    Left out of ``torch.compile`` graphs (it runs eagerly there, gradients included): its branches on
-    measured values would only break the graph many times over and cost most of the compile time. (The
-    exclusion is made when compiling: ``torch.compiler.disable`` at import would load the compiler, 1.3 s,
-    into every process.)
+    Left out of ``torch.compile`` graphs: it runs eagerly there, gradients included (why:
+    ``docs/architecture.md``, "Choices in the hot paths").
 
     Args:
         video: centred frames ``(B, T, H, W)``; masked samples (``~finite``) are left to the caller.

@@ -40,8 +40,8 @@ def row_medians(x: Tensor, valid: Tensor | None = None) -> Tensor:
     """The lower median of each row's ``valid`` values: ``torch.median`` (``nanmedian`` with NaN at the
     invalid values; NaN for a row without any), exactly.
 
-    On the CPU by NumPy's selection (``np.partition`` on the values alone): 8x faster than torch's, which
-    selects (value, index) pairs. Not differentiable (noise levels are measured on detached frames).
+    On the CPU by NumPy's selection (``docs/architecture.md``, "Choices in the hot paths"). Not
+    differentiable: noise levels are measured on detached frames.
 
     Shape:
         ``x`` ``(R, N)``, ``valid`` ``(R, N)`` bool or None; output ``(R,)``.
@@ -63,10 +63,9 @@ _SELECT_SAMPLE = 4096  # values whose quantiles bracket the rank sought in a lon
 def _select(row: np.ndarray, rank: int) -> np.generic:
     """The ``rank``-th smallest value of a 1-D array, exactly (``np.partition(row, rank)[rank]``).
 
-    A long row is bracketed first: two quantiles of an evenly spaced sample hold the rank between them
-    (about 7 sample standard deviations apart: almost always), one count and one compaction keep the few
-    per cent of values between them, and the selection runs on those. Where the bracket misses, the whole
-    row is partitioned. About 3x faster than partitioning a camera-sized row.
+    A long row is bracketed first by two quantiles of an evenly spaced sample, and the selection runs on
+    the values between them; where the bracket misses the rank, on the whole row (``docs/architecture.md``,
+    "Choices in the hot paths").
     """
     n = row.shape[0]
     if n < 8192:

@@ -69,8 +69,8 @@ def run_batch_dask(
         scheduler: address of a running Dask scheduler (e.g. ``"tcp://10.0.0.5:8786"``); None starts an
             embedded :class:`distributed.LocalCluster` of ``workers`` single-threaded worker processes.
         workers: workers of the embedded cluster (>= 1).
-        **options: :func:`run_batch` options (``dt``, ``dx``, ``diagnose``, ``batch_size``, ``dtype``,
-            ``progress``, ``resample``, ``roi``, ``calibration``, ``rerun``, ``precision``).
+        **options: :func:`run_batch` keywords (``options``, a :class:`~anra_torch.batch.BatchOptions`;
+            ``batch_size``, ``progress``, ``rerun``).
 
     Returns:
         :class:`anra_torch.batch.BatchSummary`.

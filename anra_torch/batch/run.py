@@ -31,7 +31,7 @@ from anra_torch.recording import (
     on_disk_above,
     open_recording,
 )
-from anra_torch.video import ROI, CalibrationTable, Video, load_calibration, parse_roi
+from anra_torch.video import Video
 
 __all__ = ["BatchSummary", "process_paths", "run_batch"]
 
@@ -159,41 +159,15 @@ def _check_run(out: Path, batch_size: object, dtype: object) -> None:
         parquet()
 
 
-def _options(
-    *,
-    roi: ROI | str | None,
-    calibration: CalibrationTable | PathLike | None,
-    precision: float | None,
-    **rest: Any,
-) -> BatchOptions:
-    """The checked options: a malformed region, a bad calibration file or precision is the caller's
-    mistake, not one row's."""
-    if roi is not None:
-        roi = parse_roi(roi if isinstance(roi, str) else ",".join(str(v) for v in roi))
-    if calibration is not None and not isinstance(calibration, CalibrationTable):
-        calibration = load_calibration(calibration)
-    if precision is not None and not (isinstance(precision, int | float) and 0 < precision < 1):
-        raise ValueError(f"precision must be a relative standard error in (0, 1), got {precision!r}")
-    return BatchOptions(roi=roi, calibration=calibration, precision=precision, **rest)
-
-
 def run_batch(
     inputs: Iterable[PathLike],
     out: PathLike,
     *,
-    dt: float | None = None,
-    dx: float | None = None,
-    diagnose: bool = False,
+    options: BatchOptions | None = None,
     batch_size: int = 8,
-    dtype: str = "float32",
     progress: bool = True,
     runner: Runner | None = None,
-    resample: bool = False,
-    roi: ROI | str | None = None,
-    calibration: CalibrationTable | PathLike | None = None,
     rerun: bool = False,
-    precision: float | None = None,
-    device: str = "cpu",
 ) -> BatchSummary:
     """Estimate (and optionally diagnose) every input video into a resumable table.
 
@@ -201,23 +175,12 @@ def run_batch(
         inputs: files, folders or glob patterns (see :func:`expand_inputs`).
         out: the table, ``.csv`` or ``.parquet`` (Parquet needs the ``parquet`` extra), none of the inputs
             (a folder holding it leaves it out); rows of earlier runs are kept, inputs ``ok`` are skipped.
-        dt: frame period in s overriding the files.
-        dx: pixel size in mm overriding the files.
-        diagnose: also diagnose each video (hidden effects, forecast gain; ~1-5 s per video).
+        options: what every video shares (:class:`BatchOptions`); default ``BatchOptions()``.
         batch_size: consecutive inputs read and estimated together (same-shaped ones in one call); also the
             number of rows at risk if the run is interrupted.
-        dtype: ``"float32"`` (default, fast) or ``"float64"``.
         progress: show a tqdm progress bar on stderr.
         runner: how chunks are processed; default in this process (see :mod:`anra_torch.batch.dask`).
-        resample: resample non-uniform timestamps onto a uniform step instead of an error row.
-        roi: analyse only this region of every video: ``(x0, y0, width, height)`` px or ``"X0,Y0,W,H"``; a
-            video it does not fit gets an error row.
-        calibration: map apparent to true temperature in every video: a table or the path of a
-            ``true,apparent`` CSV (read once, here).
         rerun: recompute and replace ``ok`` rows made with other parameters (otherwise they stop the run).
-        precision: read each video in time chunks until its relative standard error reaches it (e.g.
-            0.001; :func:`~anra_torch.estimation.estimate_chunked`); ``frames_used`` says how many were read.
-        device: the torch device to compute on (``"cpu"``, ``"cuda"``, ...).
 
     Returns:
         :class:`BatchSummary`.
@@ -226,15 +189,14 @@ def run_batch(
         No tensors: each video is read as ``(T, H, W)`` frames and estimated with same-shaped others.
 
     Raises:
-        ValueError: bad ``out`` suffix, an ``out`` that is an input, ``batch_size`` < 1, unknown ``dtype``,
-            a ``precision`` outside (0, 1), a malformed ``roi``, a bad calibration file, an ``out`` that is
-            not a batch table or (without ``rerun``) holds ``ok`` rows of these inputs made with other
-            parameters. Bad inputs never raise: they get error rows.
+        ValueError: an ``out`` with a bad suffix, among the inputs, not a batch table or (without ``rerun``)
+            holding ``ok`` rows of these inputs made with other parameters; ``batch_size`` < 1; bad options
+            (``dtype``, ``precision``, ``roi``, calibration file). Bad inputs never raise: error rows.
     """
     out = Path(out)
-    _check_run(out, batch_size, dtype)
-    given = {"dt": dt, "dx": dx, "diagnose": diagnose, "dtype": dtype, "resample": resample, "roi": roi}
-    options = _options(**given, calibration=calibration, precision=precision, device=device)
+    options = BatchOptions() if options is None else options
+    _check_run(out, batch_size, options.dtype)
+    options = options.checked()
     start = time.perf_counter()
     check_output(out, inputs, name="--out")
     paths = [p for p in expand_inputs(inputs) if Path(p).resolve() != out.resolve()]  # never its own table

@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import Any
 
-from anra_torch.batch import run_batch, run_batch_dask
+from anra_torch.batch import BatchOptions, run_batch, run_batch_dask
 from anra_torch.cli.arguments import (
     PROG,
     add_device_argument,
@@ -82,19 +83,22 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``anra batch`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
-    options = {
-        "dt": args.dt,
-        "dx": args.dx,
-        "diagnose": args.diagnose,
+    shared = BatchOptions(
+        dt=args.dt,
+        dx=args.dx,
+        diagnose=args.diagnose,
+        dtype="float64" if args.float64 else "float32",
+        resample=args.resample,
+        roi=args.roi,
+        calibration=args.calibration,
+        precision=args.precision,
+        device=str(args.device),
+    )
+    options: dict[str, Any] = {
+        "options": shared,
         "batch_size": args.batch_size,
-        "dtype": "float64" if args.float64 else "float32",
         "progress": not args.no_progress,
-        "resample": args.resample,
-        "roi": args.roi,
-        "calibration": args.calibration,
         "rerun": args.rerun,
-        "precision": args.precision,
-        "device": str(args.device),
     }
     if args.dask or args.scheduler:
         summary = run_batch_dask(

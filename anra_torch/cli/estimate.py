@@ -1,30 +1,9 @@
 """``anra estimate``: the diffusivity of one video.
 
-``anra estimate --json`` prints one object on one line:
-
-- ``path``; ``diffusivity`` and ``std_error`` (mm^2/s, null when no estimate); ``valid`` (bool) and
-  ``message`` (the reason when not valid, else "");
-- ``warnings``: a list of lines, empty when all is well: input samples masked (non-finite or beyond
-  +-1e6), a significantly negative diffusivity, one outside every known material (about 1e-3 to 2e3
-  mm^2/s, with the likely unit mix-up of dt or dx), a plain heat equation that explains under 90 % of
-  dT/dt (a poor fit: see ``explained``), a number not finite and reported as null;
-- ``frames``, ``height``, ``width`` (px); ``dt`` (s); ``dx`` (mm); ``mode``;
-- ``smoothing_px`` (the Gaussian sigma chosen from the data); ``noise_sd`` (data units); ``reliability``
-  (signal fraction of the regressor energy, 1 is noiseless); ``explained`` (the share of dT/dt, above its
-  noise, that ``a Lap T`` explains: 1 for pure heat transfer; null in ratio mode, absent for a small box);
-  ``n_masked`` (non-finite pixel values);
-- ``window_px``, ``field_median`` (mm^2/s), ``field_coverage`` (pixel fraction) with ``--window``, else null;
-- ``a_true`` (mm^2/s) when the file records the truth, else null; ``elapsed_s``; ``units`` (key -> unit);
-- ``input`` (``resampled``, ``roi``, ``calibration``) when the video was prepared by those flags;
-- ``chunked`` when the recording was read in time chunks (more than
-  :data:`~anra_torch.estimation.CHUNKED_VALUES` pixel values, or ``--precision``;
-  :func:`anra_torch.estimation.estimate_chunked`): ``chunk_frames``, ``frames_used`` (fewer than ``frames``
-  when ``--precision`` was reached early), ``pilot`` (``[start, stop)`` frames of the blocks that chose the
-  smoothing and measured the noise), else null. A ``.npy`` file or an uncompressed ``.npz`` is then read chunk
-  by chunk, never whole.
-
-A video without measurable thermal activity still prints its flagged object with ``--json`` (``valid``
-false) and exits with status 2.
+``anra estimate --json`` prints one object on one line; its keys, units and meanings are in
+``docs/reference/outputs.md`` ("anra estimate --json", checked against the command by
+``tests/test_output_reference.py``). A video without measurable thermal activity still prints its flagged
+object (``valid`` false) and exits with status 2.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from typing import Any
 
 from anra_torch.checks import check_output
 from anra_torch.cli.arguments import integer, number
-from anra_torch.effects import EFFECTS, HiddenEffectVideo, hidden_effect_video
+from anra_torch.effects import EFFECTS, HiddenEffectVideo, Medium, Sensor, hidden_effect_video
 from anra_torch.simulation import PaperSpot, SyntheticVideo, blobs_video, paper_video
 from anra_torch.video import save_npz
 
@@ -87,8 +87,8 @@ def _hidden(
         dx=dx,
         fps=fps,
         duration=(frames - 1) / fps,
-        a=a,
-        noise_sd=noise,
+        medium=Medium(a=a),
+        sensor=Sensor(noise_sd=noise),
         params=params,
     )
 

@@ -33,13 +33,13 @@ from anra_torch.effects.model import (
     effects_from_json,
     effects_to_json,
     equation_text,
-    simulate_effects,
-    step_rates,
 )
 from anra_torch.effects.registry import DIFFUSION_EFFECTS, EFFECTS
-from anra_torch.effects.scene import HiddenEffectVideo, hidden_effect_video
+from anra_torch.effects.scene import HiddenEffectVideo, Medium, Sensor, hidden_effect_video
+from anra_torch.effects.simulate import Boundary, simulate_effects, step_rates
 
 __all__ = [
+    "Boundary",
     "Context",
     "DIFFUSION_EFFECTS",
     "EFFECTS",
@@ -49,6 +49,8 @@ __all__ = [
     "Geometry",
     "Grid",
     "HiddenEffectVideo",
+    "Medium",
+    "Sensor",
     "Shape",
     "check_effects",
     "continuum_of",

@@ -12,14 +12,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 
-import torch
 from torch import Tensor
 
-from anra_torch.checks import check_dtype, number
+from anra_torch.checks import number
 from anra_torch.effects.base import Grid
 from anra_torch.effects.model import Effect, check_effects
 from anra_torch.effects.registry import EFFECTS
-from anra_torch.effects.scene import HiddenEffectVideo, Scene, draw_scene
+from anra_torch.effects.scene import HiddenEffectVideo, Medium, Scene, Sensor, draw_scene
 from anra_torch.simulation import Continuum, ContinuumGrid, simulate_continuum
 
 __all__ = ["continuum_of", "independent_effect_video", "simulate_independent", "simulate_scene"]
@@ -124,12 +123,9 @@ def independent_effect_video(
     dx: float = 0.5,
     fps: float = 30.0,
     duration: float = 3.0,
-    a: float = 0.15,
-    noise_frac: float = 0.01,
-    noise_sd: float | None = None,
+    medium: Medium | None = None,
+    sensor: Sensor | None = None,
     params: Mapping[str, Mapping[str, float]] | None = None,
-    background: float = 30.0,
-    dtype: torch.dtype = torch.float64,
     grid: ContinuumGrid | None = None,
 ) -> HiddenEffectVideo:
     """The scene of :func:`anra_torch.effects.hidden_effect_video` for ``seed``, simulated independently.
@@ -139,9 +135,9 @@ def independent_effect_video(
     averages. The truth (``effects``, ``a``, ``a_map``) is the library's record of the same scene.
 
     Args:
-        effect_names, seed, size, dx, fps, duration, a, noise_frac, noise_sd, params, background, dtype:
-            as :func:`anra_torch.effects.hidden_effect_video` (``noise_frac``: white-noise sd as a fraction
-            of the peak initial rise; ``duration`` in s gives ``round(duration * fps) + 1`` frames).
+        effect_names, seed, size, dx, fps, duration, medium, sensor, params: as
+            :func:`anra_torch.effects.hidden_effect_video` (``duration`` in s gives ``round(duration * fps)
+            + 1`` frames; :class:`~anra_torch.effects.Sensor`: the noise and dtype).
         grid: the discretisation (:class:`~anra_torch.simulation.ContinuumGrid`): padding (default half
             the frame), finite-volume cells per pixel, TR-BDF2 steps per frame (default 2).
 
@@ -159,11 +155,8 @@ def independent_effect_video(
         >>> tuple(video.frames.shape), [e.name for e in video.effects]
         ((16, 32, 32), ['advection'])
     """
-    number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)  # before the simulation
-    if noise_sd is not None:
-        number(noise_sd, "noise_sd", "data units", minimum=0.0)
-    check_dtype(dtype)
-    drawn = {"seed": seed, "size": size, "dx": dx, "fps": fps, "duration": duration, "a": a}
-    scene = draw_scene(effect_names, **drawn, params=params, background=background)
+    sensor = (Sensor() if sensor is None else sensor).checked()  # before the simulation
+    drawn = {"seed": seed, "size": size, "dx": dx, "fps": fps, "duration": duration}
+    scene = draw_scene(effect_names, **drawn, medium=medium, params=params)
     clean = simulate_scene(scene, grid=grid)
-    return scene.video(clean, noise_frac=noise_frac, noise_sd=noise_sd, dtype=dtype)
+    return scene.video(clean, sensor=sensor)

@@ -1,9 +1,9 @@
-"""A model of heat transfer with effects: validated effects, their right-hand side and its simulation.
+"""A model of heat transfer with effects: validated effects and their right-hand side.
 
 :class:`Effect` is a (name, parameters) pair checked against :data:`~anra_torch.effects.EFFECTS`;
 :func:`effect_rhs` assembles ``dT/dt = D[T] + sum of effect terms`` (``D[T]`` is ``a`` times the 5-point
-Laplacian unless an effect replaces it); :func:`simulate_effects` integrates it (method of lines, fixed-step
-RK4 with stable substeps, :func:`anra_torch.simulation.integrate`); :func:`equation_text` writes it.
+Laplacian unless an effect replaces it); :func:`anra_torch.effects.simulate_effects` integrates it;
+:func:`equation_text` writes it.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from anra_torch.checks import as_fields, check_int, number
+from anra_torch.checks import number
 from anra_torch.effects.base import EffectSpec, Grid
 from anra_torch.effects.registry import DIFFUSION_EFFECTS, EFFECTS, unknown_effect
-from anra_torch.simulation import BOUNDARIES, HeatRHS, integrate, stable_substeps
+from anra_torch.simulation import HeatRHS
 
 __all__ = [
     "Effect",
@@ -30,8 +30,6 @@ __all__ = [
     "effects_from_json",
     "effects_to_json",
     "equation_text",
-    "simulate_effects",
-    "step_rates",
 ]
 
 
@@ -251,177 +249,6 @@ class ExtendedHeatRHS(nn.Module):
     def extra_repr(self) -> str:
         names = ", ".join(e.name for e in self.effects) or "none"
         return f"a={self.a:g}, shape={self.grid.shape}, boundary={self.grid.boundary!r}, effects=({names})"
-
-
-# --------------------------------------------------------------------------------------- simulate
-def step_rates(
-    a: float, effects: Sequence[Effect], low: float, high: float, duration: float
-) -> tuple[float, float, float]:
-    """What a model does to the stable step: its largest diffusivity, speed and decay rate.
-
-    Each effect bounds the temperatures (``low`` .. ``high``, units of T, widened by what it can add over
-    ``duration`` s) and reports its rates over that range (:attr:`EffectSpec.rates`). The result is what
-    :func:`anra_torch.simulation.stable_substeps` takes.
-
-    Args:
-        a: base diffusivity in mm^2/s (the diffusivity unless an effect replaces the diffusion term).
-        effects: validated :class:`Effect` s (as :func:`simulate_effects` and the refinement hold them).
-        low: lowest initial temperature (units of T).
-        high: highest initial temperature (units of T).
-        duration: simulated time in s.
-
-    Returns:
-        ``(diffusivity mm^2/s, speed mm/s, decay 1/s)``.
-
-    Raises:
-        ValueError: a model that is ill-posed over the temperature range (e.g. a nonlinear diffusivity
-            that turns negative).
-
-    Shape:
-        No tensors.
-    """
-    effects, a = check_effects(effects), number(a, "a", "mm^2/s", minimum=0.0)
-    low, high = number(low, "low", "units of T"), number(high, "high", "units of T")
-    duration = number(duration, "duration", "s", minimum=0.0)
-    for effect in effects:  # a range the temperatures cannot leave
-        low, high = effect.spec.bounds(effect.params, low, high, duration)
-    margin = 0.1 * (high - low)  # central-difference advection can overshoot a little
-    span = (low - margin, high + margin)
-    rates = [e.spec.rates(e.params, span) for e in effects]
-    diffusivity = [r.diffusivity for r in rates if r.diffusivity is not None]
-    a_max = diffusivity[0] if diffusivity else a
-    return a_max, sum(r.speed for r in rates), sum(r.decay for r in rates)
-
-
-def simulate_effects(
-    initial: Tensor,
-    *,
-    a: float,
-    dx: float,
-    dt: float,
-    n_frames: int,
-    effects: Sequence[Effect] = (),
-    boundary: str = "neumann",
-    boundary_value: float = 0.0,
-    substeps: int | None = None,
-    forcing: Tensor | None = None,
-    edges: Tensor | None = None,
-) -> Tensor:
-    """Simulate a thermal video of ``dT/dt = D[T] + sum of effect terms (+ forcing)`` (method of lines, RK4).
-
-    Fixed-step RK4 with an integer number of substeps per frame, by default the fewest stable for the whole
-    spectrum (the largest diffusivity the model reaches, advection ``|v| ds / dx``, the loss rate ``b``: see
-    :func:`step_rates`) and monotone for diffusion. The source moves over ``(n_frames - 1) dt``.
-
-    Args:
-        initial: first frame (temperatures).
-        a: base diffusivity in mm^2/s (>= 0); ignored when an effect replaces the diffusion term.
-        dx: pixel size in mm.
-        dt: frame period in s.
-        n_frames: number of frames T (>= 1).
-        effects: distinct :class:`Effect` s, at most one of ``anisotropy``, ``heterogeneity``,
-            ``nonlinear_diffusion``.
-        boundary: a key of :data:`anra_torch.simulation.BOUNDARIES` (default zero flux).
-        boundary_value: ghost temperature for ``"dirichlet"``.
-        substeps: RK4 steps per frame; default automatic (see above).
-        forcing: a stationary heat-input map in data units per s, added to the right-hand side at every
-            pixel (e.g. a measured source map, :mod:`anra_torch.forecast.source_map`); it does not change
-            stability.
-        edges: measured frames whose outermost pixel ring the simulation follows (linearly in time): a
-            measured boundary for the pixels inside (``boundary`` then no longer matters).
-
-    Returns:
-        The video in the dtype of ``initial`` (with ``edges``, its ring is ``edges``' ring).
-
-    Shape:
-        ``initial`` ``(B, H, W)`` -> output ``(B, T, H, W)`` (no ``B``: unbatched); ``forcing`` ``(H, W)``;
-        ``edges`` ``(B, T, H, W)`` (no ``B``: ``(T, H, W)``).
-
-    Raises:
-        TypeError: ``initial`` not real numbers, effects not :class:`Effect`.
-        ValueError: bad shapes or spacings, unknown boundary, duplicate effects, two effects replacing the
-            diffusion term, an ill-posed model (see :func:`step_rates`), or ``substeps`` below the limit.
-
-    Example:
-        >>> u0 = torch.full((8, 8), 40.0, dtype=torch.float64)
-        >>> loss = Effect("linear_loss", {"b": 0.5, "T_ref": 30.0})
-        >>> video = simulate_effects(u0, a=0.1, dx=0.5, dt=0.1, n_frames=11, effects=[loss])
-        >>> round(video[-1, 0, 0].item(), 6), round(30 + 10 * math.exp(-0.5), 6)
-        (36.065307, 36.065307)
-    """
-    u0, batched = as_fields(initial)
-    height, width = u0.shape[-2:]
-    a = number(a, "a", "mm^2/s", minimum=0.0)
-    dx, dt = number(dx, "dx", "mm", positive=True), number(dt, "dt", "s", positive=True)
-    n_frames = check_int(n_frames, "n_frames", 1)
-    checked = check_effects(effects)
-    grid = Grid((height, width), dx, (n_frames - 1) * dt, boundary, boundary_value)
-    substeps = None if substeps is None else check_int(substeps, "substeps", 1)
-    forcing = None if forcing is None else _check_forcing(forcing, u0)
-    low, high = float(u0.min()), float(u0.max())
-    if BOUNDARIES[boundary].uses_value:
-        low, high = min(low, grid.boundary_value), max(high, grid.boundary_value)
-    a_max, speed, decay = step_rates(a, checked, low, high, grid.duration)
-    count = stable_substeps(dt, dx, diffusivity=a_max, speed=speed, decay=decay)
-    rates = f"a_max={a_max:.4g} mm^2/s, speed={speed:.4g} mm/s, decay={decay:.4g} 1/s"
-    substeps = count.choose(substeps, context=f"RK4 here ({rates})")
-    rhs = ExtendedHeatRHS(a, grid=grid, effects=checked, time_scale=dt / substeps)
-    if forcing is not None:
-        heat, step_input = rhs, forcing * (dt / substeps)
-        rhs = lambda t, u: heat(t, u) + step_input  # noqa: E731
-    if edges is not None:
-        rhs, u0 = _following(rhs, u0, _check_edges(edges, u0, batched, n_frames), substeps)
-    out = integrate(rhs, u0, n_frames=n_frames, substeps=substeps, perturb=edges is not None).movedim(0, 1)
-    return out if batched else out[0]
-
-
-def _check_edges(edges: object, like: Tensor, batched: bool, n_frames: int) -> Tensor:
-    """Finite frames ``(T, B, H, W)`` in ``like``'s dtype, from ``(B, T, H, W)`` (or ``(T, H, W)``)."""
-    edges = edges if isinstance(edges, Tensor) else torch.as_tensor(edges, device="cpu")
-    batch, height, width = like.shape
-    shape = (batch, n_frames, height, width) if batched else (n_frames, height, width)
-    if tuple(edges.shape) != shape:
-        raise ValueError(
-            f"edges must be the measured frames of shape {shape} (frames, rows, columns), "
-            f"got shape {tuple(edges.shape)}"
-        )
-    if not bool(torch.isfinite(edges).all()):
-        raise ValueError("edges must be finite measured frames, got non-finite values; repair them first")
-    edges = edges.to(like.dtype)
-    return edges.movedim(1, 0) if batched else edges.unsqueeze(1)
-
-
-def _following(
-    rhs: Callable[[Tensor, Tensor], Tensor], u0: Tensor, edges: Tensor, substeps: int
-) -> tuple[Callable[[Tensor, Tensor], Tensor], Tensor]:
-    """``rhs`` whose outermost ring follows ``edges`` ``(T, B, H, W)``, and ``u0`` with their first ring.
-
-    The ring's rate is the measured change over the frame interval the solver's time is in (constant
-    there, so RK4 follows the linear interpolation exactly; the integrator perturbs stage times into
-    the step so each stage sees its own interval).
-    """
-    ring = torch.ones(u0.shape[-2:], dtype=torch.bool, device=u0.device)
-    ring[1:-1, 1:-1] = False
-    per_substep = (edges[1:] - edges[:-1]) / substeps  # (T - 1, B, H, W), change per solver time unit
-    last = max(per_substep.shape[0] - 1, 0)
-
-    def following(t: Tensor, u: Tensor) -> Tensor:
-        interval = min(max(int(float(t) // substeps), 0), last)
-        return torch.where(ring, per_substep[interval], rhs(t, u))
-
-    return following, torch.where(ring, edges[0], u0)
-
-
-def _check_forcing(forcing: object, like: Tensor) -> Tensor:
-    """A finite stationary input map of the frame's shape, in ``like``'s dtype."""
-    forcing = forcing if isinstance(forcing, Tensor) else torch.as_tensor(forcing, device="cpu")
-    height, width = like.shape[-2:]
-    need = f"forcing must be a finite map of the frame's shape ({height}, {width}) in data units per s"
-    if forcing.shape != (height, width):
-        raise ValueError(f"{need}, got shape {tuple(forcing.shape)}")
-    if not bool(torch.isfinite(forcing).all()):
-        raise ValueError(f"{need}, got non-finite values")
-    return forcing.to(like.dtype)
 
 
 def equation_text(a: float, effects: Sequence[Effect]) -> str:

@@ -24,12 +24,13 @@ from torch import Tensor
 
 from anra_torch.checks import check_dtype, check_int, number
 from anra_torch.effects.base import Geometry, Grid
-from anra_torch.effects.model import Effect, check_effects, effects_to_json, simulate_effects
+from anra_torch.effects.model import Effect, check_effects, effects_to_json
 from anra_torch.effects.registry import EFFECTS, unknown_effect
+from anra_torch.effects.simulate import simulate_effects
 from anra_torch.simulation import gaussian_blobs
 from anra_torch.video import save_npz
 
-__all__ = ["HiddenEffectVideo", "Scene", "draw_scene", "hidden_effect_video"]
+__all__ = ["HiddenEffectVideo", "Medium", "Scene", "Sensor", "draw_scene", "hidden_effect_video"]
 
 _F64 = torch.float64
 
@@ -132,6 +133,45 @@ class HiddenEffectVideo:
         )
 
 
+@dataclass(frozen=True)
+class Medium:
+    """The body a scene's hot spots lie on.
+
+    Attributes:
+        a: base diffusivity in mm^2/s (>= 0): the diffusivity unless an effect replaces the diffusion term.
+        background: temperature of the uniform background (data units).
+    """
+
+    a: float = 0.15
+    background: float = 30.0
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """What the camera adds to a simulated scene, and the dtype it records in.
+
+    Attributes:
+        noise_frac: white-noise sd as a fraction of the peak initial rise (>= 0).
+        noise_sd: absolute white-noise sd (data units) overriding ``noise_frac``, or None.
+        dtype: float32 or float64.
+    """
+
+    noise_frac: float = 0.01
+    noise_sd: float | None = None
+    dtype: torch.dtype = torch.float64
+
+    def checked(self) -> Sensor:
+        """This sensor checked.
+
+        Raises:
+            ValueError: a negative or non-finite noise level, a dtype other than float32 and float64.
+        """
+        frac = number(self.noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)
+        sd = None if self.noise_sd is None else number(self.noise_sd, "noise_sd", "data units", minimum=0.0)
+        check_dtype(self.dtype)
+        return Sensor(frac, sd, self.dtype)
+
+
 def hidden_effect_video(
     effect_names: Sequence[str] | str = (),
     *,
@@ -140,18 +180,15 @@ def hidden_effect_video(
     dx: float = 0.5,
     fps: float = 30.0,
     duration: float = 3.0,
-    a: float = 0.15,
-    noise_frac: float = 0.01,
-    noise_sd: float | None = None,
+    medium: Medium | None = None,
+    sensor: Sensor | None = None,
     params: Mapping[str, Mapping[str, float]] | None = None,
-    background: float = 30.0,
-    dtype: torch.dtype = torch.float64,
 ) -> HiddenEffectVideo:
     """A random scene with the named hidden effects, simulated by :func:`simulate_effects`, plus noise.
 
     The scene, the effects' parameters and the noise are drawn as the module docs say; ``params``
     overrides drawn values after the draw, so the other parameters do not depend on which were
-    overridden. Simulated in float64 with zero-flux edges, then cast to ``dtype``.
+    overridden. Simulated in float64 with zero-flux edges, then cast to the sensor's ``dtype``.
 
     Args:
         effect_names: keys of :data:`EFFECTS` (distinct); ``()`` gives pure heat transfer.
@@ -160,12 +197,9 @@ def hidden_effect_video(
         dx: pixel size in mm.
         fps: frame rate in Hz.
         duration: length in s: ``round(duration * fps) + 1`` frames.
-        a: base diffusivity in mm^2/s.
-        noise_frac: noise sd as a fraction of the peak initial rise (>= 0).
-        noise_sd: absolute noise sd (data units); overrides ``noise_frac``.
+        medium: base diffusivity and background temperature (:class:`Medium`); default ``Medium()``.
+        sensor: the noise and dtype (:class:`Sensor`); default ``Sensor()``, noise 1 % of the rise.
         params: ``{effect: {parameter: value}}`` fixed instead of drawn.
-        background: temperature of the background.
-        dtype: float32 or float64.
 
     Returns:
         A :class:`HiddenEffectVideo` holding the true effects.
@@ -182,13 +216,13 @@ def hidden_effect_video(
         >>> tuple(video.frames.shape), [e.name for e in video.effects]
         ((16, 32, 32), ['advection'])
     """
-    noise_frac, noise_sd = _check_noise(noise_frac, noise_sd, dtype)
-    grid = {"size": size, "dx": dx, "fps": fps, "duration": duration, "a": a}
-    scene = draw_scene(effect_names, seed=seed, **grid, params=params, background=background)
+    sensor = (Sensor() if sensor is None else sensor).checked()
+    grid = {"size": size, "dx": dx, "fps": fps, "duration": duration}
+    scene = draw_scene(effect_names, seed=seed, **grid, medium=medium, params=params)
     clean = simulate_effects(
         scene.initial, a=scene.a, dx=scene.dx, dt=scene.dt, n_frames=scene.n_frames, effects=scene.effects
     )
-    return scene.video(clean, noise_frac=noise_frac, noise_sd=noise_sd, dtype=dtype)
+    return scene.video(clean, sensor=sensor)
 
 
 @dataclass(frozen=True)
@@ -245,22 +279,13 @@ class Scene:
             out = out + rise * torch.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2.0 * sigma**2))
         return out
 
-    def video(
-        self,
-        clean: Tensor,
-        *,
-        noise_frac: float = 0.01,
-        noise_sd: float | None = None,
-        dtype: torch.dtype = torch.float64,
-    ) -> HiddenEffectVideo:
-        """The :class:`HiddenEffectVideo` of a simulation of this scene: ``clean`` cast to ``dtype`` plus
-        the scene's white noise (``torch.Generator().manual_seed(seed)``).
+    def video(self, clean: Tensor, *, sensor: Sensor | None = None) -> HiddenEffectVideo:
+        """The :class:`HiddenEffectVideo` of a simulation of this scene: ``clean`` cast to the sensor's
+        ``dtype`` plus the scene's white noise (``torch.Generator().manual_seed(seed)``).
 
         Args:
             clean: the simulated video of this scene.
-            noise_frac: noise sd as a fraction of the peak initial rise (>= 0).
-            noise_sd: absolute noise sd (data units); overrides ``noise_frac``.
-            dtype: float32 or float64.
+            sensor: the noise and dtype (:class:`Sensor`); default ``Sensor()``.
 
         Shape:
             ``clean`` ``(T, H, W)`` with ``T = n_frames`` and ``(H, W)`` the initial frame's.
@@ -268,7 +293,8 @@ class Scene:
         Raises:
             ValueError: ``clean`` of another shape, bad noise levels.
         """
-        noise_frac, noise_sd = _check_noise(noise_frac, noise_sd, dtype)
+        sensor = (Sensor() if sensor is None else sensor).checked()
+        noise_frac, noise_sd, dtype = sensor.noise_frac, sensor.noise_sd, sensor.dtype
         need = (self.n_frames, *self.initial.shape)
         if not isinstance(clean, Tensor) or tuple(clean.shape) != need:
             got = tuple(clean.shape) if isinstance(clean, Tensor) else type(clean).__name__
@@ -301,9 +327,8 @@ def draw_scene(
     dx: float = 0.5,
     fps: float = 30.0,
     duration: float = 3.0,
-    a: float = 0.15,
+    medium: Medium | None = None,
     params: Mapping[str, Mapping[str, float]] | None = None,
-    background: float = 30.0,
 ) -> Scene:
     """Draw the scene and effect parameters of :func:`hidden_effect_video` for ``seed``, unsimulated.
 
@@ -326,21 +351,15 @@ def draw_scene(
     names = _check_names(effect_names, params)
     seed, size = check_int(seed, "seed", 0), check_int(size, "size", 16)
     dx, fps = number(dx, "dx", "mm", positive=True), number(fps, "fps", "Hz", positive=True)
-    a, background = number(a, "a", "mm^2/s", minimum=0.0), number(background, "background", "data units")
+    medium = Medium() if medium is None else medium
+    a = number(medium.a, "a", "mm^2/s", minimum=0.0)
+    background = number(medium.background, "background", "data units")
     n_frames = _frame_count(duration, fps)
     rng = np.random.default_rng(seed)
     initial, geometry, spots = _scene(rng, size, dx, (n_frames - 1) / fps, a, background)
     drawn = [{**EFFECTS[n].sample(rng, geometry), **(params or {}).get(n, {})} for n in names]
     checked = check_effects([Effect(n, p) for n, p in zip(names, drawn, strict=True)])
     return Scene(initial, spots, geometry, checked, 1.0 / fps, n_frames, a, seed)
-
-
-def _check_noise(noise_frac: object, noise_sd: object, dtype: object) -> tuple[float, float | None]:
-    """Checked ``noise_frac`` and ``noise_sd`` (None: from ``noise_frac``); ``dtype`` float32 or float64."""
-    frac = number(noise_frac, "noise_frac", "fraction of the rise", minimum=0.0)
-    sd = None if noise_sd is None else number(noise_sd, "noise_sd", "data units", minimum=0.0)
-    check_dtype(dtype)
-    return frac, sd
 
 
 def _check_names(effect_names: object, params: Mapping[str, Mapping[str, float]] | None) -> tuple[str, ...]:

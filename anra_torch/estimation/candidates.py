@@ -17,6 +17,7 @@ from anra_torch.checks import MIN_RELIABILITY, MIN_SIGNIFICANCE
 
 __all__ = [
     "Candidate",
+    "ErrorPass",
     "choose",
     "explained_of",
     "lsq_error",
@@ -72,6 +73,23 @@ class Candidate:
     field_num: Tensor | None  # (B, H, W)
     field_den: Tensor | None
     field_energy: Tensor | None
+
+
+@dataclass(frozen=True)
+class ErrorPass:
+    """What :meth:`~anra_torch.estimation.ANRAEstimator.candidate_sums` computes of the standard error.
+
+    Attributes:
+        with_error: the least-squares standard error (an adjoint pass); False leaves it NaN.
+        back_at: ``a`` per video ``(B,)``: the noise lever pushed back onto the frames at that ``a`` is
+            returned in ``back`` instead (:mod:`anra_torch.estimation.chunked` adds it up over chunks).
+        frames: the spread of a video of this many output frames whose lever is as stationary as the
+            batch's (a pilot's estimate), instead of the batch's own.
+    """
+
+    with_error: bool = True
+    back_at: Tensor | None = None
+    frames: int | None = None
 
 
 def lsq_error(
@@ -190,7 +208,7 @@ def pilot_contenders(
     scale, variance_error = k / (n * m), noise.variance_error.cpu()
     variances = []
     for i in usable:
-        sums = sums_of(i, rate, finite, *spacing, pilot_noise, stage=stage, frames=k / n)
+        sums = sums_of(i, rate, finite, *spacing, pilot_noise, stage=stage, error=ErrorPass(frames=k / n))
         totals = (x.double().reshape(b, -1).sum(1).cpu() for x in (sums.num, sums.den, sums.energy))
         num, den, energy = totals
         noise_var = sums.spread.double().pow(2).reshape(b, n).sum(1).cpu()  # the whole video's

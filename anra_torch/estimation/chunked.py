@@ -1,30 +1,12 @@
 """ANRA on recordings larger than memory: a pilot chooses, then time chunks accumulate the balance.
 
-:class:`~anra_torch.estimation.ANRAEstimator` holds a whole video and its filtered terms at once; a camera
-recording (640 x 512 px at 30 Hz for 30 s: 1.2 GB in float32) needs several times that. Its estimate is a
-ratio of sums over output frames, ``a = sum_k num_k / sum_k den_k``, and frame ``k``'s sums depend only on
-input frames ``k .. k + L - 1``. So the recording is read in chunks of frames that overlap by the time
-filter's ``L - 1`` frames, and the per-frame sums are exactly the whole video's. Memory is bounded by the
-chunk, not the recording. What needs more than one chunk is chosen on a pilot:
-
-1. **Pilot.** ``pilot_blocks`` runs of ``pilot_frames`` consecutive frames, spread evenly over the recording
-   (fewer where they would read more than a third of it), go through the estimator's own steps: dead
-   elements, the camera-artefact search, the measured noise model, every smoothing candidate with its exact
-   standard error (the adjoint pass). The blocks are pooled as independent pieces of one estimate: the
-   smoothing with the smallest pooled standard error is chosen (the estimator's rule), the noise model is
-   the block of median noise, and fixed effects are used when any block needs them.
-2. **Chunks.** The chosen smoothing balances every chunk; spikes and hot elements are repaired per chunk
-   when the pilot found any.
-3. **Standard error.** On every ``error_every``-th chunk (the first included) the noise lever is pushed back
-   through the transposed filters, as the estimator does for the whole video; consecutive such chunks pass
-   their overlapping frames on, so with ``error_every=1`` the variance is the whole video's exactly. The
-   noise variance per unit of regressor energy on those chunks, ``c = sum var / sum energy``, scales to
-   the recording: ``std_error = sqrt(c sum_k energy_k) / |sum_k den_k|``, with the noise variance's own
-   error as in the estimator.
-4. **Precision on demand.** With ``precision``, reading stops after the chunk where ``std_error / |a|``
-   reaches it; the result says how many frames were used.
-
-Per-pixel fixed effects (a static pattern) are removed within each chunk, not over the whole recording.
+The estimate is a ratio of sums over output frames, and frame ``k``'s sums depend only on input frames
+``k .. k + L - 1``: the recording is read in chunks of frames that overlap by the time filter's ``L - 1``
+frames, so the per-frame sums are exactly the whole video's and memory is bounded by the chunk. A pilot of
+a few blocks chooses the smoothing, the noise model and the fixed effects; the standard error is pushed
+back on every ``error_every``-th chunk and scaled to the recording; with ``precision`` reading stops once
+it is reached. Per-pixel fixed effects are removed within each chunk. The steps in full:
+``docs/architecture.md`` ("Recordings larger than memory").
 """
 
 from __future__ import annotations
@@ -40,6 +22,7 @@ from tqdm.auto import tqdm
 
 from anra_torch.balance import BatchNoise, find_artefacts
 from anra_torch.checks import MIN_RELIABILITY, MIN_SIGNIFICANCE, as_spacing, poor_fit, verdicts
+from anra_torch.estimation.candidates import ErrorPass
 from anra_torch.estimation.chunk_error import NoiseVariance, gain, totals
 from anra_torch.estimation.chunk_pilot import ChunkPilot, choose_on_pilot, pilot_starts
 from anra_torch.estimation.estimator import ANRAEstimator, ANRAResult
@@ -331,8 +314,7 @@ def _accumulate(
             sampled = chained or first or last or j % every == 0
             sums = est.candidate_sums(
                 pilot.index, video[None], None if finite is None else finite[None], dt, dx, noise,
-                with_error=False,
-                back_at=at if sampled else None,
+                error=ErrorPass(with_error=False, back_at=at if sampled else None),
             )  # fmt: skip
             for name, values in sums_of.items():
                 values[start:stop] = getattr(sums, name)[0]

@@ -35,6 +35,7 @@ from anra_torch.checks import (
 )
 from anra_torch.estimation.candidates import (
     Candidate,
+    ErrorPass,
     choose,
     explained_of,
     lsq_error,
@@ -223,18 +224,16 @@ class ANRAEstimator(nn.Module):
         dx: Tensor,
         noise: BatchNoise,
         *,
-        with_error: bool = True,
-        back_at: Tensor | None = None,
+        error: ErrorPass | None = None,
         stage: SpectralStage | None = None,
-        frames: int | None = None,
     ) -> Candidate:
         """The sums of smoothing candidate ``index`` over a centred ``(B, T, H, W)`` batch.
 
-        Without ``with_error`` the standard error is NaN (no adjoint pass); with ``back_at`` (``a`` per
-        video, ``(B,)``) the noise lever pushed back onto the frames at that ``a`` is returned in ``back``
-        instead (:mod:`anra_torch.estimation.chunked` adds it up over chunks). The terms come through the
-        frames' spectra (:mod:`anra_torch.balance.spectral`): ``stage``, the batch's time-filtered
-        spectra, is shared by every candidate (computed here when None)."""
+        ``error`` says what is computed of the standard error (:class:`~.candidates.ErrorPass`; default
+        the batch's standard error). The terms come through the frames' spectra
+        (:mod:`anra_torch.balance.spectral`): ``stage``, the batch's time-filtered spectra, is shared by
+        every candidate (computed here when None)."""
+        error = ErrorPass() if error is None else error
         filters = self.filters[index]
         stage = spectral_stage(filters, video, dt) if stage is None else stage
         terms = spectral_terms(filters, stage, dx)
@@ -254,14 +253,14 @@ class ANRAEstimator(nn.Module):
             per_frame.raw[..., 1, 1],
         )
         ratio = ratio_sums(rate, lap, weights) if self.mode == "ratio" else torch.zeros_like(num)
-        if self.mode == "lsq" and not with_error and back_at is None:
+        if self.mode == "lsq" and not error.with_error and error.back_at is None:
             spread = torch.full_like(num[:, 0], torch.nan)
             std_error, back = spread, None
         elif self.mode == "lsq":
             lever = noise.fixed_effects((weights * lap).detach())  # the projection is its own transpose
             sums = (num, den, energy)
             std_error, spread, back = lsq_error(
-                filters, stage, noise, lever, sums, dt, dx, back_at, frames, rate.dtype
+                filters, stage, noise, lever, sums, dt, dx, error.back_at, error.frames, rate.dtype
             )
         else:
             spread = ratio.std(dim=1) if ratio.shape[1] > 1 else ratio.abs()[:, 0]

@@ -1,17 +1,10 @@
 """Frame-by-frame ANRA: a ring buffer of filtered frames, causal time filters, an estimate after every frame.
 
-The offline estimator (:class:`~anra_torch.estimation.ANRAEstimator`, ``mode="lsq"``, uniform weights)
-computes, for every window of ``L`` frames ``k .. k + L - 1``,
-
-* ``U_k = P G (sum_i taps_i T_{k+i}) / dt`` and ``Lap_k = Lap G (sum_i pair_i T_{k+i})``;
-* the frame means ``m_ul[k] = mean(U_k Lap_k)`` and ``m_ll[k] = mean(Lap_k^2)`` over the valid pixels,
-
-and returns ``a = (sum_k m_ul - K c) / (sum_k m_ll - K v)`` with the noise covariance ``c`` and variance ``v``
-(errors-in-variables correction). The spatial filters commute with the time filter, so each frame is filtered
-in space once when it arrives (``P G T_j`` and ``Lap G T_j``, kept in a ring buffer of ``L`` frames); the time
-filter is then an ``L``-term sum over the buffer, causal (window ending at the newest frame; the estimate
-applies ``L - 1 - centre`` frames back, see :attr:`TimeDerivative.delay`). Only the running sums are kept:
-memory is ``O(L H W)`` whatever the length of the video.
+The spatial filters commute with the time filter, so each frame is filtered in space once when it arrives
+and kept in a ring buffer of ``L`` frames; the time filter is an ``L``-term sum over the buffer, causal
+(the estimate applies ``L - 1 - centre`` frames back, :attr:`TimeDerivative.delay`), and only the running
+sums of the offline estimator's frame means are kept: memory is ``O(L H W)`` whatever the length of the
+video. The derivation: ``docs/architecture.md`` ("The estimator", Streaming).
 
 :class:`StreamingEstimator` takes one frame ``(H, W)`` or a block ``(n, H, W)`` at a time; on the same frames,
 with the same fixed configuration (one smoothing sigma, a known ``noise_sd``), its diffusivity equals the
@@ -92,7 +85,7 @@ class StreamingEstimator:
         noise_sd: known noise sd (data units); None estimates it once from the first ``noise_frames``
             frames with :func:`anra_torch.balance.estimate_noise_sd`.
         noise_frames: frames used for that estimate (>= 5).
-        dtype: computation dtype (float32 is ~2x faster; float64 reproduces the offline float64 result).
+        dtype: computation dtype (float64 reproduces the offline float64 result; float32 is faster).
 
     Shape:
         :meth:`push` takes ``(H, W)`` or ``(n, H, W)``; every frame of a stream must have the same ``(H, W)``.

@@ -13,7 +13,8 @@ From the map: the plate's ``L^2 / a_z`` (the median of the sound pixels; front-f
 ratio, not ``L`` or ``a_z``) with its standard error over tiles of the frame; defects where ``tau`` is
 significantly shorter than the plate's, each outlined where its log contrast ``ln(plate / tau)`` is above
 half its peak (any shape, running out of the frame or not) with its depth fraction
-``d / L = sqrt(tau / plate)``.
+``d / L = sqrt(tau / plate)`` at the peak (the 95 % quantile; heat flowing sideways across the defect's
+edge only lowers the contrast).
 
 Assumptions (each one a way for a recording to break the map): an instantaneous flash absorbed at the
 surface, smooth across the frame; a plate of uniform thickness and diffusivity (lateral anisotropy with
@@ -34,7 +35,7 @@ from anra_torch.balance import estimate_noise_sd
 from anra_torch.checks import as_video, spacing_in_range
 from anra_torch.flash.cooling import nelder_mead, profile_rss, refine_minimum, tau_grid, time_bins
 from anra_torch.flash.lateral import fit_lateral, lateral_integrals, local_quadratic, value_noise_gain
-from anra_torch.flash.regions import components, dilate, erode
+from anra_torch.flash.regions import components, dilate, erode, smooth
 
 __all__ = ["DefectMap", "FoundDefect", "defect_map"]
 
@@ -85,8 +86,8 @@ class DefectMap:
         plate_time_se: its standard error in s.
         back_wall_reached: the recording lasts past ``plate_time / pi``, where the back wall shows.
         defect_score: ``ln(plate_time / tau)`` over the peak of its defect where one is found (1 in its
-            core, 1/2 at its outline), else over the largest such peak; higher = more likely a defect,
-            ``(H, W)``.
+            core, 1/2 at its outline), elsewhere bounded at +-0.2 per pixel, averaged over 3 px and over
+            twice the largest peak; higher = more likely a defect, ``(H, W)``.
         defect_mask: ``(H, W)`` booleans.
         depth_fraction: ``d / L`` of the defect at each pixel, NaN where sound, ``(H, W)``.
         defects: the defects found.
@@ -365,28 +366,8 @@ def _finish(
     candidate = (
         (contrast > _CONTRAST) & (contrast > _SCATTER * _edge_scatter(contrast, sound)) & (z > _SIGNIFICANCE)
     )
-    labels, count = components(candidate)
-    mask = torch.zeros_like(sound)
-    fraction = torch.full_like(contrast, math.nan)
-    peaks, found = [], []
-    for k in range(1, count + 1):  # a few defects, each a whole region at once
-        region = labels == k
-        if int(region.sum()) < _MIN_PIXELS:
-            continue
-        values = contrast[region]
-        peak = torch.quantile(values, 0.95)
-        if float(peak) < least:  # within the sound plate's own scatter
-            continue
-        outline = region & (contrast >= 0.5 * peak)
-        depth = float(torch.exp(-0.5 * torch.quantile(values, 0.8)))
-        mask |= outline
-        fraction[outline] = depth
-        peaks.append((outline, peak))
-        found.append(_describe(outline, depth, dx))
-    score = contrast.clamp_min(0) / max([float(p) for _, p in peaks], default=1.0) * 0.5
-    for outline, peak in peaks:
-        region = dilate(outline, 2)
-        score = torch.where(region, torch.maximum(score, contrast.clamp_min(0) / peak), score)
+    mask, fraction, peaks, found = _outlines(contrast, candidate, least, dx)
+    score = _score(contrast, peaks)
     plate_time = math.exp(float(plate))
     last = first + (cooling.shape[0] - 1) * cooling.dt
     return DefectMap(
@@ -403,6 +384,55 @@ def _finish(
         first_time=first,
         noise_sd=sd,
     )
+
+
+def _outlines(
+    contrast: Tensor, candidate: Tensor, least: float, dx: float
+) -> tuple[Tensor, Tensor, list[tuple[Tensor, Tensor]], list[FoundDefect]]:
+    """The defects among the candidate pixels' regions, the strongest first: the mask, the depth fractions,
+    each defect's (outline, peak) and its description. A region inside a stronger defect's outline is
+    part of it (the outline reaches beyond the significant pixels)."""
+    labels, count = components(candidate)
+    regions = []
+    for k in range(1, count + 1):  # a few regions, each whole
+        region = labels == k
+        if int(region.sum()) >= _MIN_PIXELS:
+            peak = torch.quantile(contrast[region], 0.95)
+            if float(peak) >= least:  # above the sound plate's own scatter
+                regions.append((float(peak), k, region, peak))
+    mask = torch.zeros_like(candidate)
+    fraction = torch.full_like(contrast, math.nan)
+    peaks, found = [], []
+    for _, _, region, peak in sorted(regions, key=lambda r: (-r[0], r[1])):
+        if bool((region & mask).any()):
+            continue
+        outline = _grown(region, contrast >= 0.5 * peak) & ~mask
+        depth = float(torch.exp(-0.5 * peak))  # at its peak: sideways flow only lowers the contrast
+        mask |= outline
+        fraction[outline] = depth
+        peaks.append((outline, peak))
+        found.append(_describe(outline, depth, dx))
+    return mask, fraction, peaks, found
+
+
+def _score(contrast: Tensor, peaks: list[tuple[Tensor, Tensor]]) -> Tensor:
+    """The defect score: over each defect found (its outline grown by 2 px) its contrast over its peak;
+    elsewhere the contrast, each pixel's bounded at +-:data:`_CONTRAST` (a fit can run far off in noise),
+    averaged over the lateral derivatives' footprint (nothing smaller is resolved) and over twice the
+    largest peak: a defect too faint to outline still ranks above the sound plate."""
+    bounded = smooth(contrast.clamp(-_CONTRAST, _CONTRAST), _SIGMA_LATERAL).clamp_min(0)
+    score = bounded / max([float(p) for _, p in peaks], default=1.0) * 0.5
+    for outline, peak in peaks:
+        region = dilate(outline, 2)
+        score = torch.where(region, torch.maximum(score, contrast.clamp_min(0) / peak), score)
+    return score
+
+
+def _grown(region: Tensor, level: Tensor) -> Tensor:
+    """The connected parts of ``level`` ``(H, W)`` that overlap ``region`` (a defect's outline is where its
+    contrast is above the level, out to its edge, not only where its own fit is significant)."""
+    labels, _ = components(level)
+    return torch.isin(labels, labels[region & level]) & level
 
 
 def _describe(outline: Tensor, depth: float, dx: float) -> FoundDefect:

@@ -274,8 +274,9 @@ def fit_lateral(
         labels: regions of equal depth, ``(H, W)`` integers, 0 left out; None: the whole frame one region.
 
     Returns:
-        The diffusivities (zeros where the fit fails or is not physical: ``a_x, a_y >= 0``,
-        ``a_xy^2 <= a_x a_y``) and the blocks of frames it used (negative when it was not physical).
+        The diffusivities of the longest run of blocks from the first whose fit is physical
+        (``a_x, a_y >= 0``, ``a_xy^2 <= a_x a_y``; late blocks where a large defect shows can turn it),
+        zeros where no run of two is; and the blocks of frames it used (negative when none was physical).
     """
     value, second = gaussian_derivatives(frames, sigma, dx)
     excess = (value - t_ref).clamp_min(torch.finfo(value.dtype).tiny)
@@ -298,12 +299,19 @@ def fit_lateral(
         blocks.append(block)
     if len(blocks) < 2:
         return frames.new_zeros(3), len(blocks)
+    for used in range(len(blocks), 1, -1):  # the longest run of blocks whose fit is physical
+        a = _weighted(blocks[:used])
+        if a[0] >= 0 and a[1] >= 0 and a[2] ** 2 <= a[0] * a[1]:
+            return a, used
+    return frames.new_zeros(3), -len(blocks)
+
+
+def _weighted(blocks: list[_Block]) -> Tensor:
+    """The blocks' solution, each block weighted by its residuals' mean square."""
     a = _solve(blocks, [1.0] * len(blocks))
-    for _ in range(3):  # each block weighted by its residuals' mean square
+    for _ in range(3):
         a = _solve(blocks, [1 / max(b.residual(a)[0], torch.finfo(a.dtype).tiny) for b in blocks])
-    if a[0] < 0 or a[1] < 0 or a[2] ** 2 > a[0] * a[1]:
-        return frames.new_zeros(3), -len(blocks)
-    return a, len(blocks)
+    return a
 
 
 def _breaks(block: _Block, a: Tensor) -> bool:

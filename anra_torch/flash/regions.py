@@ -1,12 +1,15 @@
-"""Regions of a boolean map: connected components, dilation and erosion, as whole-map tensor operations."""
+"""Regions of a map: connected components, dilation and erosion of booleans, a Gaussian average, as whole-map
+tensor operations."""
 
 from __future__ import annotations
+
+import math
 
 import torch
 import torch.nn.functional as nnf
 from torch import Tensor
 
-__all__ = ["components", "dilate", "erode"]
+__all__ = ["components", "dilate", "erode", "smooth"]
 
 
 def components(mask: Tensor) -> tuple[Tensor, int]:
@@ -54,3 +57,17 @@ def dilate(mask: Tensor, radius: int) -> Tensor:
 def erode(mask: Tensor, radius: int) -> Tensor:
     """``mask`` ``(H, W)`` shrunk by a square of ``radius`` px (pixels off the frame count as in ``mask``)."""
     return ~dilate(~mask, radius)
+
+
+def smooth(values: Tensor, sigma: float) -> Tensor:
+    """``values`` ``(H, W)`` averaged by a Gaussian of ``sigma`` px over the frame (normalised at its edges:
+    a constant map stays constant)."""
+    radius = int(math.ceil(3 * sigma))
+    k = torch.arange(-radius, radius + 1, dtype=values.dtype, device=values.device)
+    taps = torch.exp(-(k**2) / (2 * sigma**2))
+
+    def blur(x: Tensor) -> Tensor:
+        x = nnf.conv2d(x[None, None], taps.view(1, 1, 1, -1), padding=(0, radius))
+        return nnf.conv2d(x, taps.view(1, 1, -1, 1), padding=(radius, 0))[0, 0]
+
+    return blur(values) / blur(torch.ones_like(values))

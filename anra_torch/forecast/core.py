@@ -243,7 +243,6 @@ def simulate_model(
             dt=dt,
             n_frames=n_frames,
             effects=chosen,
-            boundary="neumann",
             edges=edges,
         )
     except ValueError as err:  # e.g. a fitted a(T) that turns negative over the video's temperatures

@@ -1,28 +1,12 @@
 """A camera-sized recording diagnosed on a block-averaged copy, read chunk by chunk.
 
-The diagnosis holds its recording and a bank of filtered terms at once (about 260 bytes per pixel value),
-so a 640 x 512 px, 900-frame recording (295 million values) cannot be diagnosed whole. Above
-:data:`DIAGNOSE_VALUES` it is diagnosed on a copy averaged over blocks of ``k x k`` pixels and ``m``
-frames, built while the recording is read a chunk of frames at a time:
-
-- **Camera artefacts first, at full resolution.** Each chunk's spikes and dead or hot elements are
-  repaired (:func:`~anra_torch.balance.find_artefacts`) before it is averaged: averaged first,
-  a 300 K spike or a stuck element would spread over a block and look like heat. What the copy's own
-  search then finds (fixed pattern, offset steps) is handled by the diagnosis as usual.
-- **The physics survives the averaging.** A block average is a box filter followed by subsampling. A box
-  filter commutes with every linear constant-coefficient term of the balance, so the copy obeys the same
-  equation with the same parameters at pixel size ``k dx`` and frame period ``m dt`` (up to the
-  operators' truncation error at the coarser grid). Its noise is lower by ``sqrt(k^2 m)`` for white noise;
-  the diagnosis measures the copy's noise model itself.
-- **The factors keep the diffusion per frame.** ``a dt / dx^2`` changes by ``m / k^2``; :func:`decimation`
-  takes the pair within the budget whose ratio is nearest 1, with at least :data:`MIN_FRAMES` frames.
-- **The signal keeps its resolution.** :func:`camera_copy` locates the part of the frame whose temperature
-  changes (:func:`signal_box`) on a first copy; when it covers at most half the frame, the copy is made
-  again from that region at the finer block it allows. On too coarse a grid the operators' truncation
-  error looks like an effect (a spot 4 blocks wide reads as a temperature-dependent diffusivity).
-
-Only whole blocks are kept: up to ``m - 1`` last frames and ``k - 1`` last rows and columns are dropped,
-and :func:`decimated_video`'s record says so.
+Above :data:`DIAGNOSE_VALUES` pixel values a recording is diagnosed on a copy averaged over blocks of
+``k x k`` pixels and ``m`` frames (:func:`decimation` keeps ``a dt / dx^2`` near its value, with at least
+:data:`MIN_FRAMES` frames), built while the recording is read a chunk of frames at a time, each chunk's
+spikes and dead or hot elements repaired first at full resolution. :func:`camera_copy` makes the copy
+again from the part of the frame whose temperature changes (:func:`signal_box`) when that covers at most
+half the frame. Only whole blocks are kept (:func:`decimated_video`'s record says what was dropped). Why
+the physics survives the averaging: ``docs/architecture.md`` ("Recordings larger than memory").
 """
 
 from __future__ import annotations

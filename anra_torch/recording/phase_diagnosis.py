@@ -171,38 +171,15 @@ def _balance_phase(
         effects=effects,
         result=result,
     )
-    if result.diagnosis.a_plain < 0:
-        diagnosis.flags.append("negative")
-    diagnosis.warnings = implausible(effects, part.shape[1] * dx, part.shape[2] * dx)
-    diagnosis.signal_to_noise = signal_to_noise(clean[: result.split + 1], result.diagnosis)
-    if diagnosis.signal_to_noise < WEAK_SIGNAL:
-        diagnosis.warnings.append(
-            f"weak signal: the fit frames change by {diagnosis.signal_to_noise:.2g} noise sds (under "
-            f"{WEAK_SIGNAL:g}); only effects whose own forecast beats the noise are named, the fewest that do"
-        )
-    diagnosis.warnings.extend(_extended_conduction(result, effects))
-    if unsimulated:
-        diagnosis.warnings.append(f"the parametric extension was not forecast: {unsimulated}")
-    flag_implausible(diagnosis, dt, dx)
+    _flag_balance(diagnosis, result, effects, (part, clean, dt, dx), unsimulated)
     held = {"parametric": (math.inf, -math.inf) if unsimulated else (result.extended_rmse, result.gain)}
     predicted = {"parametric": result.predicted_extended}
     validation: dict[str, float] = {}
     if any(EFFECTS[n].heat_input for n in names) or phase.name == "heating" or unsimulated:
-        try:
-            for name, decay in SOURCE_MAPS.items():
-                mapped = source_map_gain(clean, dt, dx, result, decay=decay, t_on=_T_ON * dt)
-                held[name] = (mapped.rmse, mapped.gain)
-                predicted[name] = mapped.predicted
-            if result.split + 1 < _INNER_FRAMES:
-                raise ValueError(
-                    f"its {result.split + 1} fit frames are fewer than the {_INNER_FRAMES} a comparison "
-                    "inside them needs (5 to diagnose, 2 to validate); the parametric source is kept, the "
-                    "source map's held-out gain is shown for information only"
-                )
-            validation = _inner_balance(clean[: result.split + 1], dt, dx, fit_fraction, options)
-        except ValueError as err:
-            validation = {}
-            diagnosis.warnings.append(f"the source map was not compared: {err}")
+        forecasts = (held, predicted)
+        validation = _source_maps(
+            clean, dt, dx, result, (fit_fraction, options), forecasts, diagnosis.warnings
+        )
     if validation.get("parametric") == math.inf:
         diagnosis.warnings.append("the parametric source fitted inside the fit frames cannot be simulated")
     chosen = min(validation, key=validation.__getitem__) if validation else "parametric"
@@ -237,6 +214,61 @@ def _phase_options(
     if hints is not None:
         options["hints"] = hints
     return options, fit_fraction
+
+
+def _flag_balance(
+    diagnosis: PhaseDiagnosis,
+    result: GainResult,
+    effects: list[dict[str, Any]],
+    frames: tuple[Tensor, Tensor, float, float],
+    unsimulated: str | None,
+) -> None:
+    """The balance diagnosis' flags and warnings: a negative diffusivity, implausible effects, a weak signal,
+    conduction the extension explains, an extension not forecast; ``frames`` is ``(part, clean, dt, dx)``."""
+    part, clean, dt, dx = frames
+    if result.diagnosis.a_plain < 0:
+        diagnosis.flags.append("negative")
+    diagnosis.warnings = implausible(effects, part.shape[1] * dx, part.shape[2] * dx)
+    diagnosis.signal_to_noise = signal_to_noise(clean[: result.split + 1], result.diagnosis)
+    if diagnosis.signal_to_noise < WEAK_SIGNAL:
+        diagnosis.warnings.append(
+            f"weak signal: the fit frames change by {diagnosis.signal_to_noise:.2g} noise sds (under "
+            f"{WEAK_SIGNAL:g}); only effects whose own forecast beats the noise are named, the fewest that do"
+        )
+    diagnosis.warnings.extend(_extended_conduction(result, effects))
+    if unsimulated:
+        diagnosis.warnings.append(f"the parametric extension was not forecast: {unsimulated}")
+    flag_implausible(diagnosis, dt, dx)
+
+
+def _source_maps(
+    clean: Tensor,
+    dt: float,
+    dx: float,
+    result: GainResult,
+    fit: tuple[float, dict[str, Any]],
+    forecasts: tuple[dict[str, tuple[float, float]], dict[str, Tensor]],
+    warnings: list[str],
+) -> dict[str, float]:
+    """Each source map's held-out RMSE and gain and its forecast (added to ``forecasts``, the ``held`` and
+    ``predicted`` of the candidates), and the validation RMSE of every candidate inside the fit frames
+    (``fit``: the fit fraction and the gain's options); ``{}`` and a warning when they cannot be compared."""
+    held, predicted = forecasts
+    try:
+        for name, decay in SOURCE_MAPS.items():
+            mapped = source_map_gain(clean, dt, dx, result, decay=decay, t_on=_T_ON * dt)
+            held[name] = (mapped.rmse, mapped.gain)
+            predicted[name] = mapped.predicted
+        if result.split + 1 < _INNER_FRAMES:
+            raise ValueError(
+                f"its {result.split + 1} fit frames are fewer than the {_INNER_FRAMES} a comparison "
+                "inside them needs (5 to diagnose, 2 to validate); the parametric source is kept, the "
+                "source map's held-out gain is shown for information only"
+            )
+        return _inner_balance(clean[: result.split + 1], dt, dx, fit[0], fit[1])
+    except ValueError as err:
+        warnings.append(f"the source map was not compared: {err}")
+        return {}
 
 
 def _assessed(

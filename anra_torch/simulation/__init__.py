@@ -58,7 +58,7 @@ from anra_torch.simulation.integrator import (
     integrate,
     stable_substeps,
 )
-from anra_torch.simulation.plate import flash_plate_video, plate_factor, with_depth
+from anra_torch.simulation.plate import FlashPlate, flash_plate_video, plate_factor, with_depth
 from anra_torch.simulation.plate_reference import (
     DEFECT_KINDS,
     Defect,
@@ -87,6 +87,7 @@ __all__ = [
     "Continuum",
     "ContinuumGrid",
     "Defect",
+    "FlashPlate",
     "GreenResult",
     "GreenScene",
     "DepthGrid",

@@ -29,18 +29,30 @@ from anra_torch.tissue.depth_window import widen
 __all__ = [
     "EDGE",
     "MARGIN",
+    "MAX_MARGIN",
+    "REACH",
+    "REACH_DIFFUSIVITY",
     "MAX_FRAMES",
     "SMOOTHING",
     "Cooling",
     "cooling_data",
     "cooling_start",
     "forecast",
+    "margin_mm",
 ]
 
 SMOOTHING = 0.4
 """mm: the Gaussian width of the residual's low-pass (modes above ``3.7 / SMOOTHING`` 1/mm are left out)."""
-MARGIN = 1.6
-"""mm: how far the frames are continued beyond each edge."""
+MARGIN = 2.4
+"""mm: how far the frames are continued beyond each edge, at least (see :data:`REACH`)."""
+REACH = 1.2
+"""The margin is at least this many diffusion lengths ``sqrt(a_reach * duration)`` of the record (with
+``a_reach`` :data:`REACH_DIFFUSIVITY`): the heat of a long exposure reaches that far beyond the frame, and
+the cosine modes' walls at the widened frame's edges must not hold it in."""
+REACH_DIFFUSIVITY = 0.2
+"""mm^2/s: the diffusivity the margin's reach assumes (skin and soft tissue 0.10-0.20, water 0.14)."""
+MAX_MARGIN = 6.4
+"""mm: the margin's largest value (the cost grows with the widened frame's area)."""
 EDGE = 0.5
 """mm: the residual is read this far inside the frame's edges (at least one pixel)."""
 SIGNAL_TO_NOISE = 3.0
@@ -108,6 +120,12 @@ class Cooling:
         )
 
 
+def margin_mm(duration: float) -> float:
+    """mm by which the frames of a record of ``duration`` s are continued beyond each edge: :data:`MARGIN`,
+    or :data:`REACH` diffusion lengths, at most :data:`MAX_MARGIN`."""
+    return min(max(MARGIN, REACH * math.sqrt(REACH_DIFFUSIVITY * duration)), MAX_MARGIN)
+
+
 def _window_basis(h: int, w: int, margin: int, inner: int, like: Tensor, py: int, px: int) -> Tensor:
     """The widened frame's first ``py x px`` cosine modes at the frame's pixels ``inner`` px or more from
     its edges: ``(py px, P)``."""
@@ -122,9 +140,9 @@ def cooling_data(
     """The modes, weights, frames and the measured side of the residual of a batch ``(B, T, H, W)``."""
     b, t, h, w = rise.shape
     step = float(dx.max())
-    margin = max(1, math.ceil(MARGIN / step - 1e-9))
+    margin = max(1, math.ceil(margin_mm(float(dt.max()) * (t - 1)) / step - 1e-9))
     inner = min(max(1, round(EDGE / step)), (min(h, w) - 1) // 2)
-    wide = widen(rise, margin, mirrored=mirrored, noise=noise)
+    wide = widen(rise, margin, mirrored=mirrored, noise=noise, curved=True)
     hh, ww = wide.shape[-2:]
     ky = math.pi * torch.arange(hh, dtype=_F64, device=rise.device) / hh
     kx = math.pi * torch.arange(ww, dtype=_F64, device=rise.device) / ww

@@ -15,17 +15,21 @@ both. :func:`fit_depth_parameters` finds ``(a, b, beta)`` by Levenberg-Marquardt
 where ``S`` keeps the cosine modes (of the frame and a margin) below ``3.7 / SMOOTHING`` 1/mm whose change
 stands above the noise, Gaussian-weighted (``exp(-k^2 s^2 / 2)``, the same on both sides).
 
-The frame is a window, not the world: the heat crosses its edges. The frames are continued ``MARGIN`` mm
-beyond every edge (:mod:`~anra_torch.tissue.depth_cooling`, :func:`anra_torch.tissue.depth_window.widen`: a
-straight line through each edge's last pixels) so that the heat leaves through them as it does in the
-tissue, the cooling evolves freely there, and the residual is read only inside the frame, away from its
-edges.
+The frame is a window, not the world: the heat crosses its edges. The frames are continued beyond every
+edge (:mod:`~anra_torch.tissue.depth_cooling`, :func:`anra_torch.tissue.depth_window.widen`: a Gaussian
+tail, the logarithm of each edge's last pixels continued by a parabola) by
+:data:`~anra_torch.tissue.depth_cooling.MARGIN` mm, or by :data:`~anra_torch.tissue.depth_cooling.REACH`
+diffusion lengths of the record when the heat reaches further, so that the heat leaves
+through the frame's edges as it does in the tissue, the widened frame's own walls (the cosine modes'
+zero flux) stand where no heat reaches, the cooling evolves freely there, and the residual is read only
+inside the frame, away from its edges.
 
 Standard errors: the larger of the measured white noise's (through the residual's linear operators,
 analytic, first order: the measured side and the forecast's state) and the jackknife's over rings of the
 window by distance from the edges and halves of the cooling (one linearised step each: parts that
 disagree about ``a`` show the model's own error), and in quadrature the edges' part: the change of the fit
-when the frames are continued beyond the window with their curvature mirrored instead of straight.
+(one linearised step) when the frames are continued beyond the window with their curvature mirrored
+instead.
 
 Volumetric heating (a near-infrared laser deposits its heat below the surface) breaks the model: heat
 keeps rising from below after the switch-off and no ``(a, b, beta)`` forecasts the cooling.
@@ -298,9 +302,13 @@ def fit_depth_parameters(
         misfit = _misfit(c, r, noise)
         # The edges' part: the frames continued with their curvature mirrored instead (the other plausible
         # continuation beyond the window) move the fit by about what the continuation can err.
+        # (one linearised step on the fit's Jacobian: the change of the data moves the minimum by
+        # -(J^T J)^+ J^T (r' - r))
         mirrored = cooling_data(rise, dx_, dt_, noise, start, mirrored=True)
-        other, _, _ = _levenberg_marquardt(mirrored, theta, iterations=6)
-        se = torch.sqrt(se**2 + (other - theta) ** 2)
+        moved = _residual(mirrored, theta.unsqueeze(1))[:, 0, 0] - r
+        jj = torch.einsum("bfpi,bfpj->bij", jac, jac)
+        shift = -(torch.linalg.pinv(jj) @ torch.einsum("bfpi,bfp->bi", jac, moved).unsqueeze(-1))
+        se = torch.sqrt(se**2 + shift.squeeze(-1) ** 2)
     return _result(theta, se, noise, start, misfit, valid, cooling, used, batched)
 
 

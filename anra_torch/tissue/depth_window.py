@@ -14,9 +14,17 @@ from torch import Tensor
 __all__ = ["widen"]
 
 _FIT_PIXELS = 6  # the edge's value and slope: a least-squares line through its last pixels
+_CURVED_PIXELS = 16  # the curved tail: a parabola through the logarithm of the last pixels
 
 
-def widen(rise: Tensor, margin: int, *, mirrored: bool = False, noise: Tensor | None = None) -> Tensor:
+def widen(
+    rise: Tensor,
+    margin: int,
+    *,
+    mirrored: bool = False,
+    noise: Tensor | None = None,
+    curved: bool = False,
+) -> Tensor:
     """The frames continued ``margin`` px beyond every edge: the frame is a window, not the world.
 
     Each row (then each column) is continued by the straight line fitted (least squares) to its last
@@ -27,7 +35,11 @@ def widen(rise: Tensor, margin: int, *, mirrored: bool = False, noise: Tensor | 
     Inside the frame, the frames themselves (chosen by measuring, ``experiments/damage_depth.py``). With
     ``mirrored`` the curvature at the edge is continued mirrored (odd reflection about the edge value,
     ``2 g_e - g_(e-s)``): the other plausible continuation, whose difference bounds the edges' part of an
-    error. With ``noise`` (the frames' white-noise sd, K, ``(B,)`` for ``(B, ..., H, W)``), an edge whose
+    error. With ``curved`` the tail is a Gaussian's instead of a line: ``ln`` of the means fitted by a
+    parabola (its curvature kept <= 0) over their last :data:`_CURVED_PIXELS`, weighted by the squared
+    means (the logarithm's noise falls as the mean rises), through the edge's own mean: a hot spot's
+    convex tail beyond the frame as the heat equation makes it, a spot off the frame rising, then falling.
+    With ``noise`` (the frames' white-noise sd, K, ``(B,)`` for ``(B, ..., H, W)``), an edge whose
     mean stands less than half of it above the body temperature (3.5 times the noise of that mean) is
     continued by 0: a cold edge's noise, continued and kept above 0, would put heat where there is none.
     Shape: ``(..., H, W)`` -> ``(..., H + 2 m, W + 2 m)``."""
@@ -40,9 +52,9 @@ def widen(rise: Tensor, margin: int, *, mirrored: bool = False, noise: Tensor | 
     for dim in (-1, -2):
         x = out.movedim(dim, -1)
         sides = [
-            _continue(x.flip(-1), margin, top, mirrored).flip(-1),
+            _continue(x.flip(-1), margin, top, mirrored, curved).flip(-1),
             x,
-            _continue(x, margin, top, mirrored),
+            _continue(x, margin, top, mirrored, curved),
         ]
         if floor is not None:
             for i, edge in ((0, x[..., :1]), (2, x[..., -1:])):
@@ -53,11 +65,13 @@ def widen(rise: Tensor, margin: int, *, mirrored: bool = False, noise: Tensor | 
     return out
 
 
-def _continue(x: Tensor, margin: int, top: Tensor, mirrored: bool) -> Tensor:
-    """``margin`` values beyond the last of ``x`` ``(..., N)`` on its fitted line (or odd reflection), in
-    ``[0, top]``."""
+def _continue(x: Tensor, margin: int, top: Tensor, mirrored: bool, curved: bool = False) -> Tensor:
+    """``margin`` values beyond the last of ``x`` ``(..., N)`` on its fitted line (or odd reflection, or
+    Gaussian tail), in ``[0, top]``."""
     ahead = torch.arange(1, margin + 1, dtype=x.dtype, device=x.device)
-    if mirrored:
+    if curved and not mirrored:
+        values = _gaussian_tail(x, ahead)
+    elif mirrored:
         reach = min(margin, x.shape[-1] - 1)
         values = 2 * x[..., -1:] - x[..., -1 - reach : -1].flip(-1)
         values = torch.cat([values, values[..., -1:].expand(*values.shape[:-1], margin - reach)], -1)
@@ -69,3 +83,33 @@ def _continue(x: Tensor, margin: int, top: Tensor, mirrored: bool) -> Tensor:
         slope = (tail * centred).sum(-1, keepdim=True) / (centred**2).sum().clamp_min(1e-12)
         values = tail.mean(-1, keepdim=True) - slope * s.mean() + slope * ahead
     return torch.minimum(values.clamp_min(0.0), top.squeeze(-1))
+
+
+def _gaussian_tail(x: Tensor, ahead: Tensor) -> Tensor:
+    """``x``'s tail ``(..., N)`` continued to the offsets ``ahead`` ``(A,)`` (px) by the parabola fitted to
+    the logarithm of its last :data:`_CURVED_PIXELS` values (weights: the squared values; curvature <= 0),
+    through its last value: ``(..., A)``."""
+    n = min(_CURVED_PIXELS, x.shape[-1])
+    s = torch.arange(1 - n, 1, dtype=x.dtype, device=x.device)
+    tail = x[..., -n:]
+    tiny = 1e-9 * float(x.detach().abs().max().clamp_min(1e-30))
+    weight = tail.clamp_min(0.0) ** 2
+    m = weight @ torch.stack([s**p for p in range(5)], -1)  # (..., 5): sum w s^p
+    r = (weight * torch.log(tail.clamp_min(tiny))) @ torch.stack([s**p for p in range(3)], -1)
+    m0, m1, m2, m3, m4 = m.unbind(-1)
+    r0, r1, r2 = r.unbind(-1)
+    # the normal equations [[m0 m1 m2] [m1 m2 m3] [m2 m3 m4]] c = r by Cramer's rule: the curvature c2
+    det = m0 * (m2 * m4 - m3 * m3) - m1 * (m1 * m4 - m2 * m3) + m2 * (m1 * m3 - m2 * m2)
+    top = m0 * (m2 * r2 - m3 * r1) - m1 * (m1 * r2 - m2 * r1) + r0 * (m1 * m3 - m2 * m2)
+    scale = (m0 * m2 * m4).abs().clamp_min(tiny)
+    curvature = torch.where(det.abs() > 1e-12 * scale, top / det.where(det != 0, 1.0), 0.0).clamp_max(0.0)
+    # the curvature kept, the level and slope fitted again: [[m0 m1] [m1 m2]] (c0, c1) = r - c2 (m2, m3)
+    q0, q1 = r0 - curvature * m2, r1 - curvature * m3
+    det2 = m0 * m2 - m1 * m1
+    slope = torch.where(
+        det2.abs() > 1e-12 * (m0 * m2).abs().clamp_min(tiny),
+        (m0 * q1 - m1 * q0) / det2.where(det2 != 0, 1.0),
+        0.0,
+    )
+    exponent = slope.unsqueeze(-1) * ahead + curvature.unsqueeze(-1) * ahead * ahead
+    return tail[..., -1:].clamp_min(0.0) * torch.exp(exponent)

@@ -7,6 +7,7 @@ import json
 import pickle
 
 import numpy as np
+import pytest
 
 from anra_torch.batch.options import BatchOptions
 from anra_torch.video import CalibrationTable
@@ -49,3 +50,14 @@ def test_options_travel_to_workers_unchanged() -> None:
     options = BatchOptions(dt=0.2, roi=(0, 0, 8, 8), calibration=table, precision=0.001)
     copy = pickle.loads(pickle.dumps(options))
     assert copy.parameters() == options.parameters() and copy.roi == (0, 0, 8, 8)
+
+
+def test_checked_options_parse_the_region_and_read_the_calibration_once(tmp_path) -> None:  # noqa: ANN001
+    path = tmp_path / "table.csv"
+    path.write_text("true,apparent\n0,0\n100,90\n")
+    given = BatchOptions(roi="1,2,30,20", calibration=path, precision=0.01)
+    checked = given.checked()
+    assert tuple(checked.roi) == (1, 2, 30, 20) and isinstance(checked.calibration, CalibrationTable)
+    assert checked.checked() == checked and given.parameters() == checked.parameters()
+    with pytest.raises(ValueError, match=r"precision must be a relative standard error in \(0, 1\), got 2"):
+        BatchOptions(precision=2).checked()

@@ -14,7 +14,7 @@ import torch
 from shared_data import DATA
 
 from anra_torch import batch as batch_module
-from anra_torch.batch import BATCH_COLUMNS, expand_inputs, read_table, run_batch
+from anra_torch.batch import BATCH_COLUMNS, BatchOptions, expand_inputs, read_table, run_batch
 from anra_torch.cli import main
 from anra_torch.effects import hidden_effect_video
 from anra_torch.estimation.estimator import ANRAEstimator, ANRAResult
@@ -32,7 +32,9 @@ def _offline(path: Path, dtype: torch.dtype = torch.float64) -> float:
 
 def test_rows_match_the_estimator_and_bad_files_get_error_rows(video_folder: Path, tmp_path: Path) -> None:
     out = tmp_path / "r.csv"
-    summary = run_batch([video_folder, "missing.npz"], out, dtype="float64", progress=False)
+    summary = run_batch(
+        [video_folder, "missing.npz"], out, options=BatchOptions(dtype="float64"), progress=False
+    )
     assert (summary.total, summary.ok, summary.failed, summary.skipped) == (7, 4, 3, 0)
     rows = {Path(r["path"]).name: r for r in read_table(out)}
     assert list(rows) == ["broken.npz", "nodt.npy", "p0.npz", "p1.npz", "p2.npz", "q.npz", "missing.npz"]
@@ -110,7 +112,7 @@ def test_interrupted_run_keeps_finished_batches(video_folder: Path, tmp_path: Pa
 def test_diagnose_columns(tmp_path: Path) -> None:
     path = hidden_effect_video(["advection"], seed=1, size=64, duration=3.0).to_npz(tmp_path / "adv.npz")
     out = tmp_path / "r.csv"
-    run_batch([path], out, diagnose=True, progress=False)
+    run_batch([path], out, options=BatchOptions(diagnose=True), progress=False)
     (row,) = read_table(out)
     assert row["status"] == "ok" and row["top_effect"] == "advection"
     assert row["gain"] > 0.3 and row["extended_rmse"] < row["base_rmse"]
@@ -126,9 +128,7 @@ def test_roi_and_calibration_are_applied_and_recorded(
     summary = run_batch(
         [video_folder / "p0.npz", video_folder / "p1.npz", video_folder / "sub" / "q.npz"],
         out,
-        roi="8,4,48,40",
-        calibration=table,
-        dtype="float64",
+        options=BatchOptions(roi="8,4,48,40", calibration=table, dtype="float64"),
         progress=False,
     )
     assert (summary.ok, summary.failed) == (3, 0)
@@ -152,13 +152,20 @@ def test_roi_and_calibration_are_applied_and_recorded(
     assert main([*argv, "--float64", "--out", str(cli_out), "--no-progress"]) == 0
     (row,) = read_table(cli_out)
     assert row["diffusivity"] == rows["p0.npz"]["diffusivity"] and row["roi"] == "8,4,48,40"
-    wide = run_batch([video_folder / "p0.npz"], tmp_path / "wide.csv", roi=(40, 0, 30, 10), progress=False)
+    wide = run_batch(
+        [video_folder / "p0.npz"],
+        tmp_path / "wide.csv",
+        options=BatchOptions(roi=(40, 0, 30, 10)),
+        progress=False,
+    )
     assert wide.failed == 1
     (row,) = read_table(tmp_path / "wide.csv")
     assert "roi 40,0,30,10 (x0,y0,W,H px) does not fit in the 64 x 64 px frame" in row["error"]
     assert row["roi"] is None  # the cells record what was done
     with pytest.raises(ValueError, match=r"roi must be X0,Y0,W,H in px \(four integers\), got '1,2'"):
-        run_batch([video_folder / "p0.npz"], tmp_path / "x.csv", roi="1,2", progress=False)
+        run_batch(
+            [video_folder / "p0.npz"], tmp_path / "x.csv", options=BatchOptions(roi="1,2"), progress=False
+        )
     assert (
         main(
             [
@@ -187,7 +194,7 @@ def test_flir_jpeg_folders_run_as_videos_with_resample(
     assert expand_inputs([data]) == [str(data / "Nov19"), str(data / "Nov19_2")]
     out = tmp_path / "flir.csv"
     # Non-uniform EXIF times are resampled by default, as in every command (resample=True changes nothing).
-    summary = run_batch([data], out, dx=0.55, progress=False)
+    summary = run_batch([data], out, options=BatchOptions(dx=0.55), progress=False)
     rows = read_table(out)
     # 24 resampled frames each; the row measures the cooling phase (12 frames), as anra estimate does.
     assert summary.ok == 2 and [(int(float(r["frames"])), r["phase"]) for r in rows] == [(12, "cooling")] * 2
@@ -214,8 +221,7 @@ def test_a_large_recording_is_read_in_chunks_and_a_bad_one_gets_its_row(
     run_batch(
         [video_folder / "p0.npz", video_folder / "sub", truncated],
         out,
-        dt=1 / 27,
-        dx=10 / 224,
+        options=BatchOptions(dt=1 / 27, dx=10 / 224),
         progress=False,
     )
     rows = {Path(r["path"]).name: r for r in read_table(out)}
@@ -249,7 +255,7 @@ def test_a_recording_read_in_chunks_gets_the_row_of_its_cooling(tmp_path: Path, 
     np.save(path, (torch.cat([heat, cool]) + noise).float().numpy())
     monkeypatch.setattr(recording_plan, "CHUNKED_VALUES", 100_000)  # 120 x 48 x 48 = 276480 values
     out = tmp_path / "r.csv"
-    run_batch([path], out, dt=0.1, dx=0.25, progress=False)
+    run_batch([path], out, options=BatchOptions(dt=0.1, dx=0.25), progress=False)
     (row,) = read_table(out)
     assert row["status"] == "ok" and row["phase"] == "cooling" and 75 <= row["frames"] <= 80
     cooling = LazyFrames(path).window(120 - row["frames"], 120)
@@ -278,7 +284,7 @@ def test_recordings_read_in_chunks_run_side_by_side_with_the_rows_of_one_at_a_ti
         for count in (1, 2):
             torch.set_num_threads(count)
             out = tmp_path / f"r{count}.csv"
-            run_batch(inputs, out, dt=1 / 27, dx=10 / 224, progress=False)
+            run_batch(inputs, out, options=BatchOptions(dt=1 / 27, dx=10 / 224), progress=False)
             assert torch.get_num_threads() == count
             tables.append(read_table(out))
     finally:
@@ -318,7 +324,7 @@ def test_precision_reads_each_video_until_its_standard_error_is_reached(tmp_path
     (row,) = read_table(whole)
     assert row["frames_used"] is None and json.loads(row["parameters"])["precision"] is None
     with pytest.raises(ValueError, match=r"precision must be a relative standard error in \(0, 1\), got 2"):
-        run_batch([tmp_path / "v0.npz"], whole, precision=2, progress=False)
+        run_batch([tmp_path / "v0.npz"], whole, options=BatchOptions(precision=2), progress=False)
 
 
 @pytest.mark.slow
@@ -337,7 +343,7 @@ def test_diagnose_of_a_large_recording_reads_it_in_chunks_and_diagnoses_its_copy
     never = lambda *a, **k: loaded.append(a)  # noqa: E731 - the recording is never loaded whole
     monkeypatch.setattr(read_module, "prepare_video", never)
     out = tmp_path / "r.csv"
-    run_batch([path], out, diagnose=True, progress=False)
+    run_batch([path], out, options=BatchOptions(diagnose=True), progress=False)
     (row,) = read_table(out)
     assert loaded == [] and row["status"] == "ok" and row["top_effect"] == "advection"
     assert "diagnosed on a copy averaged over 1 x 1 px and 2 frames" in row["message"]

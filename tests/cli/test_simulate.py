@@ -13,7 +13,7 @@ import pytest
 from commands import run
 
 from anra_torch.cli import PRESETS
-from anra_torch.effects import EFFECTS, effects_from_json, hidden_effect_video
+from anra_torch.effects import EFFECTS, Sensor, effects_from_json, hidden_effect_video
 from anra_torch.simulation.synthetic import paper_video
 
 SMALL = ("--size", "48", "--duration", "1")
@@ -44,7 +44,9 @@ def test_effect_writes_frames_and_truth_of_hidden_effect_video(
     )
     assert (code, err) == (0, "")
     assert out.startswith(f"wrote {path}: 31 frames of 48 x 48 px") and "effects: advection vx=" in out
-    expected = hidden_effect_video(["advection", "linear_loss"], seed=3, size=48, duration=1.0, noise_sd=0.05)
+    expected = hidden_effect_video(
+        ["advection", "linear_loss"], seed=3, size=48, duration=1.0, sensor=Sensor(noise_sd=0.05)
+    )
     with np.load(path) as data:
         assert {"frames", "dt", "dx", "t", "a_true", "noise_sd", "seed", "effects", "preset"} == set(
             data.files

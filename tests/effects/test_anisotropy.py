@@ -12,6 +12,7 @@ import torch
 from fields import blob, centres, moments, rough
 
 from anra_torch.effects import (
+    Boundary,
     Effect,
     simulate_effects,
 )
@@ -63,7 +64,13 @@ def test_anisotropy_derived_angle_and_ratio_match_the_eigenvectors() -> None:
 def test_anisotropy_conserves_heat_with_a_mixed_term(boundary: str) -> None:
     p = {"a_x": 0.1, "a_y": 0.3, "a_xy": -0.12}
     video = simulate_effects(
-        rough(), a=0.0, dx=0.5, dt=0.2, n_frames=20, effects=[Effect("anisotropy", p)], boundary=boundary
+        rough(),
+        a=0.0,
+        dx=0.5,
+        dt=0.2,
+        n_frames=20,
+        effects=[Effect("anisotropy", p)],
+        boundary=Boundary(boundary),
     )
     total = video.sum((-2, -1))
     torch.testing.assert_close(total, total[:1].expand_as(total), rtol=1e-13, atol=0)

@@ -14,7 +14,7 @@ from anra_torch.effects import Effect, simulate_effects
 from anra_torch.effects.base import Grid
 from anra_torch.effects.depth_conduction import depth_rate
 from anra_torch.selection import diagnose_terms
-from anra_torch.simulation.plate import flash_plate_video, plate_factor
+from anra_torch.simulation.plate import FlashPlate, flash_plate_video, plate_factor
 
 F64 = torch.float64
 
@@ -31,7 +31,9 @@ def defect_plate(disk_cache) -> tuple[torch.Tensor, float, float]:
     run for the diagnosis and the forecast tests (read only)."""
 
     def make() -> tuple[torch.Tensor, float, float]:
-        frames, dt, dx = flash_plate_video(size=48, n_frames=120, defect=(5.0, 4.5, 1.5, 0.6), seed=0, pad=48)
+        frames, dt, dx = flash_plate_video(
+            size=48, n_frames=120, plate=FlashPlate(defect=(5.0, 4.5, 1.5, 0.6)), seed=0, pad=48
+        )
         return frames.to(F64), dt, dx
 
     return disk_cache("delamination-plate-48-defect-5-4.5-1.5-0.6", make)

@@ -10,7 +10,7 @@ import math
 import pytest
 import torch
 
-from anra_torch.effects import EFFECTS, Effect, hidden_effect_video
+from anra_torch.effects import EFFECTS, Effect, Sensor, hidden_effect_video
 from anra_torch.effects.independent import (
     independent_effect_video,
     simulate_independent,
@@ -33,7 +33,7 @@ def _rise(video: torch.Tensor) -> float:
 
 
 # --------------------------------------------------------------------- the library's simulator
-SMOOTH = {"seed": 3, "size": 48, "dx": 0.1, "fps": 20.0, "duration": 1.0, "noise_frac": 0.0}
+SMOOTH = {"seed": 3, "size": 48, "dx": 0.1, "fps": 20.0, "duration": 1.0, "sensor": Sensor(noise_frac=0.0)}
 
 
 EFFECT_AGREEMENT = {"anisotropy": 0.15}  # a small change of the diffusion term: the 5-point O(dx^2) shows
@@ -70,8 +70,8 @@ def test_agrees_with_library_on_a_smooth_scene(names: tuple[str, ...], pure_pair
 
 def test_same_seed_same_scene_and_effects() -> None:
     for names in [("source", "advection"), ("heterogeneity",), ("nonlinear_diffusion", "linear_loss")]:
-        library = hidden_effect_video(names, seed=7, size=32, duration=0.4, noise_frac=0.02)
-        ours = independent_effect_video(names, seed=7, size=32, duration=0.4, noise_frac=0.02)
+        library = hidden_effect_video(names, seed=7, size=32, duration=0.4, sensor=Sensor(noise_frac=0.02))
+        ours = independent_effect_video(names, seed=7, size=32, duration=0.4, sensor=Sensor(noise_frac=0.02))
         assert ours.effects == library.effects
         assert ours.truth_json == library.truth_json
         assert (ours.noise_sd, ours.a, ours.dt, ours.dx) == (
@@ -147,4 +147,4 @@ def test_errors() -> None:
     with pytest.raises(ValueError, match="initial must give finite temperatures"):
         simulate_independent(lambda x, y: x / 0.0 + y, **common)
     with pytest.raises(ValueError, match="noise_frac must be a finite number >= 0"):
-        independent_effect_video(seed=1, size=16, noise_frac=-1.0)
+        independent_effect_video(seed=1, size=16, sensor=Sensor(noise_frac=-1.0))

@@ -15,6 +15,7 @@ from anra_torch.effects import (
     Effect,
     Geometry,
     HiddenEffectVideo,
+    Sensor,
     effects_from_json,
     hidden_effect_video,
     simulate_effects,
@@ -50,7 +51,7 @@ def test_hidden_video_is_deterministic_and_records_the_truth() -> None:
     rise = float(u0.max()) - 30.0
     assert 5.0 <= rise <= 40.0 and first.noise_sd == pytest.approx(0.01 * rise)
     assert float((first.frames - first.clean).std()) == pytest.approx(first.noise_sd, rel=0.02)
-    pure = hidden_effect_video((), seed=7, size=48, duration=1.0, noise_frac=0.0)
+    pure = hidden_effect_video((), seed=7, size=48, duration=1.0, sensor=Sensor(noise_frac=0.0))
     assert pure.effects == () and pure.a == 0.15 and pure.a_map is None
     torch.testing.assert_close(pure.frames, simulate_heat(u0, a=0.15, dx=0.5, dt=1 / 30, n_frames=31))
 
@@ -58,7 +59,7 @@ def test_hidden_video_is_deterministic_and_records_the_truth() -> None:
 @pytest.mark.slow
 def test_hidden_video_time_error_is_negligible() -> None:
     video = hidden_effect_video(
-        ["linear_loss", "source", "advection", "anisotropy"], seed=0, size=48, noise_frac=0.0
+        ["linear_loss", "source", "advection", "anisotropy"], seed=0, size=48, sensor=Sensor(noise_frac=0.0)
     )
     fine = simulate_effects(
         video.clean[0], a=0.15, dx=0.5, dt=1 / 30, n_frames=91, effects=video.effects, substeps=8
@@ -115,8 +116,8 @@ def test_sampled_parameters_are_in_their_detectable_ranges() -> None:
 @pytest.mark.parametrize("name", list(EFFECTS))
 def test_hidden_videos_stay_physical_and_show_the_effect(name: str) -> None:
     for seed in range(4):
-        video = hidden_effect_video([name], seed=seed, noise_frac=0.0)
-        pure = hidden_effect_video([], seed=seed, noise_frac=0.0)
+        video = hidden_effect_video([name], seed=seed, sensor=Sensor(noise_frac=0.0))
+        pure = hidden_effect_video([], seed=seed, sensor=Sensor(noise_frac=0.0))
         rise = float(pure.clean[0].max()) - 30.0
         assert bool(video.clean.isfinite().all())
         assert 30.0 - 0.2 * rise - 1e-6 <= float(video.clean.min())
@@ -131,7 +132,7 @@ def test_hidden_videos_stay_physical_and_show_the_effect(name: str) -> None:
 
 def test_hidden_video_npz_round_trip_and_crop(tmp_path) -> None:  # noqa: ANN001
     video = hidden_effect_video(
-        ["source", "heterogeneity"], seed=2, size=48, duration=0.5, dtype=torch.float32
+        ["source", "heterogeneity"], seed=2, size=48, duration=0.5, sensor=Sensor(dtype=torch.float32)
     )
     assert video.frames.dtype == torch.float32 and video.a_map is not None
     path = video.to_npz(tmp_path / "truth")

@@ -744,7 +744,7 @@ def test_the_pilot_computes_fewer_candidates_and_keeps_a_clear_choice(monkeypatc
     full = ANRAEstimator.candidate_sums
 
     def spy(self, index, frames_, *args, **kwargs):  # noqa: ANN001, ANN202
-        calls.append(frames_.shape[1] if kwargs.get("frames") is None else 0)
+        calls.append(frames_.shape[1] if kwargs.get("error") is None or kwargs["error"].frames is None else 0)
         return full(self, index, frames_, *args, **kwargs)
 
     monkeypatch.setattr(ANRAEstimator, "candidate_sums", spy)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from anra_torch.flash.regions import components, dilate, erode
+from anra_torch.flash.regions import components, dilate, erode, smooth
 
 
 def _mask(rows: list[str]) -> torch.Tensor:
@@ -50,3 +50,17 @@ def test_dilate_and_erode_by_squares() -> None:
     assert torch.equal(erode(block, 2), point)
     full = torch.ones(5, 5, dtype=torch.bool)
     assert torch.equal(erode(full, 1), full)  # the frame's edge does not erode
+
+
+def test_smooth_keeps_a_constant_to_the_edges_and_a_spot_sums_to_one() -> None:
+    flat = torch.full((9, 12), 2.5, dtype=torch.float64)
+    assert torch.allclose(smooth(flat, 2.0), flat)
+    spot = torch.zeros(31, 31, dtype=torch.float64)
+    spot[15, 15] = 1.0
+    out = smooth(spot, 2.0)
+    assert (
+        abs(float(out.sum()) - 1) < 1e-12 and torch.allclose(out, out.T) and torch.allclose(out, out.flip(0))
+    )
+    # the Gaussian's width: the second moment along a row is sigma^2
+    k = torch.arange(-15, 16, dtype=torch.float64)
+    assert abs(float((out.sum(0) * k**2).sum()) - 4.0) < 0.05

@@ -9,12 +9,12 @@ import math
 import pytest
 import torch
 
-from anra_torch.effects import hidden_effect_video, simulate_effects
+from anra_torch.effects import Sensor, hidden_effect_video, simulate_effects
 from anra_torch.forecast.core import assimilated_state, extended_effects, forecast_errors, split_index
 from anra_torch.selection import diagnose_terms
 
 
-def video(names: list[str], seed: int, **kwargs: float):
+def video(names: list[str], seed: int, **kwargs: object):
     return hidden_effect_video(names, seed=seed, size=64, duration=3.0, **kwargs)
 
 
@@ -36,7 +36,7 @@ def test_assimilated_state_is_the_mean_of_forecasts_from_each_frame() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["anisotropy", "linear_loss"])
 def test_extended_effects_round_trip_on_noiseless_video(name: str) -> None:
-    v = video([name], 0, noise_frac=1e-4)
+    v = video([name], 0, sensor=Sensor(noise_frac=1e-4))
     diagnosis = diagnose_terms(v.clean, v.dt, v.dx)
     effects = extended_effects(diagnosis)
     assert [e.name for e in effects] == [name]

@@ -8,7 +8,7 @@ import torch
 from scenes import camera_scene, with_artefacts
 
 from anra_torch.balance import find_artefacts
-from anra_torch.effects import hidden_effect_video, independent_effect_video
+from anra_torch.effects import Sensor, hidden_effect_video, independent_effect_video
 from anra_torch.forecast import EARN_MARGIN, WEAK_SIGNAL, earned_diagnosis, signal_to_noise
 from anra_torch.forecast.earn import without_offsets
 from anra_torch.selection import fit_effects
@@ -55,7 +55,7 @@ def test_a_small_loss_is_named_as_a_loss_or_not_at_all(noise: float) -> None:
     operators too (an anisotropy of ratio 1.001, a temperature-dependent diffusivity, a source: each under
     1 % of dT/dt), which once were named beside the loss or instead of it. Named: the loss, or nothing."""
     v = independent_effect_video(
-        ["linear_loss"], seed=1, size=64, dx=0.15, duration=3.0, noise_frac=noise,
+        ["linear_loss"], seed=1, size=64, dx=0.15, duration=3.0, sensor=Sensor(noise_frac=noise),
         params={"linear_loss": {"b": 0.004}},
     )  # fmt: skip
     earned = earned_diagnosis(v.frames, v.dt, v.dx)

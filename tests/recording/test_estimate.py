@@ -12,7 +12,7 @@ import pytest
 from scenes import DT, DX, still_box
 from shared_data import DATA
 
-from anra_torch.batch import read_table, run_batch
+from anra_torch.batch import BatchOptions, read_table, run_batch
 from anra_torch.cli import main
 from anra_torch.recording import diagnose_recording
 from anra_torch.video import (
@@ -35,7 +35,7 @@ def test_batch_and_estimate_agree_on_every_shared_recording(tmp_path: Path, caps
         code = main(["estimate", str(path), *flags, "--json"])
         estimate = json.loads(capsys.readouterr().out)
         out = tmp_path / f"{path.stem}.csv"
-        run_batch([path], out, dtype="float64", progress=False, **spacing)
+        run_batch([path], out, options=BatchOptions(dtype="float64", **spacing), progress=False)
         (row,) = read_table(out)
         several = len(estimate["phases"]) > 1
         assert row["phase"] == (estimate["phase"] if several else None), path.name

@@ -18,6 +18,7 @@ from anra_torch.effects import (
     EFFECTS,
     Effect,
     HiddenEffectVideo,
+    Sensor,
     hidden_effect_video,
     independent_effect_video,
 )
@@ -125,7 +126,7 @@ EFFECT_SEEDS = {name: SEEDS[:4] for name in LIMITS} | {"heterogeneity": (0, 2, 3
 @pytest.mark.parametrize("name", ["linear_loss", "advection", "anisotropy", "nonlinear_diffusion"])
 def test_terms_balance_a_noiseless_video_exactly(name: str) -> None:
     """Same filters on every term: a simulated global effect is fitted to rounding, no PDE solved."""
-    video = hidden_effect_video((name,), seed=3, size=40, duration=1.0, noise_sd=0.0)
+    video = hidden_effect_video((name,), seed=3, size=40, duration=1.0, sensor=Sensor(noise_sd=0.0))
     d = diagnose(video, noise_sd=1e-6, effects=[name], smoothing=2.0)
     assert d.names == [name]
     found, effect = d.effects[0]["params"], video.effects[0]
@@ -232,7 +233,7 @@ BENCHMARK_CASES = {
 def test_benchmark_cases_once_misnamed_are_named_right(name: str, index: int) -> None:
     seed, noise, fps, size, duration, dx = BENCHMARK_CASES[(name, index)]
     video = hidden_effect_video(
-        (name,), seed=seed, size=size, fps=fps, duration=duration, noise_frac=noise, dx=dx
+        (name,), seed=seed, size=size, fps=fps, duration=duration, sensor=Sensor(noise_frac=noise), dx=dx
     )
     d = diagnose(video)
     assert d.names == [name], (d.names, d.scores)
@@ -358,7 +359,9 @@ def test_a_significant_effect_below_its_physical_size_is_listed_as_negligible() 
     sizes = {}
     for size in (0.01, 0.3):
         params = {"nonlinear_diffusion": {"beta": size / span}}
-        sizes[size] = diagnose(video_of(("nonlinear_diffusion",), seed=0, noise_frac=1e-4, params=params))
+        sizes[size] = diagnose(
+            video_of(("nonlinear_diffusion",), seed=0, sensor=Sensor(noise_frac=1e-4), params=params)
+        )
     small, large = sizes[0.01], sizes[0.3]
     assert small.names == []
     listed = {n["name"]: n for n in small.negligible}  # measured: 0.0095, and a disc of 0.4 % beside it
@@ -456,7 +459,9 @@ def test_strong_camera_noise_names_no_effect_and_keeps_the_diffusivity(kind: str
     energy, the measured variance's own error (10 %) decides the correction. Without that error in the
     coefficients' covariance the smallest smoothing looked precise: a came out near 0 (-0.001 and 0.003)
     and a loss, a source or depth conduction was named."""
-    video = independent_effect_video([], seed=7, size=128, dx=0.05, fps=40.0, duration=2.0, noise_frac=0.03)
+    video = independent_effect_video(
+        [], seed=7, size=128, dx=0.05, fps=40.0, duration=2.0, sensor=Sensor(noise_frac=0.03)
+    )
     frames, _ = plant(video.frames, kind, seed=11, noise_sd=video.noise_sd, dt=video.dt)
     diagnosis = diagnose_terms(frames, video.dt, video.dx)
     assert diagnosis.names == []

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.effects import hidden_effect_video
+from anra_torch.effects import Sensor, hidden_effect_video
 from anra_torch.simulation.camera import (
     ARTEFACTS,
     bad_elements,
@@ -23,7 +23,9 @@ from anra_torch.simulation.camera import (
 
 @pytest.fixture
 def video(dtype: torch.dtype) -> torch.Tensor:
-    return hidden_effect_video((), seed=2, size=48, duration=1.0, noise_frac=0.01, dtype=dtype).frames
+    return hidden_effect_video(
+        (), seed=2, size=48, duration=1.0, sensor=Sensor(noise_frac=0.01, dtype=dtype)
+    ).frames
 
 
 def _rounding(dtype: torch.dtype, scale: float) -> float:

@@ -13,7 +13,7 @@ import math
 import pytest
 import torch
 
-import anra_torch.effects.model as effects_module
+import anra_torch.effects.simulate as effects_module
 import anra_torch.forecast.refine as refine_module
 import anra_torch.simulation.heat as simulation_heat
 import anra_torch.simulation.tissue as simulation_tissue

@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.simulation.plate import flash_plate_video, plate_factor, with_depth
+from anra_torch.simulation.plate import FlashPlate, flash_plate_video, plate_factor, with_depth
 
 
 def test_3d_plate_without_lateral_flow_follows_the_exact_depth_factor() -> None:
     """The independent 3-D simulator itself: with no lateral diffusion every column is a 1-D plate, and its
     top cell follows the continuous plate's surface factor once heat has crossed a few cells."""
     frames, dt, _ = flash_plate_video(
-        size=16, n_frames=60, rate=20.0, diffusivity=(0.0, 0.0, 0.45), thickness=1.5, layers=60,
-        t_heat=-0.05, noise_sd=0.0, pad=4,
+        size=16, n_frames=60, rate=20.0, t_heat=-0.05, noise_sd=0.0, pad=4,
+        plate=FlashPlate(diffusivity=(0.0, 0.0, 0.45), thickness=1.5, layers=60),
     )  # fmt: skip
     excess = frames[:, 8, 8].double().numpy() - 20.0
     t = np.arange(60) * dt + 0.05

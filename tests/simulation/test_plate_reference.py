@@ -50,12 +50,12 @@ def test_agrees_with_the_packages_spectral_plate_on_a_disc_defect() -> None:
     """The same plate, flash and disc in both simulators (plate.py: lateral flow exact per Fourier mode on a
     periodic domain, equal layers, Strang splitting): frames normalised by their mean agree within 2 %
     (measured 1.6 %) and the defect's contrast within 6 % (measured 4 %) from the 10th frame on."""
-    from anra_torch.simulation.plate import flash_plate_video
+    from anra_torch.simulation.plate import FlashPlate, flash_plate_video
 
     size, dx, rate, count = 32, 0.2, 40.0, 40
     spectral, _, _ = flash_plate_video(
-        size=size, dx=dx, n_frames=count, rate=rate, thickness=1.5, layers=60, defect=(3.2, 3.2, 1.4, 0.5),
-        t_heat=-1 / rate, noise_sd=0.0, pad=32,
+        size=size, dx=dx, n_frames=count, rate=rate, t_heat=-1 / rate, noise_sd=0.0, pad=32,
+        plate=FlashPlate(thickness=1.5, layers=60, defect=(3.2, 3.2, 1.4, 0.5)),
     )  # fmt: skip
 
     def flash(x: np.ndarray, y: np.ndarray) -> np.ndarray:  # plate.py's flash

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from depth_scenes import F64
 
+from anra_torch.tissue.depth_cooling import MARGIN, MAX_MARGIN, margin_mm
 from anra_torch.tissue.depth_window import widen
 
 
@@ -27,3 +28,23 @@ def test_widen_continues_a_slope_and_keeps_the_frame() -> None:
         and float(wide.min()) == 0.0
         and float(wide.max()) == float(spot.max())
     )
+
+
+def test_widen_curved_continues_a_gaussian_tail() -> None:
+    y, x = torch.meshgrid(torch.arange(40, dtype=F64), torch.arange(40, dtype=F64), indexing="ij")
+    world = 30.0 * torch.exp(-((x - 19.5) ** 2 + (y - 19.5) ** 2) / (2 * 14.0**2))  # wider than the frame
+    frame = world[10:30, 10:30]
+    curved, straight = widen(frame, 10, curved=True), widen(frame, 10)
+    assert torch.equal(curved[10:30, 10:30], frame)
+    row = slice(18, 22)  # across the spot's centre: beyond the edge the tail falls as the Gaussian's
+    truth = world[row, :10]
+    assert float(((curved[row, :10] - truth).abs() / truth).max()) < 0.1
+    assert float(((straight[row, :10] - truth).abs() / truth).max()) > 0.3  # the line falls too fast
+    off = world[10:30, 26:40]  # a spot centred 6.5 px beyond the left edge: the continuation rises
+    left = widen(off, 10, curved=True)[10, :10].flip(0)  # the px beyond the edge, nearest first
+    assert float(left[0]) > float(off[0, 0]) and float(left[:6].diff().min()) > 0.0
+    assert 5 <= int(left.argmax()) <= 7 and float(left.max()) <= float(off.max())
+
+
+def test_margin_follows_the_heats_reach() -> None:
+    assert margin_mm(1.0) == MARGIN < margin_mm(60.0) < margin_mm(600.0) == MAX_MARGIN
