@@ -25,7 +25,11 @@ from anra_torch.video import save_npz
 if "PYTEST_XDIST_WORKER_COUNT" in os.environ:
     # Under `pytest -n N` each worker gets its share of the cores: torch's default (all cores per worker)
     # oversubscribes them, and its OpenMP kernels (e.g. reflect padding) then spin for ~10 ms per call.
-    torch.set_num_threads(max(1, (os.cpu_count() or 1) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"])))
+    _THREADS = max(1, (os.cpu_count() or 1) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"]))
+    torch.set_num_threads(_THREADS)
+    # The same share for the processes tests start (examples, entry points): unset, each took all cores
+    # beside the other worker and spun (the example and entry-point tests: 59 CPU-s, 24 with one thread).
+    os.environ.setdefault("OMP_NUM_THREADS", str(_THREADS))
 
 TOLERANCES = {torch.float32: 1e-4, torch.float64: 1e-10}
 """Relative tolerance for results that are exact up to rounding, per dtype."""

@@ -24,7 +24,7 @@ from anra_torch.tissue.depth_solver import (
     solver_nodes,
     state_at,
 )
-from anra_torch.tissue.depth_window import widen
+from anra_torch.tissue.depth_window import widened_modes
 
 __all__ = [
     "EDGE",
@@ -142,8 +142,7 @@ def cooling_data(
     step = float(dx.max())
     margin = max(1, math.ceil(margin_mm(float(dt.max()) * (t - 1)) / step - 1e-9))
     inner = min(max(1, round(EDGE / step)), (min(h, w) - 1) // 2)
-    wide = widen(rise, margin, mirrored=mirrored, noise=noise, curved=True)
-    hh, ww = wide.shape[-2:]
+    hh, ww = h + 2 * margin, w + 2 * margin
     ky = math.pi * torch.arange(hh, dtype=_F64, device=rise.device) / hh
     kx = math.pi * torch.arange(ww, dtype=_F64, device=rise.device) / ww
     k2 = (ky[:, None] ** 2 + kx[None, :] ** 2) / dx.view(-1, 1, 1) ** 2  # (B, HH, WW)
@@ -151,7 +150,7 @@ def cooling_data(
     py = min(hh, math.ceil(math.sqrt(cut) * hh * step / math.pi) + 1)
     px = min(ww, math.ceil(math.sqrt(cut) * ww * step / math.pi) + 1)
     ch, cw = dct_matrix(hh).to(rise)[:py], dct_matrix(ww).to(rise)[:px]
-    spectrum = (ch @ wide @ cw.T).flatten(2)  # (B, T, K)
+    spectrum = widened_modes(rise, margin, ch, cw, mirrored=mirrored, noise=noise, curved=True).flatten(2)
     k2 = k2[:, :py, :px].flatten(1)
     energy = ((spectrum - spectrum[:, :1]) ** 2).sum(1)
     above = energy > SIGNAL_TO_NOISE**2 * t * noise.view(-1, 1) ** 2

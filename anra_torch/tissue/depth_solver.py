@@ -280,20 +280,21 @@ def state_at(problem: ModalProblem, last: Tensor, *, start: Tensor | None = None
     steady = p.a.view(-1, 1, 1) * p.operator["forcing"] * first.unsqueeze(-1) / p.decay
     n = int(last.max()) + 1
     lag = torch.arange(n, device=z.device)
-    frame = last.view(-1, 1) - lag.view(1, -1)  # (B, L): frame N - L
-    valid = (frame >= 1).to(z.dtype).unsqueeze(-1)  # lags L < N
-    index = frame.clamp_min(0).unsqueeze(-1).expand(-1, -1, p.spectrum.shape[2])
-    newer = p.spectrum.gather(1, index) * valid  # g_(N-L), (B, L, K)
-    older = p.spectrum.gather(1, (index - 1).clamp_min(0)) * valid  # g_(N-1-L)
     totals = [torch.zeros_like(z), torch.zeros_like(z)]
     chunk = min(n, max(1, _BLOCK // max(1, z.numel())))
     powers = torch.exp(z.unsqueeze(-1) * lag[:chunk].to(z.dtype))  # (B, K, M, L): E^L, one chunk
     across = torch.exp(z * chunk).unsqueeze(-1)  # E^chunk: from one chunk to the next
     for at in range(0, n, chunk):
         here = powers[..., : min(chunk, n - at)]
+        frame = last.view(-1, 1) - lag[at : at + chunk].view(1, -1)  # (B, L): frame N - L, this chunk's
+        valid = (frame >= 1).to(z.dtype).unsqueeze(-1)  # lags L < N
+        index = frame.clamp_min(0).unsqueeze(-1).expand(-1, -1, p.spectrum.shape[2])
+        newer = p.spectrum.gather(1, index) * valid  # g_(N-L), (B, L, K)
+        older = p.spectrum.gather(1, (index - 1).clamp_min(0)) * valid  # g_(N-1-L)
         for i, g in enumerate((older, newer)):
-            totals[i] = totals[i] + torch.einsum("bkml,blk->bkm", here, g[:, at : at + chunk])
-        powers = powers * across
+            totals[i] = totals[i] + torch.einsum("bkml,blk->bkm", here, g)
+        # in place where no gradient is taken: a fresh (B, K, M, L) block per chunk costs page faults
+        powers = powers * across if torch.is_grad_enabled() else powers.mul_(across)
     decayed = torch.exp(z * last.view(-1, 1, 1).to(z.dtype)) * steady
     return decayed + gain * (phi1 - phi2) * totals[0] + gain * phi2 * totals[1]
 

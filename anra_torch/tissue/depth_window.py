@@ -11,7 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["widen"]
+__all__ = ["widen", "widened_modes"]
 
 _FIT_PIXELS = 6  # the edge's value and slope: a least-squares line through its last pixels
 _CURVED_PIXELS = 16  # the curved tail: a parabola through the logarithm of the last pixels
@@ -43,26 +43,63 @@ def widen(
     mean stands less than half of it above the body temperature (3.5 times the noise of that mean) is
     continued by 0: a cold edge's noise, continued and kept above 0, would put heat where there is none.
     Shape: ``(..., H, W)`` -> ``(..., H + 2 m, W + 2 m)``."""
+    left, right, top, bottom = _strips(rise, margin, mirrored, noise, curved)
+    return torch.cat([top, torch.cat([left, rise, right], -1), bottom], -2)
+
+
+def widened_modes(
+    rise: Tensor,
+    margin: int,
+    rows: Tensor,
+    cols: Tensor,
+    *,
+    mirrored: bool = False,
+    noise: Tensor | None = None,
+    curved: bool = False,
+) -> Tensor:
+    """``rows @ widen(rise, margin, ...) @ cols^T`` without the widened frames: the frame and the four
+    strips beyond its edges each through their own columns of ``rows`` ``(P, H + 2 m)`` and ``cols``
+    ``(Q, W + 2 m)`` (a widened video's low cosine modes at a fraction of the memory and time).
+
+    Shape: ``(..., H, W)`` -> ``(..., P, Q)``."""
+    h, w = rise.shape[-2:]
+    m = margin
+    left, right, top, bottom = _strips(rise, m, mirrored, noise, curved)
+    middle = rise @ cols[:, m : m + w].T + left @ cols[:, :m].T + right @ cols[:, m + w :].T
+    out = rows[:, m : m + h] @ middle
+    return out + rows[:, :m] @ (top @ cols.T) + rows[:, m + h :] @ (bottom @ cols.T)
+
+
+def _strips(
+    rise: Tensor, margin: int, mirrored: bool, noise: Tensor | None, curved: bool
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """What :func:`widen` puts beyond the frame: the left and right strips ``(..., H, m)``, then the top and
+    bottom ones ``(..., m, W + 2 m)`` (the columns of the frames' means continued by the first two)."""
     shape = rise.shape
     h, w = shape[-2:]
     flat = rise.reshape(-1, 1, h, w)
-    out = F.avg_pool2d(F.pad(flat, (2, 2, 2, 2), mode="replicate"), 5, 1).reshape(shape)
+    means = F.avg_pool2d(F.pad(flat, (2, 2, 2, 2), mode="replicate"), 5, 1).reshape(shape)
     top = rise.amax((-2, -1), keepdim=True).unsqueeze(-1)
     floor = None if noise is None else 0.5 * noise.reshape(-1, *[1] * (rise.ndim - 1)).unsqueeze(-1)
-    for dim in (-1, -2):
-        x = out.movedim(dim, -1)
-        sides = [
-            _continue(x.flip(-1), margin, top, mirrored, curved).flip(-1),
-            x,
-            _continue(x, margin, top, mirrored, curved),
-        ]
+
+    need = max(_FIT_PIXELS, _CURVED_PIXELS, margin + 1)  # the most pixels any continuation reads
+
+    def sides(x: Tensor) -> tuple[Tensor, Tensor]:
+        before = _continue(x[..., :need].flip(-1), margin, top, mirrored, curved).flip(-1)
+        after = _continue(x[..., -need:], margin, top, mirrored, curved)
         if floor is not None:
-            for i, edge in ((0, x[..., :1]), (2, x[..., -1:])):
-                sides[i] = torch.where(edge > floor.squeeze(-1), sides[i], torch.zeros_like(sides[i]))
-        out = torch.cat(sides, -1).movedim(-1, dim)
-    out = out.clone()
-    out[..., margin : margin + h, margin : margin + w] = rise
-    return out
+            cold = floor.squeeze(-1)
+            before = torch.where(x[..., :1] > cold, before, torch.zeros_like(before))
+            after = torch.where(x[..., -1:] > cold, after, torch.zeros_like(after))
+        return before, after
+
+    left, right = sides(means)
+    # the columns need only their ends: as many rows of the row-continued means as any continuation reads
+    n = min(h, need)
+    ends = torch.cat([left, means, right], -1)
+    upper, _ = sides(ends[..., :n, :].transpose(-1, -2))
+    _, lower = sides(ends[..., h - n :, :].transpose(-1, -2))
+    return left, right, upper.transpose(-1, -2), lower.transpose(-1, -2)
 
 
 def _continue(x: Tensor, margin: int, top: Tensor, mirrored: bool, curved: bool = False) -> Tensor:
@@ -92,7 +129,7 @@ def _gaussian_tail(x: Tensor, ahead: Tensor) -> Tensor:
     n = min(_CURVED_PIXELS, x.shape[-1])
     s = torch.arange(1 - n, 1, dtype=x.dtype, device=x.device)
     tail = x[..., -n:]
-    tiny = 1e-9 * float(x.detach().abs().max().clamp_min(1e-30))
+    tiny = 1e-9 * float(tail.detach().abs().max().clamp_min(1e-30))
     weight = tail.clamp_min(0.0) ** 2
     m = weight @ torch.stack([s**p for p in range(5)], -1)  # (..., 5): sum w s^p
     r = (weight * torch.log(tail.clamp_min(tiny))) @ torch.stack([s**p for p in range(3)], -1)

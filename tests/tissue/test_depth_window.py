@@ -6,7 +6,8 @@ import torch
 from depth_scenes import F64
 
 from anra_torch.tissue.depth_cooling import MARGIN, MAX_MARGIN, margin_mm
-from anra_torch.tissue.depth_window import widen
+from anra_torch.tissue.depth_solver import dct_matrix
+from anra_torch.tissue.depth_window import widen, widened_modes
 
 
 def test_widen_continues_a_slope_and_keeps_the_frame() -> None:
@@ -48,3 +49,13 @@ def test_widen_curved_continues_a_gaussian_tail() -> None:
 
 def test_margin_follows_the_heats_reach() -> None:
     assert margin_mm(1.0) == MARGIN < margin_mm(60.0) < margin_mm(600.0) == MAX_MARGIN
+
+
+def test_widened_modes_are_those_of_the_widened_frames() -> None:
+    y, x = torch.meshgrid(torch.arange(12, dtype=F64), torch.arange(10, dtype=F64), indexing="ij")
+    spot = 20.0 * torch.exp(-((x - 8.0) ** 2 + (y - 3.0) ** 2) / 10) + 0.1 * torch.sin(3.0 * x + y)
+    frames = spot.expand(2, 3, 12, 10)
+    for margin, options in ((4, {}), (15, {"curved": True}), (6, {"mirrored": True})):
+        rows, cols = dct_matrix(12 + 2 * margin)[:7].to(F64), dct_matrix(10 + 2 * margin)[:5].to(F64)
+        expected = rows @ widen(frames, margin, **options) @ cols.T
+        assert torch.allclose(widened_modes(frames, margin, rows, cols, **options), expected, atol=1e-10)
