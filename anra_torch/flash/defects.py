@@ -35,7 +35,7 @@ from anra_torch.balance import estimate_noise_sd
 from anra_torch.checks import as_video, spacing_in_range
 from anra_torch.flash.cooling import nelder_mead, profile_rss, refine_minimum, tau_grid, time_bins
 from anra_torch.flash.lateral import fit_lateral, lateral_integrals, local_quadratic, value_noise_gain
-from anra_torch.flash.regions import components, dilate, erode, smooth
+from anra_torch.flash.regions import components, dilate, edge_scatter, erode, smooth
 
 __all__ = ["DefectMap", "FoundDefect", "defect_map"]
 
@@ -122,7 +122,7 @@ class _Cooling:
         self.counts = self.bins.counts.to(frames)
         self.offsets = self.bins.elapsed.to(frames) - dt  # each bin's time after the first frame
         value, _ = local_quadratic(self.frames, _SIGMA_VALUE, dx)
-        _, second = local_quadratic(self.frames, _SIGMA_LATERAL, dx)
+        _, second = local_quadratic(self.frames, _SIGMA_LATERAL, dx, cubic=True)
         self.value, self.second = value.flatten(1), second.flatten(2)  # (N, P), (3, N, P)
         self.sd = noise_sd * value_noise_gain(_SIGMA_VALUE)
         self.low = float(self.value[-1].min())  # the coolest late pixel: T_ref lies below it
@@ -141,10 +141,11 @@ class _Cooling:
         weights = self.counts[:, None] / ((self.sd / excess) ** 2 + _MODEL_FLOOR**2)
         return excess.log().T, integrals.transpose(1, 2), weights.T, elapsed
 
-    def lateral(self, t_ref: float, first: float, labels: Tensor | None) -> Tensor:
-        """The lateral diffusivities (:func:`~anra_torch.flash.lateral.fit_lateral`) at ``T_ref``."""
+    def lateral(self, t_ref: float, first: float, labels: Tensor | None) -> tuple[Tensor, int]:
+        """The lateral diffusivities and the blocks used (:func:`~anra_torch.flash.lateral.fit_lateral`)
+        at ``T_ref``."""
         height, width = self.shape[1:]
-        a, _ = fit_lateral(
+        return fit_lateral(
             self.frames,
             self.offsets + first,
             self.counts,
@@ -154,7 +155,6 @@ class _Cooling:
             sigma=max(2.0, min(height, width) / 16),
             labels=labels,
         )
-        return a
 
 
 def _trimmed_rss(cooling: _Cooling, a: Tensor, pixels: Tensor, point: Tensor, horizon: float) -> float:
@@ -285,7 +285,8 @@ def defect_map(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None =
     t_ref, first = _fit_globals(cooling, a, None)
     labels, horizon, last = None, math.inf, float(cooling.offsets[-1]) + first
     for _ in range(_ROUNDS):
-        a = cooling.lateral(t_ref, first, labels)
+        refit, used = cooling.lateral(t_ref, first, labels)  # too few sound pixels for a refit: a stays
+        a = refit if labels is None or used != 0 else a
         t_ref, first = _fit_globals(cooling, a, (t_ref, first) if math.isinf(horizon) else None, horizon)
         tau, rss, windowed, taus = _fit_pixels(cooling, a, t_ref, first)
         log_tau = torch.log(tau.clamp(max=float(taus[-2]))).view(height, width)
@@ -293,6 +294,7 @@ def defect_map(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None =
         plate_time = math.exp(float(_plate(log_tau)[0]))
         if math.isinf(horizon) and last > _LONG * plate_time:  # long past the back wall: only the lateral
             horizon = max(last / _LONG**2, plate_time)  # flow changes the late frames; the globals end here
+            a = a.new_zeros(3)  # measured at the T_ref the late frames pulled off
             t_ref, first = _fit_globals(cooling, a, None, horizon)  # the next lateral fit needs this T_ref
     return _finish(tau.view(height, width), rss, windowed, taus, dx, (a, t_ref, first, sd), cooling)
 
@@ -317,23 +319,6 @@ def _standard_error(log_tau: Tensor, sound: Tensor) -> float:
     if len(medians) < 2:
         return math.inf
     return float(medians.std() / math.sqrt(len(medians)))
-
-
-def _edge_scatter(contrast: Tensor, sound: Tensor) -> Tensor:
-    """Per pixel, the robust sd of the contrast over the sound pixels as far from the frame's edge (up to
-    :data:`_EDGE_RINGS` px; the lateral derivatives are one-sided and noisier near the edge)."""
-    height, width = contrast.shape
-    rows = torch.arange(height, device=contrast.device)[:, None]
-    cols = torch.arange(width, device=contrast.device)[None, :]
-    ring = torch.minimum(torch.minimum(rows, height - 1 - rows), torch.minimum(cols, width - 1 - cols))
-    ring = ring.clamp(max=_EDGE_RINGS)
-    spread = torch.zeros(_EDGE_RINGS + 1, dtype=contrast.dtype, device=contrast.device)
-    for k in range(int(ring.max()) + 1):  # a few rings, each whole
-        values = contrast[(ring == k) & sound]
-        if len(values) < _MIN_PIXELS:
-            values = contrast[ring == k]
-        spread[k] = 1.4826 * (values - values.median()).abs().median()
-    return spread[ring]
 
 
 def _significance(rss: Tensor, windowed: Tensor, plate_index: int) -> Tensor:
@@ -364,7 +349,9 @@ def _finish(
     scatter = 1.4826 * (contrast[sound] - contrast[sound].median()).abs().median()  # the sound plate's
     least = max(_CONTRAST, _SCATTER * float(scatter))
     candidate = (
-        (contrast > _CONTRAST) & (contrast > _SCATTER * _edge_scatter(contrast, sound)) & (z > _SIGNIFICANCE)
+        (contrast > _CONTRAST)
+        & (contrast > _SCATTER * edge_scatter(contrast, sound, _EDGE_RINGS, _MIN_PIXELS))
+        & (z > _SIGNIFICANCE)
     )
     mask, fraction, peaks, found = _outlines(contrast, candidate, least, dx)
     score = _score(contrast, peaks)

@@ -39,6 +39,7 @@ __all__ = [
 ]
 
 _MONOMIALS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))  # powers of (x, y) in pixels
+_CUBIC = ((3, 0), (2, 1), (1, 2), (0, 3))
 _CHUNK = 64  # frames filtered at once
 _STOP_CHI2 = 3.0  # a block whose residual is this many times its noise, ...
 _STOP_R2 = 0.8  # ... and explains less than this share of its increments, ends the fit
@@ -59,22 +60,31 @@ def _correlate(x: Tensor, taps: Tensor, radius: int, dim: int) -> Tensor:
     return nnf.conv2d(x[:, None], kernel, padding=padding)[:, 0]
 
 
-def _inverse_gram(sigma: float, shape: tuple[int, int], like: Tensor) -> Tensor:
+def _inverse_gram(
+    sigma: float, shape: tuple[int, int], like: Tensor, monomials: tuple[tuple[int, int], ...] = _MONOMIALS
+) -> Tensor:
     """Rows (value, xx, yy, xy) of each pixel's inverse weighted Gram matrix of the monomials,
-    ``(4, 6, H, W)``."""
-    taps, radius = _weights(sigma, 5, like)
+    ``(4, M, H, W)``."""
+    top = 2 * max(a + b for a, b in monomials) + 1
+    taps, radius = _weights(sigma, top, like)
     ones = torch.ones((1, *shape), dtype=like.dtype, device=like.device)
-    along_x = [_correlate(ones, taps[p], radius, -1) for p in range(5)]
-    moments = {(a, b): _correlate(along_x[a], taps[b], radius, -2)[0] for a in range(5) for b in range(5 - a)}
+    along_x = [_correlate(ones, taps[p], radius, -1) for p in range(top)]
+    moments = {
+        (a, b): _correlate(along_x[a], taps[b], radius, -2)[0] for a in range(top) for b in range(top - a)
+    }
     gram = torch.stack(
-        [torch.stack([moments[(a + c, b + d)] for c, d in _MONOMIALS], -1) for a, b in _MONOMIALS], -2
-    )  # (H, W, 6, 6)
+        [torch.stack([moments[(a + c, b + d)] for c, d in monomials], -1) for a, b in monomials], -2
+    )  # (H, W, M, M)
     inverse = torch.linalg.inv(gram)
     return inverse[..., [0, 3, 5, 4], :].permute(2, 3, 0, 1)
 
 
-def local_quadratic(frames: Tensor, sigma: float, dx: float) -> tuple[Tensor, Tensor]:
+def local_quadratic(frames: Tensor, sigma: float, dx: float, *, cubic: bool = False) -> tuple[Tensor, Tensor]:
     """The value and second derivatives of a local quadratic fit with Gaussian weights (``sigma`` px).
+
+    With ``cubic`` the fit also has the cubic monomials: the same value and derivatives where the window
+    is whole (odd and even monomials are orthogonal there), without the cubic terms' bias where the frame's
+    edge cuts it (one-sided), at more noise there.
 
     Args:
         frames: ``(T, H, W)``, at least ``3 sigma`` px on each side... any size of at least 3 x 3 px.
@@ -85,13 +95,14 @@ def local_quadratic(frames: Tensor, sigma: float, dx: float) -> tuple[Tensor, Te
         The fitted value ``(T, H, W)`` and ``(d^2/dx^2, d^2/dy^2, d^2/dxdy)`` in data units per mm^2,
         ``(3, T, H, W)``, x along W; on the frames' device and dtype.
     """
-    inverse = _inverse_gram(sigma, tuple(frames.shape[1:]), frames)
-    taps, radius = _weights(sigma, 3, frames)
+    monomials = _MONOMIALS + _CUBIC if cubic else _MONOMIALS
+    inverse = _inverse_gram(sigma, tuple(frames.shape[1:]), frames, monomials)
+    taps, radius = _weights(sigma, 4 if cubic else 3, frames)
     scale = frames.new_tensor([1.0, 2 / dx**2, 2 / dx**2, 1 / dx**2]).view(4, 1, 1, 1)
     parts = []
     for chunk in frames.split(_CHUNK):
-        along_x = [_correlate(chunk, taps[p], radius, -1) for p in range(3)]
-        moments = torch.stack([_correlate(along_x[a], taps[b], radius, -2) for a, b in _MONOMIALS])
+        along_x = [_correlate(chunk, taps[p], radius, -1) for p in range(len(taps))]
+        moments = torch.stack([_correlate(along_x[a], taps[b], radius, -2) for a, b in monomials])
         parts.append(torch.einsum("kmhw,mthw->kthw", inverse, moments) * scale)
     out = torch.cat(parts, 1)
     return out[0], out[1:]

@@ -1,5 +1,5 @@
-"""Regions of a map: connected components, dilation and erosion of booleans, a Gaussian average, as whole-map
-tensor operations."""
+"""Regions of a map: connected components, dilation and erosion of booleans, a Gaussian average, the scatter
+by distance from the frame's edge, as whole-map tensor operations."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as nnf
 from torch import Tensor
 
-__all__ = ["components", "dilate", "erode", "smooth"]
+__all__ = ["components", "dilate", "edge_scatter", "erode", "smooth"]
 
 
 def components(mask: Tensor) -> tuple[Tensor, int]:
@@ -71,3 +71,25 @@ def smooth(values: Tensor, sigma: float) -> Tensor:
         return nnf.conv2d(x, taps.view(1, 1, -1, 1), padding=(radius, 0))[0, 0]
 
     return blur(values) / blur(torch.ones_like(values))
+
+
+def edge_scatter(values: Tensor, sound: Tensor, rings: int, min_pixels: int) -> Tensor:
+    """Per pixel, the robust sd of ``values`` ``(H, W)`` over the pixels as far from the frame's edge (up to
+    ``rings`` px; estimates from one-sided filters are noisier near the edge), from their deviations below
+    the ring's median (a defect only raises the values; a cut to the ``sound`` pixels would hide the edge's
+    scatter); beyond ``rings`` px, over the ``sound`` pixels (if at least ``min_pixels``)."""
+    height, width = values.shape
+    rows = torch.arange(height, device=values.device)[:, None]
+    cols = torch.arange(width, device=values.device)[None, :]
+    ring = torch.minimum(torch.minimum(rows, height - 1 - rows), torch.minimum(cols, width - 1 - cols))
+    ring = ring.clamp(max=rings)
+    spread = torch.zeros(rings + 1, dtype=values.dtype, device=values.device)
+    for k in range(int(ring.max()) + 1):  # a few rings, each whole
+        chosen = values[ring == k]
+        if k == rings and int(((ring == k) & sound).sum()) >= min_pixels:
+            chosen = values[(ring == k) & sound]
+            spread[k] = 1.4826 * (chosen - chosen.median()).abs().median()
+        else:
+            middle = chosen.median()
+            spread[k] = 1.4826 * (middle - chosen[chosen <= middle]).median()
+    return spread[ring]

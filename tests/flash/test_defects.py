@@ -25,10 +25,12 @@ def _plate(
     defects: tuple[tuple[float, float, float, float], ...] = (),
     lateral: tuple[float, float] | None = None,
     seed: int = 0,
+    spot: tuple[float, float] = (0.35, 0.6),
 ) -> tuple[torch.Tensor, float, np.ndarray, np.ndarray]:
     """Frames (first at ``dt`` after the flash, T_ref 20, 20 mK noise), the truth's defect mask and
     depth fractions. ``defects``: discs ``(x, y, radius, d / L)`` in mm; ``lateral``: ``(a_x, a_y)`` of a
-    flash 0.7 + a Gaussian spot of 4 mm (without it the flash is uniform and nothing flows sideways)."""
+    flash 0.7 + a Gaussian spot of 4 mm at ``spot`` (fractions of the frame; without ``lateral`` the flash
+    is uniform and nothing flows sideways)."""
     t = dt * np.arange(1, frames + 1)
     yy, xx = (np.mgrid[0:size, 0:size] + 0.5) * DX
     fraction = np.full((size, size), np.nan)
@@ -41,7 +43,7 @@ def _plate(
     spread = 1.0
     if lateral is not None:
         vx, vy = (16 + 2 * a * t[:, None, None] for a in lateral)
-        r2 = (xx - 0.35 * size * DX) ** 2 / vx + (yy - 0.6 * size * DX) ** 2 / vy
+        r2 = (xx - spot[0] * size * DX) ** 2 / vx + (yy - spot[1] * size * DX) ** 2 / vy
         spread = 0.7 + 0.5 * 16 / np.sqrt(vx * vy) * np.exp(-r2 / 2)
     noise = 0.02 * np.random.default_rng(seed).standard_normal(depth.shape)
     return torch.from_numpy(20 + 3 * spread * depth + noise), dt, ~np.isnan(fraction), fraction
@@ -212,3 +214,13 @@ def test_a_large_defect_in_a_thick_plate_leaves_the_lateral_fit_physical() -> No
     assert abs(found.plate_time / plate.plate_time - 1) < 0.1  # +20 % before
     for defect in found.defects:  # one at the side before
         assert plate.defect_mask[int(defect.y / plate.dx), int(defect.x / plate.dx)]
+
+
+@pytest.mark.slow
+def test_a_bright_spot_by_the_corner_is_no_defect_before_the_back_wall() -> None:
+    # the one-sided local quadratic's curvature is biased beside the spot, the edge's scatter was measured on
+    # the pixels that looked sound, and the refits on the few sound pixels of a noisy map lost a_x, a_y
+    frames, dt, _, _ = _plate(lateral=(7.3, 1.1), frames=200, dt=0.005, seed=3, spot=(0.1, 0.1))  # to TAU / 4
+    found = defect_map(frames, dt, DX)
+    assert found.defects == () and not found.defect_mask.any()  # 3.3 % of the frame before
+    assert abs(found.lateral[0] / 7.3 - 1) < 0.1

@@ -35,6 +35,23 @@ def test_local_quadratic_is_exact_on_a_quadratic_at_every_pixel_edges_included(d
     torch.testing.assert_close(second, expected.expand_as(second), rtol=tol, atol=tol * 10)
 
 
+def test_the_cubic_local_fit_is_exact_on_a_cubic_at_every_pixel_and_the_quadratic_one_inside() -> None:
+    dx = 0.4
+    y, x = torch.meshgrid(torch.arange(24, dtype=F64) * dx, torch.arange(30, dtype=F64) * dx, indexing="ij")
+    field = 1 + x - y + 0.5 * x**2 + 0.3 * x * y - 0.2 * y**2 + 0.05 * x**3 - 0.04 * x**2 * y + 0.03 * y**3
+    value, second = local_quadratic(field[None], 3.0, dx, cubic=True)
+    torch.testing.assert_close(value[0], field, rtol=1e-8, atol=1e-8)
+    expected = torch.stack([1 + 0.3 * x - 0.08 * y, -0.4 + 0.18 * y, 0.3 - 0.08 * x])
+    torch.testing.assert_close(second[:, 0], expected, rtol=1e-7, atol=1e-7)  # edges and corners too
+    _, plain = local_quadratic(field[None], 3.0, dx)
+    assert (plain[:, 0] - expected).abs().max() > 1e-3  # the quadratic fit's one-sided bias at the edge
+    noise = torch.randn(2, 24, 30, dtype=F64)
+    inside = (slice(None), slice(None), slice(9, -9), slice(9, -9))
+    torch.testing.assert_close(
+        local_quadratic(noise, 3.0, dx, cubic=True)[1][inside], local_quadratic(noise, 3.0, dx)[1][inside]
+    )
+
+
 def test_value_noise_gain_is_the_fits_noise_in_the_interior() -> None:
     noise = torch.randn(200, 32, 32, dtype=F64)
     value, _ = local_quadratic(noise, 1.0, 1.0)

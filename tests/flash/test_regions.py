@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from anra_torch.flash.regions import components, dilate, erode, smooth
+from anra_torch.flash.regions import components, dilate, edge_scatter, erode, smooth
 
 
 def _mask(rows: list[str]) -> torch.Tensor:
@@ -64,3 +64,17 @@ def test_smooth_keeps_a_constant_to_the_edges_and_a_spot_sums_to_one() -> None:
     # the Gaussian's width: the second moment along a row is sigma^2
     k = torch.arange(-15, 16, dtype=torch.float64)
     assert abs(float((out.sum(0) * k**2).sum()) - 4.0) < 0.05
+
+
+def test_edge_scatter_sees_a_noisy_edge_that_a_cut_to_sound_pixels_would_hide() -> None:
+    generator = torch.Generator().manual_seed(0)
+    values = 0.1 * torch.randn(40, 40, generator=generator, dtype=torch.float64)
+    border = torch.ones(40, 40, dtype=torch.bool)
+    border[1:-1, 1:-1] = False
+    values[border] = 0.5 * torch.randn(int(border.sum()), generator=generator, dtype=torch.float64)
+    values[0, 10:25] += 5.0  # a defect running out of the frame
+    sound = values.abs() < 0.3
+    spread = edge_scatter(values, sound, 10, 29)
+    assert abs(float(spread[0, 20]) / 0.5 - 1) < 0.25  # 0.19 from the sound pixels
+    assert abs(float(spread[20, 20]) / 0.1 - 1) < 0.2  # the interior, from the sound pixels
+    assert float(spread[5, 20]) < 0.15
