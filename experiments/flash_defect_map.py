@@ -286,7 +286,28 @@ def summary(results: list[dict]) -> list[str]:
     )
     if intact:
         lines.append(f"intact coverage: max {100 * max(r['coverage'] for r in intact):.2f} %")
+    lines.extend(_diagnosis_summary([r for r in results if "error" not in r]))
     return lines
+
+
+def _diagnosis_summary(results: list[dict]) -> list[str]:
+    """The diagnosis' acceptance lines over the plates it ran on: depth_conduction named; a delamination
+    centred over a true defect for each of the plate's defects (distinct depths) and none elsewhere, none
+    on an intact plate; no effect with a gain <= 0 or centred outside the frame."""
+    ran = [r for r in results if r["diagnosis"]["depth_conduction"] is not None]
+    if not ran:
+        return []
+
+    def exact(r: dict) -> bool:
+        over = r["diagnosis"]["delamination_over_defect"]
+        return all(over) and len(over) >= len(r.get("depths", []))
+
+    named = sum(r["diagnosis"]["depth_conduction"] for r in ran)
+    clean = sum(not r["diagnosis"]["bad_effects"] for r in ran)
+    return [
+        f"diagnosis on {len(ran)} plates: depth_conduction named on {named}; a delamination over each defect "
+        f"and none elsewhere on {sum(exact(r) for r in ran)}; no gain <= 0 or outside on {clean}"
+    ]
 
 
 def cli() -> None:

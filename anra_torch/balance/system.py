@@ -133,6 +133,10 @@ class BalanceSystem:
         # Fitted shape parameters by effect, as the selection last fitted them: an effect that refines
         # another (EffectSpec.requires) builds on its entry.
         self.shapes: dict[str, dict[str, float]] = {}
+        # Candidate shapes by effect from outside the balance (a flash defect map's defects for a
+        # delamination, mm): the effect's shape fit starts from them, its fit must lie in one, and an empty
+        # tuple rules the effect out (the map looked and found none).
+        self.hints: dict[str, tuple[dict[str, float], ...]] = {}
 
     @cached_property
     def smoothed(self) -> Tensor:

@@ -39,7 +39,7 @@ from anra_torch.cli.arguments import (
     print_input,
 )
 from anra_torch.flash import FlashMaps, flash_maps
-from anra_torch.recording import diagnose_video, open_for_diagnosis
+from anra_torch.recording import diagnose_video, flash_hints, open_for_diagnosis
 from anra_torch.report import write_diagnosis_report, write_flash_report, write_phase_report
 from anra_torch.video import Video
 
@@ -118,7 +118,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="a flash recording: also map per pixel the through-thickness time constant of the cooling "
         "(lateral conduction taken off) and the defects it shows, and write to FILE (.npz) defect_score, "
         "defect_mask, depth_fraction, depth_time and the contrasts tsr_d2, pct, ppt; the JSON gets "
-        "'defect_map' (the plate's L^2/a_z, the defects), the report flash.md",
+        "'defect_map' (the plate's L^2/a_z, the defects), the report flash.md; the diagnosis looks for a "
+        "delamination at the map's defects only",
     )
     parser.set_defaults(run=run)
 
@@ -168,15 +169,16 @@ def run(args: argparse.Namespace) -> int:
         )
         if args.device.type != "cpu":  # the diagnosis computes where its frames are
             recording = recording.loaded().map_frames(lambda f: torch.as_tensor(f).to(args.device))
+        maps = None if args.maps is None else _flash_maps(args, recording, decimated is not None)
         done = diagnose_video(
             recording,
             fit_fraction=args.fit_fraction,
             assimilate=args.assimilate,
             source_map=args.source_map,
             decimated=decimated,
+            hints=None if maps is None else flash_hints(maps.defects),
         )
         summary = done.to_record()
-        maps = None if args.maps is None else _flash_maps(args, recording, decimated is not None)
     except (ValueError, TypeError, OSError) as err:
         if args.json:  # batch users keep a row
             print(json.dumps({"path": str(args.video), "error": one_line(err)}))

@@ -17,7 +17,10 @@ last three are the plate's, copied from its ``depth_conduction`` fit. Derived: `
 
 Diagnosis: tried once ``depth_conduction`` is in the model (:attr:`EffectSpec.requires`); a fitted shape
 ``Y`` (the disc's term through the balance's filters), its centre, radius and depth time fitted by the
-errors-in-variables profile loss from the strongest positive structure left in the residual. Validated
+errors-in-variables profile loss from the strongest positive structure left in the residual, or, given
+candidate regions (:func:`~anra_torch.selection.diagnose_terms`' ``hints``: the defects of a flash defect
+map, :func:`anra_torch.flash.defect_map`, where the cooling says the heat stops early), from those regions,
+and then its centre must stay in one of them; an empty set of regions rules it out. Validated
 on the independent 3-D plates of :func:`anra_torch.simulation.flash_plate_video` (the lateral and
 the depth problems do not separate over a defect, so the 2-D independent simulator has no model of it).
 Random draw: under the first hot spot (radius 1-2 of its sigmas), ``d / L`` in 0.2-0.5, ``strength``
@@ -140,8 +143,34 @@ def delamination_term(system: BalanceSystem, theta: Tensor, plate: dict[str, flo
     return system.finish(system.filters.time.average(field)), weight
 
 
+def _start(cx: float, cy: float, radius: float, fraction: float, device: torch.device) -> Tensor:
+    """``theta`` (see :func:`_unpack`) of a disc centred at ``(cx, cy)`` px of ``radius`` px at the depth
+    fraction ``fraction`` (``d / L``: the layer's depth time ``fraction^2`` of the plate's)."""
+    radius, share = max(radius, _MIN_RADIUS_PX + 0.5), min(max(fraction, 0.05), 0.95) ** 2
+    values = [cx, cy, math.log(radius - _MIN_RADIUS_PX), math.log(share / (1 - share))]
+    return torch.tensor(values, dtype=_F64, device=device)
+
+
+def _hinted(system: BalanceSystem) -> list[Tensor]:
+    """Starts at each candidate region the balance was given (``system.hints``: a flash defect map's
+    defects, centroid and equal-area radius in mm, depth fraction): its disc, one 1.5 times wider, and
+    each at a shallower and a deeper layer."""
+    device, dx = system.frames.device, system.dx
+    starts = []
+    for h in system.hints.get("delamination", ()):
+        fraction = h.get("depth_fraction", 0.5)
+        fraction = fraction if math.isfinite(fraction) else 0.5
+        for widen in (1.0, 1.5):
+            for depth in (fraction, 0.7 * fraction, min(1.3 * fraction, 0.95)):
+                starts.append(_start(h["x"] / dx, h["y"] / dx, widen * h["radius"] / dx, depth, device))
+    return starts
+
+
 def _starts(system: BalanceSystem, fit: Fit) -> list[Tensor]:
-    """Around the strongest positive structure of the time-mean residual (where heat stays)."""
+    """At the candidate regions the balance was given (:func:`_hinted`), else around the strongest
+    positive structure of the time-mean residual (where heat stays)."""
+    if system.hints.get("delamination"):
+        return _hinted(system)
     residual = system.residual(fit).mean(0)
     m = system.margin
     cx, cy = peak(residual, 4 * int(math.ceil(system.sigma)) + 6)

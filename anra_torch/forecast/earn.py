@@ -28,8 +28,9 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
   would otherwise make most of every model's error and judge the effects by how they smooth it (a true
   disc of lower diffusivity cost -0.9 floors with a pattern of 3 noise sds, +0.27 without it).
 
-Every model, the inner ones and the surviving one, is fitted with the diagnosis' nuisance terms beside
-it (:attr:`~anra_torch.selection.Diagnosis.nuisance`: significant effects too small to name, which stay in
+Every model, the inner ones and the surviving one, is fitted with the diagnosis' hints (candidate shapes
+from outside the balance: a flash map's defects) and its nuisance terms beside it
+(:attr:`~anra_torch.selection.Diagnosis.nuisance`: significant effects too small to name, which stay in
 the fit so that the named ones are not biased by their absence); an effect removed by a forecast rule leaves
 the fit, as the inner forecasts that removed it were fitted. The surviving model is refitted on the whole
 fit frames (:func:`~anra_torch.selection.fit_effects`).
@@ -140,13 +141,7 @@ def earned_diagnosis(
         return diagnosis
     repaired = without_offsets(*find_artefacts(video))
     kept, cost, removed = _eliminate(repaired, dt, dx, diagnosis, splits, time_window, assimilate)
-    if not removed:
-        final = diagnosis
-    else:
-        (final,) = fit_effects(
-            video, dt, dx, [kept], smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise,
-            nuisance=diagnosis.nuisance,
-        )  # fmt: skip
+    final, unphysical = (diagnosis, []) if not removed else _refit(video, dt, dx, diagnosis, kept)
     ranked = sorted(final.effects, key=lambda e: -e["score"])
     return replace(
         final,
@@ -157,8 +152,31 @@ def earned_diagnosis(
             *(n for n in final.negligible if n.get("rule") == "share"),  # the nuisance terms, as refitted
             *(n for n in diagnosis.negligible if n.get("rule") != "share"),
             *removed,
+            *unphysical,
         ],
     )
+
+
+def _refit(
+    video: Tensor, dt: float, dx: float, diagnosis: Diagnosis, kept: list[str]
+) -> tuple[Diagnosis, list]:
+    """The kept model fitted on the whole fit frames with the diagnosis' nuisance terms and hints, and the
+    ``negligible`` entries (rule ``"unphysical"``) of its effects dropped because their refitted parameters
+    are not physical (the survivors fitted again without them): the inner fits that kept an effect were
+    each fitted on fewer frames, and a shape refitted on all of them can land where the model cannot be
+    simulated (a plate's delamination of strength -1.7, and with it no effect at all in the held-out
+    forecast)."""
+    unphysical: list[dict] = []
+    while True:
+        (final,) = fit_effects(
+            video, dt, dx, [kept], smoothing=diagnosis.smoothing, noise_sd=diagnosis.noise,
+            nuisance=diagnosis.nuisance, physical=True, hints=diagnosis.hints,
+        )  # fmt: skip
+        dropped = [n for n in final.negligible if n.get("rule") == "unphysical"]
+        unphysical.extend(n for n in dropped if n not in unphysical)
+        if not any(n["name"] in kept for n in dropped):
+            return final, unphysical
+        kept = final.names
 
 
 def without_offsets(frames: Tensor, artefacts: Artefacts) -> Tensor:
@@ -274,6 +292,7 @@ def _inner_scores(
                     smoothing=diagnosis.smoothing,
                     noise_sd=diagnosis.noise,
                     nuisance=diagnosis.nuisance,
+                    hints=diagnosis.hints,
                 )  # fmt: skip
             )
         except ValueError:

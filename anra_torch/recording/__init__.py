@@ -31,7 +31,7 @@ from anra_torch.recording.diagnose import (
     open_for_diagnosis,
 )
 from anra_torch.recording.estimate import estimate_recording, estimate_recordings, phase_diffusivities
-from anra_torch.recording.phase_diagnosis import INNER_SPLITS, PhaseDiagnosis, diagnose_recording
+from anra_torch.recording.phase_diagnosis import INNER_SPLITS, PhaseDiagnosis, diagnose_recording, flash_hints
 from anra_torch.recording.phases import (
     MIN_PHASE_FRAMES,
     PHASE_COPY_VALUES,
@@ -64,6 +64,7 @@ __all__ = [
     "estimate_recording",
     "estimate_recordings",
     "find_phases",
+    "flash_hints",
     "input_record",
     "on_disk_above",
     "open_for_diagnosis",

@@ -239,6 +239,7 @@ def diagnose_video(
     assimilate: int | None = None,
     source_map: bool = False,
     decimated: dict[str, Any] | None = None,
+    hints: dict[str, Any] | None = None,
 ) -> RecordingDiagnosis:
     """Diagnose a recording phase by phase, as ``anra diagnose`` does, and describe its longest analysed
     phase.
@@ -249,6 +250,7 @@ def diagnose_video(
         assimilate: fit frames assimilated into each model's starting state (default: all).
         source_map: also fit the measured source map on the described phase and forecast with it.
         decimated: the copy's record when ``video`` is a block-averaged copy.
+        hints: every phase diagnosis' candidate shapes (:func:`~anra_torch.recording.flash_hints`).
 
     Returns:
         :class:`RecordingDiagnosis`.
@@ -264,14 +266,9 @@ def diagnose_video(
         raise ValueError(f"--fit-fraction must be in (0, 1), got {fit_fraction:g}")
     try:
         phases = diagnose_recording(
-            video.frames,
-            video.dt,
-            video.dx,
-            video.t,
-            fit_fraction=fit_fraction,
-            assimilate=assimilate,
-            measured_t=video.meta.get("measured_t"),
-        )
+            video.frames, video.dt, video.dx, video.t, fit_fraction=fit_fraction, assimilate=assimilate,
+            measured_t=video.meta.get("measured_t"), hints=hints,
+        )  # fmt: skip
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
     analysed = [p for p in phases if p.reason is None]

@@ -31,6 +31,7 @@ from torch import Tensor
 
 from anra_torch.checks import extended_diffusivity_warning
 from anra_torch.effects import EFFECTS
+from anra_torch.flash import DefectMap
 from anra_torch.forecast import (
     DIAGNOSED_FRAMES,
     INNER_SPLITS,
@@ -49,7 +50,7 @@ from anra_torch.recording.phases import MIN_PHASE_FRAMES, recording_phases_of, r
 from anra_torch.selection import diagnose_terms, minimum_frame_size
 from anra_torch.video import Phase, measured_frames
 
-__all__ = ["INNER_SPLITS", "PhaseDiagnosis", "diagnose_recording"]
+__all__ = ["INNER_SPLITS", "PhaseDiagnosis", "diagnose_recording", "flash_hints"]
 
 _F64 = torch.float64
 
@@ -64,6 +65,7 @@ def diagnose_recording(
     assimilate: int | None = None,
     phases: list[Phase] | None = None,
     measured_t: Sequence[float] | Tensor | None = None,
+    hints: dict[str, Any] | None = None,
 ) -> list[PhaseDiagnosis]:
     """Diagnose every phase of a recording on its own (see the module text).
 
@@ -77,6 +79,8 @@ def diagnose_recording(
         phases: the phases (default :func:`find_phases`).
         measured_t: for frames resampled from irregular timestamps, the measured samples' times in s
             (``Video.meta["measured_t"]``): no phase keeps a frame blended from another phase's samples.
+        hints: candidate shapes by effect for every phase's balance diagnosis
+            (:func:`~anra_torch.selection.diagnose_terms`; :func:`flash_hints` of a flash defect map).
 
     Returns:
         One :class:`PhaseDiagnosis` per phase, in time order.
@@ -102,12 +106,25 @@ def diagnose_recording(
         try:
             if min(part.shape[1:]) >= minimum_frame_size():  # it repairs and reports the artefacts itself
                 fraction = _short_phase_fraction(phase.frames, fit_fraction)
-                out.append(_balance_phase(phase, part, clean, dt, dx, fraction, assimilate, scored))
+                out.append(_balance_phase(phase, part, clean, dt, dx, fraction, assimilate, scored, hints))
             else:
                 out.append(small_box_phase(phase, clean, dt, dx, fit_fraction))
         except ValueError as err:
             out.append(PhaseDiagnosis(phase, "none", reason=str(err)))
     return out
+
+
+def flash_hints(defects: DefectMap) -> dict[str, Any]:
+    """The diagnosis' hints (:func:`~anra_torch.selection.diagnose_terms`) from a flash recording's defect
+    map: a delamination is looked for at the map's defects only (where the cooling says the heat stops
+    early), each a region ``{"x", "y", "radius", "depth_fraction"}`` (its centroid and the radius of its
+    area's disc in mm, its ``d / L``); a map without a defect rules the delamination out."""
+    regions = tuple(
+        {"x": d.x, "y": d.y, "radius": math.sqrt(d.area / math.pi), "depth_fraction": d.depth_fraction}
+        for d in defects.defects
+        if d.area > 0
+    )
+    return {"delamination": regions}
 
 
 def _short_phase_fraction(frames: int, fit_fraction: float) -> float:
@@ -137,18 +154,12 @@ def _balance_phase(
     fit_fraction: float,
     assimilate: int | None,
     scored: Tensor | None = None,
+    hints: dict[str, Any] | None = None,
 ) -> PhaseDiagnosis:
     """The balance family: assess_gain; the source map (on ``clean``, the repaired frames: it needs finite
     ones) against the parametric source when a source acts. ``scored``: the phase's frames that are measured
     samples (resampled irregular times): forecasts are scored there only, each frame on its own."""
-    held_out = part.shape[0] - 1 - split_index(part.shape[0], fit_fraction)
-    sparse = held_out < TIME_WINDOW  # frames seconds apart: a few frames already span the dynamics
-    options: dict[str, Any] = (
-        {"time_window": 1, "assimilate": assimilate or 1} if sparse else {"assimilate": assimilate}
-    )
-    if scored is not None:
-        options.update(time_window=1, scored=scored)
-        fit_fraction = _measured_split(fit_fraction, scored)
+    options, fit_fraction = _phase_options(part, fit_fraction, assimilate, scored, hints)
     result, effects, unsimulated = _assessed(part, dt, dx, fit_fraction, options)
     names = [e["name"] for e in effects]
     diagnosis = PhaseDiagnosis(
@@ -185,6 +196,24 @@ def _balance_phase(
         name: {"validation_rmse": validation.get(name), "gain": held[name][1]} for name in held
     }
     return diagnosis
+
+
+def _phase_options(
+    part: Tensor, fit_fraction: float, assimilate: int | None, scored: Tensor | None, hints: dict | None
+) -> tuple[dict[str, Any], float]:
+    """A phase's forecast options (:func:`~anra_torch.forecast.assess_gain`'s keywords, and the diagnosis'
+    ``hints`` when given) and its fit fraction, moved back onto a measured sample where ``scored``."""
+    held_out = part.shape[0] - 1 - split_index(part.shape[0], fit_fraction)
+    sparse = held_out < TIME_WINDOW  # frames seconds apart: a few frames already span the dynamics
+    options: dict[str, Any] = (
+        {"time_window": 1, "assimilate": assimilate or 1} if sparse else {"assimilate": assimilate}
+    )
+    if scored is not None:
+        options.update(time_window=1, scored=scored)
+        fit_fraction = _measured_split(fit_fraction, scored)
+    if hints is not None:
+        options["hints"] = hints
+    return options, fit_fraction
 
 
 def _flag_balance(
@@ -251,9 +280,11 @@ def _assessed(
     model's assessment, the effects named without a held-out gain (None), and why: the source maps still
     compete. ``earn``: the named effects are those that earn their place by their own forecast inside the
     fit frames (:func:`~anra_torch.forecast.earned_diagnosis`; not for the inner comparisons of the
-    source candidates, which keep the stepwise model)."""
+    source candidates, which keep the stepwise model). ``options["hints"]``: the diagnosis' candidate
+    shapes (:func:`~anra_torch.selection.diagnose_terms`), the rest :func:`assess_gain`'s keywords."""
     fit = part[: split_index(part.shape[0], fit_fraction) + 1]
-    found = diagnose_terms(fit, dt, dx)
+    options = dict(options)
+    found = diagnose_terms(fit, dt, dx, hints=options.pop("hints", None))
     if earn:
         window, assimilate = options.get("time_window"), options.get("assimilate")
         found = earned_diagnosis(fit, dt, dx, found, time_window=window, assimilate=assimilate)

@@ -65,7 +65,7 @@ one-pixel edge, a source a Gaussian moving on a straight line.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import torch
@@ -75,7 +75,7 @@ from anra_torch.balance import Artefacts, BalanceSystem, Fit, NoiseModel, find_a
 from anra_torch.checks import as_video, mostly_finite, positive
 from anra_torch.effects import EFFECTS
 from anra_torch.layers import GaussianSmoothing, TimeDerivative
-from anra_torch.selection.stepwise import Selection
+from anra_torch.selection.stepwise import Selection, checked_hints
 
 __all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms", "fit_effects", "minimum_frame_size"]
 
@@ -126,6 +126,7 @@ class Diagnosis:
             :attr:`nuisance`) or ``"size"`` (under its physical size, out of the fit,
             :attr:`~anra_torch.effects.EffectSpec.min_size`: then also ``"size"``, ``"min_size"``; both are
             there for every effect that states a size).
+        hints: the candidate shapes it was given (:func:`diagnose_terms`), for later :func:`fit_effects`.
     """
 
     base: float
@@ -145,6 +146,7 @@ class Diagnosis:
     noise: NoiseModel | None = None
     artefacts: Artefacts | None = None
     negligible: list[dict] = field(default_factory=list)
+    hints: dict[str, tuple[dict[str, float], ...]] = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -191,6 +193,7 @@ def diagnose_terms(
     noise_sd: float | NoiseModel | None = None,
     effects: Sequence[str] | None = None,
     time_family: str = "smooth",
+    hints: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
 ) -> Diagnosis:
     """Identify the hidden effects of a thermal video by balancing candidate PDE terms on its frames.
 
@@ -207,6 +210,7 @@ def diagnose_terms(
         effects: names in :data:`anra_torch.effects.EFFECTS` to look for; default those searched by
             default (every effect but ``periodic_source``).
         time_family: Holoborodko time family of ``dT/dt`` (:data:`anra_torch.layers.stencils.TIME_FAMILIES`).
+        hints: candidate shapes ``{"x", "y", "radius"}`` (mm) by effect: :meth:`Selection.in_hint`.
 
     Returns:
         :class:`Diagnosis`.
@@ -226,19 +230,17 @@ def diagnose_terms(
         >>> d.names, {k: round(v, 2) for k, v in d.effects[0]["params"].items()}
         (['advection'], {'vx': 1.26, 'vy': -2.37})
     """
-    video = _as_frames(frames)
-    dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
+    video, dt, dx = _as_frames(frames), positive(dt, "dt", "s"), positive(dx, "dx", "mm")
     if not (0 < alpha < 1):
         raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
     names = _known([n for n, spec in EFFECTS.items() if spec.searched] if effects is None else effects)
-    video, artefacts, system, plain = _balance(video, dt, dx, smoothing, noise_sd, time_family)
+    video, artefacts, system, plain = _balance(video, dt, dx, smoothing, noise_sd, time_family, hints)
     selection = Selection(system, alpha, names, _background(video[0]))
     selection.forward()
     selection.backward()
     # Localised shapes are refitted to the final model (without themselves).
-    for name in list(selection.shapes):
-        if name in selection.selected:
-            selection.refit(name)
+    for name in [n for n in selection.shapes if n in selection.selected]:
+        selection.refit(name)
     selection.drop_unphysical()
     return _result(system, selection, plain, artefacts)
 
@@ -253,8 +255,10 @@ def fit_effects(
     noise_sd: float | NoiseModel | None = None,
     time_family: str = "smooth",
     nuisance: Sequence[str] = (),
+    physical: bool = False,
+    hints: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
 ) -> list[Diagnosis]:
-    """Fit given models on a video as they are: no test, no size rule, nothing added or dropped.
+    """Fit given models on a video as they are: no test, no size rule, nothing added (dropped: ``physical``).
 
     What :func:`diagnose_terms` does to the model it selected, for models chosen elsewhere (each effect
     the model holds, in order: one that requires another comes after it): one balance at ``smoothing``
@@ -271,6 +275,8 @@ def fit_effects(
         nuisance: effects fitted beside every model but not named (a diagnosis'
             :attr:`Diagnosis.nuisance`; listed in ``negligible``, rule ``"share"``); one whose required
             effect a model lacks is left out of that model.
+        physical: drop the effects fitted unphysical (:meth:`Selection.drop_unphysical_given`).
+        hints: as :func:`diagnose_terms` (e.g. the diagnosis' :attr:`Diagnosis.hints`).
 
     Returns:
         One :class:`Diagnosis` per model, its ``effects`` in the model's order.
@@ -281,16 +287,17 @@ def fit_effects(
     Shape:
         ``frames`` ``(T, H, W)`` as :func:`diagnose_terms`.
     """
-    video = _as_frames(frames)
-    dt, dx = positive(dt, "dt", "s"), positive(dx, "dx", "mm")
+    video, dt, dx = _as_frames(frames), positive(dt, "dt", "s"), positive(dx, "dx", "mm")
     for model in [*models, nuisance]:
         if len(set(_known(model))) != len(model):
             raise ValueError(f"a model names each effect once, got {list(model)}")
-    video, artefacts, system, plain = _balance(video, dt, dx, float(smoothing), noise_sd, time_family)
+    video, artefacts, system, plain = _balance(video, dt, dx, float(smoothing), noise_sd, time_family, hints)
     out = []
     for model in models:
         selection = Selection(system, ALPHA, _with_nuisance(model, nuisance), _background(video[0]))
         selection.take(selection.names)
+        if physical:
+            selection.drop_unphysical_given()
         out.append(_result(system, selection, plain, artefacts, given=model))
     return out
 
@@ -352,6 +359,7 @@ def _balance(
     smoothing: float | Sequence[float] | None,
     noise_sd: float | NoiseModel | None,
     time_family: str,
+    hints: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
 ) -> tuple[Tensor, Artefacts, BalanceSystem, Fit]:
     """The repaired video, its artefacts, and the balance at the least noisy usable smoothing with its plain
     fit (:func:`diagnose_terms`' set-up: the noise measured unless given)."""
@@ -367,6 +375,7 @@ def _balance(
         noise = NoiseModel(positive(noise_sd, "noise_sd", "data units"))
     options = {"time_family": time_family, "noise": noise, "within": artefacts.within}
     system, plain = _least_noisy(video, dt, dx, sigmas, float(noise.sd), options)
+    system.hints = checked_hints(hints)
     return video, artefacts, system, plain
 
 
@@ -432,4 +441,5 @@ def _result(
         noise=system.measured_noise,
         artefacts=artefacts,
         negligible=[*nuisance, *(v for k, v in selection.negligible.items() if k not in selection.selected)],
+        hints=dict(system.hints),
     )

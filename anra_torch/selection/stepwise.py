@@ -10,18 +10,39 @@ of non-nested models measure significance, not fit).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from anra_torch.balance import BalanceSystem, Fit
 from anra_torch.effects import EFFECTS, Context, Shape
 from anra_torch.selection.statistics import search_discount, wald_score
 
-__all__ = ["MIN_SHARE", "Selection"]
+__all__ = ["MIN_SHARE", "Selection", "checked_hints"]
 
 MIN_SHARE = 0.01
 """The smallest share of ``dT/dt`` (:meth:`Selection.share`) an effect must make to be named: below it a
 significant effect is listed as negligible (an operator's discretisation, a camera's residue, or a real but
 small effect) and stays in the fit as a nuisance term (:meth:`Selection.nuisance_record`)."""
+
+
+def checked_hints(
+    hints: Mapping[str, Sequence[Mapping[str, float]]] | None,
+) -> dict[str, tuple[dict[str, float], ...]]:
+    """``hints`` (:func:`~anra_torch.selection.diagnose_terms`) checked: known effects, each candidate with a
+    finite centre and a positive radius (mm).
+
+    Raises:
+        ValueError: an unknown effect or a candidate without them.
+    """
+    out: dict[str, tuple[dict[str, float], ...]] = {}
+    for name, candidates in (hints or {}).items():
+        if name not in EFFECTS:
+            raise ValueError(f"hints: unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
+        out[name] = tuple({k: float(v) for k, v in c.items()} for c in candidates)
+        for c in out[name]:
+            if not (math.isfinite(c.get("x", math.nan)) and math.isfinite(c.get("y", math.nan))
+                    and c.get("radius", 0.0) > 0):  # fmt: skip
+                raise ValueError(f"hints[{name!r}] need a finite x, y and a positive radius in mm, got {c}")
+    return out
 
 
 class Selection:
@@ -35,7 +56,7 @@ class Selection:
         self.fitted: dict[str, Shape] = {}  # each localised effect's last fitted shape
         self.scores: dict[str, float] = {}
         self.thresholds: dict[str, float] = {}
-        self.negligible: dict[str, dict] = {}  # significant and physical, but below their physical size
+        self.negligible: dict[str, dict] = {}  # below their physical size, or unphysical in a given model
 
     @property
     def shapes(self) -> dict[str, dict[str, float]]:
@@ -63,7 +84,7 @@ class Selection:
             spec.rates(params, self.span)
         except ValueError:
             return False
-        return spec.valid(params) and self.in_view(name, params)
+        return spec.valid(params) and self.in_view(name, params) and self.in_hint(name, params)
 
     def share(self, name: str, fit: Fit) -> float:
         """The effect's share of ``dT/dt`` in ``fit``: the RMS of its term (its coefficients times its
@@ -145,6 +166,30 @@ class Selection:
                 return False
         return True
 
+    def drop_unphysical_given(self) -> None:
+        """:meth:`drop_unphysical` (physical, not size) of a given model, each dropped effect kept in
+        :attr:`negligible` (rule ``"unphysical"``) with the parameters it had in the model's fit."""
+        fit = self.system.fit(self.columns(self.selected))
+        coefficients, context = fit.coefficients(), self.context()
+        before = {name: EFFECTS[name].from_coefficients(coefficients, context) for name in self.selected}
+        for name in self.drop_unphysical(material=False):
+            self.negligible[name] = {"name": name, "params": before[name], "rule": "unphysical"}
+
+    def in_hint(self, name: str, params: dict[str, float]) -> bool:
+        """Whether a localised effect given candidate shapes (the balance's ``hints``, from
+        :func:`~anra_torch.selection.diagnose_terms`: a flash defect map's defects for a delamination, where
+        its shape fit starts) lies in one of them: its first position within the candidate's radius and its
+        own radius (where it has one) at most twice the candidate's; true without hints. An empty set of
+        candidates rules the effect out (:meth:`allowed`)."""
+        hints = self.system.hints.get(name)
+        if hints is None or not EFFECTS[name].positions:
+            return True
+        x_key, y_key = EFFECTS[name].positions[0]
+        x, y, radius = params[x_key], params[y_key], params.get("radius", 0.0)
+        return any(
+            math.hypot(x - h["x"], y - h["y"]) <= h["radius"] and radius <= 2 * h["radius"] for h in hints
+        )
+
     def threshold(self, name: str, tested: int) -> float:
         return -math.log10(self.alpha / tested) + EFFECTS[name].look_elsewhere
 
@@ -153,6 +198,7 @@ class Selection:
         return (
             name not in effects
             and all(needed in effects for needed in group.requires)
+            and self.system.hints.get(name) != ()  # candidate shapes were looked for and none was found
             and not (group.replaces_diffusion and any(EFFECTS[e].replaces_diffusion for e in effects))
         )
 
@@ -235,12 +281,18 @@ class Selection:
             # fitted shape owes to its search (_search_discount).
             self.selected.append(max(eligible, key=eligible.__getitem__))
 
-    def drop_unphysical(self) -> None:
-        """Remove, one at a time, effects whose parameters in the final fit are not physical, or below their
-        physical size (the fit moves when other effects leave or shapes are refitted): the one with the
-        lowest score first."""
-        while bad := self.unphysical(material=True):
-            self.selected.remove(min(bad, key=lambda name: self.scores.get(name, 0.0)))
+    def drop_unphysical(self, *, material: bool = True) -> list[str]:
+        """Remove, one at a time, effects whose parameters in the final fit are not physical, or (with
+        ``material``) below their physical size (the fit moves when other effects leave or shapes are
+        refitted): the one with the lowest score first, the later in the model among equal scores, with the
+        effects that require it. Returns the removed effects in order."""
+        removed: list[str] = []
+        while bad := self.unphysical(material=material):
+            worst = min(bad, key=lambda name: (self.scores.get(name, 0.0), -self.selected.index(name)))
+            gone = [e for e in self.selected if e == worst or worst in EFFECTS[e].requires]
+            self.selected[:] = [e for e in self.selected if e not in gone]
+            removed.extend(gone)
+        return removed
 
     def backward(self) -> Fit:
         """Drop effects that are no longer significant given the others; return the final fit."""

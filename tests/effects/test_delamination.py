@@ -101,3 +101,25 @@ def test_the_defect_and_the_anisotropy_forecast_better_within_measured_edges(def
     own = dict(zip(result.diagnosis.names, result.effect_gains, strict=True))
     assert result.diagnosis.names[0] == "depth_conduction" and result.gain > 0.5, own
     assert own["delamination"] > 0.3 and own["anisotropy"] > 0.3, own
+
+
+@pytest.mark.slow
+def test_the_delamination_is_looked_for_in_the_regions_a_defect_map_gives(defect_plate) -> None:
+    """Given candidate regions (``hints``: a flash defect map's defects, centroid, equal-area radius and
+    depth fraction, in mm), the delamination's fit starts there and its centre must stay in one: found at
+    the defect from a map region about it; not tried when the map shows no defect; never named away from a
+    region the map gives elsewhere (a residual peak no longer decides where the defect is)."""
+    effects = ["depth_conduction", "anisotropy", "delamination"]
+    region = {"x": 5.3, "y": 4.2, "radius": 1.3, "depth_fraction": 0.3}  # a map's outline, off by 2 px
+    d = diagnose_terms(*defect_plate, effects=effects, hints={"delamination": [region]})
+    assert "delamination" in d.names and d.hints == {"delamination": (region,)}, d.names
+    found = next(e["params"] for e in d.effects if e["name"] == "delamination")
+    assert math.hypot(found["x"] - 5.0, found["y"] - 4.5) < 0.3  # mm (1.5 px)
+    assert found["depth_fraction"] == pytest.approx(0.6 / 3.0, abs=0.08)
+    intact = diagnose_terms(*defect_plate, effects=effects, hints={"delamination": []})
+    assert "delamination" not in intact.names and "delamination" not in intact.scores, intact.names
+    elsewhere = {"x": 2.0, "y": 7.5, "radius": 1.0, "depth_fraction": 0.5}
+    d = diagnose_terms(*defect_plate, effects=effects, hints={"delamination": [elsewhere]})
+    for e in d.effects:
+        if e["name"] == "delamination":
+            assert math.hypot(e["params"]["x"] - 2.0, e["params"]["y"] - 7.5) <= 1.0, e["params"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from shared_data import DATA, load, needs_data
 
 import anra_torch.recording.diagnose as route
 from anra_torch.cli import main
-from anra_torch.recording import PhaseDiagnosis, diagnose_recording
+from anra_torch.recording import PhaseDiagnosis, diagnose_recording, flash_hints
 
 
 @pytest.mark.slow
@@ -114,6 +115,38 @@ def test_the_candidates_are_compared_over_several_inner_splits(monkeypatch: pyte
     splits.clear()
     recording._inner_balance(frames[:7], DT, DX, 0.6, {})
     assert splits == [4]
+
+
+def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """:func:`flash_hints` turns a defect map's defects into the diagnosis' candidate regions (centroid,
+    equal-area radius, depth fraction; none: the delamination is ruled out), and every phase's balance
+    diagnosis, the inner comparisons' too, is given them."""
+    import anra_torch.recording.phase_diagnosis as recording
+    from anra_torch.flash import DefectMap, FoundDefect
+
+    grid = torch.zeros(4, 4, dtype=torch.float64)
+    found = (FoundDefect(x=3.0, y=2.0, area=math.pi * 4.0, depth_fraction=0.4, touches_edge=False),)
+    defects = DefectMap(
+        grid, 8.0, 0.1, True, grid, grid.bool(), grid, found, (7.0, 1.0, 0.0), 20.0, 0.1, 0.02
+    )
+    hints = flash_hints(defects)
+    assert hints == {
+        "delamination": ({"x": 3.0, "y": 2.0, "radius": pytest.approx(2.0), "depth_fraction": 0.4},)
+    }
+    assert flash_hints(replace(defects, defects=())) == {"delamination": ()}
+    real, given = recording.diagnose_terms, []
+
+    def recorded(*args, **kwargs):
+        given.append(kwargs.get("hints"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(recording, "diagnose_terms", recorded)
+    frames = torch.as_tensor(heated_then_cooled(off=12, n=24))
+    phases = diagnose_recording(frames, DT, DX, hints=hints)
+    assert given and all(h == hints for h in given), given
+    assert all(p.family == "balance" for p in phases)
 
 
 def test_an_8x8_box_gets_the_quasi_steady_model_and_an_unresolved_diffusivity() -> None:

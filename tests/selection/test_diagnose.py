@@ -268,6 +268,23 @@ def test_given_models_are_fitted_as_they_are() -> None:
         fit_effects(video.frames, video.dt, video.dx, [["advection", "advection"]], smoothing=2.0)
 
 
+def test_given_models_fitted_physical_drop_what_cannot_be_simulated() -> None:
+    """``fit_effects(physical=True)`` drops a given effect whose refitted parameters are not physical (and
+    the effects that require it), as the selection drops its own, and lists it (rule ``"unphysical"``):
+    forced onto a pure video, a delamination comes out with a negative strength, which no forecast can run
+    (earned_diagnosis' final refit once named such a model on a flash plate, and the phase lost every
+    effect)."""
+    video = hidden_effect_video((), seed=3, size=40, duration=1.0)
+    model = ["depth_conduction", "delamination"]
+    (forced,) = fit_effects(video.frames, video.dt, video.dx, [model], smoothing=2.0)
+    assert forced.names == model and forced.effects[1]["params"]["strength"] < 0
+    (kept,) = fit_effects(video.frames, video.dt, video.dx, [model], smoothing=2.0, physical=True)
+    assert "delamination" not in kept.names
+    assert [(n["name"], n["rule"]) for n in kept.negligible] == [("delamination", "unphysical")]
+    assert kept.negligible[0]["params"]["strength"] == pytest.approx(forced.effects[1]["params"]["strength"])
+    assert all(EFFECTS[e["name"]].valid(e["params"]) for e in kept.effects)
+
+
 def test_shape_profile_loss_is_the_fit_residual_above_noise(hidden_video) -> None:
     """The shape fits minimise exactly what the selection compares: rss - expected rss of the full fit."""
     from anra_torch.balance.system import BalanceSystem, NoiseSpec
