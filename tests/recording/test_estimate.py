@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 from scenes import DT, DX, still_box
-from shared_data import DATA
+from shared_data import DATA, needs_data
 
 from anra_torch.batch import BatchOptions, read_table, run_batch
 from anra_torch.cli import main
@@ -21,6 +21,7 @@ from anra_torch.video import (
 
 
 @pytest.mark.slow
+@needs_data
 def test_batch_and_estimate_agree_on_every_shared_recording(tmp_path: Path, capsys) -> None:
     """One recording policy: ``anra batch`` and ``anra estimate`` give the same diffusivity, status and phase
     for every recording in ../shared/data (the FLIR JPEG folders at 0.55 mm/px, the CSV box exports at an
