@@ -37,7 +37,8 @@ UNITS: dict[str, float] = {"C": 0.0, "K": -KELVIN_AT_ZERO_CELSIUS}
 """Temperature units accepted and the offset that turns them into Celsius."""
 
 RULES = ("hold", "linear")
-"""How a frame history is integrated (see the module docstring)."""
+"""How a frame history of ``T`` frames is integrated: ``"hold"``, each frame held for ``dt``, over ``T dt``;
+``"linear"``, the frames joined by straight lines over ``(T - 1) dt``."""
 
 _IMPLAUSIBLE_CELSIUS = 200.0
 """A dose computation where every value is at least this many Celsius (or below this many kelvin,
