@@ -122,7 +122,7 @@ def _frames(array: Any, path: Path) -> Tensor:
 
 
 def _step_of(t: Tensor, stored: Any, path: Path, timestamps: str, resolution: float) -> tuple[float, bool]:
-    """The frame period (s) of timestamps ``t`` (uniform within ``resolution`` s, the clock's) and whether
+    """The frame period in s of timestamps ``t`` (uniform within ``resolution`` s, the clock's) and whether
     to resample them; a ``dt`` stored next to uniform timestamps must agree with their step."""
     if t.numel() < 2:
         raise SingleFrameError(

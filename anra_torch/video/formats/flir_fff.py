@@ -77,8 +77,8 @@ class RawImage:
     """Where a frame's raw counts lie and how they are stored.
 
     Attributes:
-        width: columns (px), from the RawData record.
-        height: rows (px).
+        width: columns in px, from the RawData record.
+        height: rows in px.
         order: the record's byte order, ``"<"`` or ``">"`` (that of ``uint16`` counts).
         encoding: ``"uint16"``, ``"png"`` or ``"jpeg-ls"``.
         offset: byte offset of the image data in the file (or buffer) it was read from.
@@ -288,7 +288,7 @@ def _whole_records(
 
 
 def _size(head: bytes, frame_order: str) -> tuple[int, int]:
-    """Width and height (px) of a RawData record from its first bytes."""
+    """Width and height in px of a RawData record from its first bytes."""
     return struct.unpack_from(_record_order(head, frame_order) + "HH", head, 2)
 
 
