@@ -80,7 +80,7 @@ class BalanceSystem:
         dt: frame period in s.
         dx: pixel size in mm.
         sigma: Gaussian sigma in px.
-        noise_sd: white sensor-noise sd (data units).
+        noise_sd: white sensor-noise sd in data units.
         time_family: Holoborodko time family of the derivative (window of 5 frames).
 
     Shape:
