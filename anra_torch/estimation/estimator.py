@@ -65,7 +65,7 @@ _NO_FINITE = "no finite frame: every sample is NaN, infinite or a dead element; 
 
 
 def _smoothing_candidates(mode: str, smoothing: float | Sequence[float] | str | None) -> tuple[float, ...]:
-    """The smoothing sigmas (px) that ``smoothing`` names for ``mode`` (see :class:`ANRAEstimator`).
+    """The smoothing sigmas in px that ``smoothing`` names for ``mode`` (see :class:`ANRAEstimator`).
 
     Raises:
         ValueError: an unknown mode, a string other than ``"auto"``, an empty sequence.
