@@ -108,7 +108,7 @@ def _open(
 
 def input_record(video: Video) -> dict[str, Any]:
     """What the reading did: ``timestamps`` (where a folder of frame files recorded its times),
-    ``resampled`` (from what), ``roi`` (px), ``calibration``, ``masked_values`` (samples masked as not
+    ``resampled`` (from what), ``roi`` in px, ``calibration``, ``masked_values`` (samples masked as not
     finite or beyond +-1e6), ``object_parameters`` (a FLIR recording's emissivity, reflected_temp,
     distance, atmospheric_temp, humidity: each ``value``, ``unit`` and ``source``, ``"file"`` or
     ``"argument"``); null when not done."""
