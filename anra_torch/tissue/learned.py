@@ -4,9 +4,9 @@ The model (Pennes-like bioheat equation per unit heat capacity, on the pixel gri
 
     dT/dt = div(a(x, y) grad T) - b(x, y) (T - T_body) + q(t, x, y)
 
-with ``a`` the diffusivity field (mm^2/s), ``b`` the perfusion / loss-rate field (1/s) and ``q`` an optional
-:class:`anra_torch.simulation.MovingSource` (K/s); :func:`anra_torch.simulation.simulate_tissue` integrates it
-with fixed-step RK4, and gradients flow to the fields.
+with ``a`` the diffusivity field in mm^2/s, ``b`` the perfusion / loss-rate field in 1/s and ``q`` an
+optional :class:`anra_torch.simulation.MovingSource` in K/s; :func:`anra_torch.simulation.simulate_tissue`
+integrates it with fixed-step RK4, and gradients flow to the fields.
 
 :class:`LearnedTissueModel` holds ``log a`` and ``log b`` on a coarse grid (bilinear up-sampling to the
 frame: a smooth, positive field with few parameters), initialised from ANRA's direct estimate
@@ -55,8 +55,8 @@ class LearnedTissueModel(nn.Module):
     Args:
         shape: frame size ``(H, W)`` in px.
         dx: pixel size in mm.
-        diffusivity: initial ``a`` (mm^2/s), a number or a coarse field ``grid``.
-        perfusion: initial ``b`` (1/s), a number or a coarse field ``grid``.
+        diffusivity: initial ``a`` in mm^2/s, a number or a coarse field ``grid``.
+        perfusion: initial ``b`` in 1/s, a number or a coarse field ``grid``.
         grid: coarse grid ``(h, w)`` of the learned fields.
         body_temperature: initial ``T_body`` (units of T), learned as well.
 
@@ -275,7 +275,7 @@ def omega_with_constants(
     Args:
         temperatures: video in ``units`` (``"C"`` or ``"K"``); dt: frame period in s, a number or ``(B,)``.
         log_frequency: ``ln A`` with ``A`` in 1/s, a number or a tensor that broadcasts with the output.
-        activation_energy: ``Ea`` in J/mol (> 0), likewise.
+        activation_energy: ``Ea`` in J/mol, > 0, likewise.
         rule: ``"hold"`` (default) or ``"linear"`` (:data:`anra_torch.tissue.RULES`).
 
     Returns:
