@@ -262,24 +262,20 @@ def omega_with_constants(
 ) -> Tensor:
     """Arrhenius Omega ``integral exp(ln A - Ea / (R_gas T_K)) dt`` with per-pixel, differentiable constants.
 
-    :func:`anra_torch.tissue.arrhenius_omega` (the dose of :class:`anra_torch.tissue.TissueFeatures`) takes
-    one pair of constants as numbers. Here ``ln A`` and ``Ea`` are tensors broadcast with the pixels, and
-    the gradient flows to them (and to the temperatures). With ``rule="hold"`` the frames' rates are summed
-    as ``arrhenius_omega`` sums them (frames that are not finite left out), exact. With ``"linear"`` the
-    history goes through ``arrhenius_omega`` as the equivalent temperature ``T*`` whose rate under
-    :data:`anra_torch.tissue.SKIN` is the pixel's rate, ``1 / T* = (Ea / T_K - R_gas ln A + R_gas ln A_skin)
-    / Ea_skin``, the frames' equivalent temperatures joined by straight lines (not the frames): a relative
-    difference of order ``(dT / T)^2`` per segment. Constants with a leading axis of their own evaluate one
-    history ``(T, H, W)`` under several pairs at once (e.g. ``(K, 1, 1)``).
+    ``ln A`` and ``Ea`` are tensors broadcast with the pixels, and the gradient flows to them and to the
+    temperatures. ``rule="hold"`` is exact; ``"linear"`` differs from
+    :func:`anra_torch.tissue.arrhenius_omega` by a relative ``(dT / T)^2`` per segment. Constants with a
+    leading axis of their own, e.g. ``(K, 1, 1)``, evaluate one history ``(T, H, W)`` under several pairs at
+    once. How: ``docs/guides/tissue-damage.md``, section "Arrhenius constants that learn".
 
     Args:
-        temperatures: video in ``units`` (``"C"`` or ``"K"``); dt: frame period in s, a number or ``(B,)``.
+        temperatures: video in ``units``, ``"C"`` or ``"K"``; dt: frame period in s, a number or ``(B,)``.
         log_frequency: ``ln A`` with ``A`` in 1/s, a number or a tensor that broadcasts with the output.
         activation_energy: ``Ea`` in J/mol, > 0, likewise.
-        rule: ``"hold"`` (default) or ``"linear"`` (:data:`anra_torch.tissue.RULES`).
+        rule: ``"hold"``, the default, or ``"linear"``; see :data:`anra_torch.tissue.RULES`.
 
     Returns:
-        Omega (dimensionless, float64).
+        Omega, dimensionless, float64.
 
     Raises:
         ValueError: bad shapes, ``dt``, ``rule`` or ``units``; constants that are not finite, ``Ea <= 0``,
