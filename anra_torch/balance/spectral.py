@@ -49,7 +49,7 @@ def supports(filters: MatchedFilters) -> bool:
 
 
 def spectral_stage(filters: MatchedFilters, frames: Tensor, dt: float | Tensor) -> SpectralStage:
-    """``(D_t T, S_t T)`` of centred frames, each transformed once (see the module docs).
+    """``(D_t T, S_t T)`` of centred frames, each transformed once: the stage every candidate shares.
 
     Shape:
         ``frames`` ``(B, T, H, W)``; spectra ``(B, T - L + 1, H, W // 2 + 1)``.
@@ -192,10 +192,11 @@ def pushed_norm(
     *,
     frames: int | None = None,
 ) -> Tensor:
-    """``||A_U^T lever - a A_L^T lever||^2`` per video by Parseval, without the pushed-back field (see the
-    module docs): what :func:`pushed_back`'s sum of squares gives, to rounding. With ``frames``, that of a
-    video of ``frames`` output frames whose lever is as stationary as this block's: each lag's products
-    scaled from the block's ``K - d`` pairs to the video's ``frames - d`` (a pilot's estimate).
+    """``||A_U^T lever - a A_L^T lever||^2`` per video by Parseval, without the pushed-back field: what
+    :func:`pushed_back`'s sum of squares gives, to rounding; derived in ``docs/architecture.md``. With
+    ``frames``, that of a video of ``frames`` output frames whose lever is as stationary as this block's:
+    each lag's products scaled from the block's ``K - d`` pairs to the video's ``frames - d``, a pilot's
+    estimate.
 
     Shape:
         ``lever`` ``(B, K, h, w)``; ``a``, ``dt``, ``dx`` ``(B,)``; output ``(B,)`` float64.
