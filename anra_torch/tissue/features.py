@@ -5,7 +5,7 @@
 =====================  ===========  =====================================================================
 map                    unit         how
 =====================  ===========  =====================================================================
-``peak_temperature``   C            maximum over time of the denoised history (below)
+``peak_temperature``   C            maximum over time of the denoised history
 ``time_above_43``      s            :func:`anra_torch.tissue.time_above` (one map per threshold)
 ``time_above_50``      s
 ``time_above_60``      s

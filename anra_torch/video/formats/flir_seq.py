@@ -154,7 +154,7 @@ def _layout(raw: RawImage) -> str:
 
 def index_sequence(path: str | os.PathLike[str]) -> SequenceIndex:
     """Walk a FLIR ``.seq`` / ``.csq`` / ``.fff`` file's frames once: their counts' places and encodings,
-    their constants and capture times (see the module docs).
+    their constants and capture times; how: ``docs/guides/research-camera.md``.
 
     Shape:
         ``T`` frames of ``(H, W)`` px.
