@@ -15,7 +15,7 @@ What is written (the same in every format, each reader of ``anra`` reads it back
 - ``dx``: the pixel size in mm, when the file or ``--dx`` gives it; ``unit``: the temperature unit;
 - ``meta``: JSON text: the source, its format, the frames and region kept, the camera's metadata (model,
   serial number, Planck constants, ...), the object parameters used and where each came from, and what
-  was flagged (``warnings``); ``t_resolution`` (s), the clock's resolution, for FLIR files.
+  was flagged (``warnings``); ``t_resolution`` in s, the clock's resolution, for FLIR files.
 
 ``.npz``: uncompressed entries (``frames`` can then be read lazily), written under a temporary name and
 renamed into place. ``.h5`` / ``.hdf5``: datasets ``frames`` (chunked by frame) and ``t``, ``dx`` and
