@@ -218,7 +218,7 @@ def _aligned(
     videos: list[Video], shapes: list[tuple[int, ...]], mode: str
 ) -> tuple[list[Video], tuple[int, ...], list[tuple[int, int]]]:
     """The videos cropped to their common centre (``"crop"``) or as they are, the batch's ``(T, H, W)``,
-    and each video's ``(x, y)`` offset (px) in its own frame."""
+    and each video's ``(x, y)`` offset in px in its own frame."""
     if mode == "crop":
         target = tuple(min(s[k] for s in shapes) for k in range(3))
         offsets = [((s[2] - target[2]) // 2, (s[1] - target[1]) // 2) for s in shapes]

@@ -183,7 +183,7 @@ def _series_terms(hottest: float, theta: float) -> int:
 
 
 def _omega_segments(x: Tensor, constants: ArrheniusConstants, terms: int, rise: Tensor | None) -> Tensor:
-    """Mean Arrhenius rate (1/s) over the linear segments of Celsius histories ``(B, T, P)``,
+    """Mean Arrhenius rate in 1/s over the linear segments of Celsius histories ``(B, T, P)``,
     ``(B, T - 1, P)``, exact to rounding (``rise`` the segments' ``x[:, 1:] - x[:, :-1]`` when known).
 
     With ``K`` the kelvin temperature and ``theta = Ea / R_gas``, ``integral exp(-theta / K) dK =
@@ -400,7 +400,7 @@ def dose_maps(
 def _doses(
     x: Tensor, finite: Tensor | None, thresholds: tuple[float, ...], constants: ArrheniusConstants, rule: str
 ) -> list[Tensor]:
-    """The times above, CEM43 (s) and Omega per unit ``dt`` of histories ``(B, T, P)``, each ``(B, P)``."""
+    """The times above, CEM43 in s and Omega per unit ``dt`` of histories ``(B, T, P)``, each ``(B, P)``."""
     x, weights = masked(x, rule, finite)
     rise = x[:, 1:] - x[:, :-1] if rule == "linear" else None  # shared by every dose
     return [

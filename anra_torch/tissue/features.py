@@ -5,7 +5,7 @@
 =====================  ===========  =====================================================================
 map                    unit         how
 =====================  ===========  =====================================================================
-``peak_temperature``   C            maximum over time of the denoised history (below)
+``peak_temperature``   C            maximum over time of the denoised history
 ``time_above_43``      s            :func:`anra_torch.tissue.time_above` (one map per threshold)
 ``time_above_50``      s
 ``time_above_60``      s
@@ -204,7 +204,7 @@ class TissueFeatures(nn.Module):
         return ("peak_temperature", *above, *MAPS[4:], *(DEPTH_MAPS if self.depth else ()))
 
     def history_smoothing(self, height: int, width: int) -> float:
-        """The Gaussian sigma (px) the doses of ``height x width`` px frames are taken at: ``smoothing``,
+        """The Gaussian sigma in px the doses of ``height x width`` px frames are taken at: ``smoothing``,
         or 0 when the frames are no larger than its radius (a reflected border needs more)."""
         fits = min(height, width) > self.history_smoother.radius
         return self.history_smoother.sigma if fits else 0.0

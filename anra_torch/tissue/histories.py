@@ -162,9 +162,9 @@ Step = Callable[..., Tensor]
 
 
 def stepper(x: Tensor) -> Step:
-    """``step(t, "mul", y)``: ``t.mul_(y)`` where no gradient is tracked through ``x`` (a pass over memory,
-    ~4x faster than a fresh video-sized float64 tensor on CPU), ``t.mul(y)`` otherwise. Only for
-    temporaries the caller made itself."""
+    """``step(t, "mul", y)``: ``t.mul_(y)`` where no gradient is tracked through ``x``, ``t.mul(y)``
+    otherwise; why: ``docs/architecture.md``, "Choices in the hot paths". Only for temporaries the caller
+    made itself."""
     inplace = not (torch.is_grad_enabled() and x.requires_grad)
 
     def step(t: Tensor, name: str, *args: object) -> Tensor:
