@@ -23,8 +23,8 @@ PHASE_KEYS = ("diffusivity", "std_error", "valid", "message", "warnings")
 
 
 def phase_head(phase: Phase) -> dict[str, Any]:
-    """The keys that place a phase in its recording: ``kind``, ``start_frame``, ``stop_frame``, ``t_start``
-    (s), ``t_stop`` in s."""
+    """The keys that place a phase in its recording: ``kind``, ``start_frame``, ``stop_frame``, and
+    ``t_start`` and ``t_stop`` in s."""
     return {
         "kind": phase.name,
         "start_frame": phase.start,
