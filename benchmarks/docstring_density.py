@@ -6,12 +6,14 @@ docstring that keeps to the contract (what, units, shapes, raises) has few aside
 measurement notes in parentheses raise the density. Prints one line per package: docstrings, words,
 parentheses, parentheses per 100 words, and the same in the prose alone (``prose``: without code in
 backticks and example lines, where shapes and formulas keep their parentheses). With ``--worst N``, the N
-modules of the first package with the most prose parentheses, the first to move to the docs pages.
+modules of the first package with the most prose parentheses, the first to move to the docs pages; with
+``--subpackages``, the same line for each subpackage of the first package (its top-level modules as ``.``).
 
 Usage::
 
     python -m benchmarks.docstring_density                       # anra_torch and the peers installed
     python -m benchmarks.docstring_density anra_torch --worst 15
+    python -m benchmarks.docstring_density anra_torch --subpackages
     python -m benchmarks.docstring_density anra_torch kornia pde pysindy
 
 A package is found by import name (its folder from ``importlib.util.find_spec``, nothing is imported);
@@ -99,6 +101,20 @@ def measure(folder: Path) -> tuple[Density, dict[str, Density]]:
     return total, modules
 
 
+def by_subpackage(modules: dict[str, Density]) -> dict[str, Density]:
+    """The modules' counts summed per subpackage (``package/sub/...``); top-level modules count as ``.``."""
+    groups: dict[str, Density] = {}
+    for path, d in modules.items():
+        parts = Path(path).parts
+        group = groups.setdefault(parts[1] if len(parts) > 2 else ".", Density())
+        group.docstrings += d.docstrings
+        group.words += d.words
+        group.parentheses += d.parentheses
+        group.prose_words += d.prose_words
+        group.prose_parentheses += d.prose_parentheses
+    return groups
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -106,6 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("packages", nargs="*", default=["anra_torch", *PEERS], help="import names")
     parser.add_argument(
         "--worst", type=int, default=0, help="list the N modules of the first package with most"
+    )
+    parser.add_argument(
+        "--subpackages", action="store_true", help="one line per subpackage of the first package"
     )
     args = parser.parse_args(argv)
     print(f"{'package':<12} {'docstrings':>10} {'words':>8} {'parens':>7} {'per 100 words':>14} {'prose':>7}")
@@ -119,6 +138,11 @@ def main(argv: list[str] | None = None) -> int:
         first = modules if index == 0 else first
         counts = f"{total.docstrings:>10} {total.words:>8} {total.parentheses:>7}"
         print(f"{name:<12} {counts} {total.per_100_words:>14.2f} {total.prose_per_100_words:>7.2f}")
+    if args.subpackages:
+        print(f"\nsubpackages of {args.packages[0]}:")
+        for name, d in sorted(by_subpackage(first).items()):
+            counts = f"{d.docstrings:>10} {d.words:>8} {d.parentheses:>7}"
+            print(f"  {name:<10} {counts} {d.per_100_words:>14.2f} {d.prose_per_100_words:>7.2f}")
     if args.worst:
         print(f"\nmodules with the most prose parentheses in {args.packages[0]}:")
         ranked = sorted(first.items(), key=lambda item: -item[1].prose_parentheses)[: args.worst]

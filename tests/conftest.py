@@ -17,6 +17,7 @@ import pytest
 import torch
 from filelock import FileLock
 
+import anra_torch.cli.diagnose as diagnose_command
 from anra_torch.cli import main
 from anra_torch.effects import HiddenEffectVideo, hidden_effect_video
 from anra_torch.simulation.synthetic import paper_video
@@ -122,6 +123,40 @@ def hidden_video(disk_cache: Callable[[str, Callable[[], Any]], Any]) -> Callabl
         return disk_cache(key, lambda: hidden_effect_video(tuple(names), **kwargs))
 
     return shared
+
+
+def _digest(value: Any) -> str:
+    """A short hash of what ``value`` holds (an array's dtype, shape and bytes; else its repr)."""
+    if value is None or isinstance(value, (str, int, float, Path)):
+        return repr(value)
+    array = np.ascontiguousarray(torch.as_tensor(value).detach().cpu().numpy())
+    return f"{array.dtype}{array.shape}" + hashlib.sha1(array.tobytes()).hexdigest()
+
+
+@pytest.fixture
+def diagnosed_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``anra diagnose`` run more than once in a test on the same recording with the same options (its
+    JSON, then its human summary or report) diagnoses it once: the later runs render the first run's
+    diagnosis (the same recording, frames, spacing, times and options; anything else diagnoses anew)."""
+    real, made = diagnose_command.diagnose_video, {}
+
+    def once(video: Any, **options: Any) -> Any:
+        measured = video.meta.get("measured_t")
+        spelled = [
+            video.source,
+            video.frames,
+            video.dt,
+            video.dx,
+            video.t,
+            measured,
+            repr(sorted(options.items())),
+        ]
+        key = tuple(_digest(part) for part in spelled)
+        if key not in made:
+            made[key] = real(video, **options)
+        return made[key]
+
+    monkeypatch.setattr(diagnose_command, "diagnose_video", once)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -157,8 +157,13 @@ SLOW = {
     ids=lambda p: p.stem,
 )
 def test_a_guides_blocks_run_as_pasted(
-    page: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    page: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    diagnosed_once: None,
 ) -> None:
+    """A page that diagnoses the same file twice (its report, then its JSON) renders one diagnosis."""
     if "../shared/data" in page.read_text() and not DATA.is_dir():
         pytest.skip(f"measured data folder {DATA} is absent")
     monkeypatch.chdir(tmp_path)

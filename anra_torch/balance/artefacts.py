@@ -77,9 +77,9 @@ class Artefacts:
         non_finite: number of non-finite samples replaced.
         fixed_pattern: whether a static pattern was found (per-pixel fixed effects; the noise model
             measures its parts).
-        pattern_sd: its standard deviation estimated from the time-median frame (data units).
+        pattern_sd: its standard deviation estimated from the time-median frame in data units.
         steps: frames (index of the later frame) where the whole frame jumped (per-frame fixed effects).
-        step_sizes: the jumps (data units).
+        step_sizes: the jumps in data units.
         global_offsets: whether per-frame fixed effects are used (steps found).
         pixel_effects: whether per-pixel fixed effects are used (a fixed pattern in a video of at least
             :data:`PIXEL_EFFECTS_FRAMES` frames).
@@ -282,7 +282,7 @@ def _spikes(frames: Tensor, floor: float = 0.0) -> tuple[Tensor, Tensor]:
 
 def _fixed_pattern(frames: Tensor, floor: float = 0.0, stats: PixelStats | None = None) -> tuple[bool, float]:
     """Whether the time-mean frame is spatially rough compared with a single frame's deviation from it
-    (a static pattern), and the pattern's sd (data units).
+    (a static pattern), and the pattern's sd in data units.
 
     Spatial fourth differences remove the smooth thermal field; what is left in the time-mean frame is
     the static pattern plus the temporal noise averaged over the frames (at most about ``sqrt(pi / 2)``

@@ -38,7 +38,7 @@ class BatchNoise:
 
     Attributes:
         cleaned: the videos with spikes and hot elements repaired, ``(B, T, H, W)``.
-        sd: noise standard deviation per sample (data units), ``(B,)``.
+        sd: noise standard deviation per sample in data units, ``(B,)``.
         models: the measured noise model of each video.
         pixel: per-pixel fixed effects (a static pattern), ``(B,)`` bool.
         frame: per-frame fixed effects (global offsets), ``(B,)`` bool.
@@ -143,7 +143,7 @@ def batch_noise(video: Tensor, finite: Tensor | None, *, noise_sd: float | None 
     Args:
         video: centred frames ``(B, T, H, W)``; masked samples (``~finite``) are left to the caller.
         finite: the caller's mask of usable samples (None: every sample).
-        noise_sd: a known white-noise sd (data units); default measured.
+        noise_sd: a known white-noise sd in data units; default measured.
 
     Shape:
         ``video``, ``finite`` ``(B, T, H, W)``.
@@ -245,7 +245,7 @@ def prepare_batch(video: Tensor, *, noise_sd: float | None = None) -> PreparedBa
 
     Args:
         video: frames ``(B, T, H, W)`` (any linear unit).
-        noise_sd: a known white-noise sd (data units); default measured.
+        noise_sd: a known white-noise sd in data units; default measured.
 
     Shape:
         ``video`` ``(B, T, H, W)``; see :class:`PreparedBatch`.

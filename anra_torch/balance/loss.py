@@ -36,7 +36,7 @@ class LossFit:
 
     Attributes:
         loss_rate: ``b`` in 1/s.
-        source: ``sum_k (U - a L + b R) dt`` in K (data units).
+        source: ``sum_k (U - a L + b R) dt`` in K, the data's units.
         std_error: standard error of ``b`` in 1/s; inf where the window never cools (``b`` is the
             video's there).
         diffusivity: ``a`` in mm^2/s of the same joint fit on the cooling frames (the video's where the
@@ -110,7 +110,7 @@ def fit_loss_windows(
     Args:
         filters: the filters ``terms`` were made with (the noise goes through them too).
         terms: ``U``, ``L`` and ``T`` (the averaged frames), each ``(B, K, H, W)``.
-        fallback: diffusivity map (mm^2/s) whose median is ``a`` where even the whole video's system is
+        fallback: diffusivity map in mm^2/s whose median is ``a`` where even the whole video's system is
             ill-conditioned, ``(B, H, W)``.
         noise_sd: white noise sd of the frames, ``(B,)``.
         dt: frame period in s, ``(B,)``.
@@ -159,7 +159,7 @@ def _loss_error(
     dx: Tensor,
     window: int,
 ) -> Tensor:
-    """Standard error (1/s) of each window's ``b``, ``(B, H, W)``: inf where the window never cools (or
+    """Standard error in 1/s of each window's ``b``, ``(B, H, W)``: inf where the window never cools (or
     where the propagation gives no positive variance).
 
     A change ``d_L``, ``d_R`` of the window's sums of residual times ``L`` and ``R`` moves ``b`` by

@@ -1,22 +1,9 @@
-"""The standard error of the windowed loss rate (:func:`anra_torch.balance.fit_loss_windows`), propagated from
-the white sensor noise through the filters, without noise copies.
+"""The standard error of the windowed loss rate of :func:`anra_torch.balance.fit_loss_windows`, propagated
+from the white sensor noise through the filters, without noise copies.
 
-To first order, noise ``e_U``, ``e_L``, ``e_R`` in ``U``, ``L`` and ``R = T - T_0`` (``R``'s includes the
-first frame's) moves window ``p``'s normal equations by ``sum w (e_U - a e_L + b e_R) [L, R]`` over its
-pixels' cooling frames (``w``; ``a``, ``b`` the window's), hence ``b`` by ``c_L d_L + c_R d_R``: a linear
-functional of the frame noise, whose variance is the noise variance times the functional's squared weights.
-Pushed back through the time filters, the levers ``w L`` and ``w R`` become per-pixel fields ``u`` (through
-the time derivative), ``m`` (the average) and ``z`` (the rise); through the spatial filters, each pair of
-pixels ``q, q'`` of the window meets the noise correlation ``R(q - q')`` of their spatial filters (the
-Gaussian's for ``U`` and ``R``, the Laplacian's for ``L``). The variance is a double sum over the window's
-pixel pairs of the fields' time products times ``R``: exact, it costs the window's area squared per pixel and
-frame.
-
-Here it is exact in time and local in space: each pixel's lever taken as constant over the noise's correlation
-length (``R`` summed over the window: exact for a lever that is constant), plus what that misses of the
-Laplacian's sign-changing correlation for a lever varying linearly over the window (exact then too). Where the
-lever varies faster (a small spot's Laplacian turning over within the window), the error comes out above the
-exact one; measured in ``docs/results/tissue.md``.
+The error is exact in time and local in space: exact for a lever constant over the window and, for the
+Laplacian's noise, linear over it; above the exact value where the lever varies faster. The derivation:
+``docs/architecture.md``, section "The loss rate's standard error"; measured in ``docs/results/tissue.md``.
 """
 
 from __future__ import annotations

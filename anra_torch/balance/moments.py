@@ -1,18 +1,11 @@
 """The balance's normal equations: sums of weighted products of its terms, minus their noise parts.
 
-Every estimate in the package is a least-squares fit of ``U = sum_j beta_j X_j`` over some set of output
-points (all of them, each frame's pixels, a window around each pixel, a stream of chunks). Its sufficient
-statistics are the weighted sums of products ``sum w z_a z_b`` of the terms ``z = (U, X_1, ...)``
-(:class:`Moments`). Noise in the regressors biases plain least squares towards zero; the expected noise
-part of each sum, ``sum w w_a w_b`` times the noise covariance per point ``s_ab`` of the two terms, is
-known from the filters (:meth:`~anra_torch.balance.MatchedFilters.noise_inner`) and the noise model,
-so it is subtracted (errors-in-variables). When the weights ``w`` are computed from the noisy ``U`` itself
-(RTC attention), Stein's identity ``E[w(U) n_U] = var(n_U) E[dw/dU]`` adds ``s_UU sum (dw/dU) X_b`` to the
-noise part of ``sum w U X_b``.
-
-Moments of disjoint sets of points add (:meth:`Moments.__add__`), so a long recording can be accumulated
-chunk by chunk. Standard errors come from pushing each regressor back through the transposed filters
-(the sandwich covariance, :func:`sandwich`).
+:class:`Moments` holds the weighted sums of products ``sum w z_a z_b`` of the terms ``z = (U, X_1, ...)``
+of a least-squares fit ``U = sum_j beta_j X_j`` over a set of output points, and their expected noise
+parts, subtracted as the errors-in-variables correction; :class:`TermNoise` gives the terms' noise per
+point. Moments of disjoint sets of points add, so a long recording accumulates chunk by chunk;
+:func:`sandwich` gives the standard errors. The derivation, the Stein term for weights computed from the
+noisy ``U`` included: ``docs/architecture.md``, section "The estimator".
 """
 
 from __future__ import annotations

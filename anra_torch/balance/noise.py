@@ -344,7 +344,7 @@ def _model_over(
 
 
 def _components(v1: float, v2: float, v3: float) -> tuple[float, float, float]:
-    """Variances of a white and a Gaussian-correlated component and the latter's length (px) from the
+    """Variances of a white and a Gaussian-correlated component and the latter's length in px from the
     variances of fourth differences at strides 1, 2 and 3 (``70 white + gain_s(length) correlated``).
 
     Least squares over a grid of lengths (:func:`_best_fit`); a correlated component under a tenth of the
@@ -378,7 +378,7 @@ _DESIGN = torch.tensor(
 
 
 def _static_parts(video: Tensor, quiet: Tensor, averaged: float) -> dict[str, float]:
-    """The fixed pattern's sd per pixel, per column and per row (data units), from the time-mean frame.
+    """The fixed pattern's sd per pixel, per column and per row in data units, from the time-mean frame.
 
     Fourth differences of the time-mean frame along x hold the per-pixel and per-column parts, along y the
     per-pixel and per-row parts (each with ``averaged``, what the temporal noise leaves in a fourth

@@ -17,26 +17,23 @@ _MODEL_ERROR = 0.1  # relative error of a measured correlated or static noise va
 class NoiseModel:
     """Sensor noise of one video: its level, its correlation in time and space, as measured.
 
-    The noise of a filtered term at one output point is the sensor noise through the term's impulse
-    response ``k``, so two terms' noise parts have the covariance ``<k_a, C k_b>`` per point, with ``C`` the
-    noise's covariance kernel (:meth:`kernel`; for white noise ``sd^2`` times the identity), and a linear
-    statistic ``<x, A(frames)>`` has the variance ``<A^T x, C A^T x>`` (:meth:`quadratic` of the
-    pushed-back lever ``A^T x``). ``C`` is ``sd^2 rho_t(tau) rho_s(dy) rho_s(dx)`` (the measured temporal
-    correlations ``rho_t``, a Gaussian spatial correlation of length ``space_length``), plus a white
-    component ``white_sd^2`` beside it, plus a static part (see :meth:`correlate`).
+    The covariance kernel is ``C = sd^2 rho_t(tau) rho_s(dy) rho_s(dx)``, plus a white component
+    ``white_sd^2`` beside it, plus a static part; a linear statistic ``<x, A(frames)>`` has the variance
+    ``<A^T x, C A^T x>``, :meth:`quadratic` of the pushed-back lever ``A^T x``. How it propagates:
+    ``docs/results/artefacts.md``, section "How the noise propagates".
 
     Args:
-        sd: standard deviation per sample of the (correlated) noise (units of the data), a number or
-            ``(B,)`` (white only).
-        time_corr: ``rho_t(1), rho_t(2), ...`` (``rho_t(0) = 1``); empty for no correlation in time.
-        space_length: Gaussian correlation length in px (0: none).
-        white_sd: sd of an uncorrelated component beside the correlated one (data units).
+        sd: standard deviation per sample of the correlated noise in the data's units, a number or, for
+            white noise only, ``(B,)``.
+        time_corr: ``rho_t(1), rho_t(2), ...`` with ``rho_t(0) = 1``; empty for no correlation in time.
+        space_length: Gaussian correlation length in px; 0 for none.
+        white_sd: sd of an uncorrelated component beside the correlated one, in the data's units.
         static_sd, column_sd, row_sd: sds of a fixed pattern per pixel, per column and per row.
-        variance_error: the relative error of the model's variance (None: that of a measured model,
-            :attr:`variance_error`); 0 for a model known exactly, such as a planted one.
+        variance_error: the relative error of the model's variance; None takes that of a measured model,
+            :attr:`variance_error`; 0 for a model known exactly, such as a planted one.
 
     Shape:
-        :meth:`quadratic` ``(P, T, H, W) -> (P, P)`` (or ``(P, N)`` rows for white noise).
+        :meth:`quadratic` ``(P, T, H, W) -> (P, P)``, or ``(P, N)`` rows for white noise.
     """
 
     def __init__(
@@ -60,12 +57,11 @@ class NoiseModel:
 
     @property
     def static(self) -> bool:
-        """Whether the noise has a static part (a fixed pattern of the sensor)."""
+        """Whether the noise has a static part: a fixed pattern of the sensor."""
         return bool(self.static_sd or self.column_sd or self.row_sd)
 
     def without_static(self) -> NoiseModel:
-        """This model without its static part: what a balance with per-pixel fixed effects sees (each
-        pixel's time mean removed takes a fixed pattern out exactly)."""
+        """This model without its static part: what a balance with per-pixel fixed effects sees."""
         return NoiseModel(
             self.sd,
             time_corr=self.time_corr,
@@ -76,22 +72,21 @@ class NoiseModel:
 
     @property
     def white(self) -> bool:
-        """Whether the noise is uncorrelated (in time and space, with no static part)."""
+        """Whether the noise is uncorrelated in time and space, with no static part."""
         return not self.time_corr and self.space_length == 0.0 and not self.static and not self.white_sd
 
     @property
     def variance_error(self) -> float:
-        """Relative error of the measured variance that a correction by it carries: 0 for white noise (the
-        robust estimate over a whole video is precise to well under 1 %, neglected), 10 % for a correlated
-        or static model (measured: the level and lengths of planted camera noise come back within 5-10 %);
-        the value given to the constructor when there was one."""
+        """Relative error of the measured variance that a correction by it carries: 0 for white noise, 0.1
+        for a correlated or static model, or the value given to the constructor. Why these values:
+        ``docs/results/artefacts.md``, section "How the noise propagates"."""
         if self._variance_error is not None:
             return float(self._variance_error)
         return 0.0 if self.white else _MODEL_ERROR
 
     @property
     def variance(self) -> float | Tensor:
-        """``sd^2`` (data units squared)."""
+        """``sd^2`` in the data's units squared."""
         return self.sd**2
 
     def time_kernel(self) -> Tensor:
@@ -100,7 +95,7 @@ class NoiseModel:
         return torch.cat([half.flip(0), torch.ones(1, dtype=torch.float64, device="cpu"), half])
 
     def space_kernel(self) -> Tensor:
-        """``rho_s(d)`` for ``d = -r .. r`` px (``r`` = 4 lengths), float64."""
+        """``rho_s(d)`` for ``d = -r .. r`` px with ``r`` = 4 lengths, float64."""
         if self.space_length == 0.0:
             return torch.ones(1, dtype=torch.float64, device="cpu")
         r = max(1, math.ceil(4.0 * self.space_length))
@@ -143,10 +138,8 @@ class NoiseModel:
         return self.variance * (flat @ self.correlate(backs).reshape(backs.shape[0], -1).T)
 
     def describe(self) -> dict:
-        """The JSON ``"noise"`` object: ``sd`` (data units), ``time_correlation`` (``rho_t(1..)``),
-        ``space_length_px``, a white component ``white_sd`` beside the correlated one, the static part
-        ``static_sd``, ``column_sd``, ``row_sd`` (data units) and
-        ``white``."""
+        """The JSON ``"noise"`` object; its keys: ``docs/reference/outputs.md``, section
+        ``anra diagnose --json``: ``noise``."""
         sd = self.sd if not isinstance(self.sd, Tensor) else float(self.sd.reshape(-1)[0])
         return {
             "sd": float(sd),

@@ -98,7 +98,7 @@ def fourth_difference(x: Tensor, dim: int, stride: int = 1) -> Tensor:
 
 def _unravel(index: Tensor, shape: list[int]) -> list[Tensor]:
     """Row-major coordinates of flat ``index`` in ``shape``, as ``torch.unravel_index`` gives them, without
-    its import of ``torch.fx`` (0.4 s CPU on a command's first call)."""
+    its import of ``torch.fx``, slow on a command's first call."""
     coords = []
     for size in reversed(shape):
         coords.append(index % size)

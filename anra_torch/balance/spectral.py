@@ -1,28 +1,12 @@
 """The balance's two terms ``U`` and ``L`` through the 2-D FFT: one time filter and one spectrum for every
 smoothing candidate, and the standard error's pushed-back lever without pushing it back.
 
-:class:`~anra_torch.balance.MatchedFilters` filters in space by shifted-slice sums: their cost grows with the
-Gaussian's width (57 taps for ``sigma = 8`` px) and is paid again by every candidate and by the adjoint
-pass of the standard error. Here the same linear maps go through the frames' spectra instead:
-
-* **Shared stage.** The time filters (``D_t`` for ``U``, ``S_t`` for ``L``) act first, once, and the two
-  filtered videos are transformed once (:func:`spectral_stage`); the spatial filters commute with them.
-* **Each candidate** multiplies the spectra by its transfer functions (the Gaussian times the Laplacian's
-  partner for ``U``, the Gaussian times the Laplacian for ``L``) and transforms back
-  (:func:`spectral_terms`). A circular correlation of the whole frame equals the valid (``"crop"``)
-  correlation on every output pixel whose support does not wrap, which are exactly the pixels the crop
-  keeps: the cropped result is the slice route's, to rounding.
-* **Standard error.** The estimator needs ``||A^T lever||`` (the lever pushed back through the transposed
-  filters onto the frames). The transposed spatial filters are the conjugate transfers, and a full
-  convolution of a lever that is zero on the crop's margin does not wrap either; so by Parseval, per
-  spatial frequency ``w``, ``sum_t |B_t(w)|^2 = sum_ij c_i(w) c_j(w) rho_|i-j|(w)`` with the lever
-  spectrum's time lags ``rho_d(w) = Re sum_s l_s(w) conj(l_{s+d}(w))`` and ``c_i`` the time taps times the
-  transfers (:func:`pushed_norm`). No inverse transform, no ``(B, T, H, W)`` field. Where the field itself
-  is needed (correlated noise, chunks that add their levers up) :func:`pushed_back` returns it.
-
-Every transfer is built once from the layers' own kernels (float64, on the CPU), then cached per frame
-size, device and dtype. Only ``border="crop"`` filters with symmetric kernels (all of the balance's) go
-this way.
+:func:`spectral_stage` applies the time filters once and transforms the two filtered videos;
+:func:`spectral_terms` multiplies the spectra by each candidate's transfer functions and transforms back,
+equal to the slice route of :class:`~anra_torch.balance.MatchedFilters` on the cropped pixels, to rounding;
+:func:`pushed_norm` gives ``||A^T lever||`` by Parseval without an inverse transform, and :func:`pushed_back`
+the pushed-back field where it is needed. Only ``border="crop"`` filters with symmetric kernels, all of the
+balance's, go this way. Why and how: ``docs/architecture.md``, section "The balance through the spectra".
 
 Shape:
     Videos ``(B, T, H, W)``; stage spectra ``(B, K, H, W // 2 + 1)``; terms ``(B, K, H - 2m, W - 2m)``.
@@ -65,7 +49,7 @@ def supports(filters: MatchedFilters) -> bool:
 
 
 def spectral_stage(filters: MatchedFilters, frames: Tensor, dt: float | Tensor) -> SpectralStage:
-    """``(D_t T, S_t T)`` of centred frames, each transformed once (see the module docs).
+    """``(D_t T, S_t T)`` of centred frames, each transformed once: the stage every candidate shares.
 
     Shape:
         ``frames`` ``(B, T, H, W)``; spectra ``(B, T - L + 1, H, W // 2 + 1)``.
@@ -208,10 +192,11 @@ def pushed_norm(
     *,
     frames: int | None = None,
 ) -> Tensor:
-    """``||A_U^T lever - a A_L^T lever||^2`` per video by Parseval, without the pushed-back field (see the
-    module docs): what :func:`pushed_back`'s sum of squares gives, to rounding. With ``frames``, that of a
-    video of ``frames`` output frames whose lever is as stationary as this block's: each lag's products
-    scaled from the block's ``K - d`` pairs to the video's ``frames - d`` (a pilot's estimate).
+    """``||A_U^T lever - a A_L^T lever||^2`` per video by Parseval, without the pushed-back field: what
+    :func:`pushed_back`'s sum of squares gives, to rounding; derived in ``docs/architecture.md``. With
+    ``frames``, that of a video of ``frames`` output frames whose lever is as stationary as this block's:
+    each lag's products scaled from the block's ``K - d`` pairs to the video's ``frames - d``, a pilot's
+    estimate.
 
     Shape:
         ``lever`` ``(B, K, h, w)``; ``a``, ``dt``, ``dx`` ``(B,)``; output ``(B,)`` float64.

@@ -80,7 +80,7 @@ class BalanceSystem:
         dt: frame period in s.
         dx: pixel size in mm.
         sigma: Gaussian sigma in px.
-        noise_sd: white sensor-noise sd (data units).
+        noise_sd: white sensor-noise sd in data units.
         time_family: Holoborodko time family of the derivative (window of 5 frames).
 
     Shape:
@@ -269,8 +269,7 @@ class BalanceSystem:
         ``r^2 / q``, with ``r`` the extra term's corrected covariance with the base residual and ``q`` its
         corrected energy beyond the base columns. ``q`` is kept at least a tenth of its raw value: a shape
         whose own noise is over 90 % of that energy sits where there is no signal, and a vanishing ``q``
-        would otherwise make the loss arbitrarily negative (in one benchmark case a disc fitted to nothing
-        reached -46,000 against +1,000 for the plain model).
+        would otherwise make the loss arbitrarily negative; an example: ``docs/results/hidden-effects.md``.
         """
         names = ("U", *columns)
         p = len(columns)

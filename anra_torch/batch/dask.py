@@ -68,7 +68,7 @@ def run_batch_dask(
         out: the table (``.csv`` or ``.parquet``), written by this process.
         scheduler: address of a running Dask scheduler (e.g. ``"tcp://10.0.0.5:8786"``); None starts an
             embedded :class:`distributed.LocalCluster` of ``workers`` single-threaded worker processes.
-        workers: workers of the embedded cluster (>= 1).
+        workers: workers of the embedded cluster, >= 1.
         **options: :func:`run_batch` keywords (``options``, a :class:`~anra_torch.batch.BatchOptions`;
             ``batch_size``, ``progress``, ``rerun``).
 

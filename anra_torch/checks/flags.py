@@ -114,8 +114,8 @@ def diffusivity_warnings(a: float, *, dt: float, dx: float, z: float | None = No
 
 
 def implausible_diffusivity(a: float, *, dt: float, dx: float) -> str | None:
-    """The warning for a diffusivity ``a`` (mm^2/s) outside every known material
-    (:data:`PLAUSIBLE_DIFFUSIVITY`), with the likely unit mix-up of ``dt`` (s) or ``dx`` (mm); None inside
+    """The warning for a diffusivity ``a`` in mm^2/s outside every known material
+    (:data:`PLAUSIBLE_DIFFUSIVITY`), with the likely unit mix-up of ``dt`` in s or ``dx`` in mm; None inside
     the range or for a non-finite ``a``.
 
     Shape:
@@ -163,8 +163,8 @@ def model_failure(rmse: float, floor: float, *, what: str = "forecast") -> str |
     """The warning for a model whose ``what`` RMSE stays above :data:`MODEL_FAILURE_RATIO` noise floors.
 
     Args:
-        rmse: the model's error (data units).
-        floor: the least error a perfect model would reach (data units).
+        rmse: the model's error in data units.
+        floor: the least error a perfect model would reach in data units.
         what: the error's name in the message.
 
     Returns:

@@ -35,7 +35,7 @@ __all__ = [
 ]
 
 VALUE_LIMIT = 1e6
-"""Largest magnitude (data units) of a sample that can be a measurement: above any temperature in K, C or F
+"""Largest magnitude in data units of a sample that can be a measurement: above any temperature in K, C or F
 (the sun's surface is 5.8e3 K) and above any 16-bit raw sensor count (65535), far below where float32
 squares overflow. Samples beyond it, and non-finite ones, are masked by :func:`in_range_values`."""
 
@@ -44,7 +44,7 @@ MAX_NON_FINITE = 0.05
 more is a broken recording."""
 
 SPACING_RANGE = (1e-6, 1e6)
-"""Frame periods (s) and pixel sizes (mm) :func:`spacing_in_range` accepts: 1 MHz to one frame every 11
+"""Frame periods in s and pixel sizes in mm :func:`spacing_in_range` accepts: 1 MHz to one frame every 11
 days, 1 nm to 1 km per pixel; outside, dx^2 / dt and the derivatives' scales leave the float range."""
 
 
@@ -248,7 +248,7 @@ def as_spacing(value: object, *, name: str, unit: str, batch: int, like: Tensor)
 
 
 def uniform_step(times: object, *, name: str = "t", rtol: float = 1e-3, atol: float = 0.0) -> float:
-    """Return the constant step of increasing, uniform timestamps (s): every step within ``rtol`` of their
+    """Return the constant step of increasing, uniform timestamps in s: every step within ``rtol`` of their
     mean, or within ``atol`` s (the clock's resolution: times kept to the millisecond step by 33 and 34 ms
     at 30 Hz).
 
@@ -282,7 +282,7 @@ def uniform_step(times: object, *, name: str = "t", rtol: float = 1e-3, atol: fl
 def in_range_values(
     frames: Tensor, *, name: str = "frames", limit: float = VALUE_LIMIT
 ) -> tuple[Tensor, dict]:
-    """Mask the samples that cannot be measurements: non-finite, or beyond ``+-limit`` (data units).
+    """Mask the samples that cannot be measurements: non-finite, or beyond ``+-limit`` in data units.
 
     The one policy for input values (every command reads its video through
     :func:`anra_torch.video.prepare_video`, which calls this): such samples are set to NaN, counted, and
@@ -292,11 +292,11 @@ def in_range_values(
         frames: the samples, any shape and real dtype (integers are kept unless a sample is masked, then
             they become float64).
         name: the argument's name, for the message.
-        limit: largest magnitude accepted (data units), default :data:`VALUE_LIMIT`.
+        limit: largest magnitude accepted in data units, default :data:`VALUE_LIMIT`.
 
     Returns:
         The frames with the masked samples (infinities too) set to NaN, and a record ``{"non_finite",
-        "beyond_limit", "samples"`` (counts), ``"limit"`` (data units), ``"largest"`` (the largest finite
+        "beyond_limit", "samples"`` (counts), ``"limit"`` in data units, ``"largest"`` (the largest finite
         magnitude masked, or None)``}``.
 
     Shape:

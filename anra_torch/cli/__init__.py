@@ -38,9 +38,8 @@ def free_cores(cores: int, loadavg: Path = Path("/proc/loadavg")) -> int:
     """``cores`` less the processes other than this one that are running right now (``/proc/loadavg``'s
     runnable count, this process included), at least 1; ``cores`` where that count is unavailable.
 
-    A thread pool wider than the free cores stalls at every parallel step while a neighbour holds a core
-    (``benchmarks/bench_scale.py --shared``, 2 cores, a 128 px diagnosis beside one busy process: 1.48x its
-    idle time with this default, 2.96x with both cores).
+    A thread pool wider than the free cores stalls at every parallel step while a neighbour holds a core;
+    measured in ``docs/results/scale.md``, "Threads on a shared machine".
     """
     try:
         running = int(loadavg.read_text().split()[3].split("/")[0])

@@ -1,26 +1,11 @@
 """``anra convert FILE -o OUT``: any recording ``anra`` reads, written as ``.npz``, ``.h5`` or ``.tif``.
 
-The frames are read and written chunk by chunk (a FLIR ``.seq`` / ``.csq`` or a large ``.npy`` / ``.npz``
-is never held whole), with a progress bar on stderr when it is a terminal. ``--frames START:STOP`` keeps
-frames ``START .. STOP - 1`` (Python slice bounds, negative from the end), ``--roi X0,Y0,W,H`` a region
-(px). The object flags (``--emissivity``, ...) recompute a FLIR recording's temperatures.
-
-What is written (the same in every format, each reader of ``anra`` reads it back):
-
-- ``frames``: ``(T, H, W)`` float32 in the recording's unit (degrees Celsius for FLIR files), rows top to
-  bottom as the camera shows them; a sample without a value is NaN (never an infinity), counted in
-  ``warnings``;
-- ``t``: ``(T,)`` float64, each frame's time in s from the first written frame (a FLIR frame's capture
-  time, to the millisecond, as measured: times that repeat or go backwards are kept and flagged);
-- ``dx``: the pixel size in mm, when the file or ``--dx`` gives it; ``unit``: the temperature unit;
-- ``meta``: JSON text: the source, its format, the frames and region kept, the camera's metadata (model,
-  serial number, Planck constants, ...), the object parameters used and where each came from, and what
-  was flagged (``warnings``); ``t_resolution`` (s), the clock's resolution, for FLIR files.
-
-``.npz``: uncompressed entries (``frames`` can then be read lazily), written under a temporary name and
-renamed into place. ``.h5`` / ``.hdf5``: datasets ``frames`` (chunked by frame) and ``t``, ``dx`` and
-``unit`` as attributes of ``frames``, ``meta`` on the file. ``.tif`` / ``.tiff``: a BigTIFF, one float32
-page per frame, ``t``, ``dx``, ``unit`` and ``meta`` in its JSON description.
+The frames are read and written chunk by chunk, never held whole, with a progress bar on stderr when it is
+a terminal. ``--frames START:STOP`` keeps frames ``START .. STOP - 1`` by Python slice bounds,
+``--roi X0,Y0,W,H`` a region in px; the object flags recompute a FLIR recording's temperatures. Every
+format holds ``frames``, ``t``, ``dx``, ``unit`` and ``meta``, and each reader of ``anra`` reads it back;
+what each entry holds and how each format stores it: ``docs/reference/outputs.md``, section
+``anra convert``.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ from anra_torch.video import Video
 __all__ = ["MAX_THICKNESS", "add_parser", "run"]
 
 MAX_THICKNESS = 1000.0
-"""Thickest ``--thickness`` (mm): a layer of a metre is beyond any tissue and any recording's reach (heat
+"""Thickest ``--thickness`` in mm: a layer of a metre is beyond any tissue and any recording's reach (heat
 spreads ``sqrt(a t)``, 22 mm in an hour at 0.14 mm^2/s), and the solver's grid grows with its logarithm."""
 
 

@@ -35,7 +35,7 @@ class Preset:
         help: one line for ``--help``.
         shown: how ``--help`` states a default that is not a plain number.
         effects: whether the scene takes ``--effect`` / ``--param`` (hidden effects with their truth).
-        min_size: the smallest ``--size`` (px) the scene fits in, and why (for the message).
+        min_size: the smallest ``--size`` in px the scene fits in, and why (for the message).
     """
 
     build: Callable[..., SyntheticVideo | HiddenEffectVideo]

@@ -1,13 +1,11 @@
 """Thermal videos for ``torch.utils.data``: a dataset over files, batches that the layers take, transforms.
 
 - :mod:`~anra_torch.data.dataset`: :class:`ThermalVideoDataset` over a folder, a glob, a manifest CSV or a
-  list of paths; read lazily, item by item, by the recording policy of every command, and worker-safe
-  (``DataLoader(num_workers=2)``); items are :class:`~anra_torch.video.Video` with their times, spacing and
-  labels (``meta["labels"]``), or a :class:`SkippedVideo` for a file that cannot be read (``on_error``);
-- :mod:`~anra_torch.data.collate`: :func:`collate` into a :class:`VideoBatch` (videos of one shape stacked;
-  of different shapes padded with NaN or cropped), and :meth:`VideoBatch.apply`, which runs
-  :class:`~anra_torch.estimation.ANRAEstimator` or :class:`~anra_torch.tissue.TissueFeatures` with each video
-  seeing only its own samples;
+  list of paths, read lazily and worker-safe; its items are :class:`~anra_torch.video.Video` with their
+  labels in ``meta["labels"]``, or a :class:`SkippedVideo` for a file that cannot be read;
+- :mod:`~anra_torch.data.collate`: :func:`collate` stacks videos into a :class:`VideoBatch`, padding or
+  cropping different shapes, and :meth:`VideoBatch.apply` runs a layer with each video seeing only its own
+  samples;
 - :mod:`~anra_torch.data.transforms`: :class:`RegionOfInterest`, :class:`Resample`, :class:`SelectPhase`,
   :class:`Compose`, by the library's own steps.
 

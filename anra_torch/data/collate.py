@@ -1,27 +1,19 @@
 """Batches of thermal videos: :func:`collate` stacks videos into a :class:`VideoBatch` that the estimator and
 the tissue features take.
 
-Videos of one shape are stacked as they are. Videos of different shapes are
+Videos of one shape are stacked as they are. Videos of different shapes are, by ``mode``:
 
-- ``"pad"`` (default): padded at the end (later frames, lower rows, right columns) to the largest ``T``,
-  ``H``, ``W`` with NaN, the value every analysis of the package masks and counts. :attr:`VideoBatch.mask`
-  says which samples are the videos' own, :attr:`VideoBatch.padding` how many per video are not;
-- ``"crop"``: cut to the smallest ``T`` (the first frames) and the smallest ``H`` x ``W`` (the centre of each
-  frame, :func:`anra_torch.video.crop`): no padding, every sample measured;
-- ``"same"``: refused (one line naming the shapes).
+- ``"pad"``, the default: padded at the end to the largest ``T``, ``H``, ``W`` with NaN, the value every
+  analysis of the package masks and counts; :attr:`VideoBatch.mask` marks each video's own samples and
+  :attr:`VideoBatch.padding` counts the others;
+- ``"crop"``: cut to the smallest ``T``, the first frames, and the smallest ``H`` x ``W``, the centre of
+  each frame;
+- ``"same"``: refused, with one line naming the shapes.
 
-The padded frames can go straight into :class:`~anra_torch.estimation.ANRAEstimator` or
-:class:`~anra_torch.tissue.TissueFeatures`: each masks the NaN samples, but counts them as masked
-(``n_masked`` includes :attr:`VideoBatch.padding`), and a filter whose support reaches the padding sees a
-neighbour that is not there (the estimator drops such windows; the tissue features fill them and their rate
-maps near the padding change). :meth:`VideoBatch.apply` runs a layer so that each video sees only its own
-samples: one call per distinct video shape (one call in all for a batch of one shape), the results put
-back in batch order with the padding outside each video's frame (NaN; False for flags, 0 for counts): the
-numbers are those of each video alone, and so are the counts.
-
-Spatial labels (tensors whose last two dimensions are the video's frame) are cropped or padded with their
-video (NaN for floating labels, 0 for integer and boolean ones, which :attr:`VideoBatch.pixel_mask` marks);
-numeric labels become ``(B,)`` tensors (NaN where a video has none), text stays a tuple.
+:meth:`VideoBatch.apply` runs a layer so that each video sees only its own samples. Spatial labels are
+cropped or padded with their video, numeric labels become ``(B,)`` tensors, text stays a tuple. What the
+padding does to the layers, and why :meth:`VideoBatch.apply` exists: ``docs/guides/training-loop.md``,
+section "Videos of different shapes".
 """
 
 from __future__ import annotations
@@ -48,11 +40,12 @@ _F64 = torch.float64
 
 @dataclass(frozen=True)
 class SkippedVideo:
-    """An item a dataset could not read (``ThermalVideoDataset(on_error="skip")``): its file and why, in one
-    line. :func:`collate` leaves it out of the batch and lists it in :attr:`VideoBatch.skipped`.
+    """An item a dataset with ``on_error="skip"`` could not read: its file and why, in one line.
+
+    :func:`collate` leaves it out of the batch and lists it in :attr:`VideoBatch.skipped`.
 
     Attributes:
-        path: the file (or folder of frame files).
+        path: the file, or folder of frame files.
         reason: the one-line error.
 
     Shape:
@@ -68,17 +61,17 @@ class VideoBatch:
     """Videos stacked for a batched layer, with their spacing, times, own sizes and labels.
 
     Attributes:
-        frames: temperatures, NaN outside each video's own samples (``"pad"``).
+        frames: temperatures, NaN outside each video's own samples with ``"pad"``.
         dt: frame periods in s.
         dx: pixel sizes in mm, or None when no video has one.
-        t: each frame's time in s (the video's timestamps, else ``k dt``), NaN on padded frames.
-        sizes: each video's own ``(T, H, W)`` in the batch (after a crop), int64.
-        labels: name -> ``(B, ...)`` tensor (numbers, spatial maps) or a tuple of B values (text, None).
-        sources: each video's file or folder (None for a video built in memory).
+        t: each frame's time in s, the video's timestamps else ``k dt``; NaN on padded frames.
+        sizes: each video's own ``(T, H, W)`` in the batch, after a crop; int64.
+        labels: name -> a ``(B, ...)`` tensor for numbers and spatial maps, else a tuple of B values.
+        sources: each video's file or folder; None for a video built in memory.
         meta: each video's :attr:`~anra_torch.video.Video.meta` without its labels.
-        mode: ``"same"`` (one shape), ``"pad"`` or ``"crop"``: what :func:`collate` did.
-        skipped: the items left out as unreadable (:class:`SkippedVideo`), in item order; a batch of
-            nothing else holds no video (``len`` 0).
+        mode: what :func:`collate` did: ``"same"`` for one shape, ``"pad"`` or ``"crop"``.
+        skipped: the unreadable items left out, :class:`SkippedVideo` in item order; a batch of nothing
+            else holds no video and has ``len`` 0.
 
     Shape:
         ``frames`` ``(B, T, H, W)``; ``dt``, ``dx`` ``(B,)``; ``t`` ``(B, T)``; ``sizes`` ``(B, 3)``;
@@ -101,7 +94,7 @@ class VideoBatch:
 
     @property
     def mask(self) -> Tensor:
-        """True on each video's own samples, False on padding, ``(B, T, H, W)`` (on the frames' device)."""
+        """True on each video's own samples, False on padding, ``(B, T, H, W)`` on the frames' device."""
         b, t, h, w = self.frames.shape
         return self._inside(t, 0).view(b, t, 1, 1) & self.pixel_mask.unsqueeze(1)
 
@@ -122,8 +115,8 @@ class VideoBatch:
         return math.prod(self.frames.shape[1:]) - self.sizes.prod(1)
 
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> VideoBatch:
-        """The batch on ``device``, its frames (and floating spatial labels) in ``dtype`` (spacing and
-        times stay float64).
+        """The batch on ``device``, its frames and floating spatial labels in ``dtype``; spacing and times
+        stay float64.
 
         Shape:
             Unchanged.
@@ -131,7 +124,7 @@ class VideoBatch:
         return self._map(lambda x, floating: x.to(device=device, dtype=dtype if floating else None))
 
     def pin_memory(self) -> VideoBatch:
-        """The batch in pinned memory (``DataLoader(pin_memory=True)`` calls it)."""
+        """The batch in pinned memory; ``DataLoader(pin_memory=True)`` calls it."""
         return self._map(lambda x, floating: x.pin_memory())
 
     def _map(self, change: Callable[[Tensor, bool], Tensor]) -> VideoBatch:
@@ -155,26 +148,27 @@ class VideoBatch:
     def apply(self, layer: Callable[..., Any]) -> Any:
         """``layer(frames, dt, dx)`` with each video seeing only its own samples.
 
-        One call per distinct video size (one in all when every video has the batch's size); each call gets
-        its videos cut to their own frames. The results (a tensor, a tuple or dict of tensors, a tuple of
-        one value per video, or a dataclass of them, as :class:`~anra_torch.estimation.ANRAResult` and
-        :class:`~anra_torch.tissue.TissueFeatureMaps`) are put back in batch order: tensors padded to the
-        batch's size outside each video's own frame (NaN; False for booleans, 0 for integers), a map only
-        some calls return filled likewise for the others' videos.
+        The layer is called once per distinct video size, each call with its videos cut to their own
+        frames. The results are put back in batch order: tensors padded outside each video's own frame with
+        NaN, False for booleans, 0 for integers; a map only some calls return is filled likewise for the
+        others' videos.
 
         Args:
-            layer: called as ``layer(frames (b, T_i, H_i, W_i), dt (b,), dx (b,) or None)``, e.g. an
-                :class:`~anra_torch.estimation.ANRAEstimator` or a :class:`~anra_torch.tissue.TissueFeatures`.
+            layer: called as ``layer(frames, dt, dx)`` with ``frames`` ``(b, T_i, H_i, W_i)``, ``dt``
+                ``(b,)`` and ``dx`` ``(b,)`` or None, e.g. an :class:`~anra_torch.estimation.ANRAEstimator`
+                or a :class:`~anra_torch.tissue.TissueFeatures`.
 
         Returns:
-            The layer's result for the whole batch, batched.
+            The layer's result for the whole batch, batched: a tensor, a tuple or dict of tensors, a tuple
+            of one value per video, or a dataclass of them such as
+            :class:`~anra_torch.estimation.ANRAResult`.
 
         Shape:
             ``frames`` ``(B, T, H, W)`` -> per-video results ``(B, ...)``, maps ``(B, H, W)``.
 
         Raises:
-            ValueError: what the layer raises, with the videos it was given; a batch without a video (every
-                item skipped).
+            ValueError: what the layer raises, with the videos it was given; a batch without a video, every
+                item skipped.
         """
         if not len(self):
             gone = "; ".join(f"{s.path.name}: {s.reason}" for s in self.skipped) or "none given"
@@ -224,7 +218,7 @@ def _aligned(
     videos: list[Video], shapes: list[tuple[int, ...]], mode: str
 ) -> tuple[list[Video], tuple[int, ...], list[tuple[int, int]]]:
     """The videos cropped to their common centre (``"crop"``) or as they are, the batch's ``(T, H, W)``,
-    and each video's ``(x, y)`` offset (px) in its own frame."""
+    and each video's ``(x, y)`` offset in px in its own frame."""
     if mode == "crop":
         target = tuple(min(s[k] for s in shapes) for k in range(3))
         offsets = [((s[2] - target[2]) // 2, (s[1] - target[1]) // 2) for s in shapes]
@@ -233,24 +227,25 @@ def _aligned(
 
 
 def collate(videos: Sequence[Video], *, mode: str = "pad", dtype: torch.dtype | None = None) -> VideoBatch:
-    """Stack videos into a :class:`VideoBatch`; videos of different shapes are padded or cropped (``mode``).
+    """Stack videos into a :class:`VideoBatch`, padding or cropping videos of different shapes by ``mode``.
 
-    Frames left on disk are read here (in the ``DataLoader`` worker).
+    Frames left on disk are read here, in the ``DataLoader`` worker.
 
     Args:
-        videos: the videos (items of :class:`~anra_torch.data.ThermalVideoDataset`, or any
-            :class:`~anra_torch.video.Video`); labels in ``meta["labels"]``. A :class:`SkippedVideo` item
-            is left out and listed in :attr:`VideoBatch.skipped` (only skipped items: an empty batch).
-        mode: :data:`COLLATE_MODES`: ``"pad"`` (NaN, default), ``"crop"`` (the common first frames and
-            centre), ``"same"`` (refuse different shapes).
-        dtype: of the frames; default the videos' common floating dtype (integer counts: the default dtype).
+        videos: items of :class:`~anra_torch.data.ThermalVideoDataset` or any
+            :class:`~anra_torch.video.Video`, labels in ``meta["labels"]``. A :class:`SkippedVideo` item is
+            left out and listed in :attr:`VideoBatch.skipped`; only skipped items give an empty batch.
+        mode: one of :data:`COLLATE_MODES`: ``"pad"`` with NaN, the default; ``"crop"`` to the common
+            first frames and centre; ``"same"`` refuses different shapes.
+        dtype: of the frames; by default the videos' common floating dtype, the default dtype for
+            integer counts.
 
     Returns:
         The :class:`VideoBatch`.
 
     Shape:
-        ``B`` videos ``(T_i, H_i, W_i)`` -> frames ``(B, T, H, W)``: the largest sizes (``"pad"``), the
-        smallest (``"crop"``).
+        ``B`` videos ``(T_i, H_i, W_i)`` -> frames ``(B, T, H, W)``: the largest sizes with ``"pad"``, the
+        smallest with ``"crop"``.
 
     Raises:
         TypeError: not a non-empty sequence of videos; a non-floating ``dtype``.

@@ -1,31 +1,26 @@
 """A ``torch.utils.data.Dataset`` of thermal videos: a folder, a glob, a manifest CSV or a list of paths.
 
-:class:`ThermalVideoDataset` finds its videos when it is built (names and manifest cells only, no frame is
-read) and reads each one in ``__getitem__`` through the recording policy of every command
-(:func:`anra_torch.recording.open_recording`: any format :func:`anra_torch.video.load_video` knows,
-non-uniform timestamps resampled and said so, out-of-range samples masked and counted, a large ``.npy`` /
-uncompressed ``.npz`` left on disk to be read in chunks). It holds only paths, numbers and strings, so it
-pickles and works in ``DataLoader`` workers (``num_workers > 0``): every file is opened in the worker that
-reads it.
+:class:`ThermalVideoDataset` finds its videos when it is built, reading names and manifest cells but no
+frame, and reads each one in ``__getitem__`` through the recording policy of every command,
+:func:`anra_torch.recording.open_recording`. It holds only paths, numbers and strings, so it pickles and
+works in ``DataLoader`` workers; every file is opened in the worker that reads it.
 
 Sources:
 
-- a folder: every entry is one video: each file whose suffix a loader knows
-  (:data:`anra_torch.video.REGISTRY`) and each sub-folder of frame files (FLIR JPEGs, per-frame matrices,
-  :data:`anra_torch.video.FOLDER_REGISTRY`); a ``.csv`` that is not a FLIR export (a calibration table, a
-  manifest) and a sub-folder without frame files are left out and listed in
-  :attr:`~ThermalVideoDataset.skipped` with the reason. Not recursive: a tree of videos is a glob
-  (``"root/**/*.npz"``);
-- a glob pattern (``*``, ``?``, ``[``; ``**`` recursive): every match, sorted;
-- a manifest: a ``.csv`` whose header has a ``path`` column (relative to the manifest's folder), optional
-  ``dt`` (s) and ``dx`` (mm) columns that override the file's spacing where filled, every other column a
-  label (numbers as floats, an empty cell None, a cell naming a ``.npy`` file that exists next to the
-  manifest read as a tensor, other text kept as text);
+- a folder: every file whose suffix a loader of :data:`anra_torch.video.REGISTRY` knows and every
+  sub-folder of frame files, :data:`anra_torch.video.FOLDER_REGISTRY`, is one video; other entries are
+  left out and listed in :attr:`~ThermalVideoDataset.skipped` with the reason. Not recursive: a tree of
+  videos is a glob such as ``"root/**/*.npz"``;
+- a glob pattern with ``*``, ``?``, ``[`` or a recursive ``**``: every match, sorted;
+- a manifest: a ``.csv`` whose header has a ``path`` column, relative to the manifest's folder, optional
+  ``dt`` in s and ``dx`` in mm columns that override the file's spacing where filled, and every other
+  column a label;
 - a list of paths.
 
-Labels travel in ``video.meta["labels"]`` (name -> number, text, tensor or None): the manifest's columns, and
-the entries named in ``labels`` read from each ``.npz`` file (e.g. ``"a_true"`` of ``anra simulate``, or a
-per-pixel ``"damage"`` map ``(H, W)``).
+Labels travel in ``video.meta["labels"]``, name -> number, text, tensor or None: the manifest's columns
+and the entries named in ``labels`` read from each ``.npz`` file. What the recording policy does to each
+file and how a manifest's cells are read: ``docs/guides/training-loop.md``, section "The dataset's
+sources".
 """
 
 from __future__ import annotations
@@ -52,12 +47,12 @@ from anra_torch.video import FOLDER_REGISTRY, REGISTRY, CalibrationTable, PathLi
 __all__ = ["MANIFEST_SPACING", "ON_ERROR", "ThermalVideoDataset", "read_labels"]
 
 MANIFEST_SPACING = ("dt", "dx")
-"""Manifest columns that give a video's spacing (``dt`` s, ``dx`` mm), overriding the file's; the ``path``
-column names the video, every other column is a label."""
+"""Manifest columns that give a video's spacing, ``dt`` in s and ``dx`` in mm, overriding the file's; the
+``path`` column names the video, every other column is a label."""
 
 ON_ERROR = ("skip", "raise")
-"""What an item that cannot be read does: becomes a :class:`~anra_torch.data.SkippedVideo` (with a warning;
-:meth:`ThermalVideoDataset.collate` leaves it out of its batch and lists it), or raises its one-line error."""
+"""What an item that cannot be read does: becomes a :class:`~anra_torch.data.SkippedVideo` with a warning,
+which :meth:`ThermalVideoDataset.collate` leaves out of its batch and lists, or raises its one-line error."""
 
 _GLOB = frozenset("*?[")
 
@@ -77,37 +72,36 @@ class ThermalVideoDataset(Dataset):
 
     Args:
         source: a folder, a glob pattern, a manifest ``.csv`` (a ``path`` column) or a sequence of paths
-            (see the module docstring for what each holds).
-        dt: frame period in s for the videos whose file records none (a FLIR CSV export, a ``.npy``); a
-            file's own ``dt`` or timestamps are kept (a manifest's ``dt`` column overrides them).
-        dx: pixel size in mm for the videos whose file records none (the same rule).
-        labels: entries of each ``.npz`` file to return as labels (scalars or arrays, e.g. a per-pixel
-            mask); an ``.npz`` without one of them is an error, other formats have None.
-        transform: applied to each :class:`~anra_torch.video.Video` after reading (e.g.
-            :class:`~anra_torch.data.RegionOfInterest`, :class:`~anra_torch.data.SelectPhase`); it runs in
-            the worker, so it must pickle (the transforms of :mod:`anra_torch.data` do; a lambda does not).
-        calibration: a table mapping apparent to true temperatures, or the path of its CSV (for every video).
-        on_disk_above: leave a ``.npy`` / uncompressed ``.npz`` of more pixel values than this on disk, read
-            in chunks (:func:`~anra_torch.recording.open_recording`; None: always read whole). Default:
+            as the module docstring lists them.
+        dt: frame period in s for the videos whose file records none, such as a FLIR CSV export or a
+            ``.npy``; a file's own ``dt`` or timestamps are kept, and a manifest's ``dt`` column overrides
+            them.
+        dx: pixel size in mm for the videos whose file records none, by the same rule.
+        labels: entries of each ``.npz`` file to return as labels, scalars or arrays; an ``.npz`` without
+            one of them is an error, other formats have None.
+        transform: applied to each :class:`~anra_torch.video.Video` after reading, e.g.
+            :class:`~anra_torch.data.RegionOfInterest`; it runs in the worker, so it must pickle.
+        calibration: a table mapping apparent to true temperatures, or the path of its CSV, for every
+            video.
+        on_disk_above: leave a ``.npy`` or uncompressed ``.npz`` of more pixel values than this on disk, read
+            in chunks; None reads every file whole. The default is
             :data:`~anra_torch.estimation.CHUNKED_VALUES`, as ``anra estimate``.
-        collate_mode: how :meth:`collate` batches videos of different shapes (:data:`COLLATE_MODES`).
-        on_error: what an item that cannot be read does (:data:`ON_ERROR`): ``"skip"`` (default: a long
-            epoch never dies on one file) returns a :class:`~anra_torch.data.SkippedVideo` with the one-line
-            reason, warns (:class:`RuntimeWarning`), records it in :attr:`failed` (in the process that read
-            it) and :meth:`collate` leaves it out of the batch, listing it in ``batch.skipped``; ``"raise"``
-            raises the error.
+        collate_mode: how :meth:`collate` batches videos of different shapes, one of :data:`COLLATE_MODES`.
+        on_error: what an item that cannot be read does, one of :data:`ON_ERROR`: ``"skip"``, the default,
+            returns a :class:`~anra_torch.data.SkippedVideo` with the one-line reason, warns with a
+            :class:`RuntimeWarning` and records it in :attr:`failed`; :meth:`collate` leaves it out of the
+            batch and lists it in ``batch.skipped``. ``"raise"`` raises the error.
 
     Shape:
-        Items: :class:`~anra_torch.video.Video` with frames ``(T, H, W)`` (their own size); :meth:`collate`
-        -> :class:`~anra_torch.data.VideoBatch` with frames ``(B, T, H, W)``.
+        Items: :class:`~anra_torch.video.Video` with frames ``(T, H, W)``, each its own size;
+        :meth:`collate` -> :class:`~anra_torch.data.VideoBatch` with frames ``(B, T, H, W)``.
 
     Raises:
         TypeError: a source that is not a path, a pattern or a sequence of paths; a transform that is not
             callable.
         ValueError: a missing source, no video found, a manifest row without a path or with a spacing that
-            is not a positive number, a non-positive ``dt`` / ``dx``, an unknown ``collate_mode`` or
-            ``on_error``. (A ``.csv`` without a ``path`` column is a video, not a manifest: it is read as a
-            FLIR export.)
+            is not a positive number, a non-positive ``dt`` or ``dx``, an unknown ``collate_mode`` or
+            ``on_error``. A ``.csv`` without a ``path`` column is read as a FLIR export, not a manifest.
 
     Example:
         >>> import tempfile, numpy as np
@@ -221,8 +215,9 @@ class ThermalVideoDataset(Dataset):
         return tuple(entry.path for entry in self.entries)
 
     def __getitem__(self, index: int) -> Video | SkippedVideo:
-        """Read video ``index`` (opened here, in the calling worker), its labels, then ``transform``; an
-        item that cannot be read is skipped or raises (``on_error``).
+        """Read video ``index`` in the calling worker, its labels, then ``transform``.
+
+        An item that cannot be read is skipped or raises, by ``on_error``.
 
         Shape:
             ``frames`` ``(T, H, W)``; labels as stored.
@@ -230,8 +225,8 @@ class ThermalVideoDataset(Dataset):
         Raises:
             IndexError: ``index`` out of range.
             ValueError: with ``on_error="raise"``, every error of
-                :func:`~anra_torch.recording.open_recording` (unreadable file, no frame period and no
-                ``dt``, ...), a label missing from an ``.npz`` file, a transform's.
+                :func:`~anra_torch.recording.open_recording`, such as an unreadable file or no frame period
+                and no ``dt``; a label missing from an ``.npz`` file; a transform's.
         """
         if not -len(self) <= index < len(self):
             raise IndexError(f"index must be in [{-len(self)}, {len(self) - 1}], got {index}")
@@ -278,8 +273,9 @@ class ThermalVideoDataset(Dataset):
         return video
 
     def collate(self, videos: Sequence[Video | SkippedVideo]) -> VideoBatch:
-        """:func:`anra_torch.data.collate` with this dataset's ``collate_mode`` (a ``collate_fn``); skipped
-        items are left out and listed in ``batch.skipped``.
+        """:func:`anra_torch.data.collate` with this dataset's ``collate_mode``, as a ``collate_fn``.
+
+        Skipped items are left out and listed in ``batch.skipped``.
 
         Shape:
             ``B`` videos ``(T_i, H_i, W_i)`` -> frames ``(B, T, H, W)``.
@@ -375,8 +371,10 @@ def _label_value(value: Any, source: Path) -> Any:
 
 
 def read_labels(path: PathLike, names: Sequence[str]) -> dict[str, Any]:
-    """The entries ``names`` of an ``.npz`` file as labels (arrays as read, scalars as Python numbers or
-    text); ``{name: None}`` for a file of another format.
+    """The entries ``names`` of an ``.npz`` file as labels; ``{name: None}`` for a file of another format.
+
+    Returns:
+        name -> the array as read, or a scalar as a Python number or text.
 
     Shape:
         Each label as stored, e.g. a per-pixel map ``(H, W)``.

@@ -1,12 +1,9 @@
 """Optional steps on each video of a :class:`~anra_torch.data.ThermalVideoDataset`, done by the library's own
-steps: a region of interest (:func:`anra_torch.video.crop`), resampling in time
-(:func:`anra_torch.video.resample_uniform`), one phase of the recording
-(:func:`anra_torch.recording.find_phases`, ranked by :func:`anra_torch.recording.phase_preference`).
+steps: a region of interest, resampling in time, one phase of the recording.
 
-Each is a small picklable object called as ``step(video) -> video`` (so it runs in ``DataLoader`` workers);
-:class:`Compose` chains them. A region also cuts the video's per-pixel labels (tensors whose last two
-dimensions are the frame). Each records what it did in ``video.meta`` (``"roi"``, ``"resampled"``,
-``"phase"``).
+Each is a small picklable object called as ``step(video) -> video``, so it runs in ``DataLoader`` workers;
+:class:`Compose` chains them. A region also cuts the video's per-pixel labels. Each records what it did in
+``video.meta``: ``"roi"``, ``"resampled"`` or ``"phase"``.
 """
 
 from __future__ import annotations
@@ -24,8 +21,8 @@ from anra_torch.video import ROI, Video, crop, parse_roi, resample_uniform
 __all__ = ["PHASES", "Compose", "RegionOfInterest", "Resample", "SelectPhase"]
 
 PHASES = ("preferred", "baseline", "heating", "cooling", "steady", "recording")
-"""What :class:`SelectPhase` keeps: ``"preferred"`` (the phase a command describes the recording by), or a
-phase by kind (the longest of that kind)."""
+"""What :class:`SelectPhase` keeps: ``"preferred"``, the phase a command describes the recording by, or the
+longest phase of a kind."""
 
 
 class Compose:
@@ -52,15 +49,15 @@ class Compose:
 
 @dataclass(frozen=True)
 class RegionOfInterest:
-    """Keep the region ``roi`` = ``(x0, y0, width, height)`` px (or its text ``"X0,Y0,W,H"``) of every
-    frame and of every per-pixel label (:func:`anra_torch.video.crop`).
+    """Keep the region ``roi`` = ``(x0, y0, width, height)`` px, or its text ``"X0,Y0,W,H"``, of every
+    frame and of every per-pixel label, by :func:`anra_torch.video.crop`.
 
     Shape:
         ``frames`` ``(T, H, W)`` -> ``(T, height, width)``; a label ``(..., H, W)`` -> ``(..., height,
         width)``.
 
     Raises:
-        ValueError: a malformed region (when built); a region outside the frame (when called).
+        ValueError: when built, a malformed region; when called, a region outside the frame.
     """
 
     roi: ROI | str
@@ -85,14 +82,15 @@ class RegionOfInterest:
 
 @dataclass(frozen=True)
 class Resample:
-    """Resample in time onto a uniform step ``dt`` (s) (:func:`anra_torch.video.resample_uniform`, its
-    ``method``); ``dt=None`` makes non-uniform timestamps uniform and leaves uniform videos as they are.
+    """Resample in time onto a uniform step ``dt`` in s by :func:`anra_torch.video.resample_uniform`.
+
+    ``dt=None`` makes non-uniform timestamps uniform and leaves uniform videos as they are.
 
     Shape:
         ``frames`` ``(T, H, W)`` -> ``(T', H, W)``.
 
     Raises:
-        ValueError: a non-positive ``dt`` or an unknown ``method`` (when built).
+        ValueError: when built, a non-positive ``dt`` or an unknown ``method``.
     """
 
     dt: float | None = None
@@ -116,21 +114,23 @@ class Resample:
 
 @dataclass(frozen=True)
 class SelectPhase:
-    """Keep one phase of the recording (:func:`anra_torch.recording.find_phases`: baseline, heating,
-    cooling, after the camera's artefacts are repaired); ``meta["phase"]`` records it.
+    """Keep one phase of the recording found by :func:`anra_torch.recording.find_phases`.
+
+    The phases are found after the camera's artefacts are repaired; ``meta["phase"]`` records the one kept.
 
     Args:
-        phase: :data:`PHASES`: ``"preferred"`` is the phase a command describes the recording by (a
-            source-free one first, then the longest; :func:`~anra_torch.recording.phase_preference`), the
-            whole recording when no phase is long enough; a kind keeps the longest phase of that kind.
+        phase: one of :data:`PHASES`. ``"preferred"`` is the phase a command describes the recording by,
+            ranked by :func:`~anra_torch.recording.phase_preference`: a source-free one first, then the
+            longest; the whole recording when no phase is long enough. A kind keeps the longest phase of
+            that kind.
         min_frames: phases shorter than this are not kept.
 
     Shape:
-        ``frames`` ``(T, H, W)`` -> ``(stop - start, H, W)`` (frames on disk stay unread).
+        ``frames`` ``(T, H, W)`` -> ``(stop - start, H, W)``; frames on disk stay unread.
 
     Raises:
-        ValueError: an unknown ``phase`` or ``min_frames`` < 2 (when built); no phase of that kind of at
-            least ``min_frames`` frames (when called; the phases found are named).
+        ValueError: when built, an unknown ``phase`` or ``min_frames`` < 2; when called, no phase of that
+            kind of at least ``min_frames`` frames, naming the phases found.
     """
 
     phase: str = "preferred"

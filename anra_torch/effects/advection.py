@@ -1,6 +1,6 @@
 """``advection``: ``- (vx dT/dx + vy dT/dy)``, a flow carrying heat (central differences).
 
-Parameters: ``vx``, ``vy`` (mm/s). Diagnosis: regressors ``T_x``, ``T_y`` of the balance bank. Random
+Parameters: ``vx``, ``vy`` in mm/s. Diagnosis: regressors ``T_x``, ``T_y`` of the balance bank. Random
 draw: displacement ``|v| duration`` 2-10 px in any direction.
 """
 

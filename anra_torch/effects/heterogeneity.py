@@ -1,6 +1,6 @@
 """``heterogeneity``: ``div(a grad T)`` with ``a = a_inside`` in a disc, ``a_outside`` elsewhere.
 
-Parameters: ``x``, ``y``, ``radius`` (mm), ``a_inside``, ``a_outside`` (mm^2/s). The disc has a tanh
+Parameters: ``x``, ``y``, ``radius`` in mm, ``a_inside``, ``a_outside`` in mm^2/s. The disc has a tanh
 edge about one pixel wide; simulated in conservative flux form.
 
 Diagnosis: a fitted shape ``H = G div(disc grad S_t T)`` (its noise is ``L``'s inside the disc), the disc

@@ -66,7 +66,7 @@ def simulate_independent(
         a: base diffusivity in mm^2/s (>= 0; unused when an effect replaces the diffusion term).
         dx: pixel size in mm.
         dt: frame period in s.
-        n_frames: number of frames (>= 1).
+        n_frames: number of frames, >= 1.
         effects: distinct :class:`~anra_torch.effects.Effect` s, at most one replacing diffusion.
         grid: the discretisation (:class:`~anra_torch.simulation.ContinuumGrid`); default ``ContinuumGrid()``.
 

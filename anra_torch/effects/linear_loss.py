@@ -1,6 +1,6 @@
 """``linear_loss``: ``- b (T - T_ref)``, loss to an ambient temperature (perfusion, convection).
 
-Parameters: ``b`` (1/s, >= 0), ``T_ref`` (data units). Diagnosis: regressors ``T`` and ``1`` of the
+Parameters: ``b`` (1/s, >= 0), ``T_ref`` in data units. Diagnosis: regressors ``T`` and ``1`` of the
 balance bank (``- b (T - Tbar) - b (Tbar - T_ref)``). Random draw: ``exp(-b duration)`` in [0.3, 0.8];
 ``T_ref`` = background - [0, 0.2] rise.
 """

@@ -219,7 +219,7 @@ class ExtendedHeatRHS(nn.Module):
     (the output is multiplied by it), so a fixed step of 1 can be one substep exactly.
 
     Args:
-        a: base diffusivity in mm^2/s (>= 0); unused when an effect replaces the diffusion term.
+        a: base diffusivity in mm^2/s, >= 0; unused when an effect replaces the diffusion term.
         grid: the pixel grid (shape, dx, duration of the source paths, boundary).
         effects: distinct :class:`Effect` s, at most one replacing the diffusion term.
         time_scale: seconds per unit of solver time.

@@ -1,6 +1,6 @@
 """``nonlinear_diffusion``: ``div(a0 (1 + beta (T - T_ref)) grad T)``, temperature-dependent diffusivity.
 
-Parameters: ``a0`` (mm^2/s, > 0), ``beta`` (1/K), ``T_ref`` (data units). Simulated exactly in flux form
+Parameters: ``a0`` (mm^2/s, > 0), ``beta`` in 1/K, ``T_ref`` in data units. Simulated exactly in flux form
 through the Kirchhoff transform. Diagnosis: regressor ``N = Lap (T - Tbar)^2 / 2`` of the balance bank
 (``a(T) = c_L + c_N (T - Tbar)``, reported at ``T_ref`` = the background). Random draw: ``a0 = a``,
 ``T_ref`` = background, ``beta rise`` in [0.3, 1.0]. Size: ``|beta|`` times the video's temperature span

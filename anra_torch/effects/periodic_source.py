@@ -2,7 +2,7 @@
 
     + rate exp(-|r - c|^2 / (2 width^2)) (1 + sin(2 pi frequency t + phase)) / 2
 
-Parameters: ``x``, ``y``, ``width`` (mm), ``rate`` (K/s, the peak input), ``frequency`` (Hz), ``phase``
+Parameters: ``x``, ``y``, ``width`` in mm, ``rate`` (K/s, the peak input), ``frequency`` in Hz, ``phase``
 (rad, at t = 0 s of the video). The input swings between 0 and ``rate`` at the spot's centre.
 
 Diagnosis (not searched by default: ask for it, ``effects=[..., "periodic_source"]``): a fitted shape ``P``

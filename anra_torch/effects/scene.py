@@ -48,7 +48,7 @@ class HiddenEffectVideo:
             the diffusion term (``a_outside``, ``a0``, or ``sqrt(det A)`` for anisotropy).
         times: frame times ``k dt`` in s.
         effects: the effects with their true parameters.
-        noise_sd: standard deviation of the added white noise (data units).
+        noise_sd: standard deviation of the added white noise in data units.
         seed: the seed everything was drawn from.
         a_map: the diffusivity field ``(H, W)`` in mm^2/s for ``heterogeneity``, else None.
 
@@ -138,8 +138,8 @@ class Medium:
     """The body a scene's hot spots lie on.
 
     Attributes:
-        a: base diffusivity in mm^2/s (>= 0): the diffusivity unless an effect replaces the diffusion term.
-        background: temperature of the uniform background (data units).
+        a: base diffusivity in mm^2/s, >= 0: the diffusivity unless an effect replaces the diffusion term.
+        background: temperature of the uniform background in data units.
     """
 
     a: float = 0.15
@@ -151,8 +151,8 @@ class Sensor:
     """What the camera adds to a simulated scene, and the dtype it records in.
 
     Attributes:
-        noise_frac: white-noise sd as a fraction of the peak initial rise (>= 0).
-        noise_sd: absolute white-noise sd (data units) overriding ``noise_frac``, or None.
+        noise_frac: white-noise sd as a fraction of the peak initial rise, >= 0.
+        noise_sd: absolute white-noise sd in data units overriding ``noise_frac``, or None.
         dtype: float32 or float64.
     """
 
@@ -192,7 +192,7 @@ def hidden_effect_video(
 
     Args:
         effect_names: keys of :data:`EFFECTS` (distinct); ``()`` gives pure heat transfer.
-        seed: seed of the scene, the effect parameters and the noise (>= 0).
+        seed: seed of the scene, the effect parameters and the noise, >= 0.
         size: frame side in px (>= 16).
         dx: pixel size in mm.
         fps: frame rate in Hz.
@@ -403,7 +403,7 @@ def _scene(
     rng: np.random.Generator, size: int, dx: float, duration: float, a: float, background: float
 ) -> tuple[Tensor, Geometry, tuple[tuple[float, float, float, float], ...]]:
     """One or two Gaussian hot spots on the background (the first draws from ``rng``), the geometry
-    the effects draw their parameters for, and the spots ``(rise, x, y, sigma)`` (mm).
+    the effects draw their parameters for, and the spots ``(rise, x, y, sigma)`` in mm.
 
     Shape:
         The initial frame ``(size, size)``.

@@ -89,10 +89,10 @@ def simulate_effects(
 
     Args:
         initial: first frame (temperatures).
-        a: base diffusivity in mm^2/s (>= 0); ignored when an effect replaces the diffusion term.
+        a: base diffusivity in mm^2/s, >= 0; ignored when an effect replaces the diffusion term.
         dx: pixel size in mm.
         dt: frame period in s.
-        n_frames: number of frames T (>= 1).
+        n_frames: number of frames T, >= 1.
         effects: distinct :class:`Effect` s, at most one replacing the diffusion term (a source's path is
             covered over ``(n_frames - 1) dt``).
         boundary: the frame edge's condition (:class:`Boundary`); default zero flux.

@@ -52,12 +52,12 @@ def backward_log_estimate(
 
     Args:
         frames: video ``(T, H, W)`` or ``(B, T, H, W)``.
-        dt: frame period (s); dx: pixel size (mm); floats or ``(B,)``.
+        dt: frame period in s; dx: pixel size in mm; floats or ``(B,)``.
         log_sigma: LoG scale in px.
-        blur_sigma: Gaussian blur of every frame first (px), None for none.
+        blur_sigma: Gaussian blur of every frame first in px, None for none.
 
     Returns:
-        Diffusivity (mm^2/s) per video, the mean over frames of the paper's weighted ratio; may be
+        Diffusivity in mm^2/s per video, the mean over frames of the paper's weighted ratio; may be
         negative or huge: that is the point of the baseline. Pixels where the LoG is exactly 0 are skipped.
 
     Shape:

@@ -77,7 +77,7 @@ class Chunking:
         pilot_blocks: pilot blocks spread over the recording (fewer when they would read more than a third
             of its frames).
         pilot_frames: frames per pilot block.
-        pilot_side: side (px) of the pilot's window of most change, where the noise is measured and the
+        pilot_side: side in px of the pilot's window of most change, where the noise is measured and the
             smoothing chosen.
         error_every: push the noise lever back on every this many chunks (1: the exact standard error,
             at the cost of a second spatial pass per chunk).

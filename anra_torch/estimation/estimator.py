@@ -51,7 +51,7 @@ __all__ = ["ANRAEstimator", "ANRAResult", "MODES", "AUTO_SMOOTHING", "POOR_FIT"]
 
 MODES = ("lsq", "ratio")
 AUTO_SMOOTHING: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
-"""Spatial smoothing candidates (px) tried by ``smoothing="auto"``."""
+"""Spatial smoothing candidates in px tried by ``smoothing="auto"``."""
 
 _MIN_VALID_PX = 8  # a candidate smoothing must leave at least this many pixels per side
 
@@ -65,7 +65,7 @@ _NO_FINITE = "no finite frame: every sample is NaN, infinite or a dead element; 
 
 
 def _smoothing_candidates(mode: str, smoothing: float | Sequence[float] | str | None) -> tuple[float, ...]:
-    """The smoothing sigmas (px) that ``smoothing`` names for ``mode`` (see :class:`ANRAEstimator`).
+    """The smoothing sigmas in px that ``smoothing`` names for ``mode`` (see :class:`ANRAEstimator`).
 
     Raises:
         ValueError: an unknown mode, a string other than ``"auto"``, an empty sequence.
@@ -91,34 +91,35 @@ class ANRAEstimator(nn.Module):
     """Attention-based noise-robust averaging estimator of the thermal diffusivity.
 
     Args:
-        mode: ``"lsq"`` (weighted least squares with the errors-in-variables correction; default) or
-            ``"ratio"`` (the paper's RTC-weighted average of ``dT/dt / Laplacian``, kept as published).
-        smoothing: spatial Gaussian sigma in px, a sequence of candidates, or ``"auto"``
-            (:data:`AUTO_SMOOTHING`); with several candidates each video takes the one with the smallest
-            standard error. Default: ``"auto"`` for ``"lsq"``, 0 (as published) for ``"ratio"``.
-        time_family: Holoborodko time family (``"smooth"``, ``"centred"``, ``"hybrid"``).
+        mode: ``"lsq"``, the default, is weighted least squares with the errors-in-variables
+            correction; ``"ratio"`` is the paper's RTC-weighted average of ``dT/dt / Laplacian``, kept as
+            published.
+        smoothing: spatial Gaussian sigma in px, a sequence of candidates, or ``"auto"`` for
+            :data:`AUTO_SMOOTHING`; with several candidates each video takes the one with the smallest
+            standard error. Default: ``"auto"`` for ``"lsq"``, 0 as published for ``"ratio"``.
+        time_family: Holoborodko time family: ``"smooth"``, ``"centred"`` or ``"hybrid"``.
         time_length: time window length in frames.
-        laplacian_size: spatial kernel size (3, 5, 7, 9, 11).
-        laplacian_family: default ``"central"`` for ``"lsq"``, ``"holoborodko"`` (as published) for
-            ``"ratio"``. ``"central"`` (maximal order: after Gaussian smoothing, accuracy at low
-            wavenumbers is what matters) or ``"holoborodko"`` (its built-in binomial smoothing is applied
-            to dT/dt as well, so it reads like the 5-point Laplacian of the smoothed field).
-        attention: per-pixel weighting with ``with_slope(rate, mask)``. Default: for ``"ratio"`` the paper's
-            :class:`RTCAttention`; for ``"lsq"`` :class:`UniformAttention` (why: ``docs/results/paper.md``).
-        eiv_correction: subtract the noise variance from the Laplacian energy (lsq mode).
-        noise_sd: known noise standard deviation (units of the data); default estimated per video.
-        window: side (px, odd) of the windowed diffusivity field; None skips the field.
+        laplacian_size: spatial kernel size: 3, 5, 7, 9 or 11.
+        laplacian_family: ``"central"`` or ``"holoborodko"``; default ``"central"`` for ``"lsq"``,
+            ``"holoborodko"`` as published for ``"ratio"``. Why each: ``docs/architecture.md``, section
+            "The estimator".
+        attention: per-pixel weighting with ``with_slope(rate, mask)``. Default: the paper's
+            :class:`RTCAttention` for ``"ratio"``, :class:`UniformAttention` for ``"lsq"``; why:
+            ``docs/results/paper.md``.
+        eiv_correction: subtract the noise variance from the Laplacian energy, in lsq mode.
+        noise_sd: known noise standard deviation in the data's units; default estimated per video.
+        window: odd side in px of the windowed diffusivity field; None skips the field.
         strict: raise ``ValueError`` when a video shows no measurable thermal activity; otherwise
-            return it flagged (``valid`` False, NaN diffusivity, a message). A video of a batch without a
-            finite sample (a failed read, padding) is flagged either way ("no finite frame"): it holds no
-            measurement to be strict about, and the others' estimates stand.
-        pilot: choose among several smoothing candidates on a pilot of the frames (:meth:`_pilot`): only
-            the pilot's best and its near ties are computed on every frame. Faster by about one candidate,
-            but where the pilot misjudges a candidate beyond its margin (a scene that changes fast, or a
-            source that moves) the choice differs from the one made on every frame (the default).
+            return it flagged: ``valid`` False, NaN diffusivity, a message. A video of a batch without a
+            finite sample is flagged "no finite frame" either way, and the others' estimates stand.
+        pilot: choose among several smoothing candidates on a pilot of the frames, computing only the
+            pilot's best and its near ties on every frame. Faster by about one candidate, but the choice
+            may differ from the default one made on every frame; when: ``docs/architecture.md``, section
+            "The estimator".
 
     Shape:
-        ``frames`` ``(B, T, H, W)`` or ``(T, H, W)``; ``dt`` (s) and ``dx`` (mm/px) floats or ``(B,)``.
+        ``frames`` ``(B, T, H, W)`` or ``(T, H, W)``; ``dt`` in s and ``dx`` in mm per px, floats or
+        ``(B,)``.
 
     Example:
         >>> from anra_torch.simulation import gaussian_blob
@@ -183,20 +184,20 @@ class ANRAEstimator(nn.Module):
 
     @property
     def sigmas(self) -> tuple[float, ...]:
-        """Spatial smoothing candidates (px)."""
+        """Spatial smoothing candidates in px."""
         return tuple(f.sigma for f in self.filters)
 
     @property
     def minimum_frame_size(self) -> int:
-        """The smallest frame side (px) these filters accept: the least wide candidate's margins plus the
+        """The smallest frame side in px these filters accept: the least wide candidate's margins plus the
         least valid interior."""
         return min(2 * f.margin for f in self.filters) + _MIN_VALID_PX
 
     def usable(self, height: int, width: int) -> list[int]:
-        """The smoothing candidates (indices) whose filters leave enough of a ``height`` x ``width`` frame.
+        """The smoothing candidates, by index, whose filters leave enough of a ``height`` x ``width`` frame.
 
         Raises:
-            ValueError: no candidate fits (the frame is smaller than :attr:`minimum_frame_size`).
+            ValueError: no candidate fits: the frame is smaller than :attr:`minimum_frame_size`.
         """
         usable = [i for i, f in enumerate(self.filters) if min(height, width) - 2 * f.margin >= _MIN_VALID_PX]
         if not usable:
@@ -229,10 +230,9 @@ class ANRAEstimator(nn.Module):
     ) -> Candidate:
         """The sums of smoothing candidate ``index`` over a centred ``(B, T, H, W)`` batch.
 
-        ``error`` says what is computed of the standard error (:class:`~.candidates.ErrorPass`; default
-        the batch's standard error). The terms come through the frames' spectra
-        (:mod:`anra_torch.balance.spectral`): ``stage``, the batch's time-filtered spectra, is shared by
-        every candidate (computed here when None)."""
+        ``error``, a :class:`~.candidates.ErrorPass`, says what is computed of the standard error; by
+        default the batch's standard error. ``stage``, the batch's time-filtered spectra of
+        :mod:`anra_torch.balance.spectral`, is shared by every candidate; None computes it here."""
         error = ErrorPass() if error is None else error
         filters = self.filters[index]
         stage = spectral_stage(filters, video, dt) if stage is None else stage
@@ -301,20 +301,23 @@ class ANRAEstimator(nn.Module):
         """Estimate the diffusivity of each video.
 
         Args:
-            frames: temperatures (any linear unit), ``(T, H, W)`` or ``(B, T, H, W)``; integer counts are
-                converted to floats; non-finite pixels, and up to 1 % of pixels that are exactly constant
-                in every frame (dead elements), are masked and counted in ``n_masked``.
+            frames: temperatures in any linear unit; integer counts are converted to floats. Non-finite
+                pixels and dead elements, up to 1 % of pixels exactly constant in every frame, are masked
+                and counted in ``n_masked``.
             dt: frame period in s, float or ``(B,)``.
             dx: pixel size in mm, float or ``(B,)``.
-            prepared: ``frames`` as :func:`~anra_torch.balance.prepare_batch` measured them already (their
-                artefacts, noise and masks), where the caller has it: nothing is measured again.
+            prepared: ``frames`` with the artefacts, noise and masks
+                :func:`~anra_torch.balance.prepare_batch` measured already; nothing is measured again.
 
         Returns:
-            :class:`ANRAResult` (unbatched for a single ``(T, H, W)`` video).
+            :class:`ANRAResult`, unbatched for a single ``(T, H, W)`` video.
+
+        Shape:
+            ``frames`` ``(T, H, W)`` or ``(B, T, H, W)``.
 
         Raises:
-            ValueError: bad shapes or spacings, too few frames or pixels for the filters, or (with
-                ``strict``) a video without measurable thermal activity.
+            ValueError: bad shapes or spacings; too few frames or pixels for the filters; with ``strict``,
+                a video without measurable thermal activity.
         """
         video, batched = as_video(frames, min_frames=self.time.length)
         b = video.shape[0]

@@ -25,37 +25,36 @@ def concat_results(parts: list[ANRAResult]) -> ANRAResult:
 
 @dataclass(frozen=True)
 class ANRAResult:
-    """Output of :class:`ANRAEstimator` (batched: leading ``B``; a single video drops it).
+    """Output of :class:`ANRAEstimator`: batched with a leading ``B``; a single video drops it.
 
     Attributes:
-        diffusivity: global ``a`` per video, mm^2/s (units of dx^2/dt), shape ``(B,)``; NaN only where
+        diffusivity: global ``a`` per video in mm^2/s, the units of dx^2/dt, ``(B,)``; NaN only where
             ``valid`` is False, with the reason in ``messages``.
         std_error: standard error of ``diffusivity`` propagated from the estimated white noise, ``(B,)``.
         per_frame: ``a[k]`` per frame, ``(B, K)`` with ``K = T - L + 1``.
-        frame_times: instant (s after the first frame) each ``a[k]`` applies to, ``(B, K)``.
-        noise_sd: noise standard deviation used (units of the data), ``(B,)``.
-        smoothing: spatial Gaussian sigma used (px), ``(B,)``.
-        reliability: fraction of the regressor energy that is signal, not noise (1 is noiseless), ``(B,)``.
-        explained: share of ``dT/dt`` (its weighted energy above the noise) that ``a Lap T`` explains, in
+        frame_times: the instant in s after the first frame each ``a[k]`` applies to, ``(B, K)``.
+        noise_sd: noise standard deviation used, in the data's units, ``(B,)``.
+        smoothing: spatial Gaussian sigma used in px, ``(B,)``.
+        reliability: fraction of the regressor energy that is signal, not noise; 1 is noiseless; ``(B,)``.
+        explained: share of the weighted energy of ``dT/dt`` above the noise that ``a Lap T`` explains, in
             [0, 1], ``(B,)``: the noise-corrected ``R^2`` of the plain heat equation. Below
-            :data:`POOR_FIT` the estimate is flagged (a term the plain model misses dominates); NaN in
+            :data:`POOR_FIT` the estimate is flagged: a term the plain model misses dominates. NaN in
             ``"ratio"`` mode.
         valid: False for a video without measurable thermal activity, ``(B,)``.
-        n_masked: number of pixel values masked (non-finite, or dead elements constant in every frame
-            while the scene changes), ``(B,)``.
-        field: windowed diffusivity map aligned with the input frames, ``(B, H, W)`` (NaN where
-            ``confidence == 0``: the border the filters cannot reach, or windows without signal), or None.
+        n_masked: number of pixel values masked, non-finite or dead elements constant in every frame
+            while the scene changes, ``(B,)``.
+        field: windowed diffusivity map aligned with the input frames, ``(B, H, W)``, or None; NaN where
+            ``confidence == 0``, at the border the filters cannot reach and in windows without signal.
         confidence: reliability of each window in [0, 1], ``(B, H, W)``, or None.
-        messages: one line per video: the reason when not valid, else empty (a valid video's flags are in
-            ``warnings``; the value is kept).
-        warnings: per video, the plausibility flags of a valid estimate
-            (:func:`anra_torch.checks.diffusivity_warnings`): significantly negative (a source dominates),
-            or outside every known material (with the likely unit mix-up of dt or dx); empty when none.
-        noise: per video, the measured noise model as a record (``"sd"``, ``"time_correlation"``,
-            ``"space_length_px"``, ``"white"``; :meth:`NoiseModel.describe
-            <anra_torch.balance.NoiseModel.describe>`).
-        artefacts: per video, the camera artefacts found and what was done
-            (:meth:`Artefacts.to_record <anra_torch.balance.Artefacts.to_record>`).
+        messages: one line per video: the reason when not valid, else empty; a valid video's flags are in
+            ``warnings``.
+        warnings: per video, the plausibility flags of a valid estimate from
+            :func:`anra_torch.checks.diffusivity_warnings`: significantly negative, a source dominating, or
+            outside every known material, with the likely unit mix-up of dt or dx; empty when none.
+        noise: per video, the measured noise model as a record, see :meth:`NoiseModel.describe
+            <anra_torch.balance.NoiseModel.describe>`.
+        artefacts: per video, the camera artefacts found and what was done, see :meth:`Artefacts.to_record
+            <anra_torch.balance.Artefacts.to_record>`.
     """
 
     diffusivity: Tensor
@@ -85,18 +84,16 @@ class ANRAResult:
         return replace(self, **changes)
 
     def to_record(self, index: int = 0, *, unit: str = "data units") -> dict[str, object]:
-        """The numbers of one video as a JSON-ready record (``anra estimate --json``, batch rows, reports).
+        """The numbers of one video as a JSON-ready record: ``anra estimate --json``, batch rows, reports.
 
         Args:
-            index: the video in a batched result (0 for an unbatched one).
+            index: the video in a batched result; 0 for an unbatched one.
             unit: the data's temperature unit, for ``noise_sd``.
 
         Returns:
-            ``{"diffusivity", "std_error"`` (mm^2/s, None when not finite), ``"valid"``, ``"message"``,
-            ``"warnings"`` (a list of lines: implausible or negative diffusivity; empty when none),
-            ``"smoothing_px"`` (px), ``"noise_sd"`` (``unit``), ``"reliability"``, ``"n_masked"``,
-            ``"units"}`` (key -> unit), ``"noise"`` (the measured noise model, ``unit``) and
-            ``"artefacts"`` (what was found and masked).
+            The diffusivity and its standard error in mm^2/s, None when not finite, the flags, the
+            smoothing, the noise, the masked count, the artefacts and every value's unit. Every key:
+            ``docs/reference/outputs.md``, section ``anra estimate --json``.
 
         Shape:
             Tensors ``(B,)`` or unbatched scalars; the record holds Python numbers.

@@ -277,7 +277,7 @@ def edge_explained(frames: Tensor) -> float:
 
 def unresolved_bound(frames: Tensor, dt: float, dx: float) -> float | None:
     """When conduction crosses the region within a frame (:func:`edge_explained` at least
-    :data:`UNRESOLVED`), the lower bound on ``a`` (mm^2/s) that implies: the slowest mode of the box,
+    :data:`UNRESOLVED`), the lower bound on ``a`` in mm^2/s that implies: the slowest mode of the box,
     ``1 / (a pi^2 (1/Lx^2 + 1/Ly^2))``, relaxes within ``dt``; else None (the diffusivity is resolved).
 
     Shape:

@@ -47,12 +47,12 @@ class StreamingEstimate:
     """The estimate after the frames seen so far.
 
     Attributes:
-        diffusivity: global ``a`` (mm^2/s) over every complete window so far; NaN exactly when ``ready`` is
+        diffusivity: global ``a`` in mm^2/s over every complete window so far; NaN exactly when ``ready`` is
             False (the reason in ``message``).
-        per_frame: ``a`` of the newest window alone (mm^2/s), NaN when not ready.
+        per_frame: ``a`` of the newest window alone in mm^2/s, NaN when not ready.
         frames_seen: frames pushed so far.
         windows: complete time windows (``frames_seen - L + 1``, at least 0).
-        noise_sd: noise sd used (data units), NaN before it is known.
+        noise_sd: noise sd used in data units, NaN before it is known.
         reliability: fraction of the regressor energy that is signal (1 is noiseless).
         time: instant (s after the first frame) the newest window's derivative applies to.
         ready: True once a diffusivity is available.
@@ -82,7 +82,7 @@ class StreamingEstimator:
         laplacian_size: spatial kernel size, as offline.
         laplacian_family: ``"central"`` (offline lsq default) or ``"holoborodko"``.
         eiv_correction: subtract the noise variance/covariance (as offline).
-        noise_sd: known noise sd (data units); None estimates it once from the first ``noise_frames``
+        noise_sd: known noise sd in data units; None estimates it once from the first ``noise_frames``
             frames with :func:`anra_torch.balance.estimate_noise_sd`.
         noise_frames: frames used for that estimate (>= 5).
         dtype: computation dtype (float64 reproduces the offline float64 result; float32 is faster).
@@ -331,7 +331,7 @@ def estimate_long(
             dataset, a tensor; only one chunk at a time is converted and filtered.
         dt: frame period in s.
         dx: pixel size in mm.
-        chunk: frames per chunk (>= 1).
+        chunk: frames per chunk, >= 1.
         progress: show a tqdm progress bar.
         **options: :class:`StreamingEstimator` options (``smoothing``, ``noise_sd``, ``dtype``, ...).
 

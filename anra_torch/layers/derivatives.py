@@ -1,10 +1,10 @@
 """Noise-robust derivative layers on fixed kernels: time as Conv3d, space as Conv2d, in physical units.
 
 Time layers take a video ``(B, T, H, W)`` and apply an ``(L, 1, 1)`` Conv3d kernel over ``(B, 1, T, H, W)``;
-the output has ``T - L + 1`` frames, frame ``k`` estimating the derivative at input frame ``k + centre``
-(``centre = L - 1 - delay``). Spatial layers take ``(..., H, W)`` and return derivatives per unit length.
-Borders are explicit: ``"crop"`` (valid convolution, output smaller by ``N - 1``) or a padding mode
-(``"reflect"``, ``"replicate"``, ``"circular"``, ``"zeros"``) that keeps the size.
+the output has ``T - L + 1`` frames, frame ``k`` estimating the derivative at input frame ``k + centre``,
+``centre = L - 1 - delay``. Spatial layers take ``(..., H, W)`` and return derivatives per unit length.
+Borders are explicit: ``"crop"``, a valid convolution whose output is smaller by ``N - 1``, or a padding
+mode of :data:`BORDERS` that keeps the size.
 """
 
 from __future__ import annotations
@@ -84,15 +84,15 @@ def _time_filtered(frames: Tensor, taps: Tensor, dt: float | Tensor | None) -> T
 
 
 class TimeDerivative(nn.Module):
-    """Holoborodko time derivative d/dt (units of the data per s) as a fixed ``(L, 1, 1)`` Conv3d.
+    """Holoborodko time derivative d/dt in units of the data per s, as a fixed ``(L, 1, 1)`` Conv3d.
 
     Args:
-        family: ``"smooth"`` (one-sided, delay ``(L-1)/2``), ``"centred"`` (odd L), ``"hybrid"`` (no delay).
+        family: ``"smooth"``, one-sided with delay ``(L-1)/2``; ``"centred"``, odd L; ``"hybrid"``, no delay.
         length: window length ``L`` in frames.
 
     Shape:
-        Input ``(B, T, H, W)`` (or one video ``(T, H, W)``) with ``T >= L``; output ``(B, T - L + 1, H, W)``
-        (or ``(T - L + 1, H, W)``).
+        Input ``(B, T, H, W)``, or one video ``(T, H, W)``, with ``T >= L``; output
+        ``(B, T - L + 1, H, W)``, or ``(T - L + 1, H, W)``.
         :meth:`average` applies the matching temporal average, same output shape, for the spatial terms.
     """
 
@@ -114,7 +114,7 @@ class TimeDerivative(nn.Module):
 
     @property
     def centre(self) -> float:
-        """Offset (frames) from the window's oldest frame to the instant the derivative applies."""
+        """Offset in frames from the window's oldest frame to the instant the derivative applies."""
         return self.stencil.centre
 
     def forward(self, frames: Tensor, dt: float | Tensor) -> Tensor:
@@ -273,9 +273,12 @@ class _SpatialOperator(nn.Module):
         return int(self.kernels.shape[-1])
 
     def adjoint(self, y: Tensor, dx: float | Tensor) -> Tensor:
-        """Transpose of a single-kernel operator with ``border='crop'``: ``(..., H', W') -> (..., H, W)``.
+        """Transpose of a single-kernel operator with ``border='crop'``.
 
         ``sum(y * op(u, dx)) == sum(op.adjoint(y, dx) * u)``; used to propagate noise exactly.
+
+        Shape:
+            ``(..., H', W') -> (..., H, W)``.
 
         Raises:
             ValueError: the operator has several kernels or a border other than ``"crop"``.
@@ -313,16 +316,16 @@ class _PartnerSmoothing(_SpatialOperator):
 
 
 class Laplacian(_SpatialOperator):
-    """Noise-robust Laplacian ``d11 + d22`` (units of the data per mm^2).
+    """Noise-robust Laplacian ``d11 + d22`` in units of the data per mm^2.
 
     Args:
-        size: kernel size N in ``stencils.SPATIAL_SIZES`` (3 is the 5-point stencil).
-        family: ``"holoborodko"`` (noise-robust) or ``"central"`` (maximal-order, for smoothed fields).
+        size: kernel size N in ``stencils.SPATIAL_SIZES``; 3 is the 5-point stencil.
+        family: ``"holoborodko"``, noise-robust, or ``"central"``, of maximal order for smoothed fields.
         border: ``"crop"`` or a padding mode, see :data:`BORDERS`.
 
     Attributes:
-        partner: module applying the smoothing built into this Laplacian (same output shape), for the
-            other side of the PDE; see :func:`stencils.laplacian_partner`.
+        partner: module applying the smoothing built into this Laplacian, with the same output shape, for
+            the other side of the PDE; see :func:`stencils.laplacian_partner`.
 
     Shape:
         Input ``(..., H, W)``; output ``(..., H - N + 1, W - N + 1)`` for ``"crop"``, else ``(..., H, W)``.
@@ -344,7 +347,7 @@ class Laplacian(_SpatialOperator):
 
 
 class Gradient(_SpatialOperator):
-    """Holoborodko gradient ``(d/dx, d/dy)`` (units of the data per mm); x along W, y along H.
+    """Holoborodko gradient ``(d/dx, d/dy)`` in units of the data per mm; x along W, y along H.
 
     Shape:
         Input ``(..., H, W)``; output ``(..., 2, H', W')``.
@@ -360,7 +363,7 @@ class Gradient(_SpatialOperator):
 
 
 class SecondDerivatives(_SpatialOperator):
-    """Noise-robust ``(d11, d22, d12)`` = ``(d2/dx2, d2/dy2, d2/dxdy)`` (units of the data per mm^2).
+    """Noise-robust ``(d11, d22, d12)`` = ``(d2/dx2, d2/dy2, d2/dxdy)`` in units of the data per mm^2.
 
     Shape:
         Input ``(..., H, W)``; output ``(..., 3, H', W')``.

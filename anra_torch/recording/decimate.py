@@ -108,8 +108,8 @@ def decimated_video(video: Video, k: int, m: int, region: ROI | None = None) -> 
 
     Args:
         video: the recording (frames in memory or lazily read), uniform in time.
-        k: pixels per block side (>= 1).
-        m: frames per block (>= 1).
+        k: pixels per block side, >= 1.
+        m: frames per block, >= 1.
         region: ``(x0, y0, width, height)`` in px (as ``--roi``): only this part of each frame is read
             into the copy (default the whole frame).
 

@@ -28,8 +28,8 @@ class PhaseDiagnosis:
         flags: what qualifies the diffusivity (``"unresolved"``, ``"not_significant"``: within 3
             standard errors of 0, ``"negative"``, ``"implausible"``: outside every known material).
         diffusivity_std_error: its standard error in mm^2/s, where known (the small-box fit's).
-        diffusivity_bound: the lower bound on ``a`` (mm^2/s) an unresolved diffusivity implies.
-        base_rmse: the plain model's held-out RMSE (data units).
+        diffusivity_bound: the lower bound on ``a`` in mm^2/s an unresolved diffusivity implies.
+        base_rmse: the plain model's held-out RMSE in data units.
         model: the extension chosen on the inner split (``parametric``, a name in :data:`SOURCE_MAPS`,
             ``loss``, ``quasi_steady``; ``plain`` when the diagnosed extension cannot be simulated and no
             map could be compared).

@@ -42,19 +42,18 @@ def open_recording(
     """The recording at ``path``, as every command reads it.
 
     Args:
-        path: a video file or a folder of frame files (any format of :func:`~anra_torch.video.load_video`).
-        dt: frame period in s (overrides the file).
-        dx: pixel size in mm (overrides the file).
-        roi: analyse only this region ``(x0, y0, width, height)`` px (or ``"X0,Y0,W,H"``).
-        calibration: map apparent to true temperatures (a table or a ``true,apparent`` CSV).
-        need_dx: require a pixel size (False: the dose features need none).
+        path: a video file or a folder of frame files, in any format of :func:`~anra_torch.video.load_video`.
+        dt: frame period in s, overriding the file's.
+        dx: pixel size in mm, overriding the file's.
+        roi: analyse only this region ``(x0, y0, width, height)`` in px, or its text ``"X0,Y0,W,H"``.
+        calibration: map apparent to true temperatures by a table or a ``true,apparent`` CSV.
+        need_dx: require a pixel size; False where none is needed, as for the dose features.
         need_time: refuse a single frame, which has no time axis, in one message whether or not ``dt`` is
-            given (False: the dose of one frame held for ``dt`` needs none).
-        on_disk_above: leave a ``.npy`` / uncompressed ``.npz`` / FLIR sequence of more pixel values than
-            this on disk (0: always; None: never). A region or a calibration always loads the recording.
-        **objects: a FLIR recording's object parameters replacing the file's (``emissivity``,
-            ``reflected_temp``, ``distance``, ``atmospheric_temp``, ``humidity``; see
-            :func:`~anra_torch.video.load_video`).
+            given; False where one frame held for ``dt`` will do.
+        on_disk_above: leave a ``.npy``, uncompressed ``.npz`` or FLIR sequence of more pixel values than
+            this on disk; 0 always, None never. A region or a calibration always loads the recording.
+        **objects: a FLIR recording's object parameters replacing the file's, as
+            :func:`~anra_torch.video.load_video` takes them.
 
     Returns:
         A :class:`~anra_torch.video.Video`; its frames unread when left on disk.
@@ -63,8 +62,8 @@ def open_recording(
         ``frames`` ``(T, H, W)``.
 
     Raises:
-        ValueError: an unreadable file, missing spacing, a bad region or calibration, a single frame with
-            ``need_time`` (one line).
+        ValueError: in one line, an unreadable file, missing spacing, a bad region or calibration, a single
+            frame with ``need_time``.
     """
     single = ValueError(
         f"{Path(path)}: a single frame has no time axis; this needs frames over time (a video)"
@@ -108,7 +107,7 @@ def _open(
 
 def input_record(video: Video) -> dict[str, Any]:
     """What the reading did: ``timestamps`` (where a folder of frame files recorded its times),
-    ``resampled`` (from what), ``roi`` (px), ``calibration``, ``masked_values`` (samples masked as not
+    ``resampled`` (from what), ``roi`` in px, ``calibration``, ``masked_values`` (samples masked as not
     finite or beyond +-1e6), ``object_parameters`` (a FLIR recording's emissivity, reflected_temp,
     distance, atmospheric_temp, humidity: each ``value``, ``unit`` and ``source``, ``"file"`` or
     ``"argument"``); null when not done."""

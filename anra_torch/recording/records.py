@@ -23,8 +23,8 @@ PHASE_KEYS = ("diffusivity", "std_error", "valid", "message", "warnings")
 
 
 def phase_head(phase: Phase) -> dict[str, Any]:
-    """The keys that place a phase in its recording: ``kind``, ``start_frame``, ``stop_frame``, ``t_start``
-    (s), ``t_stop`` (s)."""
+    """The keys that place a phase in its recording: ``kind``, ``start_frame``, ``stop_frame``, and
+    ``t_start`` and ``t_stop`` in s."""
     return {
         "kind": phase.name,
         "start_frame": phase.start,
@@ -35,8 +35,8 @@ def phase_head(phase: Phase) -> dict[str, Any]:
 
 
 def shape_record(shape: tuple[int, ...], spacing: Video) -> dict[str, Any]:
-    """``frames``, ``height``, ``width`` of frames of ``shape`` ``(T, H, W)`` and the ``dt`` (s), ``dx`` (mm)
-    of ``spacing``."""
+    """``frames``, ``height``, ``width`` of frames of ``shape`` ``(T, H, W)`` and the ``dt`` in s, ``dx`` in
+    mm of ``spacing``."""
     t, h, w = shape
     return {"frames": t, "height": h, "width": w, "dt": spacing.dt, "dx": spacing.dx}
 

@@ -1,16 +1,20 @@
-"""Markdown reports with figures (matplotlib on Agg: ``anra_torch[plot]``).
+"""Markdown reports with figures, drawn by matplotlib on Agg, the ``anra_torch[plot]`` extra.
 
-- :func:`write_estimate_report` (:mod:`~anra_torch.report.estimate`): one diffusivity estimate, its frames,
-  RTC attention, windowed field and per-frame estimates (``anra demo``);
-- :func:`write_diagnosis_report` (:mod:`~anra_torch.report.diagnosis`): a hidden-effect diagnosis and its
-  forecast test (``anra diagnose --report``);
-- :func:`write_phase_report` (:mod:`~anra_torch.report.phases`): a recording's phases, their timeline and
-  forecasts (``anra diagnose --report``);
-- :func:`write_depth_report` (:mod:`~anra_torch.report.depth`): the damage-depth map and depth profiles
-  (``anra features --depth --report``);
-- :func:`write_flash_report` (:mod:`~anra_torch.report.flash`): a flash recording's defect map and contrasts
-  (``anra diagnose --maps --report``);
-- shared helpers (number format, axes in mm, colour maps) in :mod:`~anra_torch.report.figures`.
+- :func:`write_estimate_report`, for ``anra demo``: one diffusivity estimate, its frames, RTC attention,
+  windowed field and per-frame estimates;
+- :func:`write_diagnosis_report`, for ``anra diagnose --report``: a hidden-effect diagnosis and its
+  forecast test;
+- :func:`write_phase_report`, for ``anra diagnose --report``: a recording's phases, their timeline and
+  forecasts;
+- :func:`write_depth_report`, for ``anra features --depth --report``: the damage-depth map and depth
+  profiles;
+- :func:`write_flash_report`, for ``anra diagnose --maps --report``: a flash recording's defect map and
+  contrasts;
+- shared helpers in :mod:`~anra_torch.report.figures`: number format, axes in mm, colour maps.
+
+Each writer lives in the module of its name: :mod:`~anra_torch.report.estimate`,
+:mod:`~anra_torch.report.diagnosis`, :mod:`~anra_torch.report.phases`, :mod:`~anra_torch.report.depth`,
+:mod:`~anra_torch.report.flash`.
 """
 
 from anra_torch.report.depth import DEPTH_FIGURES, write_depth_report

@@ -44,7 +44,7 @@ SPECTRAL_BOUNDARIES: dict[str, Callable[[Tensor], Tensor]] = {
 
 
 def _as_times(times: object, *, like_dtype: torch.dtype, name: str = "times") -> Tensor:
-    """Return non-negative finite times (s) as a ``(T,)`` tensor."""
+    """Return non-negative finite times in s as a ``(T,)`` tensor."""
     try:
         t = (
             times.to(like_dtype)
@@ -81,9 +81,9 @@ def heat_spectral(
 
     Args:
         initial: first frame.
-        a: diffusivity in mm^2/s (>= 0), a number or a tensor ``(B,)``.
+        a: diffusivity in mm^2/s, >= 0, a number or a tensor ``(B,)``.
         dx: pixel size in mm, a number or ``(B,)``.
-        times: output times in s (>= 0), any order.
+        times: output times in s, >= 0, any order.
         boundary: a key of :data:`SPECTRAL_BOUNDARIES`.
 
     Returns:
@@ -165,12 +165,12 @@ def gaussian_blobs(
     of geometries gives a batch of videos. Differentiable w.r.t. tensor arguments.
 
     Args:
-        times: sample times in s (>= 0).
+        times: sample times in s, >= 0.
         shape: frame size ``(H, W)`` in pixels.
         dx: pixel size in mm.
-        a: diffusivity in mm^2/s (>= 0), a number or (batched geometry) a tensor ``(B,)``.
+        a: diffusivity in mm^2/s, >= 0, a number or (batched geometry) a tensor ``(B,)``.
         peaks: initial peak temperature of each blob above ``background``.
-        sigmas: initial standard deviation of each blob in mm (> 0).
+        sigmas: initial standard deviation of each blob in mm, > 0.
         centres: ``(x, y)`` of each blob in mm (x along W, y along H; the frame spans
             ``[0, W dx] x [0, H dx]``).
         background: uniform temperature added everywhere, a number or ``(B,)``.
@@ -226,12 +226,12 @@ def gaussian_blob(
     and ``r`` the distance to ``centre`` (full width at half maximum at t = 0: ``2 sqrt(2 ln 2) sigma``).
 
     Args:
-        times: sample times in s (>= 0).
+        times: sample times in s, >= 0.
         shape: frame size ``(H, W)`` in pixels.
         dx: pixel size in mm.
-        a: diffusivity in mm^2/s (>= 0).
+        a: diffusivity in mm^2/s, >= 0.
         peak: initial peak temperature above ``background``.
-        sigma: initial standard deviation in mm (> 0).
+        sigma: initial standard deviation in mm, > 0.
         centre: ``(x, y)`` in mm; default the frame centre ``(W dx / 2, H dx / 2)``.
         background: uniform temperature added everywhere.
         dtype: floating dtype of the result.

@@ -91,9 +91,9 @@ def bad_elements(
     Args:
         frames: one video.
         seed: seed or generator of the draws.
-        spikes: number of spiked samples (>= 0).
-        dead: number of dead elements (>= 0).
-        hot: number of hot elements (>= 0).
+        spikes: number of spiked samples, >= 0.
+        dead: number of dead elements, >= 0.
+        hot: number of hot elements, >= 0.
         spike_range: ``(low, high)`` spike size in K (``0 <= low <= high``).
         hot_range: ``(low, high)`` of a hot element's excess in K.
 
@@ -134,7 +134,7 @@ def bad_elements(
 
 
 def _range(value: object, name: str) -> tuple[float, float]:
-    """``(low, high)`` with ``0 <= low <= high`` (K)."""
+    """``(low, high)`` with ``0 <= low <= high`` in K."""
     try:
         low, high = (number(v, name, "K", minimum=0.0) for v in value)  # type: ignore[attr-defined]
     except (TypeError, ValueError) as err:
@@ -224,7 +224,7 @@ def correlated_noise(
         seed: seed or generator of the draws.
         sd: sd of the added noise in K (e.g. twice the white noise sd).
         length_px: spatial correlation length in px (>= 0; 0: white in space).
-        length_frames: temporal correlation length in frames (>= 0).
+        length_frames: temporal correlation length in frames, >= 0.
 
     Returns:
         The noisy video, and ``{"kind": "correlated_noise", "seed", "sd", "length_px", "length_frames",
@@ -272,7 +272,7 @@ def offset_steps(
         frames: one video.
         seed: seed or generator of the draws.
         dt: frame period in s.
-        steps: number of steps (>= 0), at distinct frames ``1 .. T - 1``: the offset changes between frame
+        steps: number of steps, >= 0, at distinct frames ``1 .. T - 1``: the offset changes between frame
             ``k - 1`` and frame ``k``.
         step_range: ``(low, high)`` size of a step in K, each of either sign.
         drift: drift rate in K/s; default drawn, ``+-U(0.02, 0.1)`` K/s.
@@ -323,7 +323,7 @@ ARTEFACTS: dict[str, Callable[..., tuple[Tensor, Record]]] = {
 
 def default_levels(kind: str, *, noise_sd: float, dt: float) -> dict[str, float]:
     """The levels the diagnosis benchmark plants a ``kind`` at, for a video of white-noise sd ``noise_sd``
-    (K) and frame period ``dt`` (s): a fixed pattern of 3 noise sds (stripes 1.5), correlated noise of 2
+    (K) and frame period ``dt`` in s: a fixed pattern of 3 noise sds (stripes 1.5), correlated noise of 2
     noise sds over 1.5 px and 3 frames; the other kinds' own defaults.
 
     Shape:

@@ -73,7 +73,7 @@ pixel outside the frame edge) held at ``boundary_value``, ``"periodic"`` wrap-ar
 def as_diffusivity(
     a: object, *, batch: int, height: int, width: int, like: Tensor, allow_field: bool = True
 ) -> tuple[Tensor, bool]:
-    """Return a diffusivity ``a`` (mm^2/s) cast to ``like`` (graph kept) and whether it is a spatial field.
+    """Return a diffusivity ``a`` in mm^2/s cast to ``like`` (graph kept) and whether it is a spatial field.
 
     The one check of ``a`` for :func:`simulate_heat` and :func:`anra_torch.simulation.heat_spectral`.
 
@@ -225,7 +225,7 @@ def simulate_heat(
 
     Args:
         initial: first frame, temperature in any unit.
-        a: diffusivity in mm^2/s (>= 0): a number, a tensor ``(B,)`` (per video), or a field
+        a: diffusivity in mm^2/s, >= 0: a number, a tensor ``(B,)`` (per video), or a field
             ``(H, W)`` or ``(B, H, W)`` (then ``dT/dt = div(a grad T)``). Gradients flow to it.
         dx: pixel size in mm, a number or ``(B,)``.
         dt: frame period in s, a number or ``(B,)``.

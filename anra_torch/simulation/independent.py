@@ -322,8 +322,8 @@ class ContinuumGrid:
     """How :func:`simulate_continuum` discretises the continuous PDE.
 
     Attributes:
-        pad: camera px of padding on each side (>= 0); None: half the larger frame side.
-        refine: finite-volume cells per camera pixel along each axis (>= 1).
+        pad: camera px of padding on each side, >= 0; None: half the larger frame side.
+        refine: finite-volume cells per camera pixel along each axis, >= 1.
         substeps: TR-BDF2 steps per frame (finite volumes); None: 2 (docs/architecture.md).
         method: one of :data:`METHODS`.
     """
@@ -367,7 +367,7 @@ def simulate_continuum(
         shape: frame size ``(H, W)`` in px.
         dx: pixel size in mm.
         dt: frame period in s.
-        n_frames: number of frames (>= 1).
+        n_frames: number of frames, >= 1.
         grid: the padding, refinement, steps and method (:class:`ContinuumGrid`); default ``ContinuumGrid()``.
 
     Returns:

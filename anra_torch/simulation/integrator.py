@@ -6,9 +6,9 @@ an ODE system ``dU/dt = f(t, U)`` on the pixel grid and hands it to :func:`integ
 caller of ``torchdiffeq``. Fixed-step methods take an integer number of substeps per frame, chosen by
 :func:`stable_substeps` from where the eigenvalues of ``f`` lie:
 
-- diffusion on the 5-point Laplacian: real, in ``[-8 a / dx^2, 0]`` (1/s);
-- a loss rate ``b``: shifts them left by ``b`` (1/s);
-- central-difference advection at speed ``|vx| + |vy|``: imaginary, up to ``speed / dx`` (1/s).
+- diffusion on the 5-point Laplacian: real, in ``[-8 a / dx^2, 0]`` in 1/s;
+- a loss rate ``b``: shifts them left by ``b`` in 1/s;
+- central-difference advection at speed ``|vx| + |vy|``: imaginary, up to ``speed / dx`` in 1/s.
 
 One step of size ``ds`` is stable when every ``lambda ds`` lies in the method's stability region
 (:data:`FIXED_STEP_METHODS`); it is monotone (no new extrema, the discrete maximum principle) when the
@@ -184,7 +184,7 @@ def stable_substeps(
 ) -> StepCount:
     """Substeps per frame that keep a method-of-lines simulation stable (and, by default, monotone).
 
-    The eigenvalues lie in the box ``[-(8 a / dx^2 + b), 0] x i [-speed / dx, speed / dx]`` (1/s); one
+    The eigenvalues lie in the box ``[-(8 a / dx^2 + b), 0] x i [-speed / dx, speed / dx]`` in 1/s; one
     frame of ``n`` substeps is stable when ``|lambda| dt / n`` fits the method's region: its real-axis
     limit for a real spectrum, else its largest left half-disc. With ``dt = dx = 1`` the diffusivity is
     the mesh Fourier number ``a dt / dx^2`` (how a batch with different spacings passes its largest).
@@ -193,8 +193,8 @@ def stable_substeps(
         dt: frame period in s.
         dx: pixel size in mm.
         diffusivity: the largest diffusivity in mm^2/s (>= 0) the right-hand side can reach.
-        speed: the largest ``|vx| + |vy|`` of central-difference advection in mm/s (>= 0).
-        decay: the largest loss rate ``b`` in 1/s (>= 0).
+        speed: the largest ``|vx| + |vy|`` of central-difference advection in mm/s, >= 0.
+        decay: the largest loss rate ``b`` in 1/s, >= 0.
         method: a key of :data:`FIXED_STEP_METHODS`.
         policy: a key of :data:`POLICIES`.
 
@@ -254,7 +254,7 @@ def integrate(
     Args:
         rhs: the right-hand side ``(t, U) -> dU/dt`` in the solver's time unit.
         initial: ``U`` at frame 0.
-        n_frames: number of frames (>= 1), frame 0 included.
+        n_frames: number of frames, >= 1, frame 0 included.
         method: a key of :data:`FIXED_STEP_METHODS` or one of :data:`ADAPTIVE_METHODS`.
         substeps: steps per frame (>= 1) of a fixed-step method (e.g. :func:`stable_substeps`), else None.
         rtol: relative tolerance of adaptive methods.

@@ -112,7 +112,7 @@ def paper_video(
     Args:
         n_videos: number of independent noise realisations B.
         seed: seed of the noise.
-        noise_sd: noise standard deviation, units of temperature (>= 0).
+        noise_sd: noise standard deviation, units of temperature, >= 0.
         fps: frame rate in Hz.
         duration: recording length in s.
         size: frame side in pixels.
@@ -155,7 +155,8 @@ def paper_video(
 def _spot_field(
     times: Tensor, size: int, a: float, spot: PaperSpot, dtype: torch.dtype
 ) -> tuple[Tensor, float]:
-    """The clean field ``(T, size, size)`` of ``spot`` diffusing with ``a`` at ``times`` (s); ``dx`` in mm."""
+    """The clean field ``(T, size, size)`` of ``spot`` diffusing with ``a`` at ``times`` in s; ``dx`` in
+    mm."""
     dx = spot.extent / size
     sigma = spot.diameter_px / FWHM_PER_SIGMA * dx
     return gaussian_blob(times, shape=(size, size), dx=dx, a=a, peak=spot.peak, sigma=sigma).to(dtype), dx
@@ -207,7 +208,7 @@ def blobs_video(
 ) -> SyntheticVideo:
     """Gaussian hot spots at random positions on a warm uniform background, computed exactly.
 
-    Each video draws its own peaks, initial standard deviations (px) and centres (at least two of them
+    Each video draws its own peaks, initial standard deviations in px and centres (at least two of them
     inside the frame), then its noise, all uniform from ``torch.Generator().manual_seed(seed)``.
 
     Args:
@@ -219,7 +220,7 @@ def blobs_video(
         fps: frame rate in Hz.
         n_frames: number of frames T (frame k at ``t = k / fps``).
         a: diffusivity in mm^2/s.
-        noise_sd: noise standard deviation, units of temperature (>= 0).
+        noise_sd: noise standard deviation, units of temperature, >= 0.
         dtype: floating dtype of the frames.
 
     Returns:
@@ -286,7 +287,7 @@ def _draw_blobs(
     peak_range: tuple[float, float],
     sigma_range: tuple[float, float],
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """Peaks, sigmas (px) and centres (px) of each video's blobs, centres two sigmas inside the frame.
+    """Peaks, sigmas in px and centres in px of each video's blobs, centres two sigmas inside the frame.
 
     Shape:
         ``(B, N)``, ``(B, N)``, ``(B, N, 2)``.

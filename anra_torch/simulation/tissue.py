@@ -4,10 +4,10 @@ The model (per unit heat capacity)::
 
     dT/dt = div(a(x, y) grad T) - b(x, y) (T - T_body) + q(t, x, y)
 
-* ``a`` diffusivity field (mm^2/s), conservative flux form of :class:`anra_torch.simulation.HeatRHS`
+* ``a`` diffusivity field in mm^2/s, conservative flux form of :class:`anra_torch.simulation.HeatRHS`
   (zero-flux edges);
-* ``b`` perfusion / loss-rate field (1/s) pulling towards the body temperature ``T_body``;
-* ``q`` an optional :class:`MovingSource` (K/s): a Gaussian spot moving along a straight path while it
+* ``b`` perfusion / loss-rate field in 1/s pulling towards the body temperature ``T_body``;
+* ``q`` an optional :class:`MovingSource` in K/s: a Gaussian spot moving along a straight path while it
   is on, e.g. an electrosurgical tip.
 
 :func:`simulate_tissue` integrates it with fixed-step RK4 (:func:`anra_torch.simulation.integrate`), every
@@ -64,7 +64,7 @@ class MovingSource:
             raise ValueError(f"t_off must be after t_on (s), got t_on={self.t_on!r}, t_off={self.t_off!r}")
 
     def field(self, t: Tensor, x: Tensor, y: Tensor) -> Tensor:
-        """Heating rate (K/s) at time ``t`` (s) on the grid ``x`` ``(W,)``, ``y`` ``(H,)``: ``(H, W)``."""
+        """Heating rate in K/s at time ``t`` in s on the grid ``x`` ``(W,)``, ``y`` ``(H,)``: ``(H, W)``."""
         s = ((t - self.t_on) / (self.t_off - self.t_on)).clamp(0, 1)
         on = ((t >= self.t_on) & (t < self.t_off)).to(x.dtype)
         cx = self.start[0] + (self.end[0] - self.start[0]) * s
@@ -154,8 +154,8 @@ def simulate_tissue(
 
     Args:
         initial: first frame (temperatures).
-        diffusivity: ``a`` (mm^2/s), number or ``(H, W)``, non-negative.
-        perfusion: ``b`` (1/s), number or ``(H, W)``, non-negative.
+        diffusivity: ``a`` in mm^2/s, number or ``(H, W)``, non-negative.
+        perfusion: ``b`` in 1/s, number or ``(H, W)``, non-negative.
         dx: pixel size in mm.
         dt: frame period in s.
         n_frames: frames ``T`` (>= 2); frame 0 is ``initial``.

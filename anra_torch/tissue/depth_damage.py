@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.checks import number
+from anra_torch.tissue.depth_cooling import cooling_start, margin_mm
 from anra_torch.tissue.depth_doses import DOSE_FLOOR, OMEGA_FLOOR, DoseAccumulator
 from anra_torch.tissue.depth_errors import (
     noise_correlation,
@@ -45,7 +46,7 @@ from anra_torch.tissue.depth_solver import (
     solver_nodes,
     surface_rise,
 )
-from anra_torch.tissue.depth_window import widen
+from anra_torch.tissue.depth_window import pooled_window, widen, window_problem, window_temperatures
 from anra_torch.tissue.dose import RULES, SKIN, ArrheniusConstants
 
 __all__ = [
@@ -110,20 +111,15 @@ class DepthMaps:
         keep = ("depths", "cem43_threshold")
         return replace(self, **{k: v[0] for k, v in self.__dict__.items() if k not in keep})
 
-    def cropped(self, margin: int) -> DepthMaps:
-        """The maps without ``margin`` pixels on every side (a widened frame's own)."""
-        inner = (..., slice(margin, -margin), slice(margin, -margin))
-        return replace(
-            self, **{k: v[inner] for k, v in self.__dict__.items() if isinstance(v, Tensor) and v.ndim >= 3}
-        )
-
 
 def _reach(
-    rise: Tensor, dt: Tensor, dx: Tensor, a: Tensor, b: Tensor, body: Tensor, thickness: object
+    rise: Tensor, spacing: tuple, rates: tuple, body: Tensor, thickness: object, continued: dict | None
 ) -> float:
     """Deepest depth (mm) where any video's peak exceeds :data:`DOSE_FLOOR`, one coarse node deeper: the
     3-D solve on a coarse depth grid (spacings growing :data:`_COARSE_GROWTH`-fold) of the frames averaged
-    over blocks of pixels (at most 32 x 32 of them), peak only."""
+    over blocks of pixels (at most 32 x 32 of them; continued beyond the frame as ``continued`` says, by
+    as many blocks), peak only. ``spacing``: ``dt``, ``dx``; ``rates``: ``a``, ``b``, each ``(B,)``."""
+    (dt, dx), (a, b) = spacing, rates
     floor = DOSE_FLOOR - body  # K, (B,)
     if not bool((rise.detach().flatten(1).amax(1) > floor).any()):
         return 0.0
@@ -133,14 +129,16 @@ def _reach(
         reach = min(reach, float(thickness) * (1.0 - 1e-9))
     reported = _above(depth_nodes(max(reach, 2 * FIRST_STEP), growth=_COARSE_GROWTH), thickness)
     nodes = solver_nodes(reported, bottom_depth(thickness, float(reported[-1]), a, duration))
-    factor = max(1, math.ceil(max(rise.shape[-2:]) / 32))
+    margin = 0 if continued is None else continued["margin"]
+    factor = max(1, math.ceil((max(rise.shape[-2:]) + 2 * margin) / 32))
     coarse = rise.detach()
     if factor > 1:  # block means: a spot's peak at depth is smooth across pixels
         b_, t, h, w = coarse.shape
-        coarse = torch.nn.functional.avg_pool2d(
-            coarse.reshape(b_ * t, 1, h, w), factor, factor, ceil_mode=True
-        )
+        coarse = F.avg_pool2d(coarse.reshape(b_ * t, 1, h, w), factor, factor, ceil_mode=True)
         coarse = coarse.reshape(b_, t, *coarse.shape[-2:])
+    if continued is not None and margin:
+        noise = continued["noise"] if continued["noise"] is None else continued["noise"] / factor
+        coarse = widen(coarse, math.ceil(margin / factor), curved=continued["curved"], noise=noise)
     problem = frame_problem(coarse, dt, dx * factor, a.detach(), b.detach(), nodes, len(reported))
     peak = torch.full((rise.shape[0], len(reported)), -torch.inf, device=rise.device, dtype=rise.dtype)
     block = max(1, BLOCK_VALUES // coarse[:, 0].numel() // len(reported))
@@ -188,8 +186,13 @@ class DepthSettings:
             at the surface).
         lateral: False: each pixel's column on its own (1-D, no heat sideways; too deep under small spots).
         margin: mm by which the frames are continued beyond every edge
-            (:func:`anra_torch.tissue.depth_window.widen`; 0: the frame's edges hold the heat in); the maps
-            are the frame's.
+            (:func:`anra_torch.tissue.depth_window.widen`; 0: the frame's edges hold the heat in; None: as
+            far as the heat reaches over the record, :func:`anra_torch.tissue.depth_cooling.margin_mm`);
+            the maps are the frame's (the temperatures are formed at its pixels only).
+        curved: the frames continued by a Gaussian tail (``widen``'s ``curved``) instead of a line.
+        between: the surface between the frames as high as they allow (their curvature, the switch-off a
+            frame later) as one more copy: the frames' sampling in time
+            (:func:`anra_torch.tissue.depth_errors.perturbed_copies`).
         coarse: the perturbed solves (``a + se``, ``b + se``) on the frames' ``coarse x coarse`` px means,
             the base at full resolution.
     """
@@ -200,8 +203,10 @@ class DepthSettings:
     max_depth: float | None = None
     growth: float = GROWTH
     lateral: bool = True
-    margin: float = 0.0
+    margin: float | None = 0.0
     coarse: int = 1
+    curved: bool = False
+    between: bool = False
 
 
 def _parameters(values: dict[str, object], like: Tensor) -> list[Tensor]:
@@ -274,17 +279,35 @@ def damage_in_depth(
     rise, batched, dt_, dx_, body = surface_rise(frames, dt, dx, units, body_temperature)
     given = {"diffusivity": diffusivity, "loss_rate": loss_rate, "diffusivity_std": errors.diffusivity}
     a, b, *stds = _parameters(given | {"loss_rate_std": errors.loss_rate, "noise_sd": errors.noise_sd}, rise)
-    pixels = math.ceil(number(settings.margin, "margin", "mm", minimum=0.0) / float(dx_.min()) - 1e-9)
-    rise = widen(rise, pixels) if pixels else rise
+    pixels = _margin_pixels(settings, dt_, dx_, rise.shape[1])
+    noise = stds[2] if bool((stds[2] > 0).all()) else None
+    continued = {"margin": pixels, "curved": settings.curved, "noise": noise} if pixels else None
     grid = (thickness, settings.max_depth, settings.growth)
-    nodes, reported = _grid(rise, dt_, dx_, (a, b), stds, body, grid)
-    maps = _solve(rise, (dt_, dx_, body), (a, b), stds, (nodes, reported), settings)
-    maps = maps.cropped(pixels) if pixels else maps
+    nodes, reported = _grid(rise, dt_, dx_, (a, b), stds, body, grid, continued)
+    maps = _solve(rise, (dt_, dx_, body), (a, b), stds, (nodes, reported), settings, continued)
     return maps if batched else maps.unbatched()
 
 
+def _margin_pixels(settings: DepthSettings, dt: Tensor, dx: Tensor, frames: int) -> int:
+    """The margin in whole pixels, a multiple of ``coarse`` (the copies' pixel means tile the frame); None:
+    as far as the heat reaches over the record (:func:`anra_torch.tissue.depth_cooling.margin_mm`)."""
+    if settings.margin is None:
+        margin = margin_mm(float(dt.max()) * (frames - 1))
+    else:
+        margin = number(settings.margin, "margin", "mm", minimum=0.0)
+    pixels = math.ceil(margin / float(dx.min()) - 1e-9)
+    return settings.coarse * math.ceil(pixels / settings.coarse)
+
+
 def _grid(
-    rise: Tensor, dt: Tensor, dx: Tensor, rates: tuple, errors: list, body: Tensor, settings: tuple
+    rise: Tensor,
+    dt: Tensor,
+    dx: Tensor,
+    rates: tuple,
+    errors: list,
+    body: Tensor,
+    settings: tuple,
+    continued: dict | None,
 ) -> tuple[tuple[float, ...], int]:
     """The solver's depth nodes and how many of them are reported: down to ``max_depth`` (default where the
     peak with ``a + 2 se`` exceeds :data:`DOSE_FLOOR`), then to a bottom no heat reaches in the record."""
@@ -292,7 +315,7 @@ def _grid(
     a, b = rates
     if max_depth is None:
         bounds = (a.detach() + 2 * errors[0], (b.detach() - 2 * errors[1]).clamp_min(0.0))
-        max_depth = _reach(rise, dt, dx, *bounds, body, thickness)
+        max_depth = _reach(rise, (dt, dx), bounds, body, thickness, continued)
     reported = depth_nodes(
         max(number(max_depth, "max_depth", "mm", minimum=0.0), 2 * FIRST_STEP), growth=growth
     )
@@ -309,25 +332,29 @@ def _solve(
     errors: list[Tensor],
     grid: tuple[tuple, int],
     settings: DepthSettings,
+    continued: dict | None,
 ) -> DepthMaps:
     """The march of the base problem and its perturbed copies (on ``coarse x coarse`` pixel means), their
-    doses and the maps with their spread. ``per_video``: ``dt``, ``dx``, the body temperature."""
+    doses and the maps with their spread. ``per_video``: ``dt``, ``dx``, the body temperature;
+    ``continued``: how the frames are continued beyond the window (:func:`window_problem`) or None."""
     dt, dx, body = per_video
     a, b = rates
     coarse, batch, (h, w) = settings.coarse, rise.shape[0], rise.shape[-2:]
     depths = torch.tensor(grid[0][: grid[1]], dtype=_F64, device="cpu").to(rise.device)
     variance, rho = noise_correlation(depths, a, b, dt, dx, (h, w), errors[2])
+    switch = cooling_start(rise) - 2 if settings.between else None  # the last frame before the switch-off
     if coarse > 1:  # the base at full resolution, the copies' changes on pixel means
-        doses = copies = _march_doses(rise, per_video, (a, b), rho, settings, grid)
+        doses = copies = _march_doses(rise, per_video, (a, b), rho, settings, (*grid, continued))
         pooled = F.avg_pool2d(rise.reshape(-1, 1, h, w), coarse, coarse, ceil_mode=True)
         pooled = pooled.reshape(batch, -1, *pooled.shape[-2:])
-        stacked, diffusivities, losses, weights = perturbed_copies(pooled, a, b, errors[:2])
+        stacked, diffusivities, losses, weights = perturbed_copies(pooled, a, b, errors[:2], switch=switch)
         if len(weights):
-            coarser = (dt, dx * coarse, body)
-            copies = _march_doses(stacked, coarser, (diffusivities, losses), rho[:0], settings, grid)
+            coarser, within = (dt, dx * coarse, body), (*grid, pooled_window(continued, coarse, len(weights)))
+            copies = _march_doses(stacked, coarser, (diffusivities, losses), rho[:0], settings, within)
     else:
-        stacked, diffusivities, losses, weights = perturbed_copies(rise, a, b, errors[:2])
-        doses = copies = _march_doses(stacked, per_video, (diffusivities, losses), rho, settings, grid)
+        stacked, diffusivities, losses, weights = perturbed_copies(rise, a, b, errors[:2], switch=switch)
+        within = (*grid, pooled_window(continued, 1, len(weights)))
+        doses = copies = _march_doses(stacked, per_video, (diffusivities, losses), rho, settings, within)
     node_variance = variance.view(batch, -1, 1, 1)
     maps = {
         name: _depth_map(name, (doses, copies, weights), depths, node_variance, (threshold, coarse))
@@ -394,23 +421,30 @@ def _march_doses(
     rates: tuple[Tensor, Tensor],
     rho: Tensor,
     settings: DepthSettings,
-    grid: tuple[tuple, int],
+    grid: tuple[tuple, int, dict | None],
 ) -> DoseAccumulator:
     """Peak, Omega and CEM43 at the reported nodes of the stacked ``(V B, T, H, W)`` rises (the base videos
     first), and for the base videos the doses by the other rule and their noise variance.
     ``per_video``: ``dt``, ``dx`` and the body temperature, ``(B,)`` each; ``rho`` ``(B, Z)`` (``(0, Z)``:
-    no video gets the other rule nor the noise)."""
-    nodes, reported = grid
+    no video gets the other rule nor the noise); ``grid``: the nodes, how many are reported and how the
+    frames are continued beyond the window (:func:`window_problem`; None: the frame's cosine modes)."""
+    nodes, reported, continued = grid
     n, (h, w) = stacked.shape[0], stacked.shape[-2:]
     batch = per_video[0].numel()
     index = (torch.arange(n, device="cpu") % batch).to(stacked.device)
     spacing, size, warm = (x[index] for x in per_video)
-    problem = frame_problem(stacked, spacing, size, *rates, nodes, reported, lateral=settings.lateral)
+    if continued and settings.lateral:
+        problem, window = window_problem(stacked, spacing, size, rates, (nodes, reported), continued)
+    else:
+        problem = frame_problem(stacked, spacing, size, *rates, nodes, reported, lateral=settings.lateral)
     doses = DoseAccumulator(
         stacked, (n, reported, h, w), spacing, settings.rule, settings.constants, len(rho), rho
     )
     offset = warm.view(-1, 1, 1, 1, 1)
     block = max(1, BLOCK_VALUES // (n * reported * h * w))
     for start, states in march(problem, block):
-        doses.add(offset + node_temperatures(stacked, problem, start, states))
+        if continued and settings.lateral:
+            doses.add(offset + window_temperatures(stacked, problem, window, start, states))
+        else:
+            doses.add(offset + node_temperatures(stacked, problem, start, states))
     return doses

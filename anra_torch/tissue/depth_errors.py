@@ -32,18 +32,35 @@ _ALIASES = 8
 
 
 def perturbed_copies(
-    rise: Tensor, a: Tensor, b: Tensor, errors: tuple[Tensor, Tensor]
+    rise: Tensor, a: Tensor, b: Tensor, errors: tuple[Tensor, Tensor], *, switch: Tensor | None = None
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """The base problem and the perturbed copies of each non-zero standard error (``a + se``, ``b + se``),
-    stacked along the batch: ``(rise, a, b, weights)``, ``weights`` ``(V - 1,)`` (1 each)."""
+    stacked along the batch: ``(rise, a, b, weights)``, ``weights`` ``(V - 1,)`` (1 each).
+
+    With ``switch`` (each video's last frame before its switch-off, ``(B,)``), one more copy: the surface
+    between the frames as high as the frames allow, where the solve takes the straight line through them
+    (the frames' sampling in time): moved by what a curve of the frames' own curvature puts above that line
+    on average over an interval (``-(g_(n+1) - 2 g_n + g_(n-1)) / 12``) and switched off a frame later
+    (the frame after ``switch`` at least the heating's own continuation ``2 g_s - g_(s-1)``). The truth
+    lies anywhere between the base and this copy (a switch-off between two frames, anywhere): its weight
+    1/3, the mean square of an error spread evenly between none and the copy's change."""
     sa, sb = errors
     rises, rates, losses = [rise], [a], [b]
+    weights: list[float] = []
     if bool((sa > 0).any()):
-        rises, rates, losses = [*rises, rise], [*rates, a + sa], [*losses, b]
+        rises, rates, losses, weights = [*rises, rise], [*rates, a + sa], [*losses, b], [*weights, 1.0]
     if bool((sb > 0).any()):
-        rises, rates, losses = [*rises, rise], [*rates, a], [*losses, b + sb]
-    weights = torch.ones(len(rises) - 1, dtype=_F64, device="cpu").to(rise.device, rise.dtype)
-    return torch.cat(rises), torch.cat(rates), torch.cat(losses), weights
+        rises, rates, losses, weights = [*rises, rise], [*rates, a], [*losses, b + sb], [*weights, 1.0]
+    if switch is not None and rise.shape[1] > 2:
+        bend = torch.zeros_like(rise)
+        bend[:, 1:-1] = rise[:, 2:] - 2 * rise[:, 1:-1] + rise[:, :-2]
+        late = rise - bend / 12.0
+        at = switch.clamp(1, rise.shape[1] - 2).view(-1, 1, 1, 1).expand(-1, 1, *rise.shape[2:])
+        heating = 2 * rise.gather(1, at) - rise.gather(1, at - 1)
+        late = late.scatter(1, at + 1, torch.maximum(late.gather(1, at + 1), heating))
+        rises, rates, losses, weights = [*rises, late], [*rates, a], [*losses, b], [*weights, 1.0 / 3.0]
+    weights_ = torch.tensor(weights, dtype=_F64, device="cpu").to(rise.device, rise.dtype)
+    return torch.cat(rises), torch.cat(rates), torch.cat(losses), weights_
 
 
 def spread(values: Tensor, weights: Tensor, other: Tensor | None = None) -> tuple[Tensor, Tensor]:

@@ -35,8 +35,11 @@ _SOURCES = {
     "cem43_depth_std_mm": "cem43_depth_std",
 }
 DEPTH_MAPS: tuple[str, ...] = tuple(_SOURCES)
-MAP_MARGIN = 0.8
-"""mm by which the maps' frames are continued beyond every edge: the frame is a window onto the tissue."""
+MAP_MARGIN = None
+"""How far the maps' frames are continued beyond every edge: as far as the heat reaches over the record,
+like the fit's (:func:`anra_torch.tissue.depth_cooling.margin_mm`: 2.4 mm or 1.2 diffusion lengths, at most
+6.4 mm), by a Gaussian tail (the frame is a window onto the tissue; a fixed 0.8 mm held the heat of
+minute-long exposures in: 0.17 mm too deep with the true ``a`` and ``b``)."""
 MAP_GROWTH = 1.06
 """Ratio of consecutive depth spacings of the maps' nodes: 6 % per node moves the damage depth (``ln Omega``
 interpolated between nodes) by under 2e-4 mm from the 3 % grid on the validation scenes, at half the work."""
@@ -44,7 +47,9 @@ MAP_COARSE = 2
 """The maps' perturbed solves (``a + se``, ``b + se``: the parameters' part of the standard errors) on the
 frames' ``2 x 2`` px means (:func:`anra_torch.tissue.damage_in_depth`'s ``coarse``): the base at full
 resolution, the copies' changes vary smoothly across pixels."""
-MAP_SETTINGS = DepthSettings(growth=MAP_GROWTH, margin=MAP_MARGIN, coarse=MAP_COARSE)
+MAP_SETTINGS = DepthSettings(
+    growth=MAP_GROWTH, margin=MAP_MARGIN, coarse=MAP_COARSE, curved=True, between=True
+)
 """The maps' :class:`~anra_torch.tissue.DepthSettings` (skin's constants, the linear rule, 240 min)."""
 PRIOR: dict[str, tuple[float, float]] = {"diffusivity": (0.14, 0.03), "loss_rate": (0.005, 0.005)}
 """Textbook skin values with wide standard errors (value, standard error) for a recording whose cooling
@@ -90,8 +95,8 @@ class DepthFeatures:
             if self.thickness is None
             else f"layer of {self.thickness:g} mm over tissue held at the body temperature",
             "model": "dT/dt = a (d_xx + d_yy + d_zz) T - b (T - T_body) under the frame, the frames as the "
-            "surface temperature, continued beyond the frame's edges (a straight line through each edge's "
-            "last pixels), in equilibrium with the first",
+            "surface temperature, continued beyond the frame's edges (a Gaussian tail through each edge's "
+            "last pixels) as far as the heat reaches, in equilibrium with the first",
             "diffusivity_mm2_s": value(self.used_parameters["diffusivity"]),
             "diffusivity_std_mm2_s": value(self.used_parameters["diffusivity_std"]),
             "loss_rate_per_s": value(self.used_parameters["loss_rate"]),

@@ -7,11 +7,36 @@ Units: K (temperature rises over the body temperature), px.
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, replace
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["widen", "widened_modes"]
+from anra_torch.tissue.depth_solver import (
+    ModalProblem,
+    dct_matrices,
+    dct_matrix,
+    modal_problem,
+    node_temperatures,
+    wavenumbers,
+)
+
+__all__ = [
+    "LOW_WAVENUMBER",
+    "Window",
+    "pooled_window",
+    "widen",
+    "widened_modes",
+    "window_problem",
+    "window_temperatures",
+]
+
+LOW_WAVENUMBER = 4.0
+"""1/mm: the widened frame's lateral modes up to this wavenumber carry the heat across the frame's edges;
+the rest of the surface (the frame minus those modes at its pixels: its detail and noise, which reaches
+under ``1 / LOW_WAVENUMBER`` sideways) goes through the frame's own cosine modes (:func:`window_problem`)."""
 
 _FIT_PIXELS = 6  # the edge's value and slope: a least-squares line through its last pixels
 _CURVED_PIXELS = 16  # the curved tail: a parabola through the logarithm of the last pixels
@@ -149,4 +174,75 @@ def _gaussian_tail(x: Tensor, ahead: Tensor) -> Tensor:
         0.0,
     )
     exponent = slope.unsqueeze(-1) * ahead + curvature.unsqueeze(-1) * ahead * ahead
-    return tail[..., -1:].clamp_min(0.0) * torch.exp(exponent)
+    # bounded: a cold edge's tail (0 times a huge growth) must stay 0, never NaN; the caller caps it anyway
+    return tail[..., -1:].clamp_min(0.0) * torch.exp(exponent.clamp_max(80.0))
+
+
+@dataclass(frozen=True)
+class Window:
+    """How :func:`window_temperatures` maps the low modes of a widened frame to the frame's pixels.
+
+    ``count``: how many of the problem's modes (the first) are the widened frame's ``p x q`` low modes;
+    ``rows`` ``(p, H)``, ``cols`` ``(q, W)``: their cosines at the frame's pixels."""
+
+    count: int
+    rows: Tensor
+    cols: Tensor
+
+
+def window_problem(
+    rise: Tensor,
+    dt: Tensor,
+    dx: Tensor,
+    rates: tuple[Tensor, Tensor],
+    grid: tuple[tuple, int],
+    continued: dict,
+) -> tuple[ModalProblem, Window]:
+    """The frame as a window, at the cost of the frame: the surface ``rise`` ``(B, T, H, W)`` split in two
+    exactly (the PDE is linear): the low modes (``|k| <=`` :data:`LOW_WAVENUMBER`) of the frames widened by
+    ``continued["margin"]`` px (:func:`widen`'s other keywords in ``continued``), whose walls lie beyond
+    the heat's reach, and what is left at the frame's pixels in the frame's own cosine modes; one
+    :class:`~anra_torch.tissue.depth_solver.ModalProblem` of both (``a``, ``b`` in ``rates``; ``grid``:
+    the nodes and how many are reported)."""
+    options = dict(continued)
+    margin = options.pop("margin")
+    h, w = rise.shape[-2:]
+    step = float(dx.detach().max())
+    hh, ww = h + 2 * margin, w + 2 * margin
+    p = min(hh, math.ceil(LOW_WAVENUMBER * hh * step / math.pi) + 1)
+    q = min(ww, math.ceil(LOW_WAVENUMBER * ww * step / math.pi) + 1)
+    ch, cw = dct_matrix(hh).to(rise)[:p], dct_matrix(ww).to(rise)[:q]
+    low = widened_modes(rise, margin, ch, cw, **options)  # (B, T, p, q)
+    rows, cols = ch[:, margin : margin + h], cw[:, margin : margin + w]
+    fh, fw = dct_matrices(rise)
+    detail = fh @ (rise - rows.T @ low @ cols) @ fw.T
+    ky = (math.pi / hh) * torch.arange(p, device=rise.device, dtype=rise.dtype)[None, :] / dx[:, None]
+    kx = (math.pi / ww) * torch.arange(q, device=rise.device, dtype=rise.dtype)[None, :] / dx[:, None]
+    k2 = torch.cat([(ky[:, :, None] ** 2 + kx[:, None, :] ** 2).flatten(1), wavenumbers(h, w, dx)], 1)
+    spectrum = torch.cat([low.flatten(2), detail.flatten(2)], -1)
+    problem = modal_problem(spectrum, k2, dt, *rates, *grid)
+    return replace(problem, step=step), Window(p * q, rows, cols)
+
+
+def window_temperatures(
+    rise: Tensor, problem: ModalProblem, window: Window, start: int, states: Tensor
+) -> Tensor:
+    """Rise (K) at the reported nodes, surface first, under the frame's pixels of a block of states of
+    :func:`window_problem`'s modes: ``(B, L, Z, H, W)``."""
+    n = window.count
+    out = node_temperatures(rise, problem, start, states[..., n:, :])
+    low = torch.matmul(problem.operator["to_nodes"], states[..., :n, :].transpose(-1, -2))
+    grid = low.view(*low.shape[:3], len(window.rows), len(window.cols))
+    out[:, :, 1:] += window.rows.T @ grid @ window.cols
+    return out
+
+
+def pooled_window(continued: dict | None, coarse: int, copies: int) -> dict | None:
+    """:func:`window_problem`'s ``continued`` for a base and ``copies`` copies stacked (video-major by copy)
+    on ``coarse x coarse`` px means: the margin in their pixels, the noise's sd of their means."""
+    if continued is None:
+        return None
+    noise = continued["noise"]
+    if noise is not None:
+        noise = (noise / coarse).repeat(copies + 1)
+    return continued | {"margin": continued["margin"] // coarse, "noise": noise}

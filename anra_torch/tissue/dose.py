@@ -1,32 +1,27 @@
 """Thermal dose of a temperature history: CEM43, the Arrhenius damage integral, time above a threshold.
 
-* CEM43 (Sapareto & Dewey 1984), cumulative equivalent minutes at 43 C::
+* CEM43 of Sapareto and Dewey, cumulative equivalent minutes at 43 C::
 
       CEM43 = integral R^(43 - T(t)) dt / 60,   R = 0.5 for T >= 43 C, 0.25 below   (minutes)
 
-* Arrhenius damage integral (Henriques & Moritz)::
+* The Arrhenius damage integral of Henriques and Moritz::
 
       Omega = integral A exp(-Ea / (R_gas T_K(t))) dt
 
-  with the skin constants :data:`SKIN` by default (``A = 3.1e98 1/s``, ``Ea = 6.28e5 J/mol``);
-  ``Omega >= 1`` marks irreversible damage (63 % of the cells).
+  with the skin constants :data:`SKIN` by default; ``Omega >= 1`` marks irreversible damage, 63 % of
+  the cells.
 
-How a sampled frame history ``T_0 .. T_{N-1}`` (period ``dt``) becomes ``T(t)``, by ``rule``
-(:data:`RULES`):
+The frames ``T_0 .. T_{N-1}``, period ``dt``, become a history ``T(t)`` by ``rule``, one of :data:`RULES`:
 
-* ``"hold"`` (default; the Sapareto-Dewey sum): frame ``k`` holds for ``[k dt, (k + 1) dt)``, so the
-  history lasts ``N dt`` and every integral is the exact sum ``sum_k f(T_k) dt``. Exact for constant and
-  step histories: 600 frames at 43 C with ``dt = 1 s`` give 10.0 min.
-* ``"linear"``: ``T(t)`` is the piecewise-linear interpolant of the frames, lasting ``(N - 1) dt``.
-  CEM43 and the time above a threshold are integrated exactly on each segment (closed forms, the
-  segment split where it crosses 43 C or the threshold); Omega by the closed form of
-  ``integral exp(-Ea / (R_gas T_K)) dT_K`` (an asymptotic series in ``R_gas T_K / Ea``, relative error
-  below 1e-9 up to ``T_K = 0.02 Ea / R_gas``, 1237 C with :data:`SKIN`; beyond, composite Gauss-Legendre).
+* ``"hold"``, the default and the Sapareto-Dewey sum: frame ``k`` holds for ``[k dt, (k + 1) dt)``, so
+  the history lasts ``N dt`` and every integral is the sum ``sum_k f(T_k) dt``.
+* ``"linear"``: the piecewise-linear interpolant of the frames, lasting ``(N - 1) dt``, integrated
+  exactly on each segment.
 
-Non-finite samples (dropped frames, masked pixels) contribute nothing: with ``"hold"`` their frame, with
-``"linear"`` the segments they end. :func:`count_masked` says how many there were.
-
-Computation is in float64 whatever the input dtype; gradients flow to the temperatures.
+Non-finite samples contribute nothing: with ``"hold"`` their frame, with ``"linear"`` the segments they
+end; :func:`count_masked` counts them. Computation is in float64 whatever the input dtype; gradients flow
+to the temperatures. How each rule integrates and how exactly: ``docs/guides/tissue-damage.md``, section
+"How the doses are integrated".
 """
 
 from __future__ import annotations
@@ -114,20 +109,20 @@ def _log_r(x: Tensor) -> Tensor:
 
 
 def cem43(temperatures: Tensor, dt: float | Tensor, *, units: str = "C", rule: str = "hold") -> Tensor:
-    """Cumulative equivalent minutes at 43 C (Sapareto-Dewey) of each pixel's history.
+    """Cumulative equivalent minutes at 43 C of each pixel's history, by Sapareto and Dewey.
 
     Args:
         temperatures: history or video in ``units``.
         dt: frame period in s, a number or ``(B,)``.
         units: ``"C"`` or ``"K"``.
-        rule: ``"hold"`` (the Sapareto-Dewey sum) or ``"linear"`` (exact for the piecewise-linear
-            interpolant); see the module docstring.
+        rule: ``"hold"``, the Sapareto-Dewey sum, or ``"linear"``, exact for the piecewise-linear
+            interpolant; see :data:`RULES`.
 
     Returns:
-        CEM43 in minutes (float64).
+        CEM43 in minutes, float64.
 
     Raises:
-        ValueError: bad shape, ``dt``, ``rule`` or ``units`` (see :func:`to_celsius`).
+        ValueError: bad shape, ``dt``, ``rule`` or ``units``, as :func:`to_celsius` checks them.
 
     Shape:
         ``(T,)`` -> ``()``; ``(T, H, W)`` -> ``(H, W)``; ``(B, T, H, W)`` -> ``(B, H, W)``.
@@ -188,7 +183,7 @@ def _series_terms(hottest: float, theta: float) -> int:
 
 
 def _omega_segments(x: Tensor, constants: ArrheniusConstants, terms: int, rise: Tensor | None) -> Tensor:
-    """Mean Arrhenius rate (1/s) over the linear segments of Celsius histories ``(B, T, P)``,
+    """Mean Arrhenius rate in 1/s over the linear segments of Celsius histories ``(B, T, P)``,
     ``(B, T - 1, P)``, exact to rounding (``rise`` the segments' ``x[:, 1:] - x[:, :-1]`` when known).
 
     With ``K`` the kelvin temperature and ``theta = Ea / R_gas``, ``integral exp(-theta / K) dK =
@@ -267,11 +262,11 @@ def arrhenius_omega(
         temperatures: history or video in ``units``.
         dt: frame period in s, a number or ``(B,)``.
         units: ``"C"`` or ``"K"``.
-        constants: ``A`` and ``Ea`` (default :data:`SKIN`).
-        rule: ``"hold"`` or ``"linear"`` (see the module docstring).
+        constants: ``A`` and ``Ea``, :data:`SKIN` by default.
+        rule: ``"hold"`` or ``"linear"``, see :data:`RULES`.
 
     Returns:
-        Omega (dimensionless, float64); ``>= 1`` is irreversible damage.
+        Omega, dimensionless, float64; ``>= 1`` is irreversible damage.
 
     Raises:
         ValueError: bad shape, ``dt``, ``rule`` or ``units``.
@@ -307,17 +302,18 @@ def _omega(
 def time_above(
     temperatures: Tensor, dt: float | Tensor, threshold: float, *, units: str = "C", rule: str = "hold"
 ) -> Tensor:
-    """Time (s) each pixel spends at or above ``threshold`` (Celsius).
+    """Time in s each pixel spends at or above ``threshold`` in Celsius.
 
     Args:
         temperatures: history or video in ``units``.
         dt: frame period in s, a number or ``(B,)``.
-        threshold: temperature in Celsius (whatever ``units`` is).
+        threshold: temperature in Celsius, whatever ``units`` is.
         units: ``"C"`` or ``"K"``.
-        rule: ``"hold"`` (frames at or above, times dt) or ``"linear"`` (exact for the interpolant).
+        rule: ``"hold"``, the frames at or above times ``dt``, or ``"linear"``, exact for the
+            interpolant; see :data:`RULES`.
 
     Returns:
-        Seconds (float64).
+        Seconds, float64.
 
     Raises:
         ValueError: bad shape, ``dt``, ``rule``, ``units`` or a non-finite ``threshold``.
@@ -404,7 +400,7 @@ def dose_maps(
 def _doses(
     x: Tensor, finite: Tensor | None, thresholds: tuple[float, ...], constants: ArrheniusConstants, rule: str
 ) -> list[Tensor]:
-    """The times above, CEM43 (s) and Omega per unit ``dt`` of histories ``(B, T, P)``, each ``(B, P)``."""
+    """The times above, CEM43 in s and Omega per unit ``dt`` of histories ``(B, T, P)``, each ``(B, P)``."""
     x, weights = masked(x, rule, finite)
     rise = x[:, 1:] - x[:, :-1] if rule == "linear" else None  # shared by every dose
     return [

@@ -30,18 +30,18 @@ __all__ = [
 ]
 
 MIN_CONFIDENCE = 0.9
-"""Windows with at least this estimator confidence (the signal fraction of their Laplacian energy) are
+"""Windows with at least this estimator confidence, the signal fraction of their Laplacian energy, are
 confident: the ANRA map extremes come from them."""
 MAX_LOSS_ERROR = 0.1
 """A window's loss rate counts for the extremes when its standard error times the recorded span is at most
-this (the loss over the record, ``b (T - 1) dt``, known to within 0.1)."""
+this: the loss over the record, ``b (T - 1) dt``, known to within 0.1."""
 
 EXTREMES = {
     "diffusivity_max": f"windows with confidence >= {MIN_CONFIDENCE:g}",
     "loss_rate_max, source_max": f"windows with confidence >= {MIN_CONFIDENCE:g} whose loss rate's standard "
     f"error times the recorded span is <= {MAX_LOSS_ERROR:g}",
 }
-"""Over which windows the ANRA maps' maxima are taken (the JSON's ``extremes``)."""
+"""Over which windows the ANRA maps' maxima are taken: the JSON's ``extremes``."""
 
 MAPS: tuple[str, ...] = (
     "peak_temperature",
@@ -58,10 +58,11 @@ MAPS: tuple[str, ...] = (
     "loss_rate",
     "source",
 )
-"""Maps of the default :class:`TissueFeatures` (one ``time_above_<C>`` per threshold)."""
+"""Maps of the default :class:`TissueFeatures`, one ``time_above_<C>`` per threshold."""
 
 DOSE_MAPS: tuple[str, ...] = MAPS[:6]
-"""The maps that need no spatial filter (any frame size); the others need the estimator's filters to fit."""
+"""The maps that need no spatial filter, for any frame size; the others need the estimator's filters to
+fit."""
 
 MAP_UNITS: dict[str, str] = {
     **{name: "mm" for name in DEPTH_MAPS},
@@ -76,32 +77,34 @@ MAP_UNITS: dict[str, str] = {
     "loss_rate": "1/s",
     "source": "K",
 }
-"""The unit of every map (the ``time_above_<C>`` maps: s)."""
+"""The unit of every map; the ``time_above_<C>`` maps are in s."""
 
 
 @dataclass(frozen=True)
 class TissueFeatureMaps:
-    """Output of :class:`TissueFeatures` (batched: leading ``B``; a single video drops it).
+    """Output of :class:`TissueFeatures`: batched with a leading ``B``; a single video drops it.
 
     Attributes:
         maps: name -> map ``(B, H, W)``, finite everywhere; the rate and ANRA maps only where they fit.
-        summary: name -> per-video value ``(B,)``: ``<map>_max`` for every map (the ANRA maps' over
-            confident windows, NaN when there are none; see the module docstring), ``damaged_fraction``
-            (pixels with ``omega >= 1``), ``n_masked`` (non-finite samples) and, with the ANRA maps,
-            ``diffusivity_global`` (mm^2/s, NaN only when ``valid`` is False), ``confident_fraction`` and
-            ``loss_confident_fraction`` (pixels whose windows count for the extremes).
+        summary: name -> per-video value ``(B,)``: ``<map>_max`` for every map, the ANRA maps' over
+            confident windows only, NaN when there are none; ``damaged_fraction``, the share of pixels
+            with ``omega >= 1``; ``n_masked``, the non-finite samples; with the ANRA maps also
+            ``diffusivity_global`` in mm^2/s, NaN only when ``valid`` is False, and ``confident_fraction``
+            and ``loss_confident_fraction``, the shares of pixels whose windows count for the extremes.
+            The gates: ``docs/guides/tissue-damage.md``.
         units: name -> unit of every map and summary value.
         masked: non-finite samples per pixel, ``(B, H, W)``.
         valid: whether the estimator measured a diffusivity, ``(B,)``.
-        messages: one line per video ("" when all went well).
-        loss_rate_std_error: standard error of ``loss_rate`` (1/s, inf where the window never cools),
+        messages: one line per video, "" when all went well.
+        loss_rate_std_error: standard error of ``loss_rate`` in 1/s, inf where the window never cools,
             ``(B, H, W)``; None without the ANRA maps.
-        absent: map name -> why it was not computed (frames too small or too few, no pixel size).
+        absent: map name -> why it was not computed: frames too small or too few, no pixel size.
         depth: with ``TissueFeatures(depth=True)`` and a pixel size, the depth model's maps, profiles and
-            parameters (:class:`anra_torch.tissue.DepthFeatures`, batched even for a single video); the
-            :data:`anra_torch.tissue.DEPTH_MAPS` are also in ``maps`` (NaN for a video without a usable fit,
-            with the reason in ``messages``).
-        cooling_diffusivity: ``a`` (mm^2/s) fitted with ``loss_rate`` on cooling frames, no source biasing it.
+            parameters, a :class:`anra_torch.tissue.DepthFeatures` batched even for a single video. The
+            :data:`anra_torch.tissue.DEPTH_MAPS` are also in ``maps``, NaN for a video without a usable
+            fit, with the reason in ``messages``.
+        cooling_diffusivity: ``a`` in mm^2/s, fitted with ``loss_rate`` on cooling frames where no source
+            biases it.
     """
 
     maps: dict[str, Tensor]
@@ -116,7 +119,14 @@ class TissueFeatureMaps:
     cooling_diffusivity: Tensor | None = None
 
     def stack(self, names: Sequence[str] | None = None) -> Tensor:
-        """The maps as channels, ``(B, F, H, W)`` (or ``(F, H, W)``), in the order of ``names``."""
+        """The maps as channels in the order of ``names``, all maps when None.
+
+        Shape:
+            ``(B, F, H, W)``, or ``(F, H, W)`` unbatched.
+
+        Raises:
+            ValueError: a name that is not a computed map.
+        """
         names = list(self.maps) if names is None else list(names)
         unknown = [n for n in names if n not in self.maps]
         if unknown:
@@ -140,11 +150,15 @@ class TissueFeatureMaps:
 
 
 def save_feature_maps(path: str, maps: TissueFeatureMaps, *, dt: float, dx: float | None) -> str:
-    """Write the maps of one video to ``.npz`` atomically: one ``(H, W)`` array per map computed, ``masked``,
-    ``dt``, ``dx`` (when known) and ``units_<name>`` strings; with depth maps also ``depth_mm`` ``(Z,)`` and
-    the profiles ``peak_temperature_depth`` (C), ``peak_temperature_depth_std`` (K), ``omega_depth`` (1) and
-    ``cem43_depth_minutes`` (min), each ``(Z, H, W)`` with its ``units_<name>`` too. Returns the path written
-    (``.npz`` appended when missing).
+    """Write the maps of one video to ``.npz`` atomically.
+
+    The file holds one ``(H, W)`` array per map computed, ``masked``, ``dt`` in s, ``dx`` in mm when known,
+    a ``units_<name>`` string per array and, with depth maps, the depth profiles ``(Z, H, W)`` on
+    ``depth_mm`` ``(Z,)``. Every entry and its unit: ``docs/reference/outputs.md``, section
+    ``anra features --out``.
+
+    Returns:
+        The path written, ``.npz`` appended when missing.
 
     Raises:
         OSError: the file cannot be written.
@@ -176,8 +190,17 @@ _RULE_TEXT = {
 def dose_record(
     doses: tuple[str, ArrheniusConstants, Sequence[float]], frames: int, dt: float, sigma: float
 ) -> dict:
-    """How the doses were computed: ``doses`` (the rule, the Arrhenius constants, the thresholds in C), the
-    span, the smoothing (px) and every constant used: the JSON's ``dose``."""
+    """How the doses were computed: the JSON's ``dose``.
+
+    Args:
+        doses: the rule, the Arrhenius constants and the thresholds in C.
+        frames: number of frames recorded.
+        dt: frame period in s.
+        sigma: the denoised history's Gaussian sigma in px.
+
+    Returns:
+        The rule, the span in s, the smoothing in px and every constant used.
+    """
     rule, c, thresholds = doses
     return {
         "rule": rule,

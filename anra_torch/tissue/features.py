@@ -5,7 +5,7 @@
 =====================  ===========  =====================================================================
 map                    unit         how
 =====================  ===========  =====================================================================
-``peak_temperature``   C            maximum over time of the denoised history (below)
+``peak_temperature``   C            maximum over time of the denoised history
 ``time_above_43``      s            :func:`anra_torch.tissue.time_above` (one map per threshold)
 ``time_above_50``      s
 ``time_above_60``      s
@@ -23,40 +23,11 @@ map                    unit         how
                                     diffusion and loss (a moving source leaves its track here)
 =====================  ===========  =====================================================================
 
-The first six (:data:`DOSE_MAPS`: doses, peak, times above) need no spatial filter: they are computed
-for any frame size, down to one pixel (a ``(T, 1, 1)`` video or a ``(T,)`` trace, e.g. a thermocouple)
-and any number of frames the dose rule allows. The other seven (the rate and ANRA maps) need the
-estimator's filters to fit in the frame (by default 20 x 20 px and 5 frames) and a pixel size; where they
-do not fit they are absent, with the reason in :attr:`TissueFeatureMaps.absent` and the messages.
-
-``U`` and ``L`` are ANRA's balanced terms: the Holoborodko time derivative ``D_t`` and the Laplacian of
-its temporal partner average ``S_t`` of the Gaussian-smoothed frames (the same filters on both sides, as
-in :mod:`anra_torch.selection`, here window by window); ``T_0`` is the pixel's first averaged value (the
-tissue is assumed to start at the temperature the loss pulls towards). ``a`` and ``b`` are fitted
-jointly, with the errors-in-variables correction of ``L``, on the frames after each pixel's peak (no
-source acts there in a heating-then-cooling history) within a ``window``; the source is what the balance
-leaves over the whole video. The standard error of each window's ``b``
-(:attr:`TissueFeatureMaps.loss_rate_std_error`) is the white noise the estimator measured, propagated
-through the same filters and the window's normal equations (first order, without noise copies:
-:mod:`anra_torch.balance.loss_error`).
-
-Extremes: ``diffusivity_max`` is taken over confident windows only (``confidence >=``
-:data:`MIN_CONFIDENCE`), ``loss_rate_max`` and ``source_max`` over those whose ``b`` is also measured:
-standard error times the recorded span ``(T - 1) dt`` at most :data:`MAX_LOSS_ERROR` (the loss the
-window implies over the record known to within 10 %). A window where the estimator has no signal, or a
-pixel that never cools, otherwise gives any value: e.g. 2.33 mm^2/s and 227 1/s on the paper's pure
-heat video (a = 0.2, no loss). NaN when no window qualifies.
-
-Denoised history: the doses, the peak and the times above are taken from frames smoothed in space with
-a Gaussian of ``smoothing`` px (reflected border; frames smaller than its radius are used raw, and the
-messages say so): raw noise would inflate the peak and the doses, which grow exponentially with
-temperature. Temperatures are converted to Celsius (``units``; checked by
-:func:`anra_torch.tissue.to_celsius`). The doses integrate the frames by ``rule`` (default ``"linear"``: the
-piecewise-linear history over the recorded span ``(T - 1) dt``; ``"hold"``: each frame held for ``dt``,
-``T dt``; see :mod:`anra_torch.tissue.dose`).
-
-Non-finite samples are masked: they add nothing to the doses (see :mod:`anra_torch.tissue.dose`), are filled
-with the pixel's mean over its finite frames for the filters, and are counted in ``masked``.
+The dose maps (:data:`DOSE_MAPS`: doses, peak, times above) need no pixel size and work down to one
+pixel, a ``(T,)`` trace included. The rate and ANRA maps need ``dx`` and frames the estimator's filters
+fit in; otherwise they are absent, with the reason in :attr:`TissueFeatureMaps.absent`. Non-finite
+samples are masked and counted in ``masked``. How each map is computed, the extremes' gates and the
+denoised history: ``docs/guides/tissue-damage.md``, section "How the maps are computed".
 Everything is computed in float64 without gradient tracking.
 """
 
@@ -150,24 +121,22 @@ class TissueFeatures(nn.Module):
         units: temperature unit of the frames, ``"C"`` or ``"K"``.
         thresholds: Celsius thresholds of the ``time_above_<C>`` maps.
         constants: Arrhenius constants (default :data:`anra_torch.tissue.SKIN`).
-        rule: how the dose integrates the frame history (:data:`anra_torch.tissue.RULES`): ``"linear"``
-            (default; the recorded span ``(T - 1) dt``) or ``"hold"`` (each frame held for ``dt``).
-        smoothing: Gaussian sigma (px) of the denoised history the doses, peak and times above are taken
-            from (0: the raw frames).
-        term_smoothing: Gaussian sigma (px) before the time derivative and the Laplacian (rates,
-            attention, loss rate, source).
-        window: side (px, odd) of the estimator's diffusivity field and of the loss-rate fit.
-        time_length: Holoborodko time window (frames).
-        sharpness: RTC attention sharpness on ``|dT/dt| / max`` (unit invariant).
-        depth: also map the damage in depth (:func:`anra_torch.tissue.depth_features`: ``a`` and ``b``
-            fitted on the recording's cooling, the bioheat equation solved under the frame with the frames
-            as its surface; needs ``dx``): :data:`anra_torch.tissue.DEPTH_MAPS` and
-            :attr:`TissueFeatureMaps.depth`.
+        rule: how the dose integrates the frame history, one of :data:`anra_torch.tissue.RULES`:
+            ``"linear"`` over the recorded span ``(T - 1) dt``, or ``"hold"``, each frame held for ``dt``.
+        smoothing: Gaussian sigma in px of the denoised history the doses, peak and times above are taken
+            from; 0 takes the raw frames.
+        term_smoothing: Gaussian sigma in px before the time derivative and the Laplacian of the rate,
+            attention, loss-rate and source maps.
+        window: odd side in px of the estimator's diffusivity field and of the loss-rate fit.
+        time_length: Holoborodko time window in frames.
+        sharpness: RTC attention sharpness on ``|dT/dt| / max``, unit invariant.
+        depth: also map the damage in depth with :func:`anra_torch.tissue.depth_features`, giving
+            :data:`anra_torch.tissue.DEPTH_MAPS` and :attr:`TissueFeatureMaps.depth`; needs ``dx``.
         thickness: with ``depth``, None for a half-space, else a layer's thickness in mm.
 
     Shape:
-        ``frames`` ``(B, T, H, W)``, ``(T, H, W)`` or a one-pixel trace ``(T,)`` (as ``(T, 1, 1)``); ``dt``
-        (s) and ``dx`` (mm) floats or ``(B,)``; maps ``(B, H, W)``.
+        ``frames`` ``(B, T, H, W)``, ``(T, H, W)`` or a one-pixel trace ``(T,)``, read as ``(T, 1, 1)``;
+        ``dt`` in s and ``dx`` in mm floats or ``(B,)``; maps ``(B, H, W)``.
 
     Example:
         >>> from anra_torch.simulation import gaussian_blob
@@ -235,7 +204,7 @@ class TissueFeatures(nn.Module):
         return ("peak_temperature", *above, *MAPS[4:], *(DEPTH_MAPS if self.depth else ()))
 
     def history_smoothing(self, height: int, width: int) -> float:
-        """The Gaussian sigma (px) the doses of ``height x width`` px frames are taken at: ``smoothing``,
+        """The Gaussian sigma in px the doses of ``height x width`` px frames are taken at: ``smoothing``,
         or 0 when the frames are no larger than its radius (a reflected border needs more)."""
         fits = min(height, width) > self.history_smoother.radius
         return self.history_smoother.sigma if fits else 0.0
@@ -252,12 +221,12 @@ class TissueFeatures(nn.Module):
             dx: pixel size in mm; None computes only the dose maps (:data:`DOSE_MAPS`).
 
         Returns:
-            :class:`TissueFeatureMaps` (unbatched for a single video or trace).
+            :class:`TissueFeatureMaps`, unbatched for a single video or trace.
 
         Raises:
-            ValueError: bad shapes or spacings, fewer frames than ``rule`` needs (2 for ``"linear"``), or
-                temperatures that do not fit ``units`` (below absolute zero, or a range only plausible in
-                the other unit). Frames too small or too few for the rate and ANRA maps do not raise:
+            ValueError: bad shapes or spacings; fewer frames than ``rule`` needs, 2 for ``"linear"``;
+                temperatures that do not fit ``units``: below absolute zero, or a range only plausible in
+                the other unit. Frames too small or too few for the rate and ANRA maps do not raise:
                 those maps are absent, with the reason.
         """
         if getattr(frames, "ndim", None) == 1:
@@ -391,28 +360,30 @@ def feature_summary(
 ) -> tuple[dict, TissueFeatureMaps]:
     """The ``anra features --json`` object of one video and the maps it was made from.
 
-    The object holds every per-video value of :attr:`TissueFeatureMaps.summary` (at least
-    ``cem43_minutes_max``, ``omega_max``, ``peak_temperature_max``), plus ``frames``, ``height``,
-    ``width``, ``dt`` (s), ``dx`` (mm or None), ``temperature_unit`` (the declared one; every
-    temperature reported is Celsius), ``masked_fraction``, ``valid``, ``message``, ``dose`` (the rule,
-    recorded span, smoothing, thresholds and the CEM43 and Arrhenius constants used), ``extremes`` (over
-    which windows the ANRA maps' maxima were taken; None without them), ``absent`` (map -> why it was not
-    computed) and ``units`` (key -> unit). Non-finite numbers become None. With ``depth``, ``depth`` holds
-    the depth model's assumptions and parameters (:meth:`anra_torch.tissue.DepthFeatures.record`; None
-    without a pixel size).
+    The object holds every per-video value of :attr:`TissueFeatureMaps.summary`, the input's size and
+    spacing, how the doses and extremes were taken, the absent maps and every value's unit; with
+    ``depth``, the depth model's record from :meth:`anra_torch.tissue.DepthFeatures.record`. Every key and
+    its unit: ``docs/reference/outputs.md``, section ``anra features --json``. Every temperature is in
+    Celsius; non-finite numbers become None.
 
     Args:
         frames: temperatures in ``units``.
         dt: frame period in s.
         dx: pixel size in mm; None gives only the dose maps.
         units: ``"C"`` or ``"K"``.
-        rule: dose integration, ``"linear"`` or ``"hold"`` (:data:`anra_torch.tissue.RULES`).
+        rule: dose integration, ``"linear"`` or ``"hold"``, see :data:`anra_torch.tissue.RULES`.
         constants: Arrhenius constants.
-        depth: also the damage-in-depth maps (:class:`TissueFeatures` ``depth``).
-        thickness: with ``depth``, a layer's thickness in mm (None: a half-space).
+        depth: also the damage-in-depth maps, as :class:`TissueFeatures` ``depth``.
+        thickness: with ``depth``, a layer's thickness in mm; None for a half-space.
+
+    Returns:
+        The JSON-ready dict and the :class:`TissueFeatureMaps` it was made from.
 
     Shape:
         ``frames`` ``(T, H, W)`` or ``(T,)``.
+
+    Raises:
+        ValueError: as :meth:`TissueFeatures.forward`.
     """
     extractor = TissueFeatures(units=units, rule=rule, constants=constants, depth=depth, thickness=thickness)
     maps = extractor(frames, dt, dx)

@@ -37,7 +37,8 @@ UNITS: dict[str, float] = {"C": 0.0, "K": -KELVIN_AT_ZERO_CELSIUS}
 """Temperature units accepted and the offset that turns them into Celsius."""
 
 RULES = ("hold", "linear")
-"""How a frame history is integrated (see the module docstring)."""
+"""How a frame history of ``T`` frames is integrated: ``"hold"``, each frame held for ``dt``, over ``T dt``;
+``"linear"``, the frames joined by straight lines over ``(T - 1) dt``."""
 
 _IMPLAUSIBLE_CELSIUS = 200.0
 """A dose computation where every value is at least this many Celsius (or below this many kelvin,
@@ -161,9 +162,9 @@ Step = Callable[..., Tensor]
 
 
 def stepper(x: Tensor) -> Step:
-    """``step(t, "mul", y)``: ``t.mul_(y)`` where no gradient is tracked through ``x`` (a pass over memory,
-    ~4x faster than a fresh video-sized float64 tensor on CPU), ``t.mul(y)`` otherwise. Only for
-    temporaries the caller made itself."""
+    """``step(t, "mul", y)``: ``t.mul_(y)`` where no gradient is tracked through ``x``, ``t.mul(y)``
+    otherwise; why: ``docs/architecture.md``, "Choices in the hot paths". Only for temporaries the caller
+    made itself."""
     inplace = not (torch.is_grad_enabled() and x.requires_grad)
 
     def step(t: Tensor, name: str, *args: object) -> Tensor:

@@ -4,9 +4,9 @@ The model (Pennes-like bioheat equation per unit heat capacity, on the pixel gri
 
     dT/dt = div(a(x, y) grad T) - b(x, y) (T - T_body) + q(t, x, y)
 
-with ``a`` the diffusivity field (mm^2/s), ``b`` the perfusion / loss-rate field (1/s) and ``q`` an optional
-:class:`anra_torch.simulation.MovingSource` (K/s); :func:`anra_torch.simulation.simulate_tissue` integrates it
-with fixed-step RK4, and gradients flow to the fields.
+with ``a`` the diffusivity field in mm^2/s, ``b`` the perfusion / loss-rate field in 1/s and ``q`` an
+optional :class:`anra_torch.simulation.MovingSource` in K/s; :func:`anra_torch.simulation.simulate_tissue`
+integrates it with fixed-step RK4, and gradients flow to the fields.
 
 :class:`LearnedTissueModel` holds ``log a`` and ``log b`` on a coarse grid (bilinear up-sampling to the
 frame: a smooth, positive field with few parameters), initialised from ANRA's direct estimate
@@ -55,8 +55,8 @@ class LearnedTissueModel(nn.Module):
     Args:
         shape: frame size ``(H, W)`` in px.
         dx: pixel size in mm.
-        diffusivity: initial ``a`` (mm^2/s), a number or a coarse field ``grid``.
-        perfusion: initial ``b`` (1/s), a number or a coarse field ``grid``.
+        diffusivity: initial ``a`` in mm^2/s, a number or a coarse field ``grid``.
+        perfusion: initial ``b`` in 1/s, a number or a coarse field ``grid``.
         grid: coarse grid ``(h, w)`` of the learned fields.
         body_temperature: initial ``T_body`` (units of T), learned as well.
 
@@ -262,24 +262,20 @@ def omega_with_constants(
 ) -> Tensor:
     """Arrhenius Omega ``integral exp(ln A - Ea / (R_gas T_K)) dt`` with per-pixel, differentiable constants.
 
-    :func:`anra_torch.tissue.arrhenius_omega` (the dose of :class:`anra_torch.tissue.TissueFeatures`) takes
-    one pair of constants as numbers. Here ``ln A`` and ``Ea`` are tensors broadcast with the pixels, and
-    the gradient flows to them (and to the temperatures). With ``rule="hold"`` the frames' rates are summed
-    as ``arrhenius_omega`` sums them (frames that are not finite left out), exact. With ``"linear"`` the
-    history goes through ``arrhenius_omega`` as the equivalent temperature ``T*`` whose rate under
-    :data:`anra_torch.tissue.SKIN` is the pixel's rate, ``1 / T* = (Ea / T_K - R_gas ln A + R_gas ln A_skin)
-    / Ea_skin``, the frames' equivalent temperatures joined by straight lines (not the frames): a relative
-    difference of order ``(dT / T)^2`` per segment. Constants with a leading axis of their own evaluate one
-    history ``(T, H, W)`` under several pairs at once (e.g. ``(K, 1, 1)``).
+    ``ln A`` and ``Ea`` are tensors broadcast with the pixels, and the gradient flows to them and to the
+    temperatures. ``rule="hold"`` is exact; ``"linear"`` differs from
+    :func:`anra_torch.tissue.arrhenius_omega` by a relative ``(dT / T)^2`` per segment. Constants with a
+    leading axis of their own, e.g. ``(K, 1, 1)``, evaluate one history ``(T, H, W)`` under several pairs at
+    once. How: ``docs/guides/tissue-damage.md``, section "Arrhenius constants that learn".
 
     Args:
-        temperatures: video in ``units`` (``"C"`` or ``"K"``); dt: frame period in s, a number or ``(B,)``.
+        temperatures: video in ``units``, ``"C"`` or ``"K"``; dt: frame period in s, a number or ``(B,)``.
         log_frequency: ``ln A`` with ``A`` in 1/s, a number or a tensor that broadcasts with the output.
-        activation_energy: ``Ea`` in J/mol (> 0), likewise.
-        rule: ``"hold"`` (default) or ``"linear"`` (:data:`anra_torch.tissue.RULES`).
+        activation_energy: ``Ea`` in J/mol, > 0, likewise.
+        rule: ``"hold"``, the default, or ``"linear"``; see :data:`anra_torch.tissue.RULES`.
 
     Returns:
-        Omega (dimensionless, float64).
+        Omega, dimensionless, float64.
 
     Raises:
         ValueError: bad shapes, ``dt``, ``rule`` or ``units``; constants that are not finite, ``Ea <= 0``,

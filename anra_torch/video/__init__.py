@@ -1,21 +1,19 @@
 """Thermal video in: the :class:`Video` type, file formats, and the preparation steps before any analysis.
 
-- :class:`Video` (frames, ``dt`` s, ``dx`` mm, timestamps, ``meta``) and its optional :class:`Truth` (what a
-  simulation made it with), in :mod:`~anra_torch.video.core`;
-- :func:`load_video` (:mod:`~anra_torch.video.load`) with one module per format and the suffix registries in
-  :mod:`~anra_torch.video.formats` (FLIR radiometric JPEGs, FFF frames and ``.seq`` / ``.csq`` sequences
-  through :mod:`~anra_torch.video.formats.flir_fff`, with :class:`ObjectParameters` overrides);
+- :mod:`~anra_torch.video.core`: :class:`Video`, the frames with ``dt`` in s, ``dx`` in mm, timestamps and
+  ``meta``, and its optional :class:`Truth`, what a simulation made it with;
+- :mod:`~anra_torch.video.load`: :func:`load_video`, with one module per format and the suffix registries
+  in :mod:`~anra_torch.video.formats`, FLIR files included, and :class:`ObjectParameters` overrides;
   :func:`save_npz`, the one ``.npz`` writer;
-- frames left on disk (:class:`FrameSource`: :class:`LazyFrames`, :class:`FLIRFrames`), read in chunks;
-- the steps: :func:`resample_uniform` (non-uniform timestamps, :mod:`~anra_torch.video.resample`),
-  :func:`crop` and pixel masks (:mod:`~anra_torch.video.roi`), calibration tables, units and pixel-size
-  intervals (:mod:`~anra_torch.video.calibration`);
-- :func:`prepare_video`: load -> resample -> roi -> calibration in one call, as every command does it,
-  with the one input policy (out-of-range samples masked and counted, :func:`input_warnings`);
-- :func:`segment_phases`: baseline / heating / cooling from the data (:mod:`~anra_torch.video.phases`).
+- frames left on disk and read in chunks: :class:`FrameSource`, :class:`LazyFrames`, :class:`FLIRFrames`;
+- the steps: :func:`resample_uniform` for non-uniform timestamps, :func:`crop` and pixel masks,
+  calibration tables, units and pixel-size intervals;
+- :func:`prepare_video`: load, resample, roi and calibration in one call, as every command does it, with
+  the one input policy: out-of-range samples masked and counted, :func:`input_warnings`;
+- :func:`segment_phases`: baseline, heating and cooling from the data.
 
 Shape:
-    Frames ``(T, H, W)``, x along W (columns), y along H (rows).
+    Frames ``(T, H, W)``, x along W, the columns, y along H, the rows.
 """
 
 from anra_torch.video.calibration import (

@@ -122,7 +122,7 @@ def _frames(array: Any, path: Path) -> Tensor:
 
 
 def _step_of(t: Tensor, stored: Any, path: Path, timestamps: str, resolution: float) -> tuple[float, bool]:
-    """The frame period (s) of timestamps ``t`` (uniform within ``resolution`` s, the clock's) and whether
+    """The frame period in s of timestamps ``t`` (uniform within ``resolution`` s, the clock's) and whether
     to resample them; a ``dt`` stored next to uniform timestamps must agree with their step."""
     if t.numel() < 2:
         raise SingleFrameError(
@@ -209,33 +209,33 @@ def load_video(
     mask_values: bool = False,
     **objects: float | None,
 ) -> Video:
-    """Read a thermal video (a file, or a folder of one file per frame); explicit ``dt`` / ``dx`` win.
+    """Read a thermal video, a file or a folder of one file per frame; explicit ``dt`` and ``dx`` win.
 
-    The format follows the suffix (``formats.REGISTRY``; a folder's frame files: ``FOLDER_REGISTRY``). The
-    file's timestamps are kept in :attr:`Video.t`; an explicit ``dt`` replaces them and the file's ``dt``.
+    The format follows the suffix, by ``formats.REGISTRY`` and ``FOLDER_REGISTRY``. The file's timestamps
+    are kept in :attr:`Video.t`; an explicit ``dt`` replaces them and the file's ``dt``.
 
     Args:
         path: the video file or folder.
-        dt: frame period in s (required when the file has neither ``dt`` nor ``t``).
-        dx: pixel size in mm (optional: :attr:`Video.dx` is None without it).
-        timestamps: non-uniform timestamps (:data:`TIMESTAMPS`): ``"uniform"`` refuses them, ``"keep"``
-            keeps them (``dt`` the median step), ``"resample"`` interpolates onto a uniform grid
-            (:func:`~anra_torch.video.resample_uniform`; ``meta["resampled"]``).
-        mask_values: mask the samples that cannot be measurements (:func:`~anra_torch.checks.in_range_values`)
-            as read, before any resampling; counted in ``meta["masked_values"]``.
-        **objects: a FLIR radiometric file's object parameters replacing the file's (``emissivity``,
-            ``reflected_temp`` degC, ``distance`` m, ``atmospheric_temp`` degC, ``humidity`` %).
+        dt: frame period in s, required when the file has neither ``dt`` nor ``t``.
+        dx: pixel size in mm; without it :attr:`Video.dx` is None.
+        timestamps: non-uniform ones, by :data:`TIMESTAMPS`: ``"uniform"`` refuses them, ``"keep"`` keeps
+            them, ``dt`` their median step; ``"resample"`` interpolates by
+            :func:`~anra_torch.video.resample_uniform` and records it in ``meta["resampled"]``.
+        mask_values: mask the samples :func:`~anra_torch.checks.in_range_values` rejects, as read and
+            before any resampling; counted in ``meta["masked_values"]``.
+        **objects: a FLIR radiometric file's object parameters replacing the file's: ``emissivity``,
+            ``reflected_temp`` in degC, ``distance`` in m, ``atmospheric_temp`` in degC, ``humidity`` in %.
 
     Returns:
-        A :class:`Video`, frames as stored (integer counts stay integers; resampled frames are float64).
+        A :class:`Video`, frames as stored: integer counts stay integers, resampled frames are float64.
 
     Shape:
         The frames must be ``(T, H, W)``.
 
     Raises:
         ValueError: a missing, unknown, unreadable or corrupt file; no ``frames`` or wrong shape, dtype or
-            frame sizes; no frame period; bad spacing or timestamps (not uniform with ``"uniform"``, or
-            disagreeing with ``dt``); an object parameter out of range or for a file that is not radiometric.
+            frame sizes; no frame period; bad spacing; timestamps not uniform with ``"uniform"`` or
+            disagreeing with ``dt``; an object parameter out of range or for a file that is not radiometric.
         TypeError: an unknown object parameter, or one that is not a number.
 
     Example:

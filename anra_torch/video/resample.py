@@ -35,7 +35,7 @@ FOREIGN_WEIGHT = 0.1
 
 
 def resample_uniform(video: Video, dt: float | None = None, *, method: str = "cubic") -> Video:
-    """Interpolate ``video`` in time onto a uniform grid of step ``dt`` (s).
+    """Interpolate ``video`` in time onto a uniform grid of step ``dt`` in s.
 
     ``"cubic"`` (default): within each phase (:func:`~anra_torch.video.recording_phases` of the
     linear interpolant), a cubic Hermite curve through the samples whose slope at each sample is the
@@ -100,7 +100,7 @@ recording would otherwise make thousands)."""
 
 
 def default_step(t: Tensor) -> float:
-    """The resampling step (s) for timestamps ``t``: the median step, if every sample then falls nearest to
+    """The resampling step in s for timestamps ``t``: the median step, if every sample then falls nearest to
     a frame of its own (a camera's jitter around one period); otherwise the smallest step, but no finer
     than :data:`MAX_FRAMES_PER_SAMPLE` frames per sample.
 

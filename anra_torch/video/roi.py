@@ -20,7 +20,7 @@ ROI = tuple[int, int, int, int]
 
 
 def parse_roi(text: str) -> ROI:
-    """``"X0,Y0,W,H"`` (px) -> :data:`ROI`.
+    """``"X0,Y0,W,H"`` in px -> :data:`ROI`.
 
     Raises:
         ValueError: not four integers, or a negative origin or non-positive size.

@@ -154,8 +154,11 @@ def test_bad_fit_fraction(tmp_path: Path, capsys: pytest.CaptureFixture[str], va
 
 
 @pytest.mark.slow
-def test_source_map_option_reports_the_beam_model(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """A ring-shaped beam (not a Gaussian spot): --source-map forecasts it near the noise floor."""
+def test_source_map_option_reports_the_beam_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], diagnosed_once: None
+) -> None:
+    """A ring-shaped beam (not a Gaussian spot): --source-map forecasts it near the noise floor; the human
+    summary and report render the same diagnosis (``diagnosed_once``)."""
     import torch
 
     from anra_torch.effects import Effect, simulate_effects

@@ -37,9 +37,13 @@ def _plate(
     for x, y, radius, f in defects:
         fraction[(xx - x) ** 2 + (yy - y) ** 2 <= radius**2] = f
     taus = np.where(np.isnan(fraction), TAU, np.nan_to_num(fraction) ** 2 * TAU)
+    # The series once per distinct plate (the sound one and one per defect depth), given to its pixels.
+    plates, which = np.unique(taus, return_inverse=True)
     n = np.arange(1, 401)
-    s = t[:, None, None, None] / taus[None, :, :, None]
-    depth = (1 + 2 * np.exp(-(n**2) * math.pi**2 * s).sum(-1)) / np.sqrt(taus)
+    s = t[:, None, None] / plates[None, :, None]
+    depth = ((1 + 2 * np.exp(-(n**2) * math.pi**2 * s).sum(-1)) / np.sqrt(plates))[
+        :, which.reshape(taus.shape)
+    ]
     spread = 1.0
     if lateral is not None:
         vx, vy = (16 + 2 * a * t[:, None, None] for a in lateral)

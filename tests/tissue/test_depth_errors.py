@@ -94,3 +94,17 @@ def test_the_noise_part_of_the_standard_error_is_the_spread_over_noisy_videos(
     ratio = (error[deep] / spread_[deep]).median()
     assert 0.75 < float(ratio) < 1.33, float(ratio)
     assert math.isfinite(float(error.max()))
+
+
+def test_the_frames_sampling_copy_switches_off_a_frame_later() -> None:
+    t = torch.arange(8, dtype=F64)
+    heating = torch.where(t <= 4, 10.0 * torch.sqrt(t), 10.0 * math.sqrt(4.0) * 0.5 ** (t - 4))  # off after 4
+    rise = heating.view(1, -1, 1, 1).expand(1, 8, 2, 3).clone()
+    one = torch.ones(1, dtype=F64)
+    stacked, a, b, weights = perturbed_copies(rise, one, one, (one * 0, one * 0), switch=torch.tensor([4]))
+    assert stacked.shape == (2, 8, 2, 3) and weights.tolist() == pytest.approx([1 / 3])
+    late = stacked[1, :, 0, 0]
+    bend = heating[2:] - 2 * heating[1:-1] + heating[:-2]
+    assert torch.allclose(late[[1, 2, 3, 4, 6]], (heating[1:-1] - bend / 12)[[0, 1, 2, 3, 5]])
+    assert float(late[5]) == pytest.approx(2 * heating[4] - heating[3])  # the heating went on a frame longer
+    assert torch.equal(late[[0, 7]], heating[[0, 7]]) and torch.equal(a, one.repeat(2))

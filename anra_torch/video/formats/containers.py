@@ -1,9 +1,9 @@
 """Array containers: MATLAB ``.mat`` (scipy), HDF5 ``.h5`` / ``.hdf5`` (h5py), multi-page TIFF (tifffile).
 
 MATLAB and HDF5 files hold the frames under ``frames`` (or as their only 3D array / dataset) in
-``(T, H, W)`` order, with optional scalars ``dt`` (s), ``dx`` (mm), ``unit`` and a vector ``t`` (s); HDF5
+``(T, H, W)`` order, with optional scalars ``dt`` in s, ``dx`` in mm, ``unit`` and a vector ``t`` in s; HDF5
 also reads them from the frames dataset's attributes. A multi-page TIFF holds one page per frame; an
-ImageJ ``finterval`` (s) is taken as ``dt``. Every reader needs the ``formats`` extra.
+ImageJ ``finterval`` in s is taken as ``dt``. Every reader needs the ``formats`` extra.
 """
 
 from __future__ import annotations

@@ -2,25 +2,9 @@
 
 An FFF frame is the container of every radiometric FLIR format: a ``.fff`` file is one, a ``.seq`` is
 several one after another, a ``.csq`` the same with JPEG-LS counts, a radiometric JPEG carries one in its
-APP1 segments. The layout is ExifTool's (``Image::ExifTool::FLIR``: ``ProcessFLIR`` and the ``FFF``,
-``RawData``, ``CameraInfo`` tables), checked against flirpy's ``io/fff.py`` and flyr's ``thermal.py``:
-
-- header, 0x40 bytes: ``"FFF\\0"`` (or ``"AFF\\0"``), creator ``string[16]`` at 0x04, format version
-  ``int32u`` at 0x14 (100-199 in the frame's byte order), record directory offset ``int32u`` at 0x18 and
-  entry count at 0x1c, offsets counted from the frame's first byte;
-- directory entry, 0x20 bytes: record type ``int16u`` (0: empty), subtype, version, index id, record
-  offset ``int32u`` (from the frame's first byte), record length ``int32u``, parent, object, checksum;
-- a record's byte order is the frame's, toggled when its first ``int16u`` reads 0x100 or more (it holds 2
-  in its own order): a big-endian frame often holds little-endian records;
-- RawData (0x01): width ``int16u`` at 0x02, height at 0x04, the image from 0x20: a PNG, a JPEG-LS stream
-  (``.csq``) or ``width * height`` ``uint16`` in the record's byte order, row 0 the camera's top row.
-  FLIR's PNGs hold their counts byte-swapped (ExifTool's note; flyr and Thermimage swap them);
-- CameraInfo (0x20): the fields of :class:`CameraInfo` at ExifTool's offsets, temperatures in K, relative
-  humidity a fraction (above 2: a percentage), the capture time at 0x384: ``int32u`` Unix s, ``int32u``
-  whose low 16 bits are ms, ``int16s`` minutes west of UTC.
-
-The raw image becomes counts in :mod:`~anra_torch.video.formats.flir_counts`, counts become temperatures in
-:mod:`~anra_torch.video.formats.flir_planck`.
+APP1 segments. The layout read is ExifTool's, byte by byte in ``docs/guides/research-camera.md``, section
+"The FFF layout". The raw image becomes counts in :mod:`~anra_torch.video.formats.flir_counts`, counts
+become temperatures in :mod:`~anra_torch.video.formats.flir_planck`.
 """
 
 from __future__ import annotations
@@ -77,8 +61,8 @@ class RawImage:
     """Where a frame's raw counts lie and how they are stored.
 
     Attributes:
-        width: columns (px), from the RawData record.
-        height: rows (px).
+        width: columns in px, from the RawData record.
+        height: rows in px.
         order: the record's byte order, ``"<"`` or ``">"`` (that of ``uint16`` counts).
         encoding: ``"uint16"``, ``"png"`` or ``"jpeg-ls"``.
         offset: byte offset of the image data in the file (or buffer) it was read from.
@@ -288,7 +272,7 @@ def _whole_records(
 
 
 def _size(head: bytes, frame_order: str) -> tuple[int, int]:
-    """Width and height (px) of a RawData record from its first bytes."""
+    """Width and height in px of a RawData record from its first bytes."""
     return struct.unpack_from(_record_order(head, frame_order) + "HH", head, 2)
 
 

@@ -45,7 +45,7 @@ class ObjectParameters:
     Attributes:
         emissivity: in (0, 1].
         reflected_temp: reflected apparent temperature in degC.
-        distance: object distance in m (>= 0).
+        distance: object distance in m, >= 0.
         atmospheric_temp: degC.
         humidity: relative humidity in % (0-100).
 

@@ -1,29 +1,16 @@
 """FLIR recordings of FFF frames: ``.seq`` and ``.csq`` sequences and single ``.fff`` frames, indexed once
 and read lazily.
 
-A sequence is FFF frames one after another (:mod:`~anra_torch.video.formats.flir_fff`). It is indexed once
-by walking them: each frame's header gives its record directory, the directory its records, and the next
-frame begins where the last record ends (ExifTool's ``ProcessFLIR`` reads a SEQ's frames the same way),
-so the ``"FFF\\0"`` bytes that also occur inside image data are never searched for. Zero bytes between
-frames are skipped. Offsets are Python integers: files over 2^31 (or 2^32) bytes are read like any other.
-The index holds each frame's image offset and encoding, its own CameraInfo constants and capture time;
-:class:`FLIRFrames` then reads frames on demand, decodes the counts and turns them into degrees Celsius
-with the frame's own constants, so a 6 GB recording is never held whole
-(:func:`anra_torch.video.lazy.lazy_video` hands it to the chunked estimator).
-
-Every frame may have its own record layout (records in any order, several record types, big- or
-little-endian header, uint16 / PNG / JPEG-LS counts); all must have the same width and height (from
-their RawData records). A trailing partial frame (its records run past the end of the file), trailing
-bytes that hold no frame, and frames without a RawData or CameraInfo record are left out and flagged in
-``meta["input_warnings"]``; bytes that hold no frame header but could hold a frame are a one-line error.
-A frame whose counts are far smoother read in the other byte order than documented
-(:func:`~anra_torch.video.formats.flir_counts.swapped_rougher`, judged on the first frame of each layout) is
-read that way, and ``meta["camera"]["counts_byteswapped"]`` says so.
-Times are each frame's capture time (s, to the millisecond) from the first frame's; ``meta["t_resolution"]``
-(0.001 s) lets :func:`~anra_torch.video.load_video` take steps that differ by that clock resolution as
-uniform.
-
-``.csq`` counts are JPEG-LS, decoded by ``imagecodecs`` (the ``formats`` extra; see ``docs/architecture.md``).
+A sequence is FFF frames of :mod:`~anra_torch.video.formats.flir_fff` one after another. It is indexed once,
+each frame's image offset, encoding, CameraInfo constants and capture time; :class:`FLIRFrames` then reads
+frames on demand and turns their counts into degrees Celsius with the frame's own constants. All frames
+must have the same width and height. A trailing partial frame, trailing bytes that hold no frame and frames
+without a RawData or CameraInfo record are left out and flagged in ``meta["input_warnings"]``; bytes that
+hold no frame header but could hold a frame are a one-line error. Counts read in the other byte order are
+said so in ``meta["camera"]["counts_byteswapped"]``. Times are each frame's capture time in s from the
+first frame's, to the millisecond, with ``meta["t_resolution"]`` 0.001 s. ``.csq`` counts are JPEG-LS,
+decoded by ``imagecodecs``, the ``formats`` extra. How the file is walked and which layouts are read:
+``docs/guides/research-camera.md``, section "How a sequence is read".
 """
 
 from __future__ import annotations
@@ -167,7 +154,7 @@ def _layout(raw: RawImage) -> str:
 
 def index_sequence(path: str | os.PathLike[str]) -> SequenceIndex:
     """Walk a FLIR ``.seq`` / ``.csq`` / ``.fff`` file's frames once: their counts' places and encodings,
-    their constants and capture times (see the module docs).
+    their constants and capture times; how: ``docs/guides/research-camera.md``.
 
     Shape:
         ``T`` frames of ``(H, W)`` px.

@@ -1,7 +1,7 @@
 """NumPy files: ``.npz`` archives (frames with their spacing), bare ``.npy`` arrays; the one ``.npz`` writer.
 
-``.npz``: arrays ``frames`` ``(T, H, W)`` and ``dt`` (s) or ``t`` (timestamps in s), optional ``dx`` (mm) and
-``unit`` (temperature unit, a string); other scalar or string entries (e.g. ``a_true``) go to
+``.npz``: arrays ``frames`` ``(T, H, W)`` and ``dt`` in s or ``t``, timestamps in s, optional ``dx`` in mm
+and ``unit`` (temperature unit, a string); other scalar or string entries (e.g. ``a_true``) go to
 :attr:`~anra_torch.video.Video.meta`, and a simulation's ``a_true``, ``effects``, ``noise_sd``, ``seed``
 also to :attr:`~anra_torch.video.Video.truth`. ``.npy``: frames only; ``dt`` (and ``dx``) must be passed
 explicitly. :func:`save_npz` writes what :func:`load_npz` reads; every ``.npz`` video of the package goes
@@ -135,7 +135,7 @@ def save_npz(
         t: optional timestamps in s.
         batch: also accept a batch ``(B, T, H, W)``, stored as is (:func:`~anra_torch.video.load_video`
             reads one video per file: the default refuses it).
-        **extra: more arrays or scalars, e.g. ``a_true=0.2`` (mm^2/s) or ``unit="degC"``.
+        **extra: more arrays or scalars, e.g. ``a_true=0.2`` in mm^2/s or ``unit="degC"``.
 
     Returns:
         The path written.
