@@ -19,10 +19,12 @@ Diagnosis: tried once ``depth_conduction`` is in the model (:attr:`EffectSpec.re
 ``Y`` (the disc's term through the balance's filters), its centre, radius and depth time fitted by the
 errors-in-variables profile loss from the strongest positive structure left in the residual, or, given
 candidate regions (:func:`~anra_torch.selection.diagnose_terms`' ``hints``: the defects of a flash defect
-map, :func:`anra_torch.flash.defect_map`, where the cooling says the heat stops early), from those regions,
-and then its centre must stay in one of them; an empty set of regions rules it out. Validated
-on the independent 3-D plates of :func:`anra_torch.simulation.flash_plate_video` (the lateral and
-the depth problems do not separate over a defect, so the 2-D independent simulator has no model of it).
+map, :func:`anra_torch.flash.defect_map`, where the cooling says the heat stops early), held at one of
+them: its radius the region's equal-area radius, its centre within 0.7 of the radius of the region's
+centroid, its layer's ``d / L`` within 0.1 of the region's (with its radius and depth free the disc grew
+over the frame into a second depth rate of negative strength); an empty set of regions rules it out.
+Validated on the independent 3-D plates of :func:`anra_torch.simulation.flash_plate_video` (the lateral
+and the depth problems do not separate over a defect, so the 2-D independent simulator has no model of it).
 Random draw: under the first hot spot (radius 1-2 of its sigmas), ``d / L`` in 0.2-0.5, ``strength``
 0.7-1.
 """
@@ -30,6 +32,7 @@ Random draw: under the first hot spot (radius 1-2 of its sigmas), ``d / L`` in 0
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -49,6 +52,8 @@ __all__ = ["SPEC"]
 _F64 = torch.float64
 _MIN_RADIUS_PX = 2.0
 _STRENGTH = (0.2, 5.0)
+_HELD_SHIFT = 0.7  # a held disc's centre moves at most this share of its radius along each axis
+_HELD_DEPTH = 0.1  # ... its layer's d / L at most this far from the region's (a defect map's accuracy)
 
 
 def _difference(elapsed: Tensor, p: dict[str, float]) -> Tensor:
@@ -143,34 +148,62 @@ def delamination_term(system: BalanceSystem, theta: Tensor, plate: dict[str, flo
     return system.finish(system.filters.time.average(field)), weight
 
 
-def _start(cx: float, cy: float, radius: float, fraction: float, device: torch.device) -> Tensor:
-    """``theta`` (see :func:`_unpack`) of a disc centred at ``(cx, cy)`` px of ``radius`` px at the depth
-    fraction ``fraction`` (``d / L``: the layer's depth time ``fraction^2`` of the plate's)."""
-    radius, share = max(radius, _MIN_RADIUS_PX + 0.5), min(max(fraction, 0.05), 0.95) ** 2
-    values = [cx, cy, math.log(radius - _MIN_RADIUS_PX), math.log(share / (1 - share))]
-    return torch.tensor(values, dtype=_F64, device=device)
-
-
-def _hinted(system: BalanceSystem) -> list[Tensor]:
-    """Starts at each candidate region the balance was given (``system.hints``: a flash defect map's
-    defects, centroid and equal-area radius in mm, depth fraction): its disc, one 1.5 times wider, and
-    each at a shallower and a deeper layer."""
-    device, dx = system.frames.device, system.dx
-    starts = []
+def _regions(system: BalanceSystem) -> list[tuple[float, float, float, float]]:
+    """The candidate regions the balance was given (``system.hints``: a flash defect map's defects,
+    centroid and equal-area radius in mm, depth fraction) as ``(x px, y px, radius px, d / L)``."""
+    regions = []
     for h in system.hints.get("delamination", ()):
         fraction = h.get("depth_fraction", 0.5)
         fraction = fraction if math.isfinite(fraction) else 0.5
-        for widen in (1.0, 1.5):
-            for depth in (fraction, 0.7 * fraction, min(1.3 * fraction, 0.95)):
-                starts.append(_start(h["x"] / dx, h["y"] / dx, widen * h["radius"] / dx, depth, device))
-    return starts
+        radius = max(h["radius"] / system.dx, _MIN_RADIUS_PX + 0.5)
+        regions.append((h["x"] / system.dx, h["y"] / system.dx, radius, fraction))
+    return regions
+
+
+def _held(region: tuple[float, float, float, float], phi: Tensor) -> Tensor:
+    """``theta`` (see :func:`_unpack`) of a disc held at a candidate region: its radius the region's, its
+    centre within :data:`_HELD_SHIFT` of the radius of the region's centroid along each axis and its
+    layer's ``d / L`` within :data:`_HELD_DEPTH` of the region's (``tanh`` of ``phi``, ``(3,)``)."""
+    cx, cy, radius, fraction = region
+    bounded = torch.tanh(phi)
+    depth = (fraction + _HELD_DEPTH * bounded[2]).clamp(0.05, 0.95)
+    share = depth**2
+    centre = phi.new_tensor([cx, cy]) + _HELD_SHIFT * radius * bounded[:2]
+    size = phi.new_tensor([math.log(radius - _MIN_RADIUS_PX)])
+    return torch.cat([centre, size, (share / (1 - share)).log()[None]])
+
+
+def _held_fit(system: BalanceSystem, loss: Callable[[Tensor], Tensor], start: Tensor | None) -> Tensor:
+    """With candidate regions (:func:`_regions`): the disc held at each in turn (:func:`_held`: with its
+    radius and depth free the disc grows over the frame as a second depth rate, its strength unphysical),
+    its centre refined from the region's centroid (and from ``start``'s where ``start`` lies on the
+    region); the best region's ``theta``."""
+    best: tuple[float, Tensor] | None = None
+    for region in _regions(system):
+        phis = [torch.zeros(3, dtype=_F64, device=system.frames.device)]
+        if start is not None and abs(float(start[2]) - math.log(region[2] - _MIN_RADIUS_PX)) < 1e-9:
+            depth = math.sqrt(float(torch.sigmoid(start[3])))  # start's layer, d / L
+            offset = [(float(start[0]) - region[0]) / (_HELD_SHIFT * region[2])]
+            offset += [(float(start[1]) - region[1]) / (_HELD_SHIFT * region[2])]
+            offset += [(depth - region[3]) / _HELD_DEPTH]
+            phis.append(torch.atanh(phis[0].new_tensor(offset).clamp(-0.99, 0.99)))
+
+        def held_loss(phi: Tensor, region: tuple[float, float, float, float] = region) -> Tensor:
+            return loss(_held(region, phi))
+
+        phi = optimise(held_loss, phis, iterations=25, runs=2)
+        theta = _held(region, phi).detach()
+        with torch.no_grad():
+            value = float(loss(theta))
+        if best is None or value < best[0]:
+            best = (value, theta)
+    if best is None:
+        raise RuntimeError("delamination: held fit without candidate regions")
+    return best[1]
 
 
 def _starts(system: BalanceSystem, fit: Fit) -> list[Tensor]:
-    """At the candidate regions the balance was given (:func:`_hinted`), else around the strongest
-    positive structure of the time-mean residual (where heat stays)."""
-    if system.hints.get("delamination"):
-        return _hinted(system)
+    """Around the strongest positive structure of the time-mean residual (where heat stays)."""
     residual = system.residual(fit).mean(0)
     m = system.margin
     cx, cy = peak(residual, 4 * int(math.ceil(system.sigma)) + 6)
@@ -203,8 +236,11 @@ def _fit(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
         term, weight = delamination_term(system, theta, plate)
         return system.profile_loss(columns, term, NoiseSpec("T", weight.detach())) / scale
 
-    starts = _starts(system, fit)
-    theta = optimise(loss, starts if start is None else [start, *starts], iterations=25, runs=2)
+    if system.hints.get("delamination"):
+        theta = _held_fit(system, loss, start)
+    else:
+        starts = _starts(system, fit)
+        theta = optimise(loss, starts if start is None else [start, *starts], iterations=25, runs=2)
     cx, cy, radius, depth_time = _unpack(theta, plate["depth_time"])
     dx = system.dx
     shape = {

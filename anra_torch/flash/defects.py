@@ -88,9 +88,9 @@ class DefectMap:
         plate_time: the sound plate's ``L^2 / a_z`` in s.
         plate_time_se: its standard error in s.
         back_wall_reached: the recording lasts past ``plate_time / pi``, where the back wall shows.
-        defect_score: ``ln(plate_time / tau)`` over the peak of its defect where one is found (1 in its
-            core, 0.6 at its outline), elsewhere bounded at +-0.2 per pixel, averaged over 3 px and over
-            twice the largest peak; higher = more likely a defect, ``(H, W)``.
+        defect_score: ``ln(plate_time / tau)`` averaged over 1 px over the peak of its defect where one
+            is found (about 1 in its core, 0.6 at its outline), elsewhere bounded at +-0.2 per pixel,
+            averaged over 3 px and over twice the largest peak; higher = more likely a defect, ``(H, W)``.
         defect_mask: ``(H, W)`` booleans.
         depth_fraction: ``d / L`` of the defect at each pixel, NaN where sound, ``(H, W)``.
         defects: the defects found.
@@ -406,15 +406,18 @@ def _outlines(
 
 
 def _score(contrast: Tensor, peaks: list[tuple[Tensor, Tensor]]) -> Tensor:
-    """The defect score: over each defect found (its outline grown by 2 px) its contrast over its peak;
-    elsewhere the contrast, each pixel's bounded at +-:data:`_CONTRAST` (a fit can run far off in noise),
-    averaged over the lateral derivatives' footprint (nothing smaller is resolved) and over twice the
-    largest peak: a defect too faint to outline still ranks above the sound plate."""
+    """The defect score: over each defect found (its outline grown by 2 px) its contrast averaged over the
+    value's smoothing (1 px; each pixel's own fit is noisy) over its peak; elsewhere the contrast, each
+    pixel's bounded at +-:data:`_CONTRAST` (a fit can run far off in noise), averaged over the lateral
+    derivatives' footprint (nothing smaller is resolved) and over twice the largest peak: a defect too
+    faint to outline still ranks above the sound plate."""
     bounded = smooth(contrast.clamp(-_CONTRAST, _CONTRAST), _SIGMA_LATERAL).clamp_min(0)
     score = bounded / max([float(p) for _, p in peaks], default=1.0) * 0.5
+    near = smooth(contrast.clamp_min(0), _SIGMA_VALUE)
     for outline, peak in peaks:
         region = dilate(outline, 2)
-        score = torch.where(region, torch.maximum(score, contrast.clamp_min(0) / peak), score)
+        score = torch.where(region, torch.maximum(score, near / peak), score)
+        score = torch.where(outline, score.clamp_min(_OUTLINE), score)  # the mask: at least 0.6
     return score
 
 

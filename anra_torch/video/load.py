@@ -11,8 +11,9 @@ loader.
 Measured timestamps are often not uniform (a FLIR camera triggered by hand). :func:`load_video` keeps the
 true timestamps in :attr:`Video.t`; with ``timestamps="uniform"`` (default) it refuses non-uniform ones,
 ``"keep"`` returns them as they are (``dt`` is then their median step and :attr:`Video.uniform` is False),
-``"resample"`` interpolates the frames linearly onto a uniform grid
-(:func:`anra_torch.video.resample_uniform`) and records what it did in ``meta["resampled"]``.
+``"resample"`` interpolates the frames onto a uniform grid with
+:func:`anra_torch.video.resample_uniform`'s default, the phase-aware cubic, and records what it did in
+``meta["resampled"]``.
 
 Every error is a one-line ``ValueError`` that names the file, the requirement and what was found.
 """
