@@ -112,6 +112,8 @@ def profile(video: Path) -> dict[str, float]:
     timed(features, "fit_depth_parameters", "fit of a, b (forecast of the cooling)")
     timed(depth, "_reach", "coarse pass (how deep the heat goes)")
     timed(depth, "node_temperatures", "temperatures at the nodes (modes to pixels)")
+    timed(depth, "window_temperatures", "temperatures at the nodes (modes to pixels)")
+    timed(depth, "window_problem", "the window's modes (the frames continued, split)")
     timed(depth, "march", "march of the modal states")
     timed(doses.DoseAccumulator, "add", "doses (peak, Omega, CEM43, noise)")
     video = load_video(video)
