@@ -214,7 +214,8 @@ def _eliminate(
     cost: dict[str, float | None] = {}
     while kept:
         models = [kept, *(_without(kept, name) for name in kept), []]
-        missing = [m for m in models if frozenset(m) not in scores]
+        # each distinct model once (one effect kept: the model without it is the plain model)
+        missing = list({frozenset(m): m for m in models if frozenset(m) not in scores}.values())
         if missing:
             scores.update(_inner_scores(video, dt, dx, diagnosis, missing, splits, time_window, assimilate))
         full = scores[frozenset(kept)]

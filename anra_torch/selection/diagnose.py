@@ -73,7 +73,7 @@ from torch import Tensor
 
 from anra_torch.balance import Artefacts, BalanceSystem, Fit, NoiseModel, find_artefacts, measure_noise
 from anra_torch.checks import as_video, mostly_finite, positive
-from anra_torch.effects import EFFECTS
+from anra_torch.effects import EFFECTS, Shape
 from anra_torch.layers import GaussianSmoothing, TimeDerivative
 from anra_torch.selection.stepwise import Selection, checked_hints
 
@@ -292,9 +292,9 @@ def fit_effects(
         if len(set(_known(model))) != len(model):
             raise ValueError(f"a model names each effect once, got {list(model)}")
     video, artefacts, system, plain = _balance(video, dt, dx, float(smoothing), noise_sd, time_family, hints)
-    out = []
+    out, shared = [], dict[tuple, Shape]()  # the shapes fitted alike in several models, fitted once
     for model in models:
-        selection = Selection(system, ALPHA, _with_nuisance(model, nuisance), _background(video[0]))
+        selection = Selection(system, ALPHA, _with_nuisance(model, nuisance), _background(video[0]), shared)
         selection.take(selection.names)
         if physical:
             selection.drop_unphysical_given()

@@ -48,8 +48,18 @@ def checked_hints(
 class Selection:
     """Stepwise selection state: the effects in the model and the fitted extra terms."""
 
-    def __init__(self, system: BalanceSystem, alpha: float, names: Sequence[str], background: float) -> None:
+    def __init__(
+        self,
+        system: BalanceSystem,
+        alpha: float,
+        names: Sequence[str],
+        background: float,
+        shared: dict[tuple, Shape] | None = None,
+    ) -> None:
         self.system, self.alpha, self.names, self.background = system, alpha, list(names), background
+        # Shapes fitted by :meth:`take`, shared by the selections of one balance (fit_effects' models): a
+        # shape fitted to what the same effects before it leave is the same fit in every model.
+        self.shared = {} if shared is None else shared
         self.selected: list[str] = []
         frames = system.frames.detach()
         self.span = (float(frames.min()), float(frames.max()))  # the temperatures the video reaches
@@ -219,9 +229,17 @@ class Selection:
 
     def take(self, names: Sequence[str]) -> None:
         """Put ``names`` into the model as given, in order, without a test: each localised shape fitted to
-        what the effects before it leave, then (beside others) refitted to the model without itself."""
+        what the effects before it leave (once per balance: :attr:`shared`), then (beside others) refitted
+        to the model without itself."""
         for name in names:
-            self.prepare(name, self.system.fit(self.columns(self.selected)))
+            before = tuple(id(self.fitted[e]) for e in self.selected if e in self.fitted)
+            key = (name, tuple(self.selected), before)
+            if key in self.shared:
+                self._use(name, self.shared[key])
+            else:
+                self.prepare(name, self.system.fit(self.columns(self.selected)))
+                if name in self.fitted:
+                    self.shared[key] = self.fitted[name]
             self.selected.append(name)
         for name in names:
             if name in self.shapes and len(names) > 1:

@@ -3,13 +3,15 @@ frames needs it, and the smallest model whose forecast is within the noise of th
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import pytest
 import torch
 from scenes import camera_scene, with_artefacts
 
 from anra_torch.balance import find_artefacts
 from anra_torch.effects import Sensor, hidden_effect_video, independent_effect_video
-from anra_torch.forecast import EARN_MARGIN, WEAK_SIGNAL, earned_diagnosis, signal_to_noise
+from anra_torch.forecast import EARN_MARGIN, WEAK_SIGNAL, earn, earned_diagnosis, signal_to_noise
 from anra_torch.forecast.earn import without_offsets
 from anra_torch.selection import fit_effects
 
@@ -88,3 +90,36 @@ def test_the_signal_is_stated_in_noise_sds(loss_video) -> None:
     assert strong > 5 * WEAK_SIGNAL  # a rise of 100 noise sds, 64 of them lost over the 2 s (measured)
     quiet = v.frames[:1].expand(20, -1, -1) + v.noise_sd * torch.randn(20, 48, 48, dtype=torch.float64)
     assert signal_to_noise(quiet, plain) < 1  # no change: the noise alone
+
+
+def test_each_model_is_fitted_once_per_split_and_compared_on_the_same_split(monkeypatch) -> None:
+    """One effect kept: the model without it is the plain model, fitted and forecast once per inner split
+    (it was twice, and its second copy's scores were paired with the next split's), and the cost of
+    removing the effect is the mean over the splits of the plain model's score less the model's on the same
+    split. The fits and forecasts are stand-ins: only the bookkeeping is tested."""
+    fitted: list[list[str]] = []
+    score = {(): {10: 3.0, 12: 5.0, 14: 7.0}, ("linear_loss",): {10: 1.0, 12: 1.0, 14: 1.0}}
+
+    def fit(prefix, dt, dx, models, **options):
+        fitted.extend(list(m) for m in models)
+        return [SimpleNamespace(names=list(m)) for m in models]
+
+    monkeypatch.setattr(earn, "fit_effects", fit)
+    monkeypatch.setattr(
+        earn, "_validation", lambda video, dt, dx, inner, split, *rest: score[tuple(inner.names)][split]
+    )
+    effect = {"name": "linear_loss", "params": {"b": 0.1}, "share": 0.5}
+    diagnosis = SimpleNamespace(
+        names=["linear_loss"],
+        effects=[effect],
+        smoothing=2.0,
+        noise=0.01,
+        nuisance=[],
+        hints={},
+        artefacts=None,
+    )
+    video = torch.zeros(20, 4, 4, dtype=torch.float64)
+    kept, cost, removed = earn._eliminate(video, 0.1, 0.1, diagnosis, [10, 12, 14], None, None)
+    assert sorted(fitted) == sorted([["linear_loss"], []] * 3)
+    assert kept == ["linear_loss"] and removed == []
+    assert cost == {"linear_loss": pytest.approx((2.0 + 4.0 + 6.0) / 3)}

@@ -79,3 +79,37 @@ def test_which_effects_may_enter_together() -> None:
     assert chosen.in_view("heterogeneity", {**disc, "x": -2.9})
     assert not chosen.in_view("heterogeneity", {**disc, "x": -3.1})
     assert not chosen.physical("heterogeneity", {**disc, "y": 40.0})
+
+
+def test_a_shape_fitted_after_the_same_effects_is_fitted_once_per_balance(monkeypatch) -> None:
+    """The models of one balance (``fit_effects``) share :attr:`Selection.shared`: a shape fitted to what
+    the same effects before it leave is fitted once, and is the fit a selection of its own makes; after
+    other effects it is fitted anew."""
+    system = BalanceSystem(loss_video(0.5, size=16), DT, DX, sigma=1.0, noise_sd=0.01)
+    alone = Selection(system, 0.01, ["depth_conduction"], background=25.0)
+    alone.take(alone.names)
+    fitted: list[str] = []
+    prepare = Selection.prepare
+
+    def counted(self: Selection, name: str, current, *, refine: bool = False) -> None:
+        fitted.append(f"{name}{'+' if refine else ''}")
+        prepare(self, name, current, refine=refine)
+
+    monkeypatch.setattr(Selection, "prepare", counted)
+    shared: dict = {}
+    models = [["depth_conduction", "linear_loss"], ["depth_conduction"], ["linear_loss", "depth_conduction"]]
+    selections = [Selection(system, 0.01, m, background=25.0, shared=shared) for m in models]
+    for chosen in selections:
+        chosen.take(chosen.names)
+    assert fitted == [
+        "depth_conduction",
+        "linear_loss",
+        "depth_conduction+",
+        "linear_loss",
+        "depth_conduction",
+        "depth_conduction+",
+    ]
+    assert torch.equal(selections[1].fitted["depth_conduction"].theta, alone.fitted["depth_conduction"].theta)
+    assert not torch.equal(
+        selections[2].fitted["depth_conduction"].theta, alone.fitted["depth_conduction"].theta
+    )
