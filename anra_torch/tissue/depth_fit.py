@@ -55,7 +55,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.balance import estimate_noise_sd
-from anra_torch.tissue.depth_cooling import Cooling, cooling_data, cooling_start, forecast
+from anra_torch.tissue.depth_cooling import Cooling, cooling_data, cooling_modes, cooling_start, forecast
 from anra_torch.tissue.depth_errors import BETWEEN_WEIGHT
 from anra_torch.tissue.depth_solver import check_rate, surface_rise
 
@@ -276,6 +276,18 @@ def square_root_drop(rise: Tensor, switch: Tensor) -> Tensor:
     return rise.scatter(1, at + 1, after - drop / 6.0)
 
 
+def _dropped(rise: Tensor, dx: Tensor, dt: Tensor, noise: Tensor, start: Tensor, spectrum: Tensor) -> Cooling:
+    """What the fit sees of :func:`square_root_drop`'s frames: the modes of the one frame it changes put
+    into the recording's ``spectrum`` (``(B, T, K)``, :func:`cooling_modes`)."""
+    b, t, h, w = rise.shape
+    switch = (start - 2).clamp(0, t - 2)
+    pair = rise.gather(1, torch.stack([switch, switch + 1], 1).view(b, 2, 1, 1).expand(-1, -1, h, w))
+    frame = square_root_drop(pair, torch.zeros_like(switch))[:, 1:]
+    changed = cooling_modes(frame, dx, dt, noise, length=t)  # (B, 1, K)
+    at = (switch + 1).view(b, 1, 1).expand(-1, 1, spectrum.shape[2])
+    return cooling_data(rise, dx, dt, noise, start, spectrum=spectrum.scatter(1, at, changed))
+
+
 def _misfit(c: Cooling, r: Tensor, noise: Tensor) -> Tensor:
     """Share of the cooling signal the forecast misses beyond the noise's expected part, ``(B,)``."""
     expected = noise**2 * r.shape[1] * ((c.weight**2) * (c.basis**2).sum(1)).sum(1)
@@ -326,7 +338,8 @@ def fit_depth_parameters(
         cooling = t - start
         if t < 3 or int(cooling.max()) < MIN_COOLING_FRAMES:
             return _invalid(rise, noise, start, cooling, batched)
-        c = cooling_data(rise, dx_, dt_, noise, start)
+        spectrum = cooling_modes(rise, dx_, dt_, noise)
+        c = cooling_data(rise, dx_, dt_, noise, start, spectrum=spectrum)
         used = (c.weight > 0).sum(1)
         valid = (cooling >= MIN_COOLING_FRAMES) & (used >= 3)
         theta, r, jac = _levenberg_marquardt(c, _start(c))
@@ -337,8 +350,7 @@ def fit_depth_parameters(
         edges = _shift(cooling_data(rise, dx_, dt_, noise, start, mirrored=True), theta, r, jac)
         # The frames' sampling at the switch-off (see :func:`square_root_drop`): weight 1/3, the truth
         # anywhere between none and the copy's change (a switch-off anywhere between two frames).
-        dropped = cooling_data(square_root_drop(rise, start - 2), dx_, dt_, noise, start)
-        sampling = _shift(dropped, theta, r, jac)
+        sampling = _shift(_dropped(rise, dx_, dt_, noise, start, spectrum), theta, r, jac)
         se = torch.sqrt(se**2 + edges**2 + BETWEEN_WEIGHT * sampling**2)
     return _result(theta, se, noise, start, misfit, valid, cooling, used, batched)
 
