@@ -247,7 +247,7 @@ def test_a_defect_covering_nearly_half_the_frame_is_the_defect_not_the_plate() -
         )
     )
     found = defect_map(plate.frames, plate.dt, plate.dx)
-    # +23 %: the thin sound ring beside the hot layer is warmed sideways by more than the lateral fit takes off
+    # +23 %: the thin sound ring beside the hot layer is warmed sideways by more than the fit takes off
     assert abs(found.plate_time / plate.plate_time - 1) < 0.3
     mask = found.defect_mask.numpy()
     assert (mask & plate.defect_mask).sum() / (mask | plate.defect_mask).sum() > 0.6
