@@ -283,7 +283,7 @@ class Selection:
         dropped.)"""
         before, bad = self.fitted.get(name), self.unphysical()
         others = [e for e in self.selected if e != name]
-        self.prepare(name, self.fit(others), refine=True)
+        self.prepare(name, self.system.fit(self.columns(others)), refine=True)
         if before is not None and self.unphysical() - bad:
             self._use(name, before)
 
