@@ -65,9 +65,10 @@ def run(tree: Path, video: Path, extra: list[str]) -> tuple[float, float, float,
     if "1e300" in extra:  # the command's refusal of layers over MAX_THICKNESS lifted (looked up per parse)
         code = "import anra_torch.cli.features as f; f.MAX_THICKNESS = float('inf'); " + code
     start = time.perf_counter()
-    child = subprocess.Popen(
-        [sys.executable, "-c", code, "features", str(video), "--json", *extra],
+    child = subprocess.Popen(  # in the tree: `python -c` imports from the working directory before PYTHONPATH
+        [sys.executable, "-c", code, "features", str(Path(video).resolve()), "--json", *extra],
         env=env,
+        cwd=tree,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
     )

@@ -55,6 +55,7 @@ LAZY_IMPORTS = {
     "imagecodecs": "the formats extra",
     "scipy": "the test extra (the independent 3-D bioheat simulator, a reference for tests and experiments)",
     "torchdiffeq": "loads scipy.integrate (0.4 s at every start of commands that integrate nothing)",
+    "kornia": "the paper's naive baselines only (0.2 s at every start of every command)",
 }
 """Third-party modules a function may import (optional extras; the one measured start-up cost)."""
 

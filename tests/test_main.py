@@ -29,3 +29,22 @@ def test_entry_points_run_outside_the_process(tmp_path: Path) -> None:
     )
     assert failed.returncode == 2 and failed.stdout == ""
     assert failed.stderr == f"anra: error: {tmp_path / 'none.npz'}: no such file\n"
+
+
+def test_importing_the_package_leaves_the_garbage_collector_as_the_importer_had_it() -> None:
+    """The package's imports run with the collector off (a faster start) and leave it as it was."""
+    import gc
+    import importlib
+
+    import anra_torch
+
+    was = gc.isenabled()
+    try:
+        gc.disable()
+        importlib.reload(anra_torch)
+        assert not gc.isenabled()
+        gc.enable()
+        importlib.reload(anra_torch)
+        assert gc.isenabled()
+    finally:
+        (gc.enable if was else gc.disable)()

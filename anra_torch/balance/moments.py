@@ -304,20 +304,59 @@ def within(term: Tensor, *, pixel: bool | Tensor = False, frame: bool | Tensor =
     return term
 
 
-def pushback(outputs: Tensor, frames: Tensor, levers: Sequence[Tensor]) -> Tensor:
+def pushback(
+    outputs: Tensor, frames: Tensor, levers: Sequence[Tensor], *, reach: int | None = None
+) -> Tensor:
     """``A^T x`` for each lever ``x``, where ``A`` is the (linearised) map from ``frames`` to ``outputs``.
 
     Through the autograd graph that built ``outputs`` from ``frames``: the transposed filters, exactly.
+    With ``reach`` (``A`` local in time: output frame ``k`` made from frames ``k .. k + reach - 1`` only),
+    levers that are zero outside spans of frames whose reaches do not meet share one backward pass, each
+    then cut out of it (``A^T`` is linear: the same numbers, a pass per group instead of per lever).
 
     Shape:
-        ``outputs`` like each lever; ``frames`` any; output ``(len(levers), *frames.shape)``.
+        ``outputs`` like each lever, frames first; ``frames`` any; output ``(len(levers), *frames.shape)``.
     """
-    backs = []
-    for lever in levers:
+    groups = (
+        _disjoint_groups(levers, reach) if reach is not None else [[(i, None)] for i in range(len(levers))]
+    )
+    backs: list[Tensor | None] = [None] * len(levers)
+    for group in groups:
+        lever = levers[group[0][0]] if len(group) == 1 else sum(levers[i] for i, _ in group)
         # the gradient of <outputs, lever>: the same A^T x, without grad_outputs (whose check imports sympy)
         (back,) = torch.autograd.grad((outputs * lever).sum(), frames, retain_graph=True)
-        backs.append(back)
-    return torch.stack(backs)
+        for i, span in group:
+            if span is None or len(group) == 1:
+                backs[i] = back
+            else:
+                backs[i] = torch.zeros_like(back)
+                backs[i][span] = back[span]  # type: ignore[index]
+    return torch.stack(backs)  # type: ignore[arg-type]
+
+
+def _disjoint_groups(levers: Sequence[Tensor], reach: int) -> list[list[tuple[int, slice | None]]]:
+    """The levers in groups whose frames' reaches (``first .. last + reach - 1`` of the nonzero output
+    frames) do not meet, each lever with its reach; an all-zero lever alone."""
+    spans: list[tuple[int, slice | None]] = []
+    for i, lever in enumerate(levers):
+        lever = lever.detach()
+        if bool(lever[0].ne(0).any()) and bool(lever[-1].ne(0).any()):  # every frame's reach (no scan)
+            spans.append((i, slice(0, lever.shape[0] - 1 + reach)))
+            continue
+        nonzero = torch.nonzero(lever.reshape(lever.shape[0], -1).ne(0).any(1)).flatten()
+        spans.append((i, slice(int(nonzero[0]), int(nonzero[-1]) + reach) if nonzero.numel() else None))
+    groups: list[list[tuple[int, slice | None]]] = []
+    ends: list[int] = []
+    for i, span in sorted(spans, key=lambda item: -1 if item[1] is None else item[1].start):
+        for g, end in enumerate(ends):
+            if span is not None and groups[g][0][1] is not None and end <= span.start:
+                groups[g].append((i, span))
+                ends[g] = span.stop
+                break
+        else:
+            groups.append([(i, span)])
+            ends.append(-1 if span is None else span.stop)
+    return groups
 
 
 def sandwich(inverse: Tensor, backs: Tensor, noise: object) -> Tensor:

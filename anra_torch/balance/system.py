@@ -217,10 +217,20 @@ class BalanceSystem:
         inverse = scale[:, None] * torch.linalg.pinv(scale[:, None] * gram * scale, hermitian=True) * scale
         beta = inverse @ cross
         residual = self.u - sum(float(beta[i]) * self.terms[c] for i, c in enumerate(columns))
-        backs = pushback(residual, self.frames, [self.detached[c] for c in columns])
+        backs = pushback(
+            residual, self.frames, [self.detached[c] for c in columns], reach=self._reach(columns)
+        )
         cov = sandwich(inverse, backs, self.noise) + self.correction_covariance(columns, inverse, beta)
         rss = float(residual.detach().pow(2).sum())
         return Fit(columns, beta, cov, rss)
+
+    def _reach(self, columns: Sequence[str]) -> int | None:
+        """The frames one output frame of the residual is made from (the time filter's length), where the
+        map from the frames to the residual is local in time: None with per-pixel fixed effects (a mean over
+        every frame) or a column whose term is built from the frames by something else than the filters."""
+        if "pixel" in self.within or any(self.terms[c].requires_grad for c in columns if c not in REGRESSORS):
+            return None
+        return self.shape[0] - self.u.shape[0] + 1
 
     def correction_covariance(self, columns: Sequence[str], inverse: Tensor, beta: Tensor) -> Tensor:
         """The coefficients' covariance from the error of the errors-in-variables correction, ``(k, k)``.

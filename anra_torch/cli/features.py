@@ -7,6 +7,7 @@ from typing import Any
 
 import torch
 
+from anra_torch.balance import PreparedBatch, prepare_batch
 from anra_torch.checks import check_output
 from anra_torch.cli.arguments import (
     add_device_argument,
@@ -23,6 +24,10 @@ from anra_torch.tissue import RULES, feature_summary, save_feature_maps
 from anra_torch.video import Video
 
 __all__ = ["MAX_THICKNESS", "add_parser", "run"]
+
+TIME_FILTER_FRAMES = 5
+"""Frames of the ANRA estimator's time filter (its default, as ``anra features`` and the phases use it):
+fewer, and nothing is measured ahead (the estimator says why it cannot run)."""
 
 MAX_THICKNESS = 1000.0
 """Thickest ``--thickness`` in mm: a layer of a metre is beyond any tissue and any recording's reach (heat
@@ -110,6 +115,18 @@ def _print_summary(video: Video, record: dict[str, Any], depth: bool, depth_abse
         print(f"  report: {record['report']}")
 
 
+def _measured(frames: torch.Tensor) -> PreparedBatch | None:
+    """The frames' artefacts and noise measured once (:func:`~anra_torch.balance.prepare_batch`), for the
+    ANRA maps and the phases' search and estimates alike; None where the estimator would not take them (it
+    then says why itself)."""
+    if frames.ndim != 3 or not frames.is_floating_point() or frames.shape[0] < TIME_FILTER_FRAMES:
+        return None
+    try:
+        return prepare_batch(frames[None])
+    except ValueError:
+        return None
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``anra features`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     if args.report is not None and not args.depth:
@@ -126,8 +143,9 @@ def run(args: argparse.Namespace) -> int:
     options = {"depth": True, "thickness": args.thickness} if args.depth else {}
     try:
         frames = torch.as_tensor(video.frames).to(args.device)  # the features compute where the frames are
+        measured = _measured(frames) if video.dx is not None else None
         record, maps = feature_summary(
-            frames, video.dt, video.dx, units=args.units, rule=args.rule, **options
+            frames, video.dt, video.dx, units=args.units, rule=args.rule, measured=measured, **options
         )
     except (ValueError, TypeError) as err:
         raise ValueError(f"{video.source}: {err}") from err
@@ -138,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     if video.dx is not None and record.get("diffusivity_global") is not None:
         # A recording with a heating and a cooling: its diffusivity is the source-free phase's, as in estimate
         # (the dose and the maps stay the whole recording's).
-        phases, described = phase_diffusivities(video)
+        phases, described = phase_diffusivities(video, measured=measured)
         if phases:
             record["phases"] = phases
             record["diffusivity_phase"] = None if described is None else described["kind"]

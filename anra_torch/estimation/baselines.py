@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 
-import kornia
 import torch
 from torch import Tensor
 
@@ -63,6 +62,8 @@ def backward_log_estimate(
     Shape:
         ``(B, T, H, W)`` -> ``(B,)``; ``(T, H, W)`` -> 0-d.
     """
+    import kornia  # here, not at the top: 0.2 s CPU at every start of every command that never uses it
+
     video, batched = as_video(frames, min_frames=2)
     b, t, h, w = video.shape
     dt_ = as_spacing(dt, name="dt", unit="s", batch=b, like=video).view(b, 1, 1, 1)

@@ -33,7 +33,7 @@ from typing import Any
 
 import torch
 
-from anra_torch.balance import concat_prepared
+from anra_torch.balance import PreparedBatch, concat_prepared
 from anra_torch.checks import POOR_FIT, one_line
 from anra_torch.estimation import ANRAEstimator, estimate_chunked, small_box_estimate
 from anra_torch.recording.parallel import side_by_side
@@ -262,10 +262,13 @@ def estimate_recording(
     return done
 
 
-def phase_diffusivities(video: Video) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+def phase_diffusivities(
+    video: Video, *, measured: PreparedBatch | None = None
+) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
     """The phases of a recording, each with its estimate as ``anra estimate`` gives it (``kind``, frames,
     times, ``diffusivity``, ...), and the record of the phase that describes the recording; ``([], None)``
-    for a recording of one phase (nothing is estimated then).
+    for a recording of one phase (nothing is estimated then). ``measured``: the frames' measurement
+    (:func:`~anra_torch.balance.prepare_batch`) made already, not made again.
 
     Shape:
         ``video.frames`` ``(T, H, W)``.
@@ -274,7 +277,7 @@ def phase_diffusivities(video: Video) -> tuple[list[dict[str, Any]], dict[str, A
         ValueError: one line naming the file, when a phase cannot be estimated.
     """
     est = ANRAEstimator(strict=False)
-    plan = plan_recording(video, est, None, None)
+    plan = plan_recording(video, est, None, None, measured)
     if not plan.several:
         return [], None
     (done,) = _run([video], [plan], _Settings(est))

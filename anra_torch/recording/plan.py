@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import torch
 
-from anra_torch.balance import prepare_batch
+from anra_torch.balance import PreparedBatch, prepare_batch
 from anra_torch.estimation import CHUNKED_VALUES, ANRAEstimator
 from anra_torch.recording.phases import MIN_PHASE_FRAMES, find_phases, whole_recording
 from anra_torch.recording.records import PhaseEstimate
@@ -56,16 +56,28 @@ class RecordingPlan:
 
 
 def plan_recording(
-    video: Video, est: ANRAEstimator, precision: float | None, dtype: torch.dtype | None
+    video: Video,
+    est: ANRAEstimator,
+    precision: float | None,
+    dtype: torch.dtype | None,
+    measured: PreparedBatch | None = None,
 ) -> RecordingPlan:
     """Every phase of ``video`` with its route, and whether it has several phases. A recording read whole
-    is measured once (:func:`~anra_torch.balance.prepare_batch`): the phases are searched in its repaired
-    frames, and a recording of one phase is estimated on that measurement."""
+    is measured once (:func:`~anra_torch.balance.prepare_batch`; ``measured``: that measurement made
+    already, of the same frames with ``est.noise_sd``): the phases are searched in its repaired frames, and
+    a recording of one phase is estimated on that measurement."""
     chunked, prepared, frames = reads_in_chunks(video, est, precision), None, video.frames
     whole = _route(video, est, chunked) == "whole" and isinstance(frames, torch.Tensor) and frames.ndim == 3
     if whole and frames.shape[0] >= est.time.length:
         frames = frames.to(est.time.taps.device, dtype or frames.dtype)
-        prepared = prepare_batch(frames[None], noise_sd=est.noise_sd) if frames.is_floating_point() else None
+        like = (tuple(frames[None].shape), frames.dtype, frames.device)
+        if (
+            measured is not None
+            and (tuple(measured.video.shape), measured.video.dtype, measured.video.device) == like
+        ):
+            prepared = measured
+        elif frames.is_floating_point():
+            prepared = prepare_batch(frames[None], noise_sd=est.noise_sd)
     # With a precision target the recording is one phase: finding phases would read all of it.
     phases = (
         []

@@ -36,6 +36,7 @@ __all__ = [
     "SMOOTHING",
     "Cooling",
     "cooling_data",
+    "cooling_modes",
     "cooling_start",
     "forecast",
     "margin_mm",
@@ -134,24 +135,51 @@ def _window_basis(h: int, w: int, margin: int, inner: int, like: Tensor, py: int
     return (ch[:, None, :, None] * cw[None, :, None, :]).reshape(py * px, -1)
 
 
-def cooling_data(
-    rise: Tensor, dx: Tensor, dt: Tensor, noise: Tensor, start: Tensor, *, mirrored: bool = False
-) -> Cooling:
-    """The modes, weights, frames and the measured side of the residual of a batch ``(B, T, H, W)``."""
-    b, t, h, w = rise.shape
+def _geometry(shape: tuple[int, ...], dx: Tensor, dt: Tensor, like: Tensor) -> tuple:
+    """The widened frame of a batch of ``shape`` ``(B, T, H, W)``: ``(margin, inner, py, px, rows, cols,
+    k2)``, ``k2`` ``(B, py px)`` (1/mm^2) of the kept low modes."""
+    _, t, h, w = shape
     step = float(dx.max())
     margin = max(1, math.ceil(margin_mm(float(dt.max()) * (t - 1)) / step - 1e-9))
     inner = min(max(1, round(EDGE / step)), (min(h, w) - 1) // 2)
     hh, ww = h + 2 * margin, w + 2 * margin
-    ky = math.pi * torch.arange(hh, dtype=_F64, device=rise.device) / hh
-    kx = math.pi * torch.arange(ww, dtype=_F64, device=rise.device) / ww
+    ky = math.pi * torch.arange(hh, dtype=_F64, device=like.device) / hh
+    kx = math.pi * torch.arange(ww, dtype=_F64, device=like.device) / ww
     k2 = (ky[:, None] ** 2 + kx[None, :] ** 2) / dx.view(-1, 1, 1) ** 2  # (B, HH, WW)
     cut = (3.7 / SMOOTHING) ** 2
     py = min(hh, math.ceil(math.sqrt(cut) * hh * step / math.pi) + 1)
     px = min(ww, math.ceil(math.sqrt(cut) * ww * step / math.pi) + 1)
-    ch, cw = dct_matrix(hh).to(rise)[:py], dct_matrix(ww).to(rise)[:px]
-    spectrum = widened_modes(rise, margin, ch, cw, mirrored=mirrored, noise=noise, curved=True).flatten(2)
-    k2 = k2[:, :py, :px].flatten(1)
+    ch, cw = dct_matrix(hh).to(like)[:py], dct_matrix(ww).to(like)[:px]
+    return margin, inner, py, px, ch, cw, k2[:, :py, :px].flatten(1)
+
+
+def cooling_modes(
+    rise: Tensor, dx: Tensor, dt: Tensor, noise: Tensor, *, length: int | None = None, mirrored: bool = False
+) -> Tensor:
+    """The widened frames' low cosine modes ``(B, T, K)`` (all of them: :func:`cooling_data` keeps those
+    above the noise); ``length``: the record's frames when ``rise`` holds only some of them."""
+    shape = (rise.shape[0], length or rise.shape[1], *rise.shape[2:])
+    margin, _, _, _, ch, cw, _ = _geometry(shape, dx, dt, rise)
+    return widened_modes(rise, margin, ch, cw, mirrored=mirrored, noise=noise, curved=True).flatten(2)
+
+
+def cooling_data(
+    rise: Tensor,
+    dx: Tensor,
+    dt: Tensor,
+    noise: Tensor,
+    start: Tensor,
+    *,
+    mirrored: bool = False,
+    spectrum: Tensor | None = None,
+) -> Cooling:
+    """The modes, weights, frames and the measured side of the residual of a batch ``(B, T, H, W)``;
+    ``spectrum``: its :func:`cooling_modes` when known."""
+    b, t, h, w = rise.shape
+    margin, inner, py, px, ch, cw, k2 = _geometry(rise.shape, dx, dt, rise)
+    cut = (3.7 / SMOOTHING) ** 2
+    if spectrum is None:
+        spectrum = widened_modes(rise, margin, ch, cw, mirrored=mirrored, noise=noise, curved=True).flatten(2)
     energy = ((spectrum - spectrum[:, :1]) ** 2).sum(1)
     above = energy > SIGNAL_TO_NOISE**2 * t * noise.view(-1, 1) ** 2
     weight = torch.exp(-0.5 * k2 * SMOOTHING**2) * (k2 <= cut) * above

@@ -23,8 +23,20 @@ import math
 import torch
 from torch import Tensor
 
-__all__ = ["noise_correlation", "perturbed_copies", "spread", "threshold_depth", "threshold_variance"]
+__all__ = [
+    "BETWEEN_WEIGHT",
+    "between_frames",
+    "noise_correlation",
+    "perturbed_copies",
+    "spread",
+    "threshold_depth",
+    "threshold_variance",
+]
 
+BETWEEN_WEIGHT = 1.0 / 3.0
+"""The weight of the surface between the frames (:func:`between_frames`) in a variance: the truth lies
+anywhere between the frames joined by straight lines and that surface (a switch-off anywhere between two
+frames), the mean square of an error spread evenly between none and the copy's change."""
 _F64 = torch.float64
 _BINS = 48  # radial bins of |k|^2 (the transfer function depends on |k| only)
 _FREQUENCIES = 512  # quadrature points over |w| < _ALIASES pi / dt
@@ -52,15 +64,26 @@ def perturbed_copies(
     if bool((sb > 0).any()):
         rises, rates, losses, weights = [*rises, rise], [*rates, a], [*losses, b + sb], [*weights, 1.0]
     if switch is not None and rise.shape[1] > 2:
-        bend = torch.zeros_like(rise)
-        bend[:, 1:-1] = rise[:, 2:] - 2 * rise[:, 1:-1] + rise[:, :-2]
-        late = rise - bend / 12.0
-        at = switch.clamp(1, rise.shape[1] - 2).view(-1, 1, 1, 1).expand(-1, 1, *rise.shape[2:])
-        heating = 2 * rise.gather(1, at) - rise.gather(1, at - 1)
-        late = late.scatter(1, at + 1, torch.maximum(late.gather(1, at + 1), heating))
-        rises, rates, losses, weights = [*rises, late], [*rates, a], [*losses, b], [*weights, 1.0 / 3.0]
+        late = between_frames(rise, switch)
+        rises, rates, losses, weights = [*rises, late], [*rates, a], [*losses, b], [*weights, BETWEEN_WEIGHT]
     weights_ = torch.tensor(weights, dtype=_F64, device="cpu").to(rise.device, rise.dtype)
     return torch.cat(rises), torch.cat(rates), torch.cat(losses), weights_
+
+
+def between_frames(rise: Tensor, switch: Tensor) -> Tensor:
+    """The surface between the frames as high as the frames allow (see :func:`perturbed_copies`): each frame
+    moved by ``-(g_(n+1) - 2 g_n + g_(n-1)) / 12`` and the frame after ``switch`` (each video's last frame
+    before its switch-off, ``(B,)``) at least the heating's own continuation ``2 g_s - g_(s-1)``.
+
+    Shape:
+        ``(B, T, H, W)`` -> ``(B, T, H, W)`` (``T > 2``).
+    """
+    bend = torch.zeros_like(rise)
+    bend[:, 1:-1] = rise[:, 2:] - 2 * rise[:, 1:-1] + rise[:, :-2]
+    late = rise - bend / 12.0
+    at = switch.clamp(1, rise.shape[1] - 2).view(-1, 1, 1, 1).expand(-1, 1, *rise.shape[2:])
+    heating = 2 * rise.gather(1, at) - rise.gather(1, at - 1)
+    return late.scatter(1, at + 1, torch.maximum(late.gather(1, at + 1), heating))
 
 
 def spread(values: Tensor, weights: Tensor, other: Tensor | None = None) -> tuple[Tensor, Tensor]:

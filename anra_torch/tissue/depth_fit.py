@@ -29,7 +29,13 @@ analytic, first order: the measured side and the forecast's state) and the jackk
 window by distance from the edges and halves of the cooling (one linearised step each: parts that
 disagree about ``a`` show the model's own error), and in quadrature the edges' part: the change of the fit
 (one linearised step) when the frames are continued beyond the window with their curvature mirrored
-instead.
+instead; and the frames' sampling at the switch-off: the tissue's state at ``t_0`` is driven by the frames
+joined by straight lines, while after a switch-off the surface falls as the square root of the time since
+it (a slow camera's straight line across that fall puts heat into the tissue that was never there, which
+the fit reads as a larger loss to the air and a smaller perfusion). The change of the fit (one linearised
+step) under the frames of :func:`square_root_drop` (a switch-off right at the last heated frame) enters
+with weight 1/3: the switch-off lies anywhere between two frames, the error anywhere between none and that
+change.
 
 Volumetric heating (a near-infrared laser deposits its heat below the surface) breaks the model: heat
 keeps rising from below after the switch-off and no ``(a, b, beta)`` forecasts the cooling.
@@ -49,7 +55,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from anra_torch.balance import estimate_noise_sd
-from anra_torch.tissue.depth_cooling import Cooling, cooling_data, cooling_start, forecast
+from anra_torch.tissue.depth_cooling import Cooling, cooling_data, cooling_modes, cooling_start, forecast
+from anra_torch.tissue.depth_errors import BETWEEN_WEIGHT
 from anra_torch.tissue.depth_solver import check_rate, surface_rise
 
 __all__ = [
@@ -59,6 +66,7 @@ __all__ = [
     "VOLUMETRIC_MISFIT",
     "DepthParameters",
     "fit_depth_parameters",
+    "square_root_drop",
 ]
 
 MIN_COOLING_FRAMES = 4
@@ -244,6 +252,42 @@ def _groups(c: Cooling, r: Tensor) -> Tensor:
     return ring.view(1, -1) + 4 * late.view(-1, 1)
 
 
+def _shift(other: Cooling, theta: Tensor, r: Tensor, jac: Tensor) -> Tensor:
+    """The change of the fit ``(B, 3)`` when the data are ``other``'s instead: one linearised step on the
+    fit's Jacobian, ``-(J^T J)^+ J^T (r' - r)``."""
+    moved = _residual(other, theta.unsqueeze(1))[:, 0, 0] - r
+    jj = torch.einsum("bfpi,bfpj->bij", jac, jac)
+    return -(torch.linalg.pinv(jj) @ torch.einsum("bfpi,bfp->bi", jac, moved).unsqueeze(-1)).squeeze(-1)
+
+
+def square_root_drop(rise: Tensor, switch: Tensor) -> Tensor:
+    """The frames with the surface falling as the square root of the time since a switch-off right at the
+    last heated frame ``switch`` ``(B,)`` (each video's), in the heat they put into the tissue: the solve
+    joins the frames by straight lines, and ``sqrt`` puts ``2/3 - 1/2 = 1/6`` of the drop ``D`` to the next
+    frame less heat into that interval; the next frame lowered by ``D / 6`` (a hat of width ``2 dt``) takes
+    the same out. ``D`` per pixel, where it falls.
+
+    Shape:
+        ``(B, T, H, W)`` -> ``(B, T, H, W)``.
+    """
+    at = switch.clamp(0, rise.shape[1] - 2).view(-1, 1, 1, 1).expand(-1, 1, *rise.shape[2:])
+    after = rise.gather(1, at + 1)
+    drop = (rise.gather(1, at) - after).clamp_min(0.0)
+    return rise.scatter(1, at + 1, after - drop / 6.0)
+
+
+def _dropped(rise: Tensor, dx: Tensor, dt: Tensor, noise: Tensor, start: Tensor, spectrum: Tensor) -> Cooling:
+    """What the fit sees of :func:`square_root_drop`'s frames: the modes of the one frame it changes put
+    into the recording's ``spectrum`` (``(B, T, K)``, :func:`cooling_modes`)."""
+    b, t, h, w = rise.shape
+    switch = (start - 2).clamp(0, t - 2)
+    pair = rise.gather(1, torch.stack([switch, switch + 1], 1).view(b, 2, 1, 1).expand(-1, -1, h, w))
+    frame = square_root_drop(pair, torch.zeros_like(switch))[:, 1:]
+    changed = cooling_modes(frame, dx, dt, noise, length=t)  # (B, 1, K)
+    at = (switch + 1).view(b, 1, 1).expand(-1, 1, spectrum.shape[2])
+    return cooling_data(rise, dx, dt, noise, start, spectrum=spectrum.scatter(1, at, changed))
+
+
 def _misfit(c: Cooling, r: Tensor, noise: Tensor) -> Tensor:
     """Share of the cooling signal the forecast misses beyond the noise's expected part, ``(B,)``."""
     expected = noise**2 * r.shape[1] * ((c.weight**2) * (c.basis**2).sum(1)).sum(1)
@@ -294,7 +338,8 @@ def fit_depth_parameters(
         cooling = t - start
         if t < 3 or int(cooling.max()) < MIN_COOLING_FRAMES:
             return _invalid(rise, noise, start, cooling, batched)
-        c = cooling_data(rise, dx_, dt_, noise, start)
+        spectrum = cooling_modes(rise, dx_, dt_, noise)
+        c = cooling_data(rise, dx_, dt_, noise, start, spectrum=spectrum)
         used = (c.weight > 0).sum(1)
         valid = (cooling >= MIN_COOLING_FRAMES) & (used >= 3)
         theta, r, jac = _levenberg_marquardt(c, _start(c))
@@ -302,13 +347,11 @@ def fit_depth_parameters(
         misfit = _misfit(c, r, noise)
         # The edges' part: the frames continued with their curvature mirrored instead (the other plausible
         # continuation beyond the window) move the fit by about what the continuation can err.
-        # (one linearised step on the fit's Jacobian: the change of the data moves the minimum by
-        # -(J^T J)^+ J^T (r' - r))
-        mirrored = cooling_data(rise, dx_, dt_, noise, start, mirrored=True)
-        moved = _residual(mirrored, theta.unsqueeze(1))[:, 0, 0] - r
-        jj = torch.einsum("bfpi,bfpj->bij", jac, jac)
-        shift = -(torch.linalg.pinv(jj) @ torch.einsum("bfpi,bfp->bi", jac, moved).unsqueeze(-1))
-        se = torch.sqrt(se**2 + shift.squeeze(-1) ** 2)
+        edges = _shift(cooling_data(rise, dx_, dt_, noise, start, mirrored=True), theta, r, jac)
+        # The frames' sampling at the switch-off (see :func:`square_root_drop`): weight 1/3, the truth
+        # anywhere between none and the copy's change (a switch-off anywhere between two frames).
+        sampling = _shift(_dropped(rise, dx_, dt_, noise, start, spectrum), theta, r, jac)
+        se = torch.sqrt(se**2 + edges**2 + BETWEEN_WEIGHT * sampling**2)
     return _result(theta, se, noise, start, misfit, valid, cooling, used, batched)
 
 

@@ -38,7 +38,7 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import Tensor, nn
 
-from anra_torch.balance import MatchedFilters, fit_loss_windows
+from anra_torch.balance import MatchedFilters, PreparedBatch, fit_loss_windows
 from anra_torch.checks import as_spacing, as_video, join_messages, one_line
 from anra_torch.estimation import ANRAEstimator, ANRAResult
 from anra_torch.layers import GaussianSmoothing, rtc_attention
@@ -211,7 +211,12 @@ class TissueFeatures(nn.Module):
 
     @torch.no_grad()
     def forward(
-        self, frames: Tensor, dt: float | Tensor, dx: float | Tensor | None = None
+        self,
+        frames: Tensor,
+        dt: float | Tensor,
+        dx: float | Tensor | None = None,
+        *,
+        measured: PreparedBatch | None = None,
     ) -> TissueFeatureMaps:
         """Compute every map that fits and the per-video summary.
 
@@ -219,6 +224,8 @@ class TissueFeatures(nn.Module):
             frames: temperatures in ``units``, ``(T, H, W)``, ``(B, T, H, W)`` or a trace ``(T,)``.
             dt: frame period in s.
             dx: pixel size in mm; None computes only the dose maps (:data:`DOSE_MAPS`).
+            measured: the frames' :func:`~anra_torch.balance.prepare_batch` made already (the ANRA maps'
+                estimator then measures nothing again).
 
         Returns:
             :class:`TissueFeatureMaps`, unbatched for a single video or trace.
@@ -244,14 +251,8 @@ class TissueFeatures(nn.Module):
         filled, finite, fill = _fill(celsius)
         masked = (~finite).sum(1)
         maps = self._dose_maps(filled, finite, fill, dt_)
-        sigma = self.history_smoothing(h, w)
-        raw_note = (
-            f"frames of {h} x {w} px are too small for the {self.history_smoother.sigma:g} px Gaussian: "
-            "doses, peak and times above from the raw frames"
-            if sigma != self.history_smoother.sigma
-            else ""
-        )
-        spatial = self._spatial(video, filled, dt_, dx_)
+        raw_note = self._raw_note(h, w)
+        spatial = self._spatial(video, filled, dt_, dx_, measured)
         reason = spatial if isinstance(spatial, str) else ""
         if not reason:
             maps |= spatial["maps"]
@@ -268,6 +269,15 @@ class TissueFeatures(nn.Module):
         error, cooling = [None if reason else spatial[k] for k in ("loss_rate_std_error", "cooling")]
         out = TissueFeatureMaps(maps, summary, units, masked, valid, messages, error, absent, depth, cooling)
         return out if batched else out.unbatched()
+
+    def _raw_note(self, height: int, width: int) -> str:
+        """Why the doses are the raw frames' (frames too small for the Gaussian), or ``""``."""
+        if self.history_smoothing(height, width) == self.history_smoother.sigma:
+            return ""
+        return (
+            f"frames of {height} x {width} px are too small for the {self.history_smoother.sigma:g} px "
+            "Gaussian: doses, peak and times above from the raw frames"
+        )
 
     def _depth_maps(self, filled: Tensor, dt: Tensor, dx: Tensor | None) -> tuple[DepthFeatures | None, str]:
         """The depth model's maps (with ``depth=True``) of the filled frames (C), or why they are absent."""
@@ -294,7 +304,9 @@ class TissueFeatures(nn.Module):
         rules = {"thresholds": self.thresholds, "constants": self.constants, "rule": self.rule}
         return maps | dose_maps(history, dt, finite=None if complete else finite, **rules)
 
-    def _spatial(self, video: Tensor, filled: Tensor, dt: Tensor, dx: Tensor | None) -> dict | str:
+    def _spatial(
+        self, video: Tensor, filled: Tensor, dt: Tensor, dx: Tensor | None, measured: PreparedBatch | None
+    ) -> dict | str:
         """The rate and ANRA maps, the estimator's result and the loss rate's standard error; or why the
         frames do not allow them (the filters' own one-line requirement)."""
         if dx is None:
@@ -302,7 +314,9 @@ class TissueFeatures(nn.Module):
         b, t, h, w = video.shape
         names = ("U", "L", "T")
         try:
-            result = self.estimator(video, dt, dx)  # the strictest size and length requirement
+            result = self.estimator(
+                video, dt, dx, prepared=measured
+            )  # the strictest size and length requirement
             blocks = _by_frames(lambda v: self.filters.terms(v, dt, dx, names), filled, self.time.length - 1)
         except ValueError as err:
             return one_line(err)
@@ -357,6 +371,7 @@ def feature_summary(
     constants: ArrheniusConstants = SKIN,
     depth: bool = False,
     thickness: float | None = None,
+    measured: PreparedBatch | None = None,
 ) -> tuple[dict, TissueFeatureMaps]:
     """The ``anra features --json`` object of one video and the maps it was made from.
 
@@ -375,6 +390,7 @@ def feature_summary(
         constants: Arrhenius constants.
         depth: also the damage-in-depth maps, as :class:`TissueFeatures` ``depth``.
         thickness: with ``depth``, a layer's thickness in mm; None for a half-space.
+        measured: the frames' :func:`~anra_torch.balance.prepare_batch` made already (measured once).
 
     Returns:
         The JSON-ready dict and the :class:`TissueFeatureMaps` it was made from.
@@ -386,7 +402,7 @@ def feature_summary(
         ValueError: as :meth:`TissueFeatures.forward`.
     """
     extractor = TissueFeatures(units=units, rule=rule, constants=constants, depth=depth, thickness=thickness)
-    maps = extractor(frames, dt, dx)
+    maps = extractor(frames, dt, dx, measured=measured)
     t, h, w = (*frames.shape, 1, 1)[:3]
     record: dict = {"frames": int(t), "height": int(h), "width": int(w)}
     record |= {"dt": float(dt), "dx": None if dx is None else float(dx), "temperature_unit": units}

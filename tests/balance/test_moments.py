@@ -13,7 +13,16 @@ import pytest
 import torch
 
 from anra_torch.balance import NoiseModel
-from anra_torch.balance.moments import Moments, TermNoise, accumulate, extend, pushback, sandwich, within
+from anra_torch.balance.moments import (
+    Moments,
+    TermNoise,
+    _disjoint_groups,
+    accumulate,
+    extend,
+    pushback,
+    sandwich,
+    within,
+)
 
 F64 = torch.float64
 NAMES = ("U", "L", "T")
@@ -177,3 +186,23 @@ def test_sandwich_is_the_white_noise_covariance_of_the_coefficients() -> None:
     flat = backs.reshape(2, -1).numpy()
     expected = inverse.numpy() @ (0.25 * flat @ flat.T) @ inverse.numpy()  # sd 0.5: Cov = 0.25 B B^T
     np.testing.assert_allclose(sandwich(inverse, backs, NoiseModel(0.5)).numpy(), expected, rtol=1e-12)
+
+
+def test_levers_apart_in_time_share_a_backward_pass_with_the_same_result() -> None:
+    """With ``reach`` (a map local in time), levers zero outside spans whose reaches do not meet share one
+    backward pass; each is cut out of it: the same ``A^T x`` as one pass per lever, to the bit."""
+    g = torch.Generator().manual_seed(9)
+    frames = torch.randn(14, 5, 5, generator=g, dtype=F64, requires_grad=True)
+    weight = torch.randn(12, 3, 3, generator=g, dtype=F64)
+    outputs = (frames[2:] - 2 * frames[1:-1] + frames[:-2])[:, 1:-1, 1:-1] * weight  # reach 3
+    full = torch.randn(12, 3, 3, generator=g, dtype=F64)
+    levers = [full]
+    for start in range(0, 12, 2):  # blocks of two frames: each reach (4 frames) meets its neighbours' ones
+        block = torch.zeros(12, 3, 3, dtype=F64)
+        block[start : start + 2] = torch.randn(2, 3, 3, generator=g, dtype=F64)
+        levers.append(block)
+    levers.append(torch.zeros(12, 3, 3, dtype=F64))
+    grouped = pushback(outputs, frames, levers, reach=3)
+    assert torch.equal(grouped, pushback(outputs, frames, levers))
+    # the blocks in 2 groups (every other one shares a pass), the full lever and the zero one alone
+    assert len(_disjoint_groups(levers, 3)) == 4

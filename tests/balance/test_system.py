@@ -102,3 +102,26 @@ def test_the_profile_loss_prefers_the_term_the_data_hold() -> None:
     assert fitted["L"] == pytest.approx(A, rel=3e-3) and fitted["T"] == pytest.approx(
         -0.5, rel=3e-3
     )  # 1e-3, 4e-4
+
+
+def test_rates_per_block_of_frames_get_the_same_fit_with_shared_backward_passes(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Terms zero outside blocks of frames (a loss rate per block, as the depth-aware fit adds) share
+    backward passes in the sandwich (the filters are local in time): the same fit as one pass per term; with
+    per-pixel fixed effects (a mean over every frame) nothing is shared."""
+    system = BalanceSystem(noisy(), DT, DX, sigma=1.0, noise_sd=0.002, within=("frame",))
+    rates = {}
+    for b, start in enumerate(range(0, 8, 2)):
+        mask = torch.zeros_like(system.u)
+        mask[start : start + 2] = 1.0
+        rates[f"T@{b}"] = (system.detached["T"] * mask, NoiseSpec("T", mask))
+    system.add_terms(rates)
+    columns = ["L", *rates]
+    assert system._reach(columns) == 5
+    shared = system.fit(columns)
+    monkeypatch.setattr(BalanceSystem, "_reach", lambda self, columns: None)
+    alone = system.fit(columns)
+    assert torch.equal(shared.beta, alone.beta) and torch.equal(shared.cov, alone.cov)
+    monkeypatch.undo()
+    assert BalanceSystem(noisy(), DT, DX, sigma=1.0, noise_sd=0.002, within=("pixel",))._reach(["L"]) is None

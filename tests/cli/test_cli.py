@@ -164,6 +164,20 @@ def test_the_default_thread_count_does_not_shrink_call_after_call(
     assert len(bases) == 3 and len(set(bases)) == 1
 
 
+def test_only_the_command_freezes_what_its_imports_built(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A process running ``anra`` (argv from ``sys.argv``) freezes its imports' objects out of the garbage
+    collector's passes; a caller passing ``argv`` (a library user, the tests) keeps its collector as it is."""
+    import anra_torch.cli as cli
+
+    frozen: list[bool] = []
+    monkeypatch.setattr(cli.gc, "freeze", lambda: frozen.append(True))
+    assert main(["--version"]) == 0
+    assert not frozen
+    monkeypatch.setattr(cli.sys, "argv", ["anra", "--version"])
+    assert main() == 0
+    assert frozen == [True]
+
+
 @needs_data
 def test_cli_one_line_errors_on_real_files(capsys: pytest.CaptureFixture[str]) -> None:
     csv = DATA / "flir_csv" / "Sample2 RT M1.csv"

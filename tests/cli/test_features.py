@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 from pathlib import Path
@@ -150,10 +151,11 @@ def test_features_read_a_flir_folder_with_resampling(capsys: pytest.CaptureFixtu
 
 @pytest.mark.slow
 def test_a_recording_with_a_heating_and_a_cooling_reports_the_cooling_diffusivity(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The dose is the whole recording's; the global diffusivity is the source-free phase's, the same as
-    ``anra estimate`` gives, and the phases are listed."""
+    ``anra estimate`` gives, and the phases are listed. The whole recording is measured once (its noise
+    and artefacts: the ANRA maps', the phases' search)."""
     u0 = torch.full((40, 40), 37.0, dtype=torch.float64)
     source = MovingSource(start=(4.0, 4.0), end=(4.0, 4.0), width=0.8, power=30.0, t_off=3.0)
     clean = simulate_tissue(u0, 0.15, 0.0, dx=DX, dt=DT, n_frames=80, source=source)
@@ -161,7 +163,18 @@ def test_a_recording_with_a_heating_and_a_cooling_reports_the_cooling_diffusivit
         clean.shape, generator=torch.Generator().manual_seed(3), dtype=clean.dtype
     )
     path = save_npz(tmp_path / "spot.npz", noisy.numpy(), dt=DT, dx=DX)
+    measured: list[tuple[int, ...]] = []
+    for module in ("anra_torch.cli.features", "anra_torch.recording.plan", "anra_torch.estimation.estimator"):
+        original = importlib.import_module(module).prepare_batch
+
+        def counted(video: torch.Tensor, *args: object, original=original, **kwargs: object) -> object:
+            measured.append(tuple(video.shape))
+            return original(video, *args, **kwargs)
+
+        monkeypatch.setattr(f"{module}.prepare_batch", counted)
     code, out, _ = run(capsys, "features", path, "--json")
+    monkeypatch.undo()
+    assert measured.count((1, *noisy.shape)) == 1
     record = json.loads(out)
     assert code == 0 and [p["kind"] for p in record["phases"]] == ["heating", "cooling"]
     assert record["diffusivity_phase"] == "cooling"

@@ -6,6 +6,7 @@ from __future__ import annotations
 import torch
 from scenes import DT, DX, heated_then_cooled
 
+from anra_torch.balance import prepare_batch
 from anra_torch.estimation import CHUNKED_VALUES, ANRAEstimator
 from anra_torch.recording.plan import (
     CAMERA_SIZED,
@@ -43,6 +44,12 @@ def test_one_phase_is_the_recording_measured_once_and_a_tiny_region_a_small_box(
     still = video(20.0 + 0.01 * torch.randn(30, 24, 24, dtype=torch.float64))
     (only,) = plan_recording(still, ANRAEstimator(strict=False), None, None).phases
     assert only.route == "whole" and only.prepared is not None and only.part is still
+    measured = prepare_batch(still.frames[None])  # made already (anra features): taken, not made again
+    (given,) = plan_recording(still, ANRAEstimator(strict=False), None, None, measured).phases
+    assert given.prepared is measured
+    other = prepare_batch(still.frames[None].float())  # not of these frames (another dtype): measured anew
+    (anew,) = plan_recording(still, ANRAEstimator(strict=False), None, None, other).phases
+    assert anew.prepared is not other and anew.prepared is not None
     tiny = video(20.0 + 0.01 * torch.randn(30, 6, 6, dtype=torch.float64))
     (box,) = plan_recording(tiny, ANRAEstimator(strict=False), None, None).phases
     assert box.route == "small_box" and box.prepared is None
