@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
@@ -39,7 +39,8 @@ def finish_outer(system: BalanceSystem, rows: Tensor, cols: Tensor) -> Tensor:
     f = system.filters
     if f.smoother.border != "crop" or f.laplacian.border != "crop":  # padded borders do not factor
         return system.finish(f.time.average(rows[:, :, None] * cols[:, None, :]))
-    u, s, vh = torch.linalg.svd(f.laplacian.partner.kernels[0].to("cpu", _F64))  # the partner's 1D factors
+    partner = cast(Tensor, f.laplacian.partner.kernels)[0].to("cpu", _F64)
+    u, s, vh = torch.linalg.svd(partner)  # the partner's 1D factors
     rank = int((s > 1e-13 * s[0]).sum())
     gauss = f.smoother.taps.to(rows).view(1, 1, -1)
 
@@ -49,7 +50,7 @@ def finish_outer(system: BalanceSystem, rows: Tensor, cols: Tensor) -> Tensor:
     along_rows = filtered(rows, (u[:, :rank] * s[:rank]).T)
     along_cols = filtered(cols, vh[:rank])
     k = rows.shape[0] - f.time.length + 1
-    taps = [(j, w) for j, w in enumerate(f.time.pair.tolist()) if w != 0.0]
+    taps = [(j, w) for j, w in enumerate(f.time.stencil.pair.tolist()) if w != 0.0]
     left = torch.cat([w * along_rows[j : j + k] for j, w in taps], 1)  # (K, taps x rank, h)
     right = torch.cat([along_cols[j : j + k] for j, w in taps], 1)  # (K, taps x rank, w)
     return left.transpose(1, 2) @ right
