@@ -14,6 +14,7 @@ Every failure the user can cause (bad file, bad flag, a video without thermal ac
 from __future__ import annotations
 
 import argparse
+import ctypes
 import functools
 import gc
 import os
@@ -80,6 +81,23 @@ def _process_threads() -> int:
     return torch.get_num_threads()
 
 
+_MALLOPT = {-3: 32 * 2**20, -1: 2**30, -2: 64 * 2**20}
+"""glibc's ``mallopt`` settings of a process running ``anra``: ``M_MMAP_THRESHOLD`` 32 MiB (blocks below it
+from the heap, not each mapped and unmapped anew), ``M_TRIM_THRESHOLD`` 1 GiB (freed heap kept for the next
+frames' tensors, not returned and faulted in again), ``M_TOP_PAD`` 64 MiB. The same numbers, fewer page
+faults: ``anra features --depth`` on the 150-frame benchmark 0.83 -> 0.48 s of system time."""
+
+
+def _keep_freed_memory() -> None:
+    """Apply :data:`_MALLOPT` where the C library is glibc (elsewhere nothing changes)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        for option, value in _MALLOPT.items():
+            libc.mallopt(option, value)
+    except (OSError, AttributeError):
+        return
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``anra`` command line; returns the exit status (0 ok, 2 error, 1 internal error).
 
@@ -91,6 +109,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     if argv is None:
         gc.freeze()
+        _keep_freed_memory()
     try:
         args = build_parser().parse_args(argv)
 
