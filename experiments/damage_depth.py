@@ -504,7 +504,8 @@ def main() -> None:
         "depth": depth_table(records, rng),
         "calibration": calibration(records),
         "calibration_by_kind": {
-            kind: calibration([r for r in records if r["kind"] == kind]) for kind in KINDS[:2]
+            group: calibration([r for r in records if group in (r["kind"], f"{r['kind']} {r['label']}")])
+            for group in (*KINDS[:2], *(f"cycle {source}" for source in ("spot", "sweep", "contact")))
         },
         "parameters": parameters(records),
     }

@@ -22,7 +22,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Shape, Term, require
-from anra_torch.effects.shapes import draw_circle, optimise, pixel_grid
+from anra_torch.effects.shapes import draw_circle, finish_outer, optimise, pixel_grid
 from anra_torch.simulation import Continuum, gaussian_cells
 
 if TYPE_CHECKING:
@@ -81,20 +81,21 @@ def _from_coefficients(c: dict[str, float], ctx: Context) -> dict[str, float]:
 
 
 # -------------------------------------------------------------------------------------- shape fit
-def _spot(system: BalanceSystem, x: Tensor, y: Tensor, log_width: Tensor) -> Tensor:
-    """Unit Gaussian spot ``(H, W)`` at ``(x, y)`` px with width ``0.5 + exp(log_width)`` px."""
+def _profiles(system: BalanceSystem, x: Tensor, y: Tensor, log_width: Tensor) -> tuple[Tensor, Tensor]:
+    """The unit Gaussian spot at ``(x, y)`` px with width ``0.5 + exp(log_width)`` px as its two profiles:
+    along the rows ``(H,)`` and along the columns ``(W,)`` (the spot is their outer product)."""
     gx, gy = pixel_grid(system)
     dx = system.dx
     inv = 0.5 / ((_MIN_WIDTH_PX + torch.exp(log_width)) * dx) ** 2
-    return torch.exp(-((gy - y * dx) ** 2) * inv)[:, None] * torch.exp(-((gx - x * dx) ** 2) * inv)[None, :]
+    return torch.exp(-((gy - y * dx) ** 2) * inv), torch.exp(-((gx - x * dx) ** 2) * inv)
 
 
 def periodic_term(system: BalanceSystem, theta: Tensor) -> Tensor:
     """``P`` for ``theta = (x, y, log width, log frequency, phase)`` (px, Hz, rad) on the output grid."""
     t = torch.arange(system.shape[0], dtype=_F64, device=system.frames.device) * system.dt
     modulation = _modulation(t, torch.exp(theta[3]), theta[4])
-    field = modulation[:, None, None] * _spot(system, theta[0], theta[1], theta[2])[None]
-    return system.finish(system.filters.time.average(field))
+    rows, cols = _profiles(system, theta[0], theta[1], theta[2])
+    return finish_outer(system, modulation[:, None] * rows, cols.expand(len(t), -1))
 
 
 def _starts(system: BalanceSystem, fit: Fit) -> list[Tensor]:

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 if TYPE_CHECKING:
     from anra_torch.balance import BalanceSystem
 
-__all__ = ["draw_circle", "edge_disc", "optimise", "peak", "pixel_grid"]
+__all__ = ["draw_circle", "edge_disc", "finish_outer", "optimise", "peak", "pixel_grid"]
 
 _F64 = torch.float64
 
@@ -23,6 +24,36 @@ def pixel_grid(system: BalanceSystem) -> tuple[Tensor, Tensor]:
     device = system.frames.device
     x = (torch.arange(w, dtype=_F64, device=device) + 0.5) * system.dx
     return x, (torch.arange(h, dtype=_F64, device=device) + 0.5) * system.dx
+
+
+def finish_outer(system: BalanceSystem, rows: Tensor, cols: Tensor) -> Tensor:
+    """A term whose every frame is an outer product ``rows[t] (x) cols[t]`` (a Gaussian spot), time-averaged,
+    smoothed and cropped like ``U``: ``system.finish(system.filters.time.average(field))``.
+
+    The spatial filters are separable, so they run on the two profiles and only the time average's sum of
+    outer products is built at full size (the same term to rounding, without a 2D smoothing pass).
+
+    Shape:
+        ``rows`` ``(T, H)``, ``cols`` ``(T, W)`` -> ``(T - 4, h, w)``.
+    """
+    f = system.filters
+    if f.smoother.border != "crop" or f.laplacian.border != "crop":  # padded borders do not factor
+        return system.finish(f.time.average(rows[:, :, None] * cols[:, None, :]))
+    partner = cast(Tensor, f.laplacian.partner.kernels)[0].to("cpu", _F64)
+    u, s, vh = torch.linalg.svd(partner)  # the partner's 1D factors
+    rank = int((s > 1e-13 * s[0]).sum())
+    gauss = f.smoother.taps.to(rows).view(1, 1, -1)
+
+    def filtered(profiles: Tensor, factors: Tensor) -> Tensor:  # (T, N) -> (T, rank, n)
+        return F.conv1d(F.conv1d(profiles[:, None], gauss), factors.to(rows)[:, None, :])
+
+    along_rows = filtered(rows, (u[:, :rank] * s[:rank]).T)
+    along_cols = filtered(cols, vh[:rank])
+    k = rows.shape[0] - f.time.length + 1
+    taps = [(j, w) for j, w in enumerate(f.time.stencil.pair.tolist()) if w != 0.0]
+    left = torch.cat([w * along_rows[j : j + k] for j, w in taps], 1)  # (K, taps x rank, h)
+    right = torch.cat([along_cols[j : j + k] for j, w in taps], 1)  # (K, taps x rank, w)
+    return left.transpose(1, 2) @ right
 
 
 def edge_disc(x: Tensor, y: Tensor, cx: Any, cy: Any, radius: Any, edge: float) -> Tensor:

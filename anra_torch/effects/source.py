@@ -19,7 +19,7 @@ from torch import Tensor
 
 from anra_torch.balance import BalanceSystem, Fit
 from anra_torch.effects.base import Context, EffectSpec, Geometry, Grid, Shape, Term, require
-from anra_torch.effects.shapes import optimise, peak, pixel_grid
+from anra_torch.effects.shapes import finish_outer, optimise, peak, pixel_grid
 from anra_torch.simulation import Continuum, gaussian_cells
 
 __all__ = ["SPEC", "source_term"]
@@ -90,8 +90,7 @@ def source_term(system: BalanceSystem, theta: Tensor) -> Tensor:
     inv = 0.5 / ((_MIN_WIDTH_PX + torch.exp(theta[4])) * dx) ** 2
     gx = torch.exp(-((x[None, :] - cx[:, None]) ** 2) * inv)  # (T, W)
     gy = torch.exp(-((y[None, :] - cy[:, None]) ** 2) * inv)  # (T, H)
-    field = gy[:, :, None] * gx[:, None, :]
-    return system.finish(system.filters.time.average(field))
+    return finish_outer(system, gy, gx)  # each frame gy (x) gx: filtered as two profiles
 
 
 def _fit_source(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:

@@ -33,6 +33,7 @@ __all__ = [
     "nelder_mead",
     "profile_rss",
     "refine_minimum",
+    "smooth_minimum",
     "tau_grid",
     "time_bins",
 ]
@@ -227,3 +228,14 @@ def nelder_mead(
         if max(float((s - simplex[0]).abs().max()) for s in simplex[1:]) < tolerance:
             break
     return simplex[min(range(3), key=values.__getitem__)]
+
+
+def smooth_minimum(rss: Tensor) -> Tensor:
+    """Each row's minimum of ``rss`` ``(P, K + 1)`` over the grid of ``ln tau`` (:func:`tau_grid`), refined by
+    a parabola through it and its two neighbours (a continuous function of the data: the grid's own minimum
+    jumps between points)."""
+    k = rss[:, :-1].argmin(1).clamp(1, rss.shape[1] - 3)[:, None]
+    r0, r1, r2 = rss.gather(1, k - 1)[:, 0], rss.gather(1, k)[:, 0], rss.gather(1, k + 1)[:, 0]
+    curvature = (r0 - 2 * r1 + r2).clamp_min(torch.finfo(rss.dtype).tiny)
+    refined = r1 - (r0 - r2) ** 2 / (8 * curvature)
+    return torch.minimum(refined.clamp_min(0), rss.min(1).values)

@@ -33,9 +33,24 @@ from torch import Tensor
 
 from anra_torch.balance import estimate_noise_sd
 from anra_torch.checks import as_video, spacing_in_range
-from anra_torch.flash.cooling import nelder_mead, profile_rss, refine_minimum, tau_grid, time_bins
+from anra_torch.flash.cooling import (
+    nelder_mead,
+    profile_rss,
+    refine_minimum,
+    smooth_minimum,
+    tau_grid,
+    time_bins,
+)
 from anra_torch.flash.lateral import fit_lateral, lateral_integrals, local_quadratic, value_noise_gain
-from anra_torch.flash.regions import components, dilate, edge_scatter, erode, smooth
+from anra_torch.flash.regions import (
+    components,
+    dilate,
+    edge_scatter,
+    erode,
+    plate_level,
+    smooth,
+    tile_standard_error,
+)
 
 __all__ = ["DefectMap", "FoundDefect", "defect_map"]
 
@@ -52,6 +67,7 @@ _OUTLINE = 0.6  # an outline's pixels: above this share of the peak (measured: t
 _OUTLINE_SIGNIFICANCE = 2.0  # ... at this many
 _SCATTER = 4.0  # a defect's peak contrast exceeds this many robust sd of the sound pixels' contrast
 _MIN_PIXELS = math.ceil(math.pi * _SIGMA_LATERAL**2)  # smaller than the lateral derivatives' footprint
+_SOUND_SHARE = 0.25  # a longer region this large is the sound plate (a defect only shortens tau)
 _EDGE_RINGS = 10
 _ROUNDS = 3
 _LONG = 2.0  # a recording longer than this many plate times: the globals fitted up to 1 / _LONG^2 of it
@@ -160,10 +176,13 @@ class _Cooling:
         )
 
 
-def _trimmed_rss(cooling: _Cooling, a: Tensor, pixels: Tensor, point: Tensor, horizon: float) -> float:
-    """The sum of the best 70 % of the pixels' smallest residuals at ``point`` = (ln of how far ``T_ref``
-    lies below the coolest pixel over the cooling's span, ln of the first frame's time in frame periods), over
-    the bins up to ``horizon`` s."""
+def _trimmed_rss(
+    cooling: _Cooling, a: Tensor, pixels: Tensor, point: Tensor, horizon: float, profiled: bool
+) -> float:
+    """The sum of the best 70 % of the pixels' -2 ln(likelihood), each at its best ``tau``, at ``point`` =
+    (ln of how far ``T_ref`` lies below the coolest pixel over the cooling's span, ln of the first frame's
+    time in frame periods), over the bins up to ``horizon`` s; ``profiled``: each pixel's residual scale
+    (at least the noise's) profiled out."""
     t_ref = cooling.low - cooling.span * math.exp(float(point[0]))
     logs, integrals, weights, elapsed = cooling.series(t_ref, cooling.dt * math.exp(float(point[1])), pixels)
     used = (elapsed <= max(horizon, float(elapsed[min(8, len(elapsed) - 1)])))[None, :].expand_as(weights)
@@ -173,25 +192,25 @@ def _trimmed_rss(cooling: _Cooling, a: Tensor, pixels: Tensor, point: Tensor, ho
     # -2 ln(likelihood) of the temperatures, not of ln u: the variances' logs in T, ln(u^2 / w), change
     # with T_ref too (without them a T_ref far below the frames flattens ln u and fits it at any noise)
     logs_w = torch.where(used, 2 * logs - weights.clamp_min(torch.finfo(weights.dtype).tiny).log(), 0 * logs)
-    best = _smooth_minimum(rss) + logs_w.sum(1)
+    best = smooth_minimum(rss)
+    if profiled:  # the scale s >= 1: n ln(rss / n) + n where rss > n
+        count = used[:1].sum().to(rss)
+        best = torch.where(best > count, count * (best.clamp_min(count) / count).log() + count, best)
+    best = best + logs_w.sum(1)
     return float(best.sort().values[: max(1, int(0.7 * len(best)))].sum())
 
 
-def _smooth_minimum(rss: Tensor) -> Tensor:
-    """Each row's minimum over the grid of ``ln tau``, refined by a parabola through it and its two
-    neighbours (a continuous function of the data: the grid's own minimum jumps between points)."""
-    k = rss[:, :-1].argmin(1).clamp(1, rss.shape[1] - 3)[:, None]
-    r0, r1, r2 = rss.gather(1, k - 1)[:, 0], rss.gather(1, k)[:, 0], rss.gather(1, k + 1)[:, 0]
-    curvature = (r0 - 2 * r1 + r2).clamp_min(torch.finfo(rss.dtype).tiny)
-    refined = r1 - (r0 - r2) ** 2 / (8 * curvature)
-    return torch.minimum(refined.clamp_min(0), rss.min(1).values)
-
-
 def _fit_globals(
-    cooling: _Cooling, a: Tensor, start: tuple[float, float] | None, horizon: float = math.inf
+    cooling: _Cooling,
+    a: Tensor,
+    start: tuple[float, float] | None,
+    horizon: float = math.inf,
+    profiled: bool = False,
 ) -> tuple[float, float]:
     """``T_ref`` and the first frame's time since the flash (s), by Nelder-Mead on every third pixel of
-    every third row from ``start`` (or the best of a few guesses)."""
+    every third row from ``start`` (or the best of a few guesses); one that runs to the search box's far end
+    (a misfit, e.g. a hot layer over half the frame cooling sideways before the lateral flow is taken off,
+    fitted away by the model floor's variance ``floor^2 (T - T_ref)^2``) is done again ``profiled``."""
     height, width = cooling.shape[1:]
     device = cooling.value.device
     pixels = torch.arange(height * width, device=device).view(height, width)[1::3, 1::3].flatten()
@@ -199,7 +218,8 @@ def _fit_globals(
     low, high = _BOUNDS.to(_F64)
 
     def loss(point: Tensor) -> float:
-        return _trimmed_rss(cooling, a, pixels, torch.maximum(torch.minimum(point, high), low), horizon)
+        point = torch.maximum(torch.minimum(point, high), low)
+        return _trimmed_rss(cooling, a, pixels, point, horizon, profiled)
 
     if start is None:
         # T_ref is the sharp direction: a fine grid along it
@@ -216,6 +236,8 @@ def _fit_globals(
     best = points[min(range(len(points)), key=values.__getitem__)]
     point = nelder_mead(loss, best, min(values), step=0.3, tolerance=0.001, iterations=200)
     point = torch.maximum(torch.minimum(point, high), low)
+    if not profiled and float(point[0]) > float(high[0]) - 0.05:
+        return _fit_globals(cooling, a, None, horizon, profiled=True)
     return cooling.low - cooling.span * math.exp(float(point[0])), cooling.dt * math.exp(float(point[1]))
 
 
@@ -294,7 +316,7 @@ def defect_map(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None =
         tau, rss, windowed, taus = _fit_pixels(cooling, a, t_ref, first)
         log_tau = torch.log(tau.clamp(max=float(taus[-2]))).view(height, width)
         labels = _regions(log_tau)
-        plate_time = math.exp(float(_plate(log_tau)[0]))
+        plate_time = math.exp(float(_plate(log_tau, last)[0]))
         if math.isinf(horizon) and last > _LONG * plate_time:  # long past the back wall: only the lateral
             horizon = max(last / _LONG**2, plate_time)  # flow changes the late frames; the globals end here
             a = a.new_zeros(3)  # measured at the T_ref the late frames pulled off
@@ -302,26 +324,11 @@ def defect_map(frames: Tensor, dt: float, dx: float, *, noise_sd: float | None =
     return _finish(tau.view(height, width), rss, windowed, taus, dx, (a, t_ref, first, sd), cooling)
 
 
-def _plate(log_tau: Tensor) -> tuple[Tensor, Tensor]:
-    """The sound plate's ``ln tau`` (median of the pixels within 0.3 of it, iterated) and its sound pixels."""
-    plate = log_tau.median()
-    for _ in range(3):
-        sound = (log_tau - plate).abs() < _ODD
-        plate = log_tau[sound].median()
-    return plate, sound
-
-
-def _standard_error(log_tau: Tensor, sound: Tensor) -> float:
-    """Standard error of the plate's ``ln tau`` from the spread of its median over 4 x 4 tiles."""
-    height, width = log_tau.shape
-    rows = torch.arange(height, device=log_tau.device) * 4 // height
-    cols = torch.arange(width, device=log_tau.device) * 4 // width
-    tile = (rows[:, None] * 4 + cols[None, :])[sound]
-    values = log_tau[sound]
-    medians = torch.stack([values[tile == k].median() for k in range(16) if int((tile == k).sum()) >= 8])
-    if len(medians) < 2:
-        return math.inf
-    return float(medians.std() / math.sqrt(len(medians)))
+def _plate(log_tau: Tensor, last: float) -> tuple[Tensor, Tensor]:
+    """The sound plate's ``ln tau`` and its sound pixels (:func:`~anra_torch.flash.regions.plate_level`) in a
+    recording that lasts ``last`` s after the flash."""
+    longest = math.log(math.pi * last)  # the back wall shows by plate / pi
+    return plate_level(log_tau, _ODD, sigma=_SIGMA_LATERAL, share=_SOUND_SHARE, longest=longest)
 
 
 def _significance(rss: Tensor, windowed: Tensor, plate_index: int) -> Tensor:
@@ -345,7 +352,8 @@ def _finish(
     a, t_ref, first, sd = fitted
     height, width = tau.shape
     log_tau = torch.log(tau.clamp(max=float(taus[-2])))
-    plate, sound = _plate(log_tau)
+    last = first + (cooling.shape[0] - 1) * cooling.dt
+    plate, sound = _plate(log_tau, last)
     index = int(torch.argmin((torch.log(taus[:-1]) - plate).abs()))
     z = _significance(rss, windowed, index).view(height, width)
     contrast = plate - log_tau
@@ -359,11 +367,10 @@ def _finish(
     mask, fraction, peaks, found = _outlines(contrast, candidate, z, least, dx)
     score = _score(contrast, peaks)
     plate_time = math.exp(float(plate))
-    last = first + (cooling.shape[0] - 1) * cooling.dt
     return DefectMap(
         depth_time=tau,
         plate_time=plate_time,
-        plate_time_se=plate_time * _standard_error(log_tau, sound),
+        plate_time_se=plate_time * tile_standard_error(log_tau, sound),
         back_wall_reached=last >= plate_time / math.pi,
         defect_score=score,
         defect_mask=mask,

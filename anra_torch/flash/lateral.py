@@ -43,6 +43,7 @@ _CUBIC = ((3, 0), (2, 1), (1, 2), (0, 3))
 _CHUNK = 64  # frames filtered at once
 _STOP_CHI2 = 3.0  # a block whose residual is this many times its noise, ...
 _STOP_R2 = 0.8  # ... and explains less than this share of its increments, ends the fit
+_LATER_R2 = 0.5  # a run from a later block explains at least this share of its increments
 RATIO = 1.25
 
 
@@ -286,8 +287,10 @@ def fit_lateral(
 
     Returns:
         The diffusivities of the longest run of blocks from the first whose fit is physical
-        (``a_x, a_y >= 0``, ``a_xy^2 <= a_x a_y``; late blocks where a large defect shows can turn it),
-        zeros where no run of two is; and the blocks of frames it used (negative when none was physical).
+        (``a_x, a_y >= 0``, ``a_xy^2 <= a_x a_y``; late blocks where a large defect shows can turn it), or
+        where none is, of the longest physical run from a later block (the edges of a shallow defect, whose
+        layer differs from the plate from the first frames, break the first blocks); zeros where no run of
+        two is; and the blocks of frames it used (negative when none was physical).
     """
     value, second = gaussian_derivatives(frames, sigma, dx)
     excess = (value - t_ref).clamp_min(torch.finfo(value.dtype).tiny)
@@ -304,17 +307,47 @@ def fit_lateral(
     for i0, i1 in zip(edges[:-1], edges[1:], strict=False):
         dy = _demean((logs[i1] - logs[i0])[keep], region, regions)
         a = _demean((integrals[:, i1] - integrals[:, i0])[:, keep].T, region, regions)
-        block = _block(dy, a, _trapezoid(elapsed, i0, i1), spread[i0 : i1 + 1], covariance)
-        if len(blocks) >= 2 and _breaks(block, _solve(blocks, [1.0] * len(blocks))):
+        blocks.append(_block(dy, a, _trapezoid(elapsed, i0, i1), spread[i0 : i1 + 1], covariance))
+    first = _run(blocks, 0)
+    if len(first) < 2:
+        return frames.new_zeros(3), len(first)
+    found = _physical(first) or _later(blocks)
+    return found if found is not None else (frames.new_zeros(3), -len(first))
+
+
+def _later(blocks: list[_Block]) -> tuple[Tensor, int] | None:
+    """Where no run from the first block is physical (a shallow defect's edges break the first blocks): the
+    longest physical run from a later block (the earliest of equal length) that explains at least
+    :data:`_LATER_R2` of its increments (late blocks of a noisy recording are noise: R^2 -1.5 at 40 mK)."""
+    found = None
+    for start in range(1, len(blocks) - 1):
+        run = _run(blocks, start)
+        later = _physical(run)
+        if later is None or (found is not None and later[1] <= found[1]):
+            continue
+        residual = sum(b.residual(later[0])[0] for b in run[: later[1]])
+        if residual <= (1 - _LATER_R2) * sum(float(b.yy) / b.pixels for b in run[: later[1]]):
+            found = later
+    return found
+
+
+def _run(blocks: list[_Block], start: int) -> list[_Block]:
+    """The blocks from ``start`` up to the first whose increments the fit so far does not explain."""
+    run: list[_Block] = []
+    for block in blocks[start:]:
+        if len(run) >= 2 and _breaks(block, _solve(run, [1.0] * len(run))):
             break
-        blocks.append(block)
-    if len(blocks) < 2:
-        return frames.new_zeros(3), len(blocks)
-    for used in range(len(blocks), 1, -1):  # the longest run of blocks whose fit is physical
-        a = _weighted(blocks[:used])
+        run.append(block)
+    return run
+
+
+def _physical(run: list[_Block]) -> tuple[Tensor, int] | None:
+    """The solution of the longest start of ``run`` (two blocks at least) that is physical and its length."""
+    for used in range(len(run), 1, -1):
+        a = _weighted(run[:used])
         if a[0] >= 0 and a[1] >= 0 and a[2] ** 2 <= a[0] * a[1]:
             return a, used
-    return frames.new_zeros(3), -len(blocks)
+    return None
 
 
 def _weighted(blocks: list[_Block]) -> Tensor:

@@ -411,7 +411,7 @@ def _result(
     Raises:
         ValueError: no effect and a plain ``a`` within 3 standard errors of 0 (no thermal activity).
     """
-    final = system.fit(selection.columns(selection.selected))
+    final = selection.fit(selection.selected)
     coefficients = final.coefficients()
     found, nuisance = selection.named(final, given)
     expected = system.expected_rss(final)  # 0 for noiseless (e.g. quantised, noise-free) frames

@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+from torch import Tensor
+
 from anra_torch.balance import BalanceSystem, Fit
 from anra_torch.effects import EFFECTS, Context, Shape
 from anra_torch.selection.statistics import search_discount, wald_score
@@ -67,6 +69,7 @@ class Selection:
         self.scores: dict[str, float] = {}
         self.thresholds: dict[str, float] = {}
         self.negligible: dict[str, dict] = {}  # below their physical size, or unphysical in a given model
+        self._fits: dict[tuple[str, ...], tuple[tuple[Tensor, ...], Fit]] = {}  # by columns: their terms, fit
 
     @property
     def shapes(self) -> dict[str, dict[str, float]]:
@@ -75,6 +78,22 @@ class Selection:
 
     def columns(self, effects: Sequence[str]) -> list[str]:
         return ["L"] + [r for e in effects for r in EFFECTS[e].regressors]
+
+    def fit(self, effects: Sequence[str]) -> Fit:
+        """The balance's fit of ``effects``' columns, computed once while their terms stay the same (the
+        stepwise search asks for the same model's fit several times)."""
+        columns = tuple(self.columns(effects))
+        terms = tuple(self.system.terms[c] for c in columns)
+        kept = self._fits.get(columns)
+        if kept is not None and all(a is b for a, b in zip(kept[0], terms, strict=True)):
+            return kept[1]
+        current = self.system.terms  # fits of replaced terms go (they would hold the old terms' graphs)
+        self._fits = {
+            k: v for k, v in self._fits.items() if all(t is current[c] for t, c in zip(v[0], k, strict=True))
+        }
+        fit = self.system.fit(columns)
+        self._fits[columns] = (terms, fit)
+        return fit
 
     def context(self) -> Context:
         return Context(mean=self.system.mean, background=self.background, shape=self.shapes)
@@ -179,7 +198,7 @@ class Selection:
     def drop_unphysical_given(self) -> None:
         """:meth:`drop_unphysical` (physical, not size) of a given model, each dropped effect kept in
         :attr:`negligible` (rule ``"unphysical"``) with the parameters it had in the model's fit."""
-        fit = self.system.fit(self.columns(self.selected))
+        fit = self.fit(self.selected)
         coefficients, context = fit.coefficients(), self.context()
         before = {name: EFFECTS[name].from_coefficients(coefficients, context) for name in self.selected}
         for name in self.drop_unphysical(material=False):
@@ -237,7 +256,7 @@ class Selection:
             if key in self.shared:
                 self._use(name, self.shared[key])
             else:
-                self.prepare(name, self.system.fit(self.columns(self.selected)))
+                self.prepare(name, self.fit(self.selected))
                 if name in self.fitted:
                     self.shared[key] = self.fitted[name]
             self.selected.append(name)
@@ -248,7 +267,7 @@ class Selection:
     def unphysical(self, *, material: bool = False) -> set[str]:
         """The selected effects whose parameters in the current fit are not physical (or, with
         ``material``, below their physical size: :meth:`material` then updates :attr:`negligible`)."""
-        fit = self.system.fit(self.columns(self.selected))
+        fit = self.fit(self.selected)
         coefficients, context = fit.coefficients(), self.context()
         bad = set()
         for name in self.selected:
@@ -273,12 +292,12 @@ class Selection:
             candidates = [n for n in self.names if self.allowed(n, self.selected)]
             if not candidates:
                 return
-            current = self.system.fit(self.columns(self.selected))
+            current = self.fit(self.selected)
             current_excess = current.rss - self.system.expected_rss(current)
             eligible = {}
             for name in candidates:
                 self.prepare(name, current, refine=name in self.fitted)
-                fit = self.system.fit(self.columns([*self.selected, name]))
+                fit = self.fit([*self.selected, name])
                 self.scores[name] = wald_score(fit, EFFECTS[name].regressors)
                 self.thresholds[name] = self.threshold(name, len(candidates))
                 params = EFFECTS[name].from_coefficients(fit.coefficients(), self.context())
@@ -315,7 +334,7 @@ class Selection:
     def backward(self) -> Fit:
         """Drop effects that are no longer significant given the others; return the final fit."""
         while True:
-            final = self.system.fit(self.columns(self.selected))
+            final = self.fit(self.selected)
             if not self.selected:
                 return final
             tested = len(self.names)

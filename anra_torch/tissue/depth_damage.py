@@ -46,7 +46,7 @@ from anra_torch.tissue.depth_solver import (
     solver_nodes,
     surface_rise,
 )
-from anra_torch.tissue.depth_window import pooled_window, widen, window_problem, window_temperatures
+from anra_torch.tissue.depth_window import Beyond, pooled_window, widen, window_problem, window_temperatures
 from anra_torch.tissue.dose import RULES, SKIN, ArrheniusConstants
 
 __all__ = [
@@ -113,7 +113,7 @@ class DepthMaps:
 
 
 def _reach(
-    rise: Tensor, spacing: tuple, rates: tuple, body: Tensor, thickness: object, continued: dict | None
+    rise: Tensor, spacing: tuple, rates: tuple, body: Tensor, thickness: object, continued: Beyond | None
 ) -> float:
     """Deepest depth (mm) where any video's peak exceeds :data:`DOSE_FLOOR`, one coarse node deeper: the
     3-D solve on a coarse depth grid (spacings growing :data:`_COARSE_GROWTH`-fold) of the frames averaged
@@ -129,7 +129,7 @@ def _reach(
         reach = min(reach, float(thickness) * (1.0 - 1e-9))
     reported = _above(depth_nodes(max(reach, 2 * FIRST_STEP), growth=_COARSE_GROWTH), thickness)
     nodes = solver_nodes(reported, bottom_depth(thickness, float(reported[-1]), a, duration))
-    margin = 0 if continued is None else continued["margin"]
+    margin = 0 if continued is None else continued.margin
     factor = max(1, math.ceil((max(rise.shape[-2:]) + 2 * margin) / 32))
     coarse = rise.detach()
     if factor > 1:  # block means: a spot's peak at depth is smooth across pixels
@@ -137,8 +137,8 @@ def _reach(
         coarse = F.avg_pool2d(coarse.reshape(b_ * t, 1, h, w), factor, factor, ceil_mode=True)
         coarse = coarse.reshape(b_, t, *coarse.shape[-2:])
     if continued is not None and margin:
-        noise = continued["noise"] if continued["noise"] is None else continued["noise"] / factor
-        coarse = widen(coarse, math.ceil(margin / factor), curved=continued["curved"], noise=noise)
+        noise = None if continued.noise is None else continued.noise / factor
+        coarse = widen(coarse, math.ceil(margin / factor), curved=continued.curved, noise=noise)
     problem = frame_problem(coarse, dt, dx * factor, a.detach(), b.detach(), nodes, len(reported))
     peak = torch.full((rise.shape[0], len(reported)), -torch.inf, device=rise.device, dtype=rise.dtype)
     block = max(1, BLOCK_VALUES // coarse[:, 0].numel() // len(reported))
@@ -281,7 +281,7 @@ def damage_in_depth(
     a, b, *stds = _parameters(given | {"loss_rate_std": errors.loss_rate, "noise_sd": errors.noise_sd}, rise)
     pixels = _margin_pixels(settings, dt_, dx_, rise.shape[1])
     noise = stds[2] if bool((stds[2] > 0).all()) else None
-    continued = {"margin": pixels, "curved": settings.curved, "noise": noise} if pixels else None
+    continued = Beyond(pixels, settings.curved, noise) if pixels else None
     grid = (thickness, settings.max_depth, settings.growth)
     nodes, reported = _grid(rise, dt_, dx_, (a, b), stds, body, grid, continued)
     maps = _solve(rise, (dt_, dx_, body), (a, b), stds, (nodes, reported), settings, continued)
@@ -307,7 +307,7 @@ def _grid(
     errors: list,
     body: Tensor,
     settings: tuple,
-    continued: dict | None,
+    continued: Beyond | None,
 ) -> tuple[tuple[float, ...], int]:
     """The solver's depth nodes and how many of them are reported: down to ``max_depth`` (default where the
     peak with ``a + 2 se`` exceeds :data:`DOSE_FLOOR`), then to a bottom no heat reaches in the record."""
@@ -332,7 +332,7 @@ def _solve(
     errors: list[Tensor],
     grid: tuple[tuple, int],
     settings: DepthSettings,
-    continued: dict | None,
+    continued: Beyond | None,
 ) -> DepthMaps:
     """The march of the base problem and its perturbed copies (on ``coarse x coarse`` pixel means), their
     doses and the maps with their spread. ``per_video``: ``dt``, ``dx``, the body temperature;
@@ -421,7 +421,7 @@ def _march_doses(
     rates: tuple[Tensor, Tensor],
     rho: Tensor,
     settings: DepthSettings,
-    grid: tuple[tuple, int, dict | None],
+    grid: tuple[tuple, int, Beyond | None],
 ) -> DoseAccumulator:
     """Peak, Omega and CEM43 at the reported nodes of the stacked ``(V B, T, H, W)`` rises (the base videos
     first), and for the base videos the doses by the other rule and their noise variance.

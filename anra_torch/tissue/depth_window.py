@@ -24,6 +24,7 @@ from anra_torch.tissue.depth_solver import (
 )
 
 __all__ = [
+    "Beyond",
     "LOW_WAVENUMBER",
     "Window",
     "pooled_window",
@@ -196,23 +197,22 @@ def window_problem(
     dx: Tensor,
     rates: tuple[Tensor, Tensor],
     grid: tuple[tuple, int],
-    continued: dict,
+    continued: Beyond,
 ) -> tuple[ModalProblem, Window]:
     """The frame as a window, at the cost of the frame: the surface ``rise`` ``(B, T, H, W)`` split in two
-    exactly (the PDE is linear): the low modes (``|k| <=`` :data:`LOW_WAVENUMBER`) of the frames widened by
-    ``continued["margin"]`` px (:func:`widen`'s other keywords in ``continued``), whose walls lie beyond
+    exactly (the PDE is linear): the low modes (``|k| <=`` :data:`LOW_WAVENUMBER`) of the frames widened as
+    ``continued`` says (:class:`Beyond`), whose walls lie beyond
     the heat's reach, and what is left at the frame's pixels in the frame's own cosine modes; one
     :class:`~anra_torch.tissue.depth_solver.ModalProblem` of both (``a``, ``b`` in ``rates``; ``grid``:
     the nodes and how many are reported)."""
-    options = dict(continued)
-    margin = options.pop("margin")
+    margin = continued.margin
     h, w = rise.shape[-2:]
     step = float(dx.detach().max())
     hh, ww = h + 2 * margin, w + 2 * margin
     p = min(hh, math.ceil(LOW_WAVENUMBER * hh * step / math.pi) + 1)
     q = min(ww, math.ceil(LOW_WAVENUMBER * ww * step / math.pi) + 1)
     ch, cw = dct_matrix(hh).to(rise)[:p], dct_matrix(ww).to(rise)[:q]
-    low = widened_modes(rise, margin, ch, cw, **options)  # (B, T, p, q)
+    low = widened_modes(rise, margin, ch, cw, curved=continued.curved, noise=continued.noise)  # (B, T, p, q)
     rows, cols = ch[:, margin : margin + h], cw[:, margin : margin + w]
     fh, fw = dct_matrices(rise)
     detail = fh @ (rise - rows.T @ low @ cols) @ fw.T
@@ -237,12 +237,22 @@ def window_temperatures(
     return out
 
 
-def pooled_window(continued: dict | None, coarse: int, copies: int) -> dict | None:
+@dataclass(frozen=True)
+class Beyond:
+    """How the frames are continued beyond the window (:func:`widen`): by ``margin`` px, by a Gaussian tail
+    (``curved``) or a line; an edge colder than half the frames' noise sd ``noise`` (K, ``(B,)``) by 0."""
+
+    margin: int
+    curved: bool = False
+    noise: Tensor | None = None
+
+
+def pooled_window(continued: Beyond | None, coarse: int, copies: int) -> Beyond | None:
     """:func:`window_problem`'s ``continued`` for a base and ``copies`` copies stacked (video-major by copy)
     on ``coarse x coarse`` px means: the margin in their pixels, the noise's sd of their means."""
     if continued is None:
         return None
-    noise = continued["noise"]
+    noise = continued.noise
     if noise is not None:
         noise = (noise / coarse).repeat(copies + 1)
-    return continued | {"margin": continued["margin"] // coarse, "noise": noise}
+    return replace(continued, margin=continued.margin // coarse, noise=noise)

@@ -1,5 +1,5 @@
 """The fitted shapes' helpers (:mod:`anra_torch.effects.shapes`): the tanh-edged disc, the peak's centroid,
-the multi-start L-BFGS and the pixel grid."""
+the multi-start L-BFGS, the pixel grid and the filtering of outer-product frames."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from anra_torch.balance import BalanceSystem
-from anra_torch.effects.shapes import edge_disc, optimise, peak, pixel_grid
+from anra_torch.effects.shapes import edge_disc, finish_outer, optimise, peak, pixel_grid
 
 F64 = torch.float64
 
@@ -64,3 +64,18 @@ def test_the_pixel_grid_of_a_balance() -> None:
     x, y = pixel_grid(system)
     torch.testing.assert_close(x, (torch.arange(16, dtype=F64) + 0.5) * 0.5)
     torch.testing.assert_close(y, (torch.arange(12, dtype=F64) + 0.5) * 0.5)
+
+
+@pytest.mark.parametrize("sigma", [0.0, 1.0, 4.0])  # no Gaussian, slices, banded matrices (29 taps)
+def test_outer_product_frames_are_filtered_like_the_full_frames(sigma: float) -> None:
+    torch.manual_seed(0)
+    system = BalanceSystem(torch.rand(12, 34, 37, dtype=F64), 0.1, 0.5, sigma=sigma, noise_sd=0.01)
+    scale = torch.tensor(1.0, dtype=F64, requires_grad=True)
+    rows, cols = torch.rand(12, 34, dtype=F64) * scale, torch.rand(12, 37, dtype=F64).pow(2) * scale
+    fast = finish_outer(system, rows, cols)
+    full = system.finish(system.filters.time.average(rows[:, :, None] * cols[:, None, :]))
+    assert fast.shape == full.shape == system.u.shape
+    torch.testing.assert_close(fast, full, rtol=1e-13, atol=1e-15)
+    (fast_grad,) = torch.autograd.grad((fast * full.detach()).sum(), scale, retain_graph=True)
+    (full_grad,) = torch.autograd.grad((full * full.detach()).sum(), scale)
+    torch.testing.assert_close(fast_grad, full_grad, rtol=1e-13, atol=0)

@@ -228,3 +228,27 @@ def test_a_bright_spot_by_the_corner_is_no_defect_before_the_back_wall() -> None
     found = defect_map(frames, dt, DX)
     assert found.defects == () and not found.defect_mask.any()  # 3.3 % of the frame before
     assert abs(found.lateral[0] / 7.3 - 1) < 0.1
+
+
+@pytest.mark.slow
+def test_a_defect_covering_nearly_half_the_frame_is_the_defect_not_the_plate() -> None:
+    # 2 mm, a 12 x 9 mm rectangle at d / L 0.5 in a 16 mm frame: the hot layer's sideways cooling, not yet
+    # taken off, sent T_ref to -138 C (the model floor's variance grows with T - T_ref), and the median
+    # took the defect's tau for the plate's (plate time -92 %, nothing outlined)
+    plate = reference_plate_video(
+        PlateSetup(
+            shape=(40, 40),
+            dx=0.4,
+            n_frames=200,
+            thickness=2.0,
+            duration=9.0,
+            seed=8,
+            defects=(Defect("rectangle", centre=(8.0, 8.0), size=(6.0, 4.6), depth=1.0),),
+        )
+    )
+    found = defect_map(plate.frames, plate.dt, plate.dx)
+    # +23 %: the thin sound ring beside the hot layer is warmed sideways by more than the fit takes off
+    assert abs(found.plate_time / plate.plate_time - 1) < 0.3
+    mask = found.defect_mask.numpy()
+    assert (mask & plate.defect_mask).sum() / (mask | plate.defect_mask).sum() > 0.6
+    assert len(found.defects) == 1 and abs(found.defects[0].depth_fraction - 0.5) < 0.1

@@ -154,3 +154,19 @@ def test_fit_lateral_keeps_the_blocks_before_the_model_breaks() -> None:
     )
     assert 2 <= used < 4
     torch.testing.assert_close(a, torch.tensor(truth, dtype=F64), rtol=0.1, atol=0.15)
+
+
+def test_fit_lateral_starts_later_where_the_first_blocks_are_broken() -> None:
+    """Half the frame is hotter at first and evens out within 0.1 s (a shallow layer over a defect): no run
+    from the first block is physical (zeros before), the longest physical run from a later block is."""
+    truth = (7.3, 1.1, 0.6)
+    elapsed = torch.logspace(-1.5, 0.5, 60, dtype=F64)
+    generator = torch.Generator().manual_seed(2)
+    excess = _anisotropic_flash(truth, elapsed, 0.3)
+    excess[:, :, 24:] *= (1 + torch.exp(-elapsed / 0.1)).view(-1, 1, 1)
+    frames = 20.0 + excess + 0.005 * torch.randn(60, 40, 48, dtype=F64, generator=generator)
+    a, used = fit_lateral(
+        frames, elapsed, torch.ones(60, dtype=F64), dx=0.3, t_ref=20.0, noise_sd=0.005, sigma=2.5, labels=None
+    )
+    assert used >= 2
+    torch.testing.assert_close(a, torch.tensor(truth, dtype=F64), rtol=0.15, atol=0.2)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from anra_torch.flash.regions import components, dilate, edge_scatter, erode, smooth
+from anra_torch.flash.regions import components, dilate, edge_scatter, erode, plate_level, smooth
 
 
 def _mask(rows: list[str]) -> torch.Tensor:
@@ -78,3 +78,17 @@ def test_edge_scatter_sees_a_noisy_edge_that_a_cut_to_sound_pixels_would_hide() 
     assert abs(float(spread[0, 20]) / 0.5 - 1) < 0.25  # 0.19 from the sound pixels
     assert abs(float(spread[20, 20]) / 0.1 - 1) < 0.2  # the interior, from the sound pixels
     assert float(spread[5, 20]) < 0.15
+
+
+def test_the_plate_is_the_longest_large_region_whose_back_wall_the_recording_reaches() -> None:
+    # a defect covering 60 % of the frame at ln tau 0.8 beside the sound plate at 2.2 (the median alone
+    # takes the defect for the plate); pixel noise 0.3 on a flat plate moves nothing
+    noise = 0.3 * torch.randn((40, 40), generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    log_tau = torch.full((40, 40), 2.2, dtype=torch.float64)
+    log_tau[:, :24] = 0.8
+    level, sound = plate_level(log_tau + 0.05 * noise, 0.3, sigma=3.0, share=0.25, longest=3.0)
+    assert abs(float(level) - 2.2) < 0.02 and bool(sound[:, 26:].all()) and not bool(sound[:, :22].any())
+    level, _ = plate_level(log_tau + 0.05 * noise, 0.3, sigma=3.0, share=0.25, longest=2.0)
+    assert abs(float(level) - 0.8) < 0.02  # the longer region's back wall not in the recording: kept
+    level, _ = plate_level(2.2 + noise, 0.3, sigma=3.0, share=0.25, longest=3.0)
+    assert abs(float(level) - 2.2) < 0.05

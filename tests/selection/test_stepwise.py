@@ -113,3 +113,26 @@ def test_a_shape_fitted_after_the_same_effects_is_fitted_once_per_balance(monkey
     assert not torch.equal(
         selections[2].fitted["depth_conduction"].theta, alone.fitted["depth_conduction"].theta
     )
+
+
+def test_a_model_is_fitted_once_while_its_terms_stay_the_same(monkeypatch) -> None:
+    """:meth:`Selection.fit` computes a model's fit once and gives it again while its columns' terms are the
+    same tensors; a shape fitted anew (a new term) is fitted anew, and the result is the balance's fit."""
+    system = BalanceSystem(loss_video(0.5, size=16), DT, DX, sigma=1.0, noise_sd=0.01)
+    selection = Selection(system, 0.01, ["depth_conduction", "linear_loss"], background=25.0)
+    selection.take(["depth_conduction"])
+    fits: list[tuple[str, ...]] = []
+    fit = BalanceSystem.fit
+
+    def counted(self: BalanceSystem, columns):
+        fits.append(tuple(columns))
+        return fit(self, columns)
+
+    monkeypatch.setattr(BalanceSystem, "fit", counted)
+    first = selection.fit(["depth_conduction", "linear_loss"])
+    assert selection.fit(["depth_conduction", "linear_loss"]) is first
+    assert fits == [("L", "Z", "T", "1")]
+    torch.testing.assert_close(first.beta, fit(system, first.columns).beta, rtol=0, atol=0)
+    selection.prepare("depth_conduction", selection.fit(["linear_loss"]), refine=True)  # a new Z term
+    again = selection.fit(["depth_conduction", "linear_loss"])
+    assert again is not first and fits == [("L", "Z", "T", "1"), ("L", "T", "1"), ("L", "Z", "T", "1")]

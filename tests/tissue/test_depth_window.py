@@ -16,7 +16,13 @@ from anra_torch.tissue.depth_solver import (
     node_temperatures,
     solver_nodes,
 )
-from anra_torch.tissue.depth_window import widen, widened_modes, window_problem, window_temperatures
+from anra_torch.tissue.depth_window import (
+    Beyond,
+    widen,
+    widened_modes,
+    window_problem,
+    window_temperatures,
+)
 
 
 def test_widen_continues_a_slope_and_keeps_the_frame() -> None:
@@ -78,7 +84,7 @@ def _temperatures(rise: torch.Tensor, dx: float, margin: int, *, window: bool) -
     reported = depth_nodes(0.6, growth=1.1)
     grid = (solver_nodes(reported, 8.0), len(reported))
     if window:
-        problem, shape = window_problem(rise, dt, one(dx), rates, grid, {"margin": margin, "curved": True})
+        problem, shape = window_problem(rise, dt, one(dx), rates, grid, Beyond(margin, curved=True))
         blocks = [window_temperatures(rise, problem, shape, s, w) for s, w in march(problem, 64)]
         return torch.cat(blocks, 1)
     wide = widen(rise, margin, curved=True)
