@@ -320,7 +320,7 @@ def pushback(
     groups = (
         _disjoint_groups(levers, reach) if reach is not None else [[(i, None)] for i in range(len(levers))]
     )
-    backs: list[Tensor | None] = [None] * len(levers)
+    backs = frames.new_zeros((len(levers), *frames.shape))
     for group in groups:
         lever = levers[group[0][0]] if len(group) == 1 else sum(levers[i] for i, _ in group)
         # the gradient of <outputs, lever>: the same A^T x, without grad_outputs (whose check imports sympy)
@@ -329,9 +329,8 @@ def pushback(
             if span is None or len(group) == 1:
                 backs[i] = back
             else:
-                backs[i] = torch.zeros_like(back)
-                backs[i][span] = back[span]  # type: ignore[index]
-    return torch.stack(backs)  # type: ignore[arg-type]
+                backs[i, span] = back[span]
+    return backs
 
 
 def _disjoint_groups(levers: Sequence[Tensor], reach: int) -> list[list[tuple[int, slice | None]]]:

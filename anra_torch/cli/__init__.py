@@ -14,6 +14,7 @@ Every failure the user can cause (bad file, bad flag, a video without thermal ac
 from __future__ import annotations
 
 import argparse
+import ctypes
 import functools
 import gc
 import os
@@ -80,6 +81,24 @@ def _process_threads() -> int:
     return torch.get_num_threads()
 
 
+_MALLOPT = {-3: 32 * 2**20, -1: 256 * 2**20, -2: 16 * 2**20}
+"""glibc's ``mallopt`` settings of a process running ``anra``: ``M_MMAP_THRESHOLD`` 32 MiB (blocks below it
+from the heap, not each mapped and unmapped anew), ``M_TRIM_THRESHOLD`` 256 MiB (freed heap kept for the
+next frames' tensors, not returned and faulted in again), ``M_TOP_PAD`` 16 MiB. The same numbers, fewer page
+faults: ``anra features --depth`` on the 150-frame benchmark 0.88 -> 0.40 s of system time; the 1,668-frame
+one's peak 1.65 GiB (1.54-1.58 without; 1.68-1.83 with 1 GiB kept)."""
+
+
+def _keep_freed_memory() -> None:
+    """Apply :data:`_MALLOPT` where the C library is glibc (elsewhere nothing changes)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        for option, value in _MALLOPT.items():
+            libc.mallopt(option, value)
+    except (OSError, AttributeError):
+        return
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``anra`` command line; returns the exit status (0 ok, 2 error, 1 internal error).
 
@@ -91,6 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     if argv is None:
         gc.freeze()
+        _keep_freed_memory()
     try:
         args = build_parser().parse_args(argv)
 

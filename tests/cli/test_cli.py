@@ -166,16 +166,25 @@ def test_the_default_thread_count_does_not_shrink_call_after_call(
 
 def test_only_the_command_freezes_what_its_imports_built(monkeypatch: pytest.MonkeyPatch) -> None:
     """A process running ``anra`` (argv from ``sys.argv``) freezes its imports' objects out of the garbage
-    collector's passes; a caller passing ``argv`` (a library user, the tests) keeps its collector as it is."""
+    collector's passes and keeps its freed memory; a caller passing ``argv`` (a library user, the tests)
+    keeps its collector and allocator as they are."""
     import anra_torch.cli as cli
 
-    frozen: list[bool] = []
-    monkeypatch.setattr(cli.gc, "freeze", lambda: frozen.append(True))
+    frozen: list[str] = []
+    monkeypatch.setattr(cli.gc, "freeze", lambda: frozen.append("gc"))
+    monkeypatch.setattr(cli, "_keep_freed_memory", lambda: frozen.append("malloc"))
     assert main(["--version"]) == 0
     assert not frozen
     monkeypatch.setattr(cli.sys, "argv", ["anra", "--version"])
     assert main() == 0
-    assert frozen == [True]
+    assert frozen == ["gc", "malloc"]
+    monkeypatch.undo()
+
+    def no_glibc(name: str) -> None:
+        raise OSError(f"{name}: cannot open shared object file")
+
+    monkeypatch.setattr(cli.ctypes, "CDLL", no_glibc)
+    cli._keep_freed_memory()  # another C library: nothing changes, nothing raised
 
 
 @needs_data
