@@ -28,19 +28,19 @@ import gc
 # collector, left on, would walk them again and again while they are built (0.2 s CPU of every start).
 _COLLECTING = gc.isenabled()
 gc.disable()
-
-from anra_torch.batch import run_batch  # noqa: E402
-from anra_torch.data import ThermalVideoDataset  # noqa: E402
-from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects  # noqa: E402
-from anra_torch.estimation import ANRAEstimator, ANRAResult, StreamingEstimator  # noqa: E402
-from anra_torch.forecast import GainResult, assess_gain  # noqa: E402
-from anra_torch.selection import Diagnosis, diagnose_terms  # noqa: E402
-from anra_torch.simulation import paper_video, simulate_heat  # noqa: E402
-from anra_torch.tissue import TissueFeatures  # noqa: E402
-from anra_torch.video import Video, load_video  # noqa: E402
-
-if _COLLECTING:  # as the importer had it
-    gc.enable()
+try:
+    from anra_torch.batch import run_batch
+    from anra_torch.data import ThermalVideoDataset
+    from anra_torch.effects import EFFECTS, Effect, hidden_effect_video, simulate_effects
+    from anra_torch.estimation import ANRAEstimator, ANRAResult, StreamingEstimator
+    from anra_torch.forecast import GainResult, assess_gain
+    from anra_torch.selection import Diagnosis, diagnose_terms
+    from anra_torch.simulation import paper_video, simulate_heat
+    from anra_torch.tissue import TissueFeatures
+    from anra_torch.video import Video, load_video
+finally:  # as the importer had it, also when an import fails
+    if _COLLECTING:
+        gc.enable()
 
 __version__ = "0.1.0"
 

@@ -48,3 +48,19 @@ def test_importing_the_package_leaves_the_garbage_collector_as_the_importer_had_
         assert gc.isenabled()
     finally:
         (gc.enable if was else gc.disable)()
+
+
+def test_a_failed_import_of_the_package_still_gives_the_garbage_collector_back(monkeypatch) -> None:
+    """An import that raises inside the package's imports leaves the collector on, as the importer had it."""
+    import gc
+    import importlib
+
+    import anra_torch
+
+    assert gc.isenabled()
+    monkeypatch.setitem(sys.modules, "anra_torch.video", None)  # its import now raises ImportError
+    with pytest.raises(ImportError):
+        importlib.reload(anra_torch)
+    assert gc.isenabled()
+    monkeypatch.undo()
+    importlib.reload(anra_torch)
