@@ -119,7 +119,9 @@ def _measured(frames: torch.Tensor) -> PreparedBatch | None:
     """The frames' artefacts and noise measured once (:func:`~anra_torch.balance.prepare_batch`), for the
     ANRA maps and the phases' search and estimates alike; None where the estimator would not take them (it
     then says why itself)."""
-    if frames.ndim != 3 or not frames.is_floating_point() or frames.shape[0] < TIME_FILTER_FRAMES:
+    if frames.ndim != 3 or frames.dtype not in (torch.float32, torch.float64):
+        return None  # half precision and integers: the estimator converts them itself
+    if frames.shape[0] < TIME_FILTER_FRAMES:
         return None
     try:
         return prepare_batch(frames[None])

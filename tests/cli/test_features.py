@@ -77,6 +77,19 @@ def test_json_values_match_the_dose_of_the_denoised_history(
     assert record["omega_max"] > 1 and 0 < record["damaged_fraction"] < 0.2
 
 
+def test_a_half_precision_recording_is_analysed_like_any_other(
+    files: dict[str, Path], burn: torch.Tensor, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """float16 frames (a camera's compact export) run through the same features, not an internal error."""
+    half = save_npz(tmp_path / "half.npz", burn.numpy().astype(np.float16), dt=DT, dx=DX)
+    code, out, err = run(capsys, "features", half, "--json")
+    assert (code, err) == (0, "")
+    record, full = json.loads(out), json.loads(run(capsys, "features", files["celsius"], "--json")[1])
+    assert (record["frames"], record["height"], record["width"]) == (41, 40, 40)
+    # float16 resolves 0.03 K at 37 C: the peak within that of the float64 recording's
+    assert record["peak_temperature_max"] == pytest.approx(full["peak_temperature_max"], abs=0.05)
+
+
 def test_kelvin_needs_units_k(files: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = run(capsys, "features", files["kelvin"], "--json")
     assert code == 2 and out == ""
