@@ -16,9 +16,9 @@ OUT     ?= results/demo
 $(PY):
 	python3 -m venv $(VENV)
 
-# Re-install only when the package metadata changes.
+# Re-install only when the package metadata changes. One pip call: constraints.txt pins torch's CPU build, so a
+# separate torch install first only paid pip's start-up and resolution twice (the same environment either way).
 $(STAMP): pyproject.toml constraints.txt | $(PY)
-	$(PIP) torch==2.13.0
 	$(PIP) -e ".[test,plot,peers,formats,parquet,dask]"
 	touch $(STAMP)
 

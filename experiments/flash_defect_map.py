@@ -17,7 +17,7 @@ most; what the diagnosis names (``depth_conduction``, ``delamination`` and where
 ``<= 0`` or centred outside the frame) and which defects the map lists.
 
 Run: ``python -m experiments.flash_defect_map [--map-only] [--held-out] [--out DIR] [--plates 1,2,...]``;
-``--held-out`` runs :data:`HELD_OUT` (16 plates that break more of the map's assumptions) instead. With
+``--held-out`` runs :data:`HELD_OUT` (20 plates that break more of the map's assumptions) instead. With
 ``--map-only`` (the map that ``--maps`` writes, without the diagnosis) about 6 minutes on a loaded 2-core
 machine; with the diagnosis from 2 to more than 35 minutes a plate there. A plate whose result is in
 ``DIR`` is not run again. It prints one line per plate and the Markdown table of docs/results/flash.md.
@@ -170,10 +170,21 @@ HELD_OUT: dict[str, dict] = {
         diffusivity=(4.0, 4.0, 0.6),
         defects=(_ellipse(9.0, 10.0, 4.0, 3.0, 1.8, 30.0),),
     ),
+    "2.5 mm, rectangle d/L 0.4; 96 x 96 px at 0.2 mm": dict(
+        thickness=2.5, duration=12.0, shape=(96, 96), dx=0.2, defects=(_rectangle(11.0, 9.0, 3.0, 2.5, 1.0),)
+    ),
+    "3.0 mm, intact; 96 x 96 px at 0.2 mm": dict(thickness=3.0, duration=15.0, shape=(96, 96), dx=0.2),
+    "2.0 mm, ellipse d/L 0.5; 32 x 32 px at 0.6 mm": dict(
+        thickness=2.0, duration=9.0, shape=(32, 32), dx=0.6, defects=(_ellipse(9.0, 10.0, 4.0, 3.0, 1.0),)
+    ),
+    "0.6 mm, ellipse d/L 0.5, recorded for 3 s": dict(
+        thickness=0.6, duration=3.0, defects=(_ellipse(9.0, 10.0, 4.0, 3.0, 0.3),)
+    ),
 }
-"""Plates not used to tune the map before they were added (``--held-out``; seeds 21-36): a flash whose
+"""Plates not used to tune the map before they were added (``--held-out``; seeds 21-40): a flash whose
 bright spot lies on the frame's edge or corner, a defect that passes some heat, a defect over half the
-frame, other cameras (pixel size, frame count, noise), an isotropic plate at another ``a_z``."""
+frame, other cameras (pixel size 0.2-0.6 mm, frame count, noise), an isotropic plate at another ``a_z``,
+a plate thinner than any tuned one (0.6 mm: the back wall shows by 0.25 s)."""
 
 
 def auc(scores: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -415,7 +426,7 @@ def cli() -> None:
     parser.add_argument(
         "--held-out",
         action="store_true",
-        help="the plates of HELD_OUT (seeds 21-36: other cameras, flashes and defects) instead of PLATES",
+        help="the plates of HELD_OUT (seeds 21-40: other cameras, flashes and defects) instead of PLATES",
     )
     args = parser.parse_args()
     count = len(HELD_OUT if args.held_out else PLATES)

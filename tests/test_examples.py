@@ -1,16 +1,20 @@
 """Every script of the gallery (``examples/``) runs as written and prints what its docstring promises.
 
-Each runs in a fresh interpreter (``python examples/NAME.py``), as a user would run it. A script that reads
+Each runs as ``python examples/NAME.py`` runs it (as ``__main__``, its own ``__file__``, no arguments, from an
+empty folder), in this process: a fresh interpreter would pay the import of torch and the package again
+(~2 CPU-s a script); ``tests/test_main.py`` runs the entry points in processes of their own. What a script
+changes in torch's global state (threads, default dtype, gradient mode) is put back. A script that reads
 the shared data folder (``../shared/data``) is left out where that folder is absent.
 """
 
 from __future__ import annotations
 
-import subprocess
+import runpy
 import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -26,7 +30,7 @@ EXPECTED = {
 """Script -> (a line its output must hold, whether it reads the shared data)."""
 
 SLOW = {"diagnose_simulated.py", "tissue_features.py", "flir_folder.py", "dataloader.py", "convert_flir.py"}
-"""Over ~2 s each on a quiet 2-core machine (a fresh process each): out of `make test-fast`."""
+"""Over ~2 s each on a quiet 2-core machine when each ran in a fresh process: out of `make test-fast`."""
 
 
 def test_every_example_is_listed() -> None:
@@ -38,12 +42,19 @@ def test_every_example_is_listed() -> None:
 @pytest.mark.parametrize(
     "name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in sorted(EXPECTED)]
 )
-def test_example_runs(name: str, tmp_path: Path) -> None:
+def test_example_runs(
+    name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     expected, needs_data = EXPECTED[name]
     if needs_data and not DATA.is_dir():
         pytest.skip(f"{name} reads {DATA}, absent here")
-    done = subprocess.run(
-        [sys.executable, str(EXAMPLES / name)], cwd=tmp_path, capture_output=True, text=True, timeout=600
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    assert expected in done.stdout, done.stdout
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", [str(EXAMPLES / name)])
+    threads, dtype, grad = torch.get_num_threads(), torch.get_default_dtype(), torch.is_grad_enabled()
+    try:
+        runpy.run_path(str(EXAMPLES / name), run_name="__main__")
+    finally:
+        torch.set_num_threads(threads)
+        torch.set_default_dtype(dtype)
+        torch.set_grad_enabled(grad)
+    assert expected in capsys.readouterr().out

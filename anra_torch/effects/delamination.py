@@ -148,47 +148,58 @@ def delamination_term(system: BalanceSystem, theta: Tensor, plate: dict[str, flo
     return system.finish(system.filters.time.average(field)), weight
 
 
-def _regions(system: BalanceSystem) -> list[tuple[float, float, float, float]]:
+_Region = tuple[float, float, float, float, float]
+
+
+def _regions(system: BalanceSystem, plate_time: float) -> list[_Region]:
     """The candidate regions the balance was given (``system.hints``: a flash defect map's defects,
-    centroid and equal-area radius in mm, depth fraction) as ``(x px, y px, radius px, d / L)``."""
+    centroid and equal-area radius in mm, depth fraction, the map's plate time ``L^2 / a_z`` in s) as
+    ``(x px, y px, radius px, d / L, the map's plate time over the depth term's plate_time)`` (1 without)."""
     regions = []
     for h in system.hints.get("delamination", ()):
         fraction = h.get("depth_fraction", 0.5)
         fraction = fraction if math.isfinite(fraction) else 0.5
+        scale = h.get("plate_time", math.nan) / plate_time
+        scale = scale if math.isfinite(scale) and scale > 0 else 1.0
         radius = max(h["radius"] / system.dx, _MIN_RADIUS_PX + 0.5)
-        regions.append((h["x"] / system.dx, h["y"] / system.dx, radius, fraction))
+        regions.append((h["x"] / system.dx, h["y"] / system.dx, radius, fraction, scale))
     return regions
 
 
-def _held(region: tuple[float, float, float, float], phi: Tensor) -> Tensor:
+def _held(region: _Region, phi: Tensor) -> Tensor:
     """``theta`` (see :func:`_unpack`) of a disc held at a candidate region: its radius the region's, its
     centre within :data:`_HELD_SHIFT` of the radius of the region's centroid along each axis and its
-    layer's ``d / L`` within :data:`_HELD_DEPTH` of the region's (``tanh`` of ``phi``, ``(3,)``)."""
-    cx, cy, radius, fraction = region
+    layer's ``d / L`` within :data:`_HELD_DEPTH` of the region's (``tanh`` of ``phi``, ``(3,)``), its layer's
+    time ``d^2 / a_z`` that ``d / L`` of the map's plate time where the region has one: the depth term's
+    plate time also takes up what the balance's isotropic lateral term misses on an anisotropic plate
+    (45-480 s for the map's 8.9 s on a 2 mm plate), and ``(d / L)^2`` of it put the layer far off."""
+    cx, cy, radius, fraction, scale = region
     bounded = torch.tanh(phi)
     depth = (fraction + _HELD_DEPTH * bounded[2]).clamp(0.05, 0.95)
-    share = depth**2
+    share = (depth**2 * scale).clamp(1e-6, 0.95**2)
     centre = phi.new_tensor([cx, cy]) + _HELD_SHIFT * radius * bounded[:2]
     size = phi.new_tensor([math.log(radius - _MIN_RADIUS_PX)])
     return torch.cat([centre, size, (share / (1 - share)).log()[None]])
 
 
-def _held_fit(system: BalanceSystem, loss: Callable[[Tensor], Tensor], start: Tensor | None) -> Tensor:
+def _held_fit(
+    system: BalanceSystem, loss: Callable[[Tensor], Tensor], start: Tensor | None, plate_time: float
+) -> Tensor:
     """With candidate regions (:func:`_regions`): the disc held at each in turn (:func:`_held`: with its
     radius and depth free the disc grows over the frame as a second depth rate, its strength unphysical),
     its centre refined from the region's centroid (and from ``start``'s where ``start`` lies on the
     region); the best region's ``theta``."""
     best: tuple[float, Tensor] | None = None
-    for region in _regions(system):
+    for region in _regions(system, plate_time):
         phis = [torch.zeros(3, dtype=_F64, device=system.frames.device)]
         if start is not None and abs(float(start[2]) - math.log(region[2] - _MIN_RADIUS_PX)) < 1e-9:
-            depth = math.sqrt(float(torch.sigmoid(start[3])))  # start's layer, d / L
+            depth = math.sqrt(float(torch.sigmoid(start[3])) / region[4])  # start's layer, d / L
             offset = [(float(start[0]) - region[0]) / (_HELD_SHIFT * region[2])]
             offset += [(float(start[1]) - region[1]) / (_HELD_SHIFT * region[2])]
             offset += [(depth - region[3]) / _HELD_DEPTH]
             phis.append(torch.atanh(phis[0].new_tensor(offset).clamp(-0.99, 0.99)))
 
-        def held_loss(phi: Tensor, region: tuple[float, float, float, float] = region) -> Tensor:
+        def held_loss(phi: Tensor, region: _Region = region) -> Tensor:
             return loss(_held(region, phi))
 
         phi = optimise(held_loss, phis, iterations=25, runs=2)
@@ -237,7 +248,7 @@ def _fit(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
         return system.profile_loss(columns, term, NoiseSpec("T", weight.detach())) / scale
 
     if system.hints.get("delamination"):
-        theta = _held_fit(system, loss, start)
+        theta = _held_fit(system, loss, start, plate["depth_time"])
     else:
         starts = _starts(system, fit)
         theta = optimise(loss, starts if start is None else [start, *starts], iterations=25, runs=2)

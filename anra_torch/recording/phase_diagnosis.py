@@ -117,10 +117,17 @@ def diagnose_recording(
 def flash_hints(defects: DefectMap) -> dict[str, Any]:
     """The diagnosis' hints (:func:`~anra_torch.selection.diagnose_terms`) from a flash recording's defect
     map: a delamination is looked for at the map's defects only (where the cooling says the heat stops
-    early), each a region ``{"x", "y", "radius", "depth_fraction"}`` (its centroid and the radius of its
-    area's disc in mm, its ``d / L``); a map without a defect rules the delamination out."""
+    early), each a region ``{"x", "y", "radius", "depth_fraction", "plate_time"}`` (its centroid and the
+    radius of its area's disc in mm, its ``d / L``, the map's ``L^2 / a_z`` in s); a map without a defect
+    rules the delamination out."""
     regions = tuple(
-        {"x": d.x, "y": d.y, "radius": math.sqrt(d.area / math.pi), "depth_fraction": d.depth_fraction}
+        {
+            "x": d.x,
+            "y": d.y,
+            "radius": math.sqrt(d.area / math.pi),
+            "depth_fraction": d.depth_fraction,
+            "plate_time": defects.plate_time,
+        }
         for d in defects.defects
         if d.area > 0
     )

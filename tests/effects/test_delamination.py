@@ -123,3 +123,20 @@ def test_the_delamination_is_looked_for_in_the_regions_a_defect_map_gives(defect
     for e in d.effects:
         if e["name"] == "delamination":
             assert math.hypot(e["params"]["x"] - 2.0, e["params"]["y"] - 7.5) <= 1.0, e["params"]
+
+
+def test_a_held_discs_layer_time_is_its_depth_fraction_of_the_maps_plate_time() -> None:
+    """A region from a flash defect map carries the map's plate time: the held disc's layer time is
+    ``(d / L)^2`` of it, not of the depth term's plate time, which on an anisotropic plate also takes up
+    what the isotropic balance misses (480 s for 8.9 s put the layer at 120 s, not 2.2 s); a region
+    without one keeps the depth term's."""
+    from types import SimpleNamespace
+
+    from anra_torch.effects.delamination import _held, _regions, _unpack
+
+    region = {"x": 4.0, "y": 4.0, "radius": 1.2, "depth_fraction": 0.5}
+    phi = torch.zeros(3, dtype=torch.float64)
+    for hint, layer in ((region, 0.25 * 480.0), ({**region, "plate_time": 8.9}, 0.25 * 8.9)):
+        system = SimpleNamespace(hints={"delamination": (hint,)}, dx=0.4)
+        theta = _held(_regions(system, 480.0)[0], phi)  # type: ignore[arg-type]
+        assert float(_unpack(theta, 480.0)[3]) == pytest.approx(layer, rel=1e-6)

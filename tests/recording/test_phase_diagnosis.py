@@ -121,8 +121,8 @@ def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """:func:`flash_hints` turns a defect map's defects into the diagnosis' candidate regions (centroid,
-    equal-area radius, depth fraction; none: the delamination is ruled out), and every phase's balance
-    diagnosis, the inner comparisons' too, is given them."""
+    equal-area radius, depth fraction, the map's plate time; none: the delamination is ruled out), and
+    every phase's balance diagnosis, the inner comparisons' too, is given them."""
     import anra_torch.recording.phase_diagnosis as recording
     from anra_torch.flash import DefectMap, FoundDefect
 
@@ -132,9 +132,8 @@ def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
         grid, 8.0, 0.1, True, grid, grid.bool(), grid, found, (7.0, 1.0, 0.0), 20.0, 0.1, 0.02
     )
     hints = flash_hints(defects)
-    assert hints == {
-        "delamination": ({"x": 3.0, "y": 2.0, "radius": pytest.approx(2.0), "depth_fraction": 0.4},)
-    }
+    region = {"x": 3.0, "y": 2.0, "radius": pytest.approx(2.0), "depth_fraction": 0.4, "plate_time": 8.0}
+    assert hints == {"delamination": (region,)}
     assert flash_hints(replace(defects, defects=())) == {"delamination": ()}
     real, given = recording.diagnose_terms, []
 
