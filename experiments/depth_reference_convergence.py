@@ -24,7 +24,8 @@ from anra_torch.tissue import fit_depth_parameters
 
 # contact probes of 74 and 49 s, a laser spot of 70 s: margins in mm (None: the scene's own, the heat's reach)
 MARGIN_SCENES = {14: (2.0, 6.0, 10.0), 17: (2.0, 6.0, 10.0), 9: (2.0, None, 10.0)}
-STEP_SCENES = {2: (0.1, 0.05, 0.025, 0.0125), 7: (0.1, 0.025)}  # a contact probe, a sweeping tip
+# a contact probe, a sweeping tip, a laser spot: time steps in s
+STEP_SCENES = {2: (0.1, 0.05, 0.025, 0.0125), 7: (0.1, 0.025), 9: (0.1, 0.025)}
 
 
 def margins() -> None:
