@@ -211,7 +211,7 @@ def effect_rhs(
 
 
 class ExtendedHeatRHS(nn.Module):
-    """Right-hand side ``dT/dt = D[T] + sum of effect terms`` on the pixel grid, for ``torchdiffeq``.
+    """Right-hand side ``dT/dt = D[T] + sum of effect terms`` on the pixel grid, for the integrator.
 
     ``D[T]`` is ``a`` times the 5-point Laplacian (:class:`anra_torch.simulation.HeatRHS`) unless an effect
     replaces it. Gradients are central differences; the ghost pixel around the frame comes from

@@ -1,6 +1,7 @@
 """Forward models on the pixel grid: one integrator, the heat equation, exact solutions, the tissue model.
 
-- :mod:`~anra_torch.simulation.integrator`: :func:`integrate`, the only caller of ``torchdiffeq``, and
+- :mod:`~anra_torch.simulation.integrator`: :func:`integrate` (fixed steps in
+  :mod:`~anra_torch.simulation.fixed_grid`, adaptive and adjoint ones by ``torchdiffeq``) and
   :func:`stable_substeps`, the substeps per frame from the spectrum of a right-hand side.
 - :mod:`~anra_torch.simulation.heat`: :class:`HeatRHS` (5-point Laplacian or flux form, :data:`BOUNDARIES`)
   and :func:`simulate_heat`.

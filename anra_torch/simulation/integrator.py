@@ -2,8 +2,9 @@
 
 Every simulator (:func:`~anra_torch.simulation.simulate_heat`, :func:`~anra_torch.effects.simulate_effects`,
 :func:`~anra_torch.simulation.simulate_tissue`, :func:`~anra_torch.forecast.refine_model`) turns its PDE into
-an ODE system ``dU/dt = f(t, U)`` on the pixel grid and hands it to :func:`integrate`, which is the only
-caller of ``torchdiffeq``. Fixed-step methods take an integer number of substeps per frame, chosen by
+an ODE system ``dU/dt = f(t, U)`` on the pixel grid and hands it to :func:`integrate`: fixed-step methods
+run in :mod:`~anra_torch.simulation.fixed_grid` (torchdiffeq's arithmetic), adaptive and adjoint
+integration in ``torchdiffeq``. Fixed-step methods take an integer number of substeps per frame, chosen by
 :func:`stable_substeps` from where the eigenvalues of ``f`` lie:
 
 - diffusion on the 5-point Laplacian: real, in ``[-8 a / dx^2, 0]`` in 1/s;
@@ -26,6 +27,7 @@ import torch
 from torch import Tensor
 
 from anra_torch.checks import check_choice, check_int, number, positive
+from anra_torch.simulation.fixed_grid import fixed_grid
 
 __all__ = [
     "Solver",
@@ -319,9 +321,13 @@ def _odeint(
     adjoint: bool,
     adjoint_params: Sequence[Tensor] | None,
 ) -> Tensor:
-    """torchdiffeq's ``odeint`` (or ``odeint_adjoint``) on the grid ``t`` with the solver's ``kwargs``."""
-    # Imported here: torchdiffeq loads scipy.integrate (~0.4 s), which commands that integrate nothing
-    # (estimate, batch) should not pay at every start.
+    """torchdiffeq's ``odeint`` (or ``odeint_adjoint``) on the grid ``t`` with the solver's ``kwargs``; fixed
+    steps without the adjoint by :func:`~anra_torch.simulation.fixed_grid.fixed_grid` (its arithmetic)."""
+    method, options = kwargs["method"], kwargs["options"]
+    if not adjoint and isinstance(method, str) and method in FIXED_STEP_METHODS and isinstance(options, dict):
+        return fixed_grid(rhs, initial, t, method, perturb=bool(options.get("perturb", False)))
+    # Imported here: torchdiffeq loads scipy.integrate (~0.4 s), which only adaptive and adjoint
+    # integration need.
     from torchdiffeq import odeint, odeint_adjoint
 
     if adjoint:

@@ -47,7 +47,7 @@ def _pool(field: Tensor, weight: Tensor, grid: tuple[int, int]) -> Tensor:
 
 
 class LearnedTissueModel(nn.Module):
-    """Diffusivity and perfusion fields learned end to end through the torchdiffeq simulator.
+    """Diffusivity and perfusion fields learned end to end through the RK4 simulator.
 
     ``log a`` and ``log b`` live on a coarse ``grid`` and are up-sampled bilinearly to the frame; both
     stay positive. Start them with :meth:`from_video` (ANRA's direct estimate) and train with :meth:`fit`.

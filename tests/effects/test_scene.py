@@ -5,6 +5,7 @@ detectable parameters, physical videos, ``.npz`` round trips and crops.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -114,10 +115,14 @@ def test_sampled_parameters_are_in_their_detectable_ranges() -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", list(EFFECTS))
-def test_hidden_videos_stay_physical_and_show_the_effect(name: str) -> None:
+def test_hidden_videos_stay_physical_and_show_the_effect(
+    hidden_video: Callable[..., HiddenEffectVideo], name: str
+) -> None:
+    """Each effect's four scenes against the same scenes without it (those pure scenes are simulated once per
+    test run, not once per effect)."""
     for seed in range(4):
         video = hidden_effect_video([name], seed=seed, sensor=Sensor(noise_frac=0.0))
-        pure = hidden_effect_video([], seed=seed, sensor=Sensor(noise_frac=0.0))
+        pure = hidden_video((), seed=seed, sensor=Sensor(noise_frac=0.0))
         rise = float(pure.clean[0].max()) - 30.0
         assert bool(video.clean.isfinite().all())
         assert 30.0 - 0.2 * rise - 1e-6 <= float(video.clean.min())
