@@ -21,8 +21,9 @@ errors-in-variables profile loss from the strongest positive structure left in t
 candidate regions (:func:`~anra_torch.selection.diagnose_terms`' ``hints``: the defects of a flash defect
 map, :func:`anra_torch.flash.defect_map`, where the cooling says the heat stops early), held at one of
 them: its radius the region's equal-area radius, its centre within 0.7 of the radius of the region's
-centroid, its layer's ``d / L`` within 0.1 of the region's (with its radius and depth free the disc grew
-over the frame into a second depth rate of negative strength); an empty set of regions rules it out.
+centroid, its layer's ``d / L`` within 0.1 of the region's, its layer's time that share of the map's plate
+time where the region carries one (with its radius and depth free the disc grew over the frame into a
+second depth rate of negative strength); an empty set of regions rules it out.
 Validated on the independent 3-D plates of :func:`anra_torch.simulation.flash_plate_video` (the lateral
 and the depth problems do not separate over a defect, so the 2-D independent simulator has no model of it).
 Random draw: under the first hot spot (radius 1-2 of its sigmas), ``d / L`` in 0.2-0.5, ``strength``
