@@ -324,9 +324,15 @@ def _odeint(
     """torchdiffeq's ``odeint`` (or ``odeint_adjoint``) on the grid ``t`` with the solver's ``kwargs``; fixed
     steps without the adjoint by :func:`~anra_torch.simulation.fixed_grid.fixed_grid` (its arithmetic)."""
     method, options = kwargs["method"], kwargs["options"]
-    one_unit = isinstance(options, dict) and options.get("step_size") == 1.0  # fixed_grid's steps
-    if not adjoint and isinstance(method, str) and method in FIXED_STEP_METHODS and one_unit:
-        return fixed_grid(rhs, initial, t, method, perturb=bool(options.get("perturb", False)))
+    steps = options if isinstance(options, dict) else {}
+    # fixed_grid steps one time unit, as the fixed-step options ask.
+    if (
+        not adjoint
+        and steps.get("step_size") == 1.0
+        and isinstance(method, str)
+        and method in FIXED_STEP_METHODS
+    ):
+        return fixed_grid(rhs, initial, t, method, perturb=bool(steps.get("perturb", False)))
     # Imported here: torchdiffeq loads scipy.integrate (~0.4 s), which only adaptive and adjoint
     # integration need.
     from torchdiffeq import odeint, odeint_adjoint
