@@ -9,6 +9,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from anra_torch.layers import correlate1d
+
 __all__ = ["NoiseModel"]
 
 _MODEL_ERROR = 0.1  # relative error of a measured correlated or static noise variance
@@ -116,11 +118,8 @@ class NoiseModel:
         for dim, taps in ((-3, self.time_kernel()), (-2, self.space_kernel()), (-1, self.space_kernel())):
             if taps.numel() == 1:
                 continue
-            pad = taps.numel() // 2
-            moved = out.movedim(dim, -1)
-            flat = F.pad(moved.reshape(-1, 1, moved.shape[-1]), (pad, pad))
-            filtered = F.conv1d(flat, taps.to(x.dtype).view(1, 1, -1)).reshape(moved.shape)
-            out = filtered.movedim(-1, dim)
+            pad = taps.numel() // 2  # zero-padded: the same size (the kernel is symmetric)
+            out = correlate1d(F.pad(out, [0, 0] * (-dim - 1) + [pad, pad]), taps.tolist(), dim)
         variance = max(float(self.variance), 1e-300)
         if self.white_sd and not self.white:
             out = out + (self.white_sd**2 / variance) * x

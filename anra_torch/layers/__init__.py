@@ -4,6 +4,7 @@ The ANRA estimator built on them is :mod:`anra_torch.estimation.estimator` (thro
 """
 
 from anra_torch.layers.attention import RTCAttention, UniformAttention, confidence_mask, rtc_attention
+from anra_torch.layers.correlate import correlate1d
 from anra_torch.layers.derivatives import (
     Gradient,
     Laplacian,
@@ -26,6 +27,7 @@ __all__ = [
     "TimeDerivative",
     "UniformAttention",
     "confidence_mask",
+    "correlate1d",
     "gaussian_smooth",
     "gaussian_taps",
     "gradient",
