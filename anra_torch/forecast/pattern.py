@@ -31,6 +31,8 @@ from anra_torch.selection import Diagnosis
 
 __all__ = ["pixel_forcing"]
 
+_CHUNK_PIXELS = 2**21  # pixels per batched step: 16 MB per float64 field of the integrator
+
 
 def pixel_forcing(frames: Tensor, model: Diagnosis, dt: float, dx: float) -> Tensor:
     """The per-pixel fixed effects of ``model`` on ``frames`` as a stationary heat input, 0 on the outer ring.
@@ -52,11 +54,15 @@ def pixel_forcing(frames: Tensor, model: Diagnosis, dt: float, dx: float) -> Ten
         ``frames`` ``(T, H, W)`` with ``T >= 2``; output ``(H, W)``.
     """
     steps = frames.shape[0] - 1
-    if not any(EFFECTS[name].retime is not None for name in model.names):  # every step at once
-        pairs = torch.stack([frames[:-1], frames[1:]], 1)
-        ahead = simulate_model(frames[:-1], model, dt=dt, dx=dx, n_frames=2, edges=pairs)[:, 1]
-        return (frames[1:] - ahead).mean(0) / dt
     total = torch.zeros_like(frames[0])
+    if not any(EFFECTS[name].retime is not None for name in model.names):  # many steps at once
+        chunk = max(1, _CHUNK_PIXELS // frames[0].numel())
+        for start in range(0, steps, chunk):  # bounded memory: a camera's large frames a few at a time
+            stop = min(start + chunk, steps)
+            pairs = torch.stack([frames[start:stop], frames[start + 1 : stop + 1]], 1)
+            ahead = simulate_model(frames[start:stop], model, dt=dt, dx=dx, n_frames=2, edges=pairs)[:, 1]
+            total += (frames[start + 1 : stop + 1] - ahead).sum(0)
+        return total / (steps * dt)
     for t in range(steps):  # a moving source is where its path puts it at each frame
         effects = extended_effects(model, fit_duration=steps * dt, start=t * dt, duration=dt)
         ahead = simulate_model(

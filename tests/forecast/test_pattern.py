@@ -10,6 +10,7 @@ import torch
 
 from anra_torch.effects import hidden_effect_video
 from anra_torch.forecast import earned_diagnosis, simulate_model
+from anra_torch.forecast import pattern as pattern_module
 from anra_torch.forecast.core import at_scale, interior
 from anra_torch.forecast.pattern import pixel_forcing
 from anra_torch.selection import fit_effects
@@ -67,3 +68,11 @@ def test_a_true_anisotropy_under_a_fixed_pattern_earns_its_place_by_many_floors(
     earned = earned_diagnosis(frames, v.dt, v.dx, one)
     assert earned.names == ["anisotropy"]
     assert earned.effects[0]["forecast_cost"] > 2.0
+
+
+def test_large_frames_are_stepped_a_few_at_a_time_with_the_same_result(monkeypatch) -> None:
+    """Bounded memory: frames stepped in chunks of 4 give the forcing of all frames stepped at once."""
+    model, frames, pattern = _plain_video()
+    whole = pixel_forcing(frames + pattern, model, DT, DX)
+    monkeypatch.setattr(pattern_module, "_CHUNK_PIXELS", 4 * 24 * 24)
+    assert torch.allclose(pixel_forcing(frames + pattern, model, DT, DX), whole, rtol=0, atol=1e-12)
