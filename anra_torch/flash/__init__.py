@@ -15,12 +15,10 @@ The plates to try them on: :func:`anra_torch.simulation.flash_plate_video` (exac
 """
 
 from anra_torch.flash.contrasts import PCT_STANDARDISE, PCTResult, PPTResult, TSRResult, pct, ppt, tsr
-from anra_torch.flash.cooling import FLASH_FRAMES
 from anra_torch.flash.defects import DefectMap, FoundDefect, defect_map
 from anra_torch.flash.maps import TSR_FRAMES, FlashMaps, flash_maps
 
 __all__ = [
-    "FLASH_FRAMES",
     "TSR_FRAMES",
     "DefectMap",
     "FlashMaps",

@@ -27,7 +27,6 @@ import torch
 from torch import Tensor
 
 __all__ = [
-    "FLASH_FRAMES",
     "TauGrid",
     "TimeBins",
     "log_surface",
@@ -38,10 +37,6 @@ __all__ = [
     "tau_grid",
     "time_bins",
 ]
-
-FLASH_FRAMES = 3
-"""The recording's first frames that the defect map leaves out (the flash's own frames: in them the surface
-is not yet the instantaneous flash's; the simulator's flash fills a top cell with a per-cell error)."""
 
 _TERMS = 8  # each series' terms on its side of t = tau / 4: the first left out is below exp(-39)
 
@@ -158,9 +153,7 @@ class TimeBins:
         return out / self.counts.to(values).view(-1, *([1] * (values.dim() - 1)))
 
 
-def time_bins(
-    frames: int, dt: float, first: float, *, start: int = FLASH_FRAMES, ratio: float = 1.03
-) -> TimeBins:
+def time_bins(frames: int, dt: float, first: float, *, start: int = 3, ratio: float = 1.03) -> TimeBins:
     """Bins from frame ``start`` on, each at least one frame and ending ``ratio`` times later than it began.
 
     Args:

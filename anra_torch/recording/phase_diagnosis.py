@@ -31,7 +31,7 @@ from torch import Tensor
 
 from anra_torch.checks import extended_diffusivity_warning
 from anra_torch.effects import EFFECTS
-from anra_torch.flash import FLASH_FRAMES, DefectMap
+from anra_torch.flash import DefectMap
 from anra_torch.forecast import (
     DIAGNOSED_FRAMES,
     INNER_SPLITS,
@@ -44,6 +44,7 @@ from anra_torch.forecast import (
     source_map_gain,
     split_index,
 )
+from anra_torch.layers import TimeDerivative
 from anra_torch.recording.box_phase import small_box_phase
 from anra_torch.recording.phase_record import PhaseDiagnosis, flag_implausible, implausible
 from anra_torch.recording.phases import MIN_PHASE_FRAMES, recording_phases_of, repaired
@@ -53,6 +54,7 @@ from anra_torch.video import Phase, measured_frames
 __all__ = ["INNER_SPLITS", "PhaseDiagnosis", "diagnose_recording", "flash_hints"]
 
 _F64 = torch.float64
+_RESOLVED_FRAMES = TimeDerivative("smooth").length  # frames after a flash that the time stencil spans
 
 
 def diagnose_recording(
@@ -137,21 +139,26 @@ def flash_hints(defects: DefectMap) -> dict[str, Any]:
         for d in defects.defects
         if d.area > 0
     )
-    return {"depth_conduction": (plate,), "delamination": regions}
+    hints: dict[str, Any] = {"delamination": regions}
+    hints["depth_conduction"] = (plate,)
+    return hints
 
 
 def _after_heating(phase: Phase, times: Tensor, hints: dict[str, Any] | None) -> tuple[Phase, dict | None]:
-    """A phase diagnosed with a held depth term (``hints["depth_conduction"]``: a flash defect map's plate,
-    ``t_heat`` from the recording's first frame) from where the map's cooling starts on (frame
-    :data:`~anra_torch.flash.FLASH_FRAMES`: the flash's own frames left out), and the hints with ``t_heat``
-    from that frame. In them the surface is not the instantaneous flash's: on a 2 mm plate the balance's
-    isotropic ``a`` went negative and an advection was named (5 frames left out on a 1 mm plate were
-    those where the depth term leads, and the judge dropped it). Other phases and hints as they are."""
+    """A phase diagnosed with a held depth term (``hints["depth_conduction"]``, its ``t_heat`` from the
+    recording's first frame) from its first frame a time stencil after the heating on, and the hints with
+    ``t_heat`` from that frame: in the first frames after a flash the depth rate ``1 / (2 s)`` changes
+    several times over the stencil, which no term of the balance resolves (on a 2 mm plate its isotropic
+    ``a`` went negative and an advection was named; from 3 frames after the flash on, as the map starts,
+    the delamination and the anisotropy had negative own gains there). Other phases and hints as they are."""
     held = (hints or {}).get("depth_conduction")
-    if not held or times.shape[0] <= FLASH_FRAMES:
+    if not held or times.shape[0] < 2:
         return phase, hints
-    start = max(phase.start, min(FLASH_FRAMES, phase.stop - 1))
     heating = float(times[0]) + held[0]["t_heat"]
+    resolved = heating + _RESOLVED_FRAMES * float(times[1] - times[0])
+    start = phase.start
+    while start < phase.stop - 1 and float(times[start]) < resolved:
+        start += 1
     plate = tuple({**h, "t_heat": heating - float(times[start])} for h in held)
     return replace(phase, start=start, t_start=float(times[start])), {**hints, "depth_conduction": plate}
 

@@ -153,18 +153,18 @@ def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
     assert all(p.family == "balance" for p in phases)
 
 
-def test_a_phase_with_a_flash_plate_starts_where_the_maps_cooling_starts() -> None:
-    """A phase given a flash map's plate leaves out the flash's own frames, as the map does
-    (:data:`~anra_torch.flash.FLASH_FRAMES`), the flash timed from its new first frame; a later phase and a
-    recording without the plate are left as they are."""
+def test_a_phase_with_a_flash_plate_starts_a_time_stencil_after_the_flash() -> None:
+    """In the first frames after a flash the depth rate ``1 / (2 s)`` changes faster than the balance's
+    time stencil (5 frames) resolves: a phase given the flash's plate starts 5 frames after it, the flash
+    timed from there; a later phase and a recording without the plate are left as they are."""
     from anra_torch.recording.phase_diagnosis import _after_heating
     from anra_torch.video import Phase
 
     times = torch.arange(40, dtype=torch.float64) * 0.1 + 2.0
     hints = {"depth_conduction": ({"T_ref": 20.0, "plate_time": 8.0, "t_heat": -0.02},), "delamination": ()}
     phase, moved = _after_heating(Phase("cooling", 0, 40, 2.0, 5.9), times, hints)
-    assert (phase.start, phase.t_start) == (3, pytest.approx(2.3))  # the flash at 1.98 s
-    assert moved["depth_conduction"][0]["t_heat"] == pytest.approx(-0.32) and moved["delamination"] == ()
+    assert (phase.start, phase.t_start) == (5, pytest.approx(2.5))  # 0.52 s after the flash at 1.98 s
+    assert moved["depth_conduction"][0]["t_heat"] == pytest.approx(-0.52) and moved["delamination"] == ()
     later = Phase("cooling", 20, 40, 4.0, 5.9)
     phase, moved = _after_heating(later, times, hints)
     assert phase == later and moved["depth_conduction"][0]["t_heat"] == pytest.approx(-2.02)
