@@ -414,6 +414,12 @@ def pure():
     return camera_scene()
 
 
+@pytest.fixture(scope="module")
+def pure_estimate(pure):
+    """The plain estimate of the pure camera scene, which every artefact's case compares with."""
+    return ANRAEstimator()(pure.frames, pure.dt, pure.dx)
+
+
 @pytest.mark.slow
 def test_a_known_noise_model_is_used_as_given(pure) -> None:
     """``noise_sd`` takes a whole noise model (the planted one: what ``experiments/noise_information.py``
@@ -440,12 +446,12 @@ def test_a_known_noise_model_is_used_as_given(pure) -> None:
         "offset_steps",
     ],
 )
-def test_no_effect_is_named_on_a_pure_video_with_an_artefact(pure, kind: str) -> None:
+def test_no_effect_is_named_on_a_pure_video_with_an_artefact(pure, pure_estimate, kind: str) -> None:
     frames, _ = with_artefacts(pure, kind)
     diagnosis = diagnose_terms(frames, pure.dt, pure.dx)
     assert diagnosis.names == []
     assert diagnosis.artefacts is not None and diagnosis.noise is not None
-    plain = ANRAEstimator()(pure.frames, pure.dt, pure.dx)
+    plain = pure_estimate
     planted = ANRAEstimator()(frames, pure.dt, pure.dx)
     error = abs(float(planted.diffusivity / plain.diffusivity) - 1)
     assert error < 3 * float(planted.std_error / plain.diffusivity) + 0.01
@@ -453,14 +459,17 @@ def test_no_effect_is_named_on_a_pure_video_with_an_artefact(pure, kind: str) ->
 
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["fixed_pattern", "correlated_noise"])
-def test_strong_camera_noise_names_no_effect_and_keeps_the_diffusivity(kind: str) -> None:
+def test_strong_camera_noise_names_no_effect_and_keeps_the_diffusivity(disk_cache, kind: str) -> None:
     """An independent simulation at the camera-artefact benchmark's setting with 3 % noise, and its
     fixed pattern (3 noise sds) or correlated noise (2 noise sds): where noise is most of the Laplacian's
     energy, the measured variance's own error (10 %) decides the correction. Without that error in the
     coefficients' covariance the smallest smoothing looked precise: a came out near 0 (-0.001 and 0.003)
-    and a loss, a source or depth conduction was named."""
-    video = independent_effect_video(
-        [], seed=7, size=128, dx=0.05, fps=40.0, duration=2.0, sensor=Sensor(noise_frac=0.03)
+    and a loss, a source or depth conduction was named. The simulation is made once for both kinds."""
+    video = disk_cache(
+        "independent-pure-7-128px-2s-40Hz-3pc",
+        lambda: independent_effect_video(
+            [], seed=7, size=128, dx=0.05, fps=40.0, duration=2.0, sensor=Sensor(noise_frac=0.03)
+        ),
     )
     frames, _ = plant(video.frames, kind, seed=11, noise_sd=video.noise_sd, dt=video.dt)
     diagnosis = diagnose_terms(frames, video.dt, video.dx)
