@@ -151,8 +151,8 @@ def _after_heating(phase: Phase, times: Tensor, hints: dict[str, Any] | None) ->
     several times over the stencil, which no term of the balance resolves (on a 2 mm plate its isotropic
     ``a`` went negative and an advection was named; from 3 frames after the flash on, as the map starts,
     the delamination and the anisotropy had negative own gains there). Other phases and hints as they are."""
-    held = (hints or {}).get("depth_conduction")
-    if not held or times.shape[0] < 2:
+    held = None if hints is None else hints.get("depth_conduction")
+    if hints is None or not held or times.shape[0] < 2:
         return phase, hints
     heating = float(times[0]) + held[0]["t_heat"]
     resolved = heating + _RESOLVED_FRAMES * float(times[1] - times[0])
