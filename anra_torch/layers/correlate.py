@@ -25,6 +25,10 @@ BORDERS: dict[str, str | None] = {
 }
 """Border handling: ``"crop"`` keeps only fully supported pixels; the others pad (``F.pad`` modes)."""
 
+_BLOCK_BYTES = 1 << 20
+"""The size of the blocks that a correlation on the CPU filters one after the other (:func:`_blocks`):
+small enough to stay in a core's cache while every tap passes over them."""
+
 
 def check_border(border: str) -> None:
     """Raises:
@@ -102,11 +106,12 @@ def correlate1d_adjoint(y: Tensor, taps: list[float], dim: int) -> Tensor:
         return y.new_zeros(shape)
     out = y.new_empty(shape)
     first, tap = nonzero[0]
-    out.narrow(dim, 0, first).zero_()
-    out.narrow(dim, first + n, k - 1 - first).zero_()
-    torch.mul(y, tap, out=out.narrow(dim, first, n))
-    for i, tap in nonzero[1:]:
-        out.narrow(dim, i, n).add_(y, alpha=tap)
+    for y_block, block, d in _blocks(y, out, dim):
+        block.narrow(d, 0, first).zero_()
+        block.narrow(d, first + n, k - 1 - first).zero_()
+        torch.mul(y_block, tap, out=block.narrow(d, first, n))
+        for i, tap_i in nonzero[1:]:
+            block.narrow(d, i, n).add_(y_block, alpha=tap_i)
     return out
 
 
@@ -125,10 +130,44 @@ def _slices(x: Tensor, taps: list[float], dim: int) -> Tensor:
     first, tap = nonzero[0]
     if len(nonzero) == 1 and tap == 1.0:  # a shifted identity: a view, no pass over memory
         return x.narrow(dim, first, n)
-    out = x.narrow(dim, first, n) * tap
-    for i, tap in nonzero[1:]:
-        out.add_(x.narrow(dim, i, n), alpha=tap)
+    if not _blockable(x, dim):  # the product's own layout and type
+        out = x.narrow(dim, first, n) * tap
+        for i, tap_i in nonzero[1:]:
+            out.add_(x.narrow(dim, i, n), alpha=tap_i)
+        return out
+    shape = list(x.shape)
+    shape[dim] = n
+    out = x.new_empty(shape)
+    for x_block, block, d in _blocks(x, out, dim):
+        torch.mul(x_block.narrow(d, first, n), tap, out=block)
+        for i, tap_i in nonzero[1:]:
+            block.add_(x_block.narrow(d, i, n), alpha=tap_i)
     return out
+
+
+def _blockable(x: Tensor, dim: int) -> bool:
+    """Whether :func:`_blocks` cuts ``x``: a non-empty contiguous floating-point tensor on the CPU,
+    filtered along another dim than its first."""
+    return (
+        x.device.type == "cpu"
+        and x.is_floating_point()
+        and x.is_contiguous()
+        and x.numel() > 0
+        and dim % x.ndim != 0
+    )
+
+
+def _blocks(x: Tensor, out: Tensor, dim: int) -> list[tuple[Tensor, Tensor, int]]:
+    """``(x, out)`` cut into matching blocks of whole rows along the dims before ``dim`` (where
+    :func:`_blockable`, ``out`` contiguous and non-empty too), each with the filtered dim's index in it:
+    every tap then passes over a block that stays in the core's cache instead of over the whole tensor, with
+    the same operations on every entry in the same order (the same numbers). Otherwise one block."""
+    d = dim % x.ndim
+    if not (_blockable(x, dim) and out.is_contiguous() and out.numel() > 0):
+        return [(x, out, d)]
+    rows, out_rows = x.view(-1, *x.shape[d:]), out.view(-1, *out.shape[d:])
+    step = max(1, _BLOCK_BYTES // (max(rows[0].numel(), out_rows[0].numel()) * x.element_size()))
+    return [(rows[s : s + step], out_rows[s : s + step], 1) for s in range(0, rows.shape[0], step)]
 
 
 class _Correlate1d(torch.autograd.Function):

@@ -110,7 +110,9 @@ def test_interrupted_run_keeps_finished_batches(video_folder: Path, tmp_path: Pa
 
 @pytest.mark.slow
 def test_diagnose_columns(tmp_path: Path) -> None:
-    path = hidden_effect_video(["advection"], seed=1, size=64, duration=3.0).to_npz(tmp_path / "adv.npz")
+    # 32 px: advection named with gain 0.986-0.994 over seeds 1-3 (64 px: 0.988); with advection left out
+    # of the diagnosis' search the row names source and this fails
+    path = hidden_effect_video(["advection"], seed=1, size=32, duration=3.0).to_npz(tmp_path / "adv.npz")
     out = tmp_path / "r.csv"
     run_batch([path], out, options=BatchOptions(diagnose=True), progress=False)
     (row,) = read_table(out)

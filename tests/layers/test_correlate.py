@@ -39,6 +39,25 @@ def test_correlate1d_adjoint_is_the_exact_transpose(taps: list[float]) -> None:
     torch.testing.assert_close((back * x).sum(), (y * correlate1d(x, taps, 1)).sum(), rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("dim", [1, -2, -1])
+def test_a_correlation_cut_into_blocks_gives_the_same_numbers_as_one_pass(dim: int, monkeypatch) -> None:
+    """Blocks of a few rows (the CPU's cache-sized blocks, made small) give every entry the same operations
+    in the same order as one pass of each tap over the whole tensor: equal, not close."""
+    x = torch.randn(3, 12, 40, 37, dtype=F64)
+    taps = torch.linspace(0.1, 1.0, 9, dtype=F64).tolist()
+    n = x.shape[dim] - len(taps) + 1
+    one_pass = x.narrow(dim, 0, n) * taps[0]
+    for i, tap in enumerate(taps[1:], 1):
+        one_pass.add_(x.narrow(dim, i, n), alpha=tap)
+    y = torch.randn_like(one_pass)
+    transposed = torch.zeros_like(x)
+    for i, tap in enumerate(taps):
+        transposed.narrow(dim, i, n).add_(y, alpha=tap)
+    monkeypatch.setattr("anra_torch.layers.correlate._BLOCK_BYTES", 3 * 40 * 8)
+    assert torch.equal(correlate1d(x, taps, dim), one_pass)
+    assert torch.equal(correlate1d_adjoint(y, taps, dim), transposed)
+
+
 def test_correlate1d_gradients_run_through_the_transpose_twice() -> None:
     x = torch.randn(2, 10, 4, dtype=F64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda v: correlate1d(v, TAPS[0], 1), (x,), fast_mode=True)
