@@ -179,7 +179,12 @@ def _spread(system: BalanceSystem) -> float:
 
 def depth_term(system: BalanceSystem, theta: Tensor) -> tuple[Tensor, Tensor]:
     """``Z`` on the output grid for ``theta`` (see :func:`_unpack`) and ``r`` at the output frames."""
-    elapsed, depth_time, offset = _unpack(system, theta)
+    return _term(system, *_unpack(system, theta))
+
+
+def _term(
+    system: BalanceSystem, elapsed: Tensor, depth_time: Tensor, offset: Tensor
+) -> tuple[Tensor, Tensor]:
     t = torch.arange(system.shape[0], dtype=_F64, device=system.frames.device) * system.dt
     rate = depth_rate(t + elapsed, depth_time)
     field = rate[:, None, None] * (system.smoothed - offset)
@@ -211,8 +216,35 @@ def _starts(system: BalanceSystem) -> list[Tensor]:
     return starts
 
 
+def _held(system: BalanceSystem) -> Shape | None:
+    """The term held at the plate the balance was given (``system.hints["depth_conduction"]``: a flash
+    defect map's ``T_ref``, plate time ``L^2 / a_z`` and ``t_heat`` before the first frame), None without.
+
+    Fitted to the balance's isotropic lateral term, the plate is degenerate: the first frames after a
+    flash, where ``r = 1 / (2 s)`` changes faster than the time stencil resolves, and the anisotropy the
+    isotropic term misses are explained by a ``T_ref`` near the final temperature and a half-space's plate
+    time (21.6 C and 480 s for the map's 20.04 C and 9.28 s on a 2 mm plate), and a delamination measured
+    against that plate turns negative. Held at the map's plate the depth term's strength reads 1.0 there.
+    """
+    held = system.hints.get("depth_conduction")
+    if not held:
+        return None
+    plate, device = held[0], system.frames.device
+    shape = {"t_heat": plate["t_heat"], "depth_time": plate["plate_time"], "T_ref": plate["T_ref"]}
+    elapsed = torch.tensor(-plate["t_heat"], dtype=_F64, device=device)
+    depth_time = torch.tensor(plate["plate_time"], dtype=_F64, device=device)
+    offset = torch.tensor(plate["T_ref"] - system.mean, dtype=_F64, device=device)
+    term, rate = _term(system, elapsed, depth_time, offset)
+    theta = torch.stack([elapsed, depth_time, offset])
+    return Shape(term.detach(), NoiseSpec("T", rate.detach()), shape, theta)
+
+
 def _fit(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
-    """Fit the heating time, depth time and reference temperature to the residual of ``fit``."""
+    """Fit the heating time, depth time and reference temperature to the residual of ``fit``, or hold them
+    at a given plate (:func:`_held`)."""
+    held = _held(system)
+    if held is not None:
+        return held
     columns, scale = list(fit.columns), fit.rss
 
     def loss(theta: Tensor) -> Tensor:

@@ -44,6 +44,7 @@ from anra_torch.forecast import (
     source_map_gain,
     split_index,
 )
+from anra_torch.layers import TimeDerivative
 from anra_torch.recording.box_phase import small_box_phase
 from anra_torch.recording.phase_record import PhaseDiagnosis, flag_implausible, implausible
 from anra_torch.recording.phases import MIN_PHASE_FRAMES, recording_phases_of, repaired
@@ -53,6 +54,7 @@ from anra_torch.video import Phase, measured_frames
 __all__ = ["INNER_SPLITS", "PhaseDiagnosis", "diagnose_recording", "flash_hints"]
 
 _F64 = torch.float64
+_RESOLVED_FRAMES = TimeDerivative("smooth").length  # frames after a flash that the time stencil spans
 
 
 def diagnose_recording(
@@ -96,6 +98,7 @@ def diagnose_recording(
     sampled = None if measured_t is None else measured_frames(times, measured_t)
     out = []
     for phase in phases:
+        phase, phase_hints = _after_heating(phase, times, hints)
         if phase.frames < MIN_PHASE_FRAMES:
             reason = f"too short: {phase.frames} frames, need {MIN_PHASE_FRAMES}"
             out.append(PhaseDiagnosis(phase, "none", reason=reason))
@@ -106,7 +109,9 @@ def diagnose_recording(
         try:
             if min(part.shape[1:]) >= minimum_frame_size():  # it repairs and reports the artefacts itself
                 fraction = _short_phase_fraction(phase.frames, fit_fraction)
-                out.append(_balance_phase(phase, part, clean, dt, dx, fraction, assimilate, scored, hints))
+                out.append(
+                    _balance_phase(phase, part, clean, dt, dx, fraction, assimilate, scored, phase_hints)
+                )
             else:
                 out.append(small_box_phase(phase, clean, dt, dx, fit_fraction))
         except ValueError as err:
@@ -116,10 +121,13 @@ def diagnose_recording(
 
 def flash_hints(defects: DefectMap) -> dict[str, Any]:
     """The diagnosis' hints (:func:`~anra_torch.selection.diagnose_terms`) from a flash recording's defect
-    map: a delamination is looked for at the map's defects only (where the cooling says the heat stops
-    early), each a region ``{"x", "y", "radius", "depth_fraction", "plate_time"}`` (its centroid and the
-    radius of its area's disc in mm, its ``d / L``, the map's ``L^2 / a_z`` in s); a map without a defect
-    rules the delamination out."""
+    map: the depth term held at the map's plate ``{"T_ref", "plate_time", "t_heat"}`` (the temperature
+    before the flash, ``L^2 / a_z`` in s, the flash's time before the first frame in s); a delamination
+    looked for at the map's defects only (where the cooling says the heat stops early), each a region
+    ``{"x", "y", "radius", "depth_fraction", "plate_time"}`` (its centroid and the radius of its area's
+    disc in mm, its ``d / L``, the map's ``L^2 / a_z`` in s); a map without a defect rules the
+    delamination out."""
+    plate = {"T_ref": defects.t_ref, "plate_time": defects.plate_time, "t_heat": -defects.first_time}
     regions = tuple(
         {
             "x": d.x,
@@ -131,7 +139,28 @@ def flash_hints(defects: DefectMap) -> dict[str, Any]:
         for d in defects.defects
         if d.area > 0
     )
-    return {"delamination": regions}
+    hints: dict[str, Any] = {"delamination": regions}
+    hints["depth_conduction"] = (plate,)
+    return hints
+
+
+def _after_heating(phase: Phase, times: Tensor, hints: dict[str, Any] | None) -> tuple[Phase, dict | None]:
+    """A phase diagnosed with a held depth term (``hints["depth_conduction"]``, its ``t_heat`` from the
+    recording's first frame) from its first frame a time stencil after the heating on, and the hints with
+    ``t_heat`` from that frame: in the first frames after a flash the depth rate ``1 / (2 s)`` changes
+    several times over the stencil, which no term of the balance resolves (on a 2 mm plate its isotropic
+    ``a`` went negative and an advection was named; from 3 frames after the flash on, as the map starts,
+    the delamination and the anisotropy had negative own gains there). Other phases and hints as they are."""
+    held = None if hints is None else hints.get("depth_conduction")
+    if hints is None or not held or times.shape[0] < 2:
+        return phase, hints
+    heating = float(times[0]) + held[0]["t_heat"]
+    resolved = heating + _RESOLVED_FRAMES * float(times[1] - times[0])
+    start = phase.start
+    while start < phase.stop - 1 and float(times[start]) < resolved:
+        start += 1
+    plate = tuple({**h, "t_heat": heating - float(times[start])} for h in held)
+    return replace(phase, start=start, t_start=float(times[start])), {**hints, "depth_conduction": plate}
 
 
 def _short_phase_fraction(frames: int, fit_fraction: float) -> float:

@@ -29,8 +29,9 @@ small effect) and stays in the fit as a nuisance term (:meth:`Selection.nuisance
 def checked_hints(
     hints: Mapping[str, Sequence[Mapping[str, float]]] | None,
 ) -> dict[str, tuple[dict[str, float], ...]]:
-    """``hints`` (:func:`~anra_torch.selection.diagnose_terms`) checked: known effects, each candidate with a
-    finite centre and a positive radius (mm).
+    """``hints`` (:func:`~anra_torch.selection.diagnose_terms`) checked: known effects, each candidate of a
+    localised effect with a finite centre and a positive radius (mm); of an effect without a position
+    (e.g. a depth term's plate, read by its own shape fit) finite values.
 
     Raises:
         ValueError: an unknown effect or a candidate without them.
@@ -41,8 +42,11 @@ def checked_hints(
             raise ValueError(f"hints: unknown effect {name!r}; expected one of: {', '.join(EFFECTS)}")
         out[name] = tuple({k: float(v) for k, v in c.items()} for c in candidates)
         for c in out[name]:
-            if not (math.isfinite(c.get("x", math.nan)) and math.isfinite(c.get("y", math.nan))
-                    and c.get("radius", 0.0) > 0):  # fmt: skip
+            if not EFFECTS[name].positions:
+                if not all(math.isfinite(v) for v in c.values()):
+                    raise ValueError(f"hints[{name!r}] need finite values, got {c}")
+            elif not (math.isfinite(c.get("x", math.nan)) and math.isfinite(c.get("y", math.nan))
+                      and c.get("radius", 0.0) > 0):  # fmt: skip
                 raise ValueError(f"hints[{name!r}] need a finite x, y and a positive radius in mm, got {c}")
     return out
 

@@ -130,3 +130,24 @@ def test_bad_parameters_and_partners_are_one_line_errors() -> None:
             _spot, shape=(16, 16), a=0.3, dx=0.5, dt=0.1, n_frames=3,
             effects=[Effect("depth_conduction", PARAMS), source],
         )  # fmt: skip
+
+
+def test_a_given_plate_holds_the_term_without_a_search(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Given the plate (``hints["depth_conduction"]``: a flash defect map's ``T_ref``, plate time and
+    ``t_heat``), the shape is held there, not searched: on an exact flash its strength is the true 1
+    beside the anisotropy (fitted, the plate is degenerate on an isotropic balance: 480 s for 9 s)."""
+    import anra_torch.effects.depth_conduction as depth
+
+    video, params = _flash_video(0)
+    system = BalanceSystem(video[4:], 0.05, 0.5, 2.0, 0.01)
+    plate = {"T_ref": 30.0, "plate_time": 5.0, "t_heat": params["t_heat"] - 4 * 0.05}
+    system.hints = {"depth_conduction": (plate,)}
+    monkeypatch.setattr(depth, "optimise", lambda *args, **kwargs: pytest.fail("searched"))
+    held = depth.SPEC.shape(system, system.fit(["L"]), None)
+    assert held.params == {"t_heat": plate["t_heat"], "depth_time": 5.0, "T_ref": 30.0}
+    system.add("Z", held.term, held.noise)
+    fit = system.fit(["L", "D", "T_xy", "Z"]).coefficients()
+    assert -fit["Z"] == pytest.approx(1.0, abs=0.03)
+    assert fit["L"] + fit["D"] == pytest.approx(0.9, rel=0.05) and fit["L"] - fit["D"] == pytest.approx(
+        0.3, rel=0.1
+    )

@@ -121,8 +121,9 @@ def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """:func:`flash_hints` turns a defect map's defects into the diagnosis' candidate regions (centroid,
-    equal-area radius, depth fraction, the map's plate time; none: the delamination is ruled out), and
-    every phase's balance diagnosis, the inner comparisons' too, is given them."""
+    equal-area radius, depth fraction, the map's plate time; none: the delamination is ruled out) and its
+    plate into the depth term's, and every phase's balance diagnosis, the inner comparisons' too, is given
+    them (the flash's time from the phase's first frame)."""
     import anra_torch.recording.phase_diagnosis as recording
     from anra_torch.flash import DefectMap, FoundDefect
 
@@ -133,8 +134,9 @@ def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
     )
     hints = flash_hints(defects)
     region = {"x": 3.0, "y": 2.0, "radius": pytest.approx(2.0), "depth_fraction": 0.4, "plate_time": 8.0}
-    assert hints == {"delamination": (region,)}
-    assert flash_hints(replace(defects, defects=())) == {"delamination": ()}
+    plate = {"T_ref": 20.0, "plate_time": 8.0, "t_heat": -0.1}
+    assert hints == {"depth_conduction": (plate,), "delamination": (region,)}
+    assert flash_hints(replace(defects, defects=()))["delamination"] == ()
     real, given = recording.diagnose_terms, []
 
     def recorded(*args, **kwargs):
@@ -144,8 +146,29 @@ def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
     monkeypatch.setattr(recording, "diagnose_terms", recorded)
     frames = torch.as_tensor(heated_then_cooled(off=12, n=24))
     phases = diagnose_recording(frames, DT, DX, hints=hints)
-    assert given and all(h == hints for h in given), given
+    assert given and all(h["delamination"] == hints["delamination"] for h in given), given
+    starts = [p.phase.t_start for p in phases]
+    flash = [[s + h["depth_conduction"][0]["t_heat"] for s in starts] for h in given]  # each phase's
+    assert all(min(abs(t + 0.1) for t in times) < 1e-9 for times in flash), (given, starts)
     assert all(p.family == "balance" for p in phases)
+
+
+def test_a_phase_with_a_flash_plate_starts_a_time_stencil_after_the_flash() -> None:
+    """In the first frames after a flash the depth rate ``1 / (2 s)`` changes faster than the balance's
+    time stencil (5 frames) resolves: a phase given the flash's plate starts 5 frames after it, the flash
+    timed from there; a later phase and a recording without the plate are left as they are."""
+    from anra_torch.recording.phase_diagnosis import _after_heating
+    from anra_torch.video import Phase
+
+    times = torch.arange(40, dtype=torch.float64) * 0.1 + 2.0
+    hints = {"depth_conduction": ({"T_ref": 20.0, "plate_time": 8.0, "t_heat": -0.02},), "delamination": ()}
+    phase, moved = _after_heating(Phase("cooling", 0, 40, 2.0, 5.9), times, hints)
+    assert (phase.start, phase.t_start) == (5, pytest.approx(2.5))  # 0.52 s after the flash at 1.98 s
+    assert moved["depth_conduction"][0]["t_heat"] == pytest.approx(-0.52) and moved["delamination"] == ()
+    later = Phase("cooling", 20, 40, 4.0, 5.9)
+    phase, moved = _after_heating(later, times, hints)
+    assert phase == later and moved["depth_conduction"][0]["t_heat"] == pytest.approx(-2.02)
+    assert _after_heating(later, times, {"delamination": ()}) == (later, {"delamination": ()})
 
 
 def test_an_8x8_box_gets_the_quasi_steady_model_and_an_unresolved_diffusivity() -> None:

@@ -136,3 +136,14 @@ def test_a_model_is_fitted_once_while_its_terms_stay_the_same(monkeypatch) -> No
     selection.prepare("depth_conduction", selection.fit(["linear_loss"]), refine=True)  # a new Z term
     again = selection.fit(["depth_conduction", "linear_loss"])
     assert again is not first and fits == [("L", "Z", "T", "1"), ("L", "T", "1"), ("L", "Z", "T", "1")]
+
+
+def test_hints_of_an_effect_without_a_position_need_finite_values_not_a_centre() -> None:
+    from anra_torch.selection.stepwise import checked_hints
+
+    plate = {"T_ref": 20.0, "plate_time": 9.3, "t_heat": -0.1}
+    assert checked_hints({"depth_conduction": [plate]}) == {"depth_conduction": (plate,)}
+    with pytest.raises(ValueError, match=r"hints\['depth_conduction'\] need finite values"):
+        checked_hints({"depth_conduction": [{**plate, "T_ref": math.nan}]})
+    with pytest.raises(ValueError, match=r"hints\['delamination'\] need a finite x, y and a positive radius"):
+        checked_hints({"delamination": [plate]})
