@@ -209,6 +209,7 @@ def simulate_model(
     n_frames: int,
     effects: tuple[Effect, ...] | None = None,
     edges: Tensor | None = None,
+    forcing: Tensor | None = None,
 ) -> Tensor:
     """Forecast ``n_frames`` frames from ``initial`` with the diagnosis' model, bounded by measured edges.
 
@@ -222,6 +223,7 @@ def simulate_model(
         effects: the effects to include (already re-timed); None: all of :func:`extended_effects`.
         edges: the measured frames of the forecast's span; their outermost pixel ring is the forecast's
             boundary (:func:`anra_torch.effects.simulate_effects`). None: zero-flux edges.
+        forcing: a stationary heat input ``(H, W)`` in data units per s added to the model (None: none).
 
     Returns:
         The forecast in float64.
@@ -244,6 +246,7 @@ def simulate_model(
             n_frames=n_frames,
             effects=chosen,
             edges=edges,
+            forcing=forcing,
         )
     except ValueError as err:  # e.g. a fitted a(T) that turns negative over the video's temperatures
         raise _unphysical(f"the diagnosed model cannot be simulated: {err}") from err

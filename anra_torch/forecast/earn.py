@@ -23,10 +23,12 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
 - **Offset steps.** Where the artefact search found global offset steps, the frames are forecast with the
   found steps taken out and scored frame by frame about their mean (the balance's per-frame fixed effects):
   a recalibration the camera made is forecast by no model and decides nothing. Where it found a static
-  fixed pattern, each pixel's forecast errors are scored about their mean over the forecast frames (the
-  balance's per-pixel fixed effects): the pattern, which every model smooths away and the camera keeps,
-  would otherwise make most of every model's error and judge the effects by how they smooth it (a true
-  disc of lower diffusivity cost -0.9 floors with a pattern of 3 noise sds, +0.27 without it).
+  fixed pattern, each model is forecast with its own per-pixel fixed effects, measured on its fit frames,
+  as a stationary heat input (:mod:`~anra_torch.forecast.pattern`): the pattern, which a model alone
+  smooths away and the camera keeps, would otherwise make most of every model's error and judge the
+  effects by how they smooth it (a true disc of lower diffusivity cost -0.9 floors with a pattern of 3
+  noise sds). Scoring each pixel's errors about their mean instead also took out most of a wrong model's
+  error (a true anisotropy of 35 % of ``dT/dt`` cost 0.04 floors).
 
 Every model, the inner ones and the surviving one, is fitted with the diagnosis' hints (candidate shapes
 from outside the balance: a flash map's defects) and its nuisance terms beside it
@@ -60,6 +62,7 @@ from anra_torch.forecast.core import (
     split_index,
 )
 from anra_torch.forecast.gain import _Forecasts
+from anra_torch.forecast.pattern import pixel_forcing
 from anra_torch.selection import Diagnosis, diagnose_terms, fit_effects
 
 __all__ = [
@@ -317,23 +320,27 @@ def _validation(
     assimilate: int | None,
     within: tuple[bool, bool],
 ) -> float:
-    """RMSE over the noise floor of ``inner`` (fitted on frames ``0 .. split``) forecasting the rest."""
+    """RMSE over the noise floor of ``inner`` (fitted on frames ``0 .. split``) forecasting the rest.
+
+    ``within``: (offset steps found: scored frame by frame about the mean; fixed pattern found: forecast
+    with the model's own per-pixel fixed effects, :func:`~anra_torch.forecast.pattern.pixel_forcing`)."""
     horizon = video.shape[0] - split
     window = max(1, min(TIME_WINDOW if time_window is None else time_window, (horizon - 1) // 2))
     n_assimilated = split + 1 if assimilate is None else min(assimilate, split + 1)
     scale = evaluation_scale(inner, None)
     fit_duration = split * dt
+    offsets, pattern = within
     try:
         effects = extended_effects(
             inner, fit_duration=fit_duration, start=fit_duration, duration=(horizon - 1) * dt
         )
-        run = _Forecasts(video, inner, split, dt, dx, effects, scale, window, n_assimilated)
+        forcing = pixel_forcing(video[: split + 1], inner, dt, dx) if pattern else None
+        run = _Forecasts(video, inner, split, dt, dx, effects, scale, window, n_assimilated, forcing=forcing)
         predicted = run.evaluate(run.forecast(effects))
     except ValueError:
         return math.inf
     measured = run.evaluate(video[split + 1 :])
-    offsets, pattern = within
-    rmse = forecast_errors(predicted, measured, inner.margin, within_frames=offsets, within_pixels=pattern)[1]
+    rmse = forecast_errors(predicted, measured, inner.margin, within_frames=offsets)[1]
     floor = forecast_floor(
         inner, scale, dt=dt, dx=dx, held_out=horizon - 1, window=window, assimilated=n_assimilated
     )

@@ -163,6 +163,7 @@ class _Forecasts:
     window: int
     assimilated: int
     scored: Tensor | None = None  # which held-out frames are measured samples (None: all)
+    forcing: Tensor | None = None  # a stationary heat input of every forecast, data units per s (None: none)
 
     def forecast(self, chosen: tuple[Effect, ...]) -> Tensor:
         """The held-out frames forecast from the assimilated state, full resolution: ``(T - s - 1, H, W)``;
@@ -176,14 +177,28 @@ class _Forecasts:
             effects_now = tuple(e for e in retimed if e.name in names)
             edges = self.video[frame : frame + 2]
             return simulate_model(
-                state, diagnosis, dt=dt, dx=dx, n_frames=2, effects=effects_now, edges=edges
+                state,
+                diagnosis,
+                dt=dt,
+                dx=dx,
+                n_frames=2,
+                effects=effects_now,
+                edges=edges,
+                forcing=self.forcing,
             )[1]
 
         initial = assimilated_state(self.video[: self.split + 1], step, self.assimilated)
         horizon = self.video.shape[0] - self.split
         edges = self.video[self.split :]
         return simulate_model(
-            initial, diagnosis, dt=dt, dx=dx, n_frames=horizon, effects=chosen, edges=edges
+            initial,
+            diagnosis,
+            dt=dt,
+            dx=dx,
+            n_frames=horizon,
+            effects=chosen,
+            edges=edges,
+            forcing=self.forcing,
         )[1:]
 
     def evaluate(self, frames: Tensor) -> Tensor:

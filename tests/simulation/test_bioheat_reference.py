@@ -78,6 +78,13 @@ def spot() -> BioheatScene:
     return BioheatScene(tissue, (source,), 8.0, (32, 32), 0.2, 10.0, 2.0)
 
 
+@pytest.fixture(scope="module")
+def spot_run(spot: BioheatScene, disk_cache):
+    """``simulate_bioheat(spot)`` at its defaults (0.1 s steps, 2 cells per pixel side), once per test run for
+    the Green's-function test and as the coarse run of the convergence test (read only)."""
+    return disk_cache("bioheat-spot-default", lambda: simulate_bioheat(spot))
+
+
 def green_mean(source: SurfaceFlux, tissue: Tissue, t: float, half: float) -> float:
     """Mean rise (K) over the square of side ``2 half`` mm centred on a Gaussian beam at time ``t``: the
     half-space's Green's function (surface: ``1 / sqrt(pi a u)``; lateral: the Gaussian spread to
@@ -97,8 +104,8 @@ def green_mean(source: SurfaceFlux, tissue: Tissue, t: float, half: float) -> fl
 
 
 @pytest.mark.slow
-def test_beam_centre_follows_the_greens_function(spot: BioheatScene) -> None:
-    result = simulate_bioheat(spot)
+def test_beam_centre_follows_the_greens_function(spot: BioheatScene, spot_run) -> None:
+    result = spot_run
     assert result.info["mirror"] == (True, True)
     for frame in (20, 45, 60):  # heating, switch-off, cooling: 34, 43 and 15 K
         centre = result.frames[frame, 15:17, 15:17].mean() - BODY  # the 2 x 2 px around the beam
@@ -109,8 +116,8 @@ def test_beam_centre_follows_the_greens_function(spot: BioheatScene) -> None:
 
 
 @pytest.mark.slow
-def test_damage_depth_converges_in_time_step_and_grid(spot: BioheatScene) -> None:
-    coarse = simulate_bioheat(spot, step=0.1, refine=2)
+def test_damage_depth_converges_in_time_step_and_grid(spot: BioheatScene, spot_run) -> None:
+    coarse = spot_run  # step=0.1, refine=2: simulate_bioheat's defaults
     fine = simulate_bioheat(spot, step=0.025, refine=3, depth=DepthGrid(first=0.01, step=0.04))
     deep = fine.damage_depth > 0.05
     assert deep.sum() > 20
