@@ -196,3 +196,18 @@ def test_cli_one_line_errors_on_real_files(capsys: pytest.CaptureFixture[str]) -
     assert main(["diagnose", str(csv), "--dx", "0.25"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no frame period" in err
+
+
+def test_the_parser_main_reuses_parses_each_call_as_a_fresh_one() -> None:
+    """main() builds its parser once per process: a repeatable option given in one call must not reach the
+    next, and every call's namespace equals a freshly built parser's."""
+    from anra_torch.cli import _parser, build_parser
+
+    once = ["simulate", "--out", "x.npy", "--effect", "advection", "--param", "advection.vx=0.5"]
+    plain = ["simulate", "--out", "x.npy"]
+    assert _parser() is _parser()
+    first = vars(_parser().parse_args(once))
+    second = vars(_parser().parse_args(plain))
+    assert second["effect"] is None and second["param"] is None
+    assert first == vars(build_parser().parse_args(once))
+    assert second == vars(build_parser().parse_args(plain))
