@@ -76,8 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
 @functools.cache
 def _parser() -> argparse.ArgumentParser:
     """The parser :func:`main` parses with, built once per process: parsing leaves it unchanged (each call
-    fills a new namespace; appended options copy their default), and building it costs ~6 ms, which a process
-    calling :func:`main` again and again (a notebook, the fuzz tests' 1,200 runs) paid on every call."""
+    fills a new namespace; appended options copy their default)."""
     return build_parser()
 
 

@@ -13,7 +13,7 @@ import torch
 from commands import assert_one_line_error, run
 from shared_data import DATA, needs_data
 
-from anra_torch.cli import main
+from anra_torch.cli import _parser, build_parser, main
 
 
 # --------------------------------------------------------------------------------------------- errors
@@ -201,8 +201,6 @@ def test_cli_one_line_errors_on_real_files(capsys: pytest.CaptureFixture[str]) -
 def test_the_parser_main_reuses_parses_each_call_as_a_fresh_one() -> None:
     """main() builds its parser once per process: a repeatable option given in one call must not reach the
     next, and every call's namespace equals a freshly built parser's."""
-    from anra_torch.cli import _parser, build_parser
-
     once = ["simulate", "--out", "x.npy", "--effect", "advection", "--param", "advection.vx=0.5"]
     plain = ["simulate", "--out", "x.npy"]
     assert _parser() is _parser()
