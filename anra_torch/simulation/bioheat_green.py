@@ -1,28 +1,13 @@
 """A second independent bioheat reference: a Gaussian laser spot on a half-space, by its Green's function.
 
-The validation scenes of :mod:`anra_torch.tissue.depth` that neither it nor
-:mod:`anra_torch.simulation.bioheat_reference` made: nothing here is discretised in space. Pennes' equation
-for ``theta = T - T_body`` in the half-space ``z > 0``, laterally unbounded (the camera's frame is a window
-onto it: the spot may be larger than the frame or off its centre)::
+:func:`simulate_spot` gives a camera's frames of the spot, the surface temperature averaged over each
+pixel, and the Arrhenius damage depth under every pixel as the truth. The tissue is a laterally unbounded
+half-space that obeys Pennes' equation, heated through its surface by a Gaussian flux while the laser is on
+and losing heat to the air; the frame is a window onto it. Nothing is discretised in space, so its scenes
+share no error with :mod:`anra_torch.tissue.depth` nor with :mod:`anra_torch.simulation.bioheat_reference`.
+The solution: ``docs/architecture.md``, "The bioheat references".
 
-    d theta / dt = a (d_xx + d_yy + d_zz) theta - b theta,
-    -a d theta / dz = q(x, y, t) - a beta theta   at z = 0,
-
-a Gaussian flux ``q = P exp(-|x - c|^2 / (2 s^2))`` (K mm/s: the flux over ``rho c``) while the laser is on,
-``[t_on, t_off)`` (``t_off`` anywhere between frames), and a convective loss to the air (``beta = h / k``,
-1/mm). The solution is the flux convolved with the Green's function, exact::
-
-    theta(r, z, t) = P int du  s^2 / (s^2 + 2 a u) exp(-r^2 / (2 (s^2 + 2 a u))) G(z, u) exp(-b u),
-    G(z, u) = exp(-z^2 / (4 a u)) (1 / sqrt(pi a u) - beta erfcx(z / (2 sqrt(a u)) + beta sqrt(a u))),
-
-over the elapsed times ``u`` in ``(t - t_off, t - t_on)``: the lateral Gaussian spreads exactly
-(``s^2 + 2 a u``), ``G`` is the half-space's response to a surface pulse with the Robin loss. The time
-integral is cumulative in ``v = sqrt(u)`` (smooth there) by the trapezoid rule on a fine grid, at every
-radius and depth of a grid; frames are the surface's pixel means (``subpixel^2`` points a pixel), the truth
-is the Arrhenius damage (Henriques-Moritz skin constants) integrated on a time grid of at most 5 ms steps
-with the switch-off on it, and each pixel's damage depth the mean of its points' depths (``ln Omega``
-interpolated linearly between depths 5 um apart). Units: mm, s, C, mm^2/s, 1/s. NumPy float64 and
-``torch.special.erfcx``.
+Units: mm, s, C, mm^2/s, 1/s. Computed in NumPy float64.
 """
 
 from __future__ import annotations
@@ -46,14 +31,19 @@ class GreenScene:
     """A Gaussian spot on skin-like tissue seen by a camera.
 
     Attributes:
-        diffusivity: ``a`` (mm^2/s); perfusion: ``b`` (1/s); air: ``beta = h / k`` (1/mm);
-            body_temperature: C.
-        centre: the spot's centre ``(x, y)`` in mm from the frame's top-left corner (anywhere, even outside).
-        radius: the Gaussian's ``s`` (mm): the flux falls to ``e^-1/2`` of its peak there.
-        peak: the surface's largest temperature (C), reached at the centre at the switch-off.
-        t_on, t_off: the laser's switch-on and switch-off (s); any times.
-        duration: the record (s, frames at ``0, 1 / rate, ...``); rate: frames per second.
-        shape: the frame ``(H, W)``; dx: its pixel size (mm).
+        diffusivity: ``a`` in mm^2/s.
+        perfusion: ``b`` in 1/s.
+        air: the loss to the air ``beta = h / k`` in 1/mm.
+        centre: the spot's centre ``(x, y)`` in mm from the frame's top-left corner; anywhere, even outside.
+        radius: the Gaussian's ``s`` in mm: the flux falls to ``e^-1/2`` of its peak there.
+        peak: the surface's largest temperature in C, reached at the centre at the switch-off.
+        t_on, t_off: the laser's switch-on and switch-off in s; any times.
+        duration: the record in s, with frames at ``0, 1 / rate, ...``.
+        rate: frames per second.
+        shape: the frame ``(H, W)``.
+        dx: pixel size in mm.
+        body_temperature: in C.
+        label: the scene's name.
     """
 
     diffusivity: float
@@ -77,9 +67,13 @@ class GreenResult:
     """Output of :func:`simulate_spot`.
 
     Attributes:
-        frames: noiseless frames (C), ``(T, H, W)``; dt (s), dx (mm).
-        damage_depth: deepest point with ``Omega >= 1`` under each pixel (mm; 0 without damage), ``(H, W)``.
-        scene: the :class:`GreenScene`; power: the flux's peak ``P`` (K mm/s).
+        frames: noiseless frames in C, ``(T, H, W)``.
+        dt: frame period in s.
+        dx: pixel size in mm.
+        damage_depth: deepest point with ``Omega >= 1`` under each pixel in mm, 0 without damage, ``(H, W)``.
+        scene: the :class:`GreenScene`.
+        power: the flux's peak ``P`` in K mm/s.
+        info: ``radii`` in mm and the damage depth at each radius, ``depth_of_radius``.
     """
 
     frames: np.ndarray
@@ -96,8 +90,8 @@ def _erfcx(x: np.ndarray) -> np.ndarray:
 
 
 def _cumulative(scene: GreenScene, radii: np.ndarray, z: float) -> tuple[np.ndarray, np.ndarray]:
-    """``F(r, z, tau)``: the response to a unit flux switched on ``tau`` ago, on the grid ``v = sqrt(tau)``
-    ``(V,)`` at ``radii`` ``(R,)``: ``(V,)``, ``(R, V)``."""
+    """``F(r, z, tau)``, the response to a unit flux switched on ``tau`` ago, on the grid ``v = sqrt(tau)``
+    at ``radii`` ``(R,)``: ``v`` ``(V,)`` and ``F`` ``(R, V)``."""
     a, b, beta, s2 = scene.diffusivity, scene.perfusion, scene.air, scene.radius**2
     v = np.linspace(0.0, math.sqrt(scene.duration) * 1.0001, _V_STEPS + 1)
     u = np.maximum(v**2, 1e-300)
@@ -125,13 +119,14 @@ def _response(v: np.ndarray, cumulative: np.ndarray, scene: GreenScene, times: n
 
 
 def spot_peak(scene: GreenScene) -> float:
-    """``theta / P`` at the spot's centre at the switch-off (K per K mm/s): the largest surface rise."""
+    """The largest surface rise per unit flux: ``theta / P`` at the spot's centre at the switch-off, in K
+    per K mm/s."""
     v, cumulative = _cumulative(scene, np.zeros(1), 0.0)
     return float(_response(v, cumulative, scene, np.array([scene.t_off]))[0, 0])
 
 
 def _points(scene: GreenScene, subpixel: int) -> np.ndarray:
-    """Distances (mm) from the spot's centre of every pixel's ``subpixel^2`` points, ``(H, W, S)``."""
+    """Distances in mm from the spot's centre of every pixel's ``subpixel^2`` points, ``(H, W, S)``."""
     h, w = scene.shape
     offsets = (np.arange(subpixel) + 0.5) / subpixel
     ys = (np.arange(h)[:, None] + offsets[None, :]) * scene.dx  # (H, S)
@@ -144,19 +139,24 @@ def _points(scene: GreenScene, subpixel: int) -> np.ndarray:
 def simulate_spot(
     scene: GreenScene, *, subpixel: int = 3, max_depth: float = 2.5, damage: bool = True
 ) -> GreenResult:
-    """The camera's frames and the damage depth under every pixel of ``scene`` (see the module docstring).
+    """The camera's frames and the damage depth under every pixel of ``scene``.
+
+    The flux's peak is set so that the surface reaches ``scene.peak``. Frames and truth are means over
+    ``subpixel^2`` points of each pixel; the truth is the deepest point with ``Omega >= 1`` for
+    Henriques-Moritz skin constants.
 
     Args:
         scene: :class:`GreenScene`.
         subpixel: points per pixel side of the frames' and the truth's pixel means.
-        max_depth: deepest depth (mm) the truth looks at.
-        damage: False skips the truth (its damage depth is then all zeros): frames only.
+        max_depth: deepest depth in mm the truth looks at.
+        damage: False skips the truth, whose damage depth is then all zeros: frames only.
 
     Returns:
         :class:`GreenResult`.
 
     Raises:
-        ValueError: a scene whose times, sizes or rates are not positive or not ordered.
+        ValueError: ``t_on`` negative or not before ``t_off``, or a duration, rate or radius that is not
+            positive.
 
     Shape:
         ``frames`` ``(T, H, W)``; ``damage_depth`` ``(H, W)``.
@@ -196,8 +196,8 @@ def _at(radii: np.ndarray, values: np.ndarray, points: np.ndarray) -> np.ndarray
 
 
 def _damage(scene: GreenScene, power: float, radii: np.ndarray, max_depth: float) -> np.ndarray:
-    """The damage depth (mm) at every radius: ``Omega`` on depths ``_DZ`` apart (trapezoid in time, steps of
-    at most ``_DT`` with the switch-on and -off on the grid), ``ln Omega`` interpolated to 1."""
+    """The damage depth in mm at every radius: ``Omega`` on depths ``_DZ`` apart, by the trapezoid rule in
+    time, steps of at most ``_DT`` with the switch-on and -off on the grid; ``ln Omega`` interpolated to 1."""
     steps = max(1, math.ceil(scene.duration / _DT))
     times = np.unique(
         np.concatenate([np.linspace(0.0, scene.duration, steps + 1), [scene.t_on, scene.t_off]])

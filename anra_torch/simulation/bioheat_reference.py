@@ -1,30 +1,14 @@
 """An independent 3-D bioheat simulator: skin-like tissue under a laser, a sweeping tip or a contact burn.
 
-The validation reference of :mod:`anra_torch.tissue.depth` (it shares no code with it nor with
-:mod:`anra_torch.simulation.integrator`). The Pennes model per unit heat capacity, ``theta = T - T_body``::
+:func:`simulate_bioheat` solves Pennes' equation for ``theta = T - T_body`` in a block of tissue,
+``d theta / dt = a (d_xx + d_yy + d_zz) theta - b theta + s``, heated through its top face by a surface
+flux or a hot contact probe, or below it by a near-infrared beam, and losing heat to the air. It returns
+the camera's noiseless frames, the temperature of the top face averaged over each pixel, and as the truth
+the Arrhenius damage and the peak temperature in depth. It shares no code with
+:mod:`anra_torch.tissue.depth` nor with :mod:`anra_torch.simulation.integrator`. The discretisation:
+``docs/architecture.md``, "The bioheat references".
 
-    d theta / dt = a (d_xx + d_yy + d_zz) theta - b theta + s(x, y, z, t)
-
-in a block of tissue: lateral faces without flux, the bottom face held at ``T_body``, and the top face
-(``z = 0``) receiving a surface heat flux ``q`` (K mm/s: the flux in W/mm^2 over ``rho c``, i.e. ``a`` times
-flux over ``k``) and losing heat by a Robin law ``a beta (theta_ext - theta_surface)`` (``beta = h / k``,
-1/mm): to air at ``T_body`` (``beta`` small), or to a hot contact probe (``beta`` large, ``theta_ext`` its
-temperature). A near-infrared laser deposits its flux below the surface instead (Beer-Lambert, ``s =
-q mu exp(-mu z)``).
-
-Discretisation: cell-centred finite volumes on a grid finer than the camera's (``refine`` cells per pixel
-side; depth cells growing from :attr:`DepthGrid.first` mm), Strang splitting of one step ``h`` into half a
-lateral step, a depth step, half a lateral step: the lateral ones exact (the 1-D Neumann operators'
-exponentials, from their eigenvectors), the depth one by the L-stable TR-BDF2 scheme (two tridiagonal
-solves per column, LAPACK). The camera sees the temperature of the top FACE (from the top cell and the
-face's flux balance), averaged over each pixel, every ``1 / rate`` s.
-
-Truth: the Arrhenius damage integral ``Omega`` (skin constants, trapezoid rule on every step) and the peak
-temperature of every cell; a column's damage depth is the deepest point where ``Omega >= 1`` (``ln Omega``
-interpolated linearly between cell centres), a pixel's the mean over its ``refine x refine`` columns.
-Tested against the half-space under a constant flux, ``theta = 2 q sqrt(t / (pi a))`` at the surface, and
-the profiles of a contact (Robin) step and of perfusion. Units: mm, s, C, mm^2/s. NumPy float64; needs
-SciPy (``anra_torch[test]``).
+Units: mm, s, C, mm^2/s, 1/s. Computed in NumPy float64; needs SciPy, from ``anra_torch[test]``.
 """
 
 from __future__ import annotations
@@ -55,17 +39,17 @@ _GAMMA = 2.0 - math.sqrt(2.0)  # TR-BDF2's stage fraction
 
 # ------------------------------------------------------------------------------------------ operators
 def _lateral_factor(nx: int, ny: int, h: float, a: float, tau: float) -> np.ndarray:
-    """``exp(tau a lambda)`` of the 2-D finite-volume Laplacian with zero-flux edges (cells of ``h`` mm) on
-    its eigenvectors, the DCT-II basis: ``lambda = -(2 / h)^2 (sin^2(pi p / 2 nx) + sin^2(pi q / 2 ny))``,
-    ``(ny, nx)``."""
+    """``exp(tau a lambda)`` ``(ny, nx)`` of the 2-D finite-volume Laplacian with zero-flux edges on cells
+    of ``h`` mm, on its eigenvectors, the DCT-II basis:
+    ``lambda = -(2 / h)^2 (sin^2(pi p / 2 nx) + sin^2(pi q / 2 ny))``."""
     lx = (2.0 / h * np.sin(0.5 * np.pi * np.arange(nx) / nx)) ** 2
     ly = (2.0 / h * np.sin(0.5 * np.pi * np.arange(ny) / ny)) ** 2
     return np.exp(-tau * a * (ly[:, None] + lx[None, :]))
 
 
 def _depth_operator(faces: np.ndarray, a: float, b: float, beta: float) -> np.ndarray:
-    """The column operator ``A`` as LAPACK band storage ``(3, Z)`` (upper, diagonal, lower), with the
-    surface's Robin coefficient ``beta`` (1/mm) and the bottom face held at 0."""
+    """The column operator ``A`` in band storage ``(3, Z)``: upper, diagonal, lower rows; with the
+    surface's Robin coefficient ``beta`` in 1/mm and the bottom face held at 0."""
     size = np.diff(faces)
     centre = 0.5 * (faces[1:] + faces[:-1])
     gap = np.diff(centre)  # between neighbouring centres
@@ -85,8 +69,8 @@ def _depth_operator(faces: np.ndarray, a: float, b: float, beta: float) -> np.nd
 
 
 class _Columns:
-    """TR-BDF2 steps of ``du/dt = A u + f(t)`` for columns of one operator ``A`` (a free surface, or a
-    probe in contact): the two stages' tridiagonal matrices factorised once (Thomas algorithm)."""
+    """TR-BDF2 steps of ``du/dt = A u + f(t)`` for columns of one operator ``A``, a free surface or a
+    probe in contact; the two stages' tridiagonal matrices are factorised once, for the Thomas algorithm."""
 
     def __init__(self, band: np.ndarray, h: float) -> None:
         self.band, self.h = band, h
@@ -124,8 +108,8 @@ class _Columns:
         return out
 
     def step(self, u: np.ndarray, forcing: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
-        """One step of size ``h`` for columns ``u`` ``(Z, N)``; ``forcing``: ``f`` at ``t``, ``t + gamma h``,
-        ``t + h``, each ``(Z_f, N)``: the top ``Z_f`` cells' (the rest 0)."""
+        """One step of size ``h`` for columns ``u`` ``(Z, N)``; ``forcing``: ``f`` at ``t``, ``t + gamma h``
+        and ``t + h``, each ``(Z_f, N)`` for the top ``Z_f`` cells, the rest being 0."""
         f0, fg, f1 = forcing
         rhs = u + self.c1 * self.h * self._apply(u)
         rhs[: len(f0)] += self.c1 * self.h * (f0 + fg)
@@ -138,7 +122,7 @@ class _Columns:
 
 # ------------------------------------------------------------------------------------------ the block
 def _cell_average(edges: np.ndarray, centre: float, width: float) -> np.ndarray:
-    """A unit-peak Gaussian (sigma ``width``) averaged over the cells between ``edges`` (exact, erf)."""
+    """A unit-peak Gaussian of sd ``width`` averaged over the cells between ``edges``, exactly by erf."""
     from scipy.special import erf
 
     if math.isinf(width):
@@ -151,8 +135,8 @@ def _cell_average(edges: np.ndarray, centre: float, width: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Block:
-    """The simulated tissue: fine cell edges (mm, the camera frame's coordinates) of the simulated part
-    (a quarter or half when the scene is mirror symmetric about the frame's centre lines), depth faces."""
+    """The simulated tissue: fine cell edges in mm, in the camera frame's coordinates, and depth faces.
+    Only a quarter or half is simulated when the scene is mirror symmetric about the frame's centre lines."""
 
     x: np.ndarray
     y: np.ndarray
@@ -192,14 +176,14 @@ def _block(scene: BioheatScene, refine: int, depth: DepthGrid) -> _Block:
 
 
 def flux_centre(s: SurfaceFlux, t: float) -> tuple[float, float]:
-    """Where the beam or tip ``s`` is at time ``t`` (s): ``(x, y)`` in mm (at its ends outside its time)."""
+    """Where the beam or tip ``s`` is at time ``t`` in s: ``(x, y)`` in mm; at its ends outside its time."""
     f = min(max((t - s.t_on) / (s.t_off - s.t_on), 0.0), 1.0)
     return s.start[0] + (s.end[0] - s.start[0]) * f, s.start[1] + (s.end[1] - s.start[1]) * f
 
 
 def _surface(scene: BioheatScene, block: _Block, t: float, on_at: float) -> tuple:
-    """At time ``t``, with the sources on or off as at ``on_at``: the surface flux ``(Ny, Nx)`` (K mm/s),
-    the probe's ``theta_ext`` and conductance where one touches (NaN elsewhere), and the volumetric
+    """At time ``t``, with the sources on or off as at ``on_at``: the surface flux ``(Ny, Nx)`` in K mm/s,
+    the probe's ``theta_ext`` and conductance where one touches, NaN elsewhere, and the volumetric
     ``(flux, mu)`` pairs."""
     ny, nx = len(block.y) - 1, len(block.x) - 1
     flux, contact, volume = np.zeros((ny, nx)), np.full((ny, nx), np.nan), []
@@ -223,7 +207,7 @@ def _surface(scene: BioheatScene, block: _Block, t: float, on_at: float) -> tupl
 
 
 class _Stepper:
-    """The split step ``L(h / 2) Z(h) L(h / 2)`` of the block, and the face temperature the camera sees."""
+    """The split step ``Z(h / 2) L(h) Z(h / 2)`` of the block, and the face temperature the camera sees."""
 
     def __init__(self, scene: BioheatScene, block: _Block, h: float) -> None:
         tissue, a = scene.tissue, scene.tissue.diffusivity
@@ -246,7 +230,7 @@ class _Stepper:
         return kind
 
     def _forcing(self, t: float, on_at: float, kind: np.ndarray, beta: float) -> np.ndarray:
-        """``f`` of the columns of operator ``beta`` at time ``t`` (sources as at ``on_at``), ``(Z, N)``."""
+        """``f`` ``(Z, N)`` of the columns of operator ``beta`` at time ``t``, the sources as at ``on_at``."""
         flux, contact, _, volume = _surface(self.scene, self.block, t, on_at)
         mask = kind == self.betas.index(beta)
         top = flux[mask] + self.a * beta * np.nan_to_num(contact[mask])
@@ -258,7 +242,7 @@ class _Stepper:
         return f
 
     def _depth_step(self, u: np.ndarray, t: float) -> np.ndarray:
-        """Half a step (``h / 2``) of every column from ``t``, each with its operator."""
+        """Half a step, ``h / 2``, of every column from ``t``, each with its operator."""
         k = 0.5 * self.h
         mid = t + 0.5 * k
         kind = self._kind(_surface(self.scene, self.block, mid, mid)[2])
@@ -296,13 +280,13 @@ class _Stepper:
 
 # ------------------------------------------------------------------------------------------ simulation
 def _log_rate(theta: np.ndarray, body: float) -> np.ndarray:
-    """``ln`` of the skin's Arrhenius rate (1/s) at ``theta + body`` C."""
+    """``ln`` of the skin's Arrhenius rate in 1/s at ``theta + body`` C."""
     return math.log(_A_SKIN) - _EA_SKIN / (_R_GAS * (theta + body + 273.15))
 
 
 class _Dose:
-    """The peak rise of every cell and ``Omega`` (trapezoid rule over the steps; computed on the cells
-    hotter than :data:`_HOT` only)."""
+    """The peak rise of every cell and ``Omega``, by the trapezoid rule over the steps, computed only on
+    the cells hotter than :data:`_HOT`."""
 
     def __init__(self, shape: tuple[int, ...], body: float, h: float) -> None:
         self.omega, self.peak = np.zeros(shape), np.zeros(shape)
@@ -321,8 +305,8 @@ class _Dose:
 
 
 def _column_depth(omega: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """Deepest point with ``Omega >= 1`` of each column of ``omega`` ``(Z, ...)`` (mm; 0 when none), ``ln
-    Omega`` interpolated linearly between the cell centres around it."""
+    """Deepest point in mm with ``Omega >= 1`` of each column of ``omega`` ``(Z, ...)``, 0 when none;
+    ``ln Omega`` interpolated linearly between the cell centres around it."""
     damaged = omega >= 1.0
     last = len(centres) - 1 - np.argmax(damaged[::-1], axis=0)
     below = np.minimum(last + 1, len(centres) - 1)
@@ -357,15 +341,15 @@ def simulate_bioheat(
 
     Args:
         scene: :class:`BioheatScene`.
-        refine: fine cells per camera pixel side (>= 1).
-        depth: the depth cells (default :class:`DepthGrid`).
-        step: largest time step in s (the frame period is split into equal steps no longer than this).
+        refine: fine cells per camera pixel side, an integer >= 1.
+        depth: the depth cells; default :class:`DepthGrid`.
+        step: largest time step in s; each frame period is split into equal steps no longer than this.
 
     Returns:
         :class:`BioheatResult`.
 
     Raises:
-        ValueError: a non-positive ``refine`` or ``step``.
+        ValueError: a ``refine`` that is not an integer >= 1, or a ``step`` that is not positive.
 
     Shape:
         ``frames`` ``(T, H, W)``, ``damage_depth`` ``(H, W)``, ``log_omega`` and ``peak`` ``(Z, H, W)``.
@@ -410,7 +394,7 @@ def simulate_bioheat(
 
 
 def camera_frames(result: BioheatResult, noise: float, seed: int) -> np.ndarray:
-    """The camera's frames: ``result.frames`` plus white Gaussian noise of sd ``noise`` K (seeded).
+    """The camera's frames: ``result.frames`` plus white Gaussian noise of sd ``noise`` K, seeded by ``seed``.
 
     Shape:
         ``(T, H, W)``.

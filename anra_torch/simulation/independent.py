@@ -1,13 +1,11 @@
 """An independent solver of the continuous heat equation with its effects: none of the library's operators.
 
-:func:`simulate_continuum` solves the continuous PDE :class:`Continuum` (constant or varying diffusivity,
-advection, loss, heat inputs, conduction into a plate below) in a periodic domain padded around the frame,
-spectrally (``"spectral"``: each Fourier mode exactly) or by finite volumes on a finer grid with TR-BDF2
-steps (``"finite_volume"``), and images it as a camera does, as pixel averages. Why and how:
-``docs/architecture.md`` ("The independent solver"). Each effect module says what its parameters mean
-for the continuum (:attr:`anra_torch.effects.EffectSpec.continuum`).
-
-Units: mm, s, mm^2/s. Computed in float64 NumPy.
+:func:`simulate_continuum` solves the continuous PDE :class:`Continuum` in a periodic domain padded around
+the frame and images it as a camera does, as pixel averages. The PDE holds a constant or varying
+diffusivity, advection, a loss, heat inputs and conduction into a plate below; each effect module says
+what its parameters mean for it, :attr:`anra_torch.effects.EffectSpec.continuum`. ``"spectral"`` evolves
+each Fourier mode exactly; ``"finite_volume"`` steps finite volumes on a finer grid by TR-BDF2. Why and
+how: ``docs/architecture.md``, "The independent solver". Units: mm, s, mm^2/s; float64 NumPy.
 """
 
 from __future__ import annotations
@@ -48,21 +46,21 @@ Forcing = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
 class Continuum:
     """The continuous PDE ``dT/dt = div(A grad T) - dot(v, grad T) - b (T - T_ref) + q(t, x, y)``.
 
-    ``A`` is the constant tensor ``[[a_x, a_xy], [a_xy, a_y]]`` unless ``diffusivity`` (a field ``a(x, y)``)
-    or ``conductivity`` (``a(T) = a0 (1 + beta (T - T_ref))``) replaces it by ``a I``.
+    ``A`` is the constant tensor ``[[a_x, a_xy], [a_xy, a_y]]``, replaced by ``a I`` when ``diffusivity``,
+    a field ``a(x, y)``, or ``conductivity``, ``a(T) = a0 (1 + beta (T - T_ref))``, is given.
 
     Attributes:
         tensor: ``(a_x, a_y, a_xy)`` in mm^2/s.
         velocity: ``(vx, vy)`` in mm/s.
         loss: ``b`` in 1/s.
         ambient: ``T_ref`` of the loss.
-        forcings: heat inputs (:data:`Forcing`, data units per s).
-        diffusivity: ``a(x, y)`` in mm^2/s at points in mm (NumPy arrays), or None.
+        forcings: heat inputs, each a :data:`Forcing`, in data units per s.
+        diffusivity: ``a(x, y)`` in mm^2/s at points in mm, on NumPy arrays; or None.
         conductivity: ``(a0, beta, T_ref)`` of a temperature-dependent diffusivity, or None.
         depth: ``(strength, t_heat, depth_time, T_ref)`` of conduction into a plate below the surface, or
-            None: ``T - T_ref`` is the rest of the (linear) model's solution times
+            None. ``T - T_ref`` is then the rest of the linear model's solution times
             ``(theta(t - t_heat) / theta(-t_heat))^strength``, the plate's exact depth factor
-            (:func:`plate_factor`).
+            :func:`~anra_torch.simulation.plate.plate_factor`.
 
     Shape:
         ``diffusivity`` maps broadcastable ``x``, ``y`` to their broadcast shape.
@@ -79,7 +77,7 @@ class Continuum:
 
     @property
     def spectral(self) -> bool:
-        """Whether every coefficient is constant and nothing is added (each Fourier mode evolves alone)."""
+        """Whether every coefficient is constant and nothing is added: each Fourier mode evolves alone."""
         return not self.forcings and self.diffusivity is None and self.conductivity is None
 
 
@@ -87,7 +85,7 @@ _erf = np.vectorize(math.erf, otypes=[np.float64])
 
 
 def gaussian_cells(edges: np.ndarray, centre: float, width: float) -> np.ndarray:
-    """``exp(-(x - centre)^2 / (2 width^2))`` averaged over each cell between ``edges`` (exact, by erf).
+    """``exp(-(x - centre)^2 / (2 width^2))`` averaged over each cell between ``edges``, exactly by erf.
 
     Shape:
         ``edges`` ``(N + 1,)`` in mm -> ``(N,)``.
@@ -116,7 +114,8 @@ class _Domain:
         return self.dx / self.refine
 
     def edges(self, axis: int) -> np.ndarray:
-        """Cell edges in mm along rows (``axis=0``, y) or columns (``axis=1``, x); the frame starts at 0."""
+        """Cell edges in mm along the rows, y, for ``axis=0`` or the columns, x, for ``axis=1``; the frame
+        starts at 0."""
         return (np.arange(self.cells[axis] + 1) - self.pad * self.refine) * self.h
 
     def centres(self, axis: int) -> np.ndarray:
@@ -140,7 +139,8 @@ class _Domain:
 
 
 def _evaluate(initial: Callable[[Tensor, Tensor], Tensor], x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``initial`` on the grid ``y`` (rows) x ``x`` (columns), ``(Ny, Nx)`` float64."""
+    """``initial`` on the grid of rows ``y`` by columns ``x``, ``(Ny, Nx)`` float64; ValueError where it is
+    not finite."""
     values = initial(torch.from_numpy(x)[None, :], torch.from_numpy(y)[:, None])
     out = torch.as_tensor(values, dtype=_F64, device="cpu").expand(y.size, x.size).numpy()
     if not np.isfinite(out).all():
@@ -150,7 +150,7 @@ def _evaluate(initial: Callable[[Tensor, Tensor], Tensor], x: np.ndarray, y: np.
 
 # ------------------------------------------------------------------------------------ spectral
 def _spectral(model: Continuum, initial: np.ndarray, dx: float, pad: int, times: np.ndarray) -> np.ndarray:
-    """Exact Fourier-mode evolution of ``initial`` (pixel-centre samples of the padded domain) and the
+    """Exact Fourier-mode evolution of ``initial``, pixel-centre samples of the padded domain, and the
     frame's pixel averages at ``times``, ``(T, H, W)``."""
     ny, nx = initial.shape
     base = model.ambient if model.loss > 0 else float(initial.mean())  # the loss relaxes to T_ref
@@ -175,14 +175,14 @@ def _shift(u: np.ndarray, rows: int, cols: int) -> np.ndarray:
 
 
 def _divergence(fx: np.ndarray, fy: np.ndarray, h: float) -> np.ndarray:
-    """Net inflow per area from the fluxes through the east (``fx``) and south (``fy``) face of each cell."""
+    """Net inflow per area from the fluxes ``fx`` through the east and ``fy`` through the south faces."""
     return (fx - _shift(fx, 0, -1) + fy - _shift(fy, -1, 0)) / h
 
 
 def _constant_operator(
     u: np.ndarray, model: Continuum, tensor: tuple[float, float, float], h: float
 ) -> np.ndarray:
-    """``div(A grad u - v u) - b u`` with constant ``A``, ``v``, ``b`` in flux form (central faces)."""
+    """``div(A grad u - v u) - b u`` with constant ``A``, ``v``, ``b`` in flux form on central faces."""
     a_x, a_y, a_xy = tensor
     vx, vy = model.velocity
     east, south = _shift(u, 0, 1), _shift(u, 1, 0)
@@ -197,8 +197,8 @@ def _constant_operator(
 
 
 class _Operators:
-    """``F(t, u) = C u + K(u) + g(t)`` on the domain's cells: ``C`` constant-coefficient (diagonal in
-    Fourier space), ``K(u) = div((a - a_ref) grad u)`` the varying diffusion, ``g`` the heat inputs."""
+    """``F(t, u) = C u + K(u) + g(t)`` on the domain's cells: ``C`` the constant-coefficient part, diagonal
+    in Fourier space; ``K(u) = div((a - a_ref) grad u)`` the varying diffusion; ``g`` the heat inputs."""
 
     def __init__(self, model: Continuum, domain: _Domain, span: tuple[float, float]) -> None:
         self.model, self.h = model, domain.h
@@ -230,7 +230,7 @@ class _Operators:
         return np.fft.irfft2(np.fft.rfft2(u) * self.symbol, s=u.shape)
 
     def inverse(self, r: np.ndarray, c: float) -> np.ndarray:
-        """``(I - c C)^-1 r``, exact by FFT (the symbol's real part is <= 0)."""
+        """``(I - c C)^-1 r``, exact by FFT; the symbol's real part is <= 0."""
         return np.fft.irfft2(np.fft.rfft2(r) / (1.0 - c * self.symbol), s=r.shape)
 
     def forcing(self, t: float) -> np.ndarray | float:
@@ -240,7 +240,7 @@ class _Operators:
         return g
 
     def _faces(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``a - a_ref`` at the east and south faces (the arithmetic mean of ``a(T)`` for a conductivity)."""
+        """``a - a_ref`` at the east and south faces; for a conductivity, the two cells' mean ``a(T)``."""
         if self.model.conductivity is None:
             return self.face_x, self.face_y  # type: ignore[return-value]
         a0, beta, t_ref = self.model.conductivity
@@ -273,8 +273,9 @@ class _Operators:
         return out
 
     def solve(self, r: np.ndarray, c: float, t: float, guess: np.ndarray) -> np.ndarray:
-        """``u`` with ``u - c F(t, u) = r``: by FFT when ``K`` is zero, else Newton-GMRES on
-        ``z = (I - c C) u`` (preconditioned on the right by the exact inverse of the constant part)."""
+        """``u`` with ``u - c F(t, u) = r``: by FFT when ``K`` is zero, else by Newton-GMRES on
+        ``z = (I - c C) u``, preconditioned on the right by the exact inverse of the constant part.
+        RuntimeError when Newton does not converge."""
         rhs = r + c * self.forcing(t)
         if not self.variable:
             return self.inverse(rhs, c)
@@ -304,7 +305,7 @@ def _finite_volume(
     model: Continuum, initial: Callable[[Tensor, Tensor], Tensor], domain: _Domain, dt: float, n_frames: int,
     substeps: int,
 ) -> np.ndarray:  # fmt: skip
-    """Frames ``(T, H, W)``: pixel averages of the finite-volume solution (``substeps`` TR-BDF2 a frame)."""
+    """Frames ``(T, H, W)``: pixel averages of the finite-volume solution, ``substeps`` TR-BDF2 a frame."""
     u = domain.average(initial)
     ops = _Operators(model, domain, (float(u.min()), float(u.max())))
     frames = [domain.pixels(u)]
@@ -324,7 +325,7 @@ class ContinuumGrid:
     Attributes:
         pad: camera px of padding on each side, >= 0; None: half the larger frame side.
         refine: finite-volume cells per camera pixel along each axis, >= 1.
-        substeps: TR-BDF2 steps per frame (finite volumes); None: 2 (docs/architecture.md).
+        substeps: TR-BDF2 steps per frame of the finite volumes; None: 2.
         method: one of :data:`METHODS`.
     """
 
@@ -357,18 +358,17 @@ def simulate_continuum(
 ) -> Tensor:
     """Simulate the continuous PDE ``model`` from a continuous initial field, as a camera sees it.
 
-    The frame (pixel ``(i, j)`` covers ``[j dx, (j + 1) dx]`` x ``[i dx, (i + 1) dx]``) lies in a periodic
-    domain ``pad`` px wider on each side, which ``initial`` should reach smoothly (or be periodic over the
-    frame, ``pad=0``). Frame ``k``: the solution at ``k dt`` averaged over each pixel.
+    Pixel ``(i, j)`` covers ``[j dx, (j + 1) dx] x [i dx, (i + 1) dx]``. The frame lies in a periodic
+    domain ``pad`` px wider on each side, which ``initial`` should reach smoothly; with ``pad=0`` it should
+    be periodic over the frame. Frame ``k`` is the solution at ``k dt`` averaged over each pixel.
 
     Args:
-        initial: ``T0(x, y)`` at points in mm (float64 tensors that broadcast).
-        model: the continuous PDE (:class:`Continuum`).
+        initial: ``T0(x, y)`` at points in mm, float64 tensors that broadcast.
+        model: the continuous PDE, :class:`Continuum`.
         shape: frame size ``(H, W)`` in px.
-        dx: pixel size in mm.
-        dt: frame period in s.
+        dx, dt: pixel size in mm and frame period in s.
         n_frames: number of frames, >= 1.
-        grid: the padding, refinement, steps and method (:class:`ContinuumGrid`); default ``ContinuumGrid()``.
+        grid: the padding, refinement, steps and method, :class:`ContinuumGrid`; default ``ContinuumGrid()``.
 
     Returns:
         The video, float64.
@@ -377,9 +377,11 @@ def simulate_continuum(
         Output ``(n_frames, H, W)``.
 
     Raises:
-        ValueError: bad sizes or spacings, ``method="spectral"`` for a model with a heat input or a varying
-            diffusivity, conduction into depth beside a heat input, a nonlinear diffusion or another ambient.
-        RuntimeError: a stage equation that did not converge (more ``substeps`` help).
+        ValueError: bad sizes or spacings, an ``initial`` not finite over the padded domain,
+            ``method="spectral"`` for a model with a heat input or a varying diffusivity, conduction into
+            depth beside a heat input, a nonlinear diffusion or another ambient.
+        TypeError: an ``initial`` that is not a function.
+        RuntimeError: a stage equation that did not converge; more ``substeps`` help.
 
     Example:
         >>> import math
@@ -408,8 +410,8 @@ def simulate_continuum(
 
 def _with_plate(initial: Callable[[Tensor, Tensor], Tensor], model: Continuum, settings: dict) -> Tensor:
     """:func:`simulate_continuum` of ``model`` without its conduction into depth, times the plate's exact
-    depth factor (:mod:`anra_torch.simulation.plate`): exact for ``T - T_ref`` only when the rest is linear
-    and keeps ``T_ref`` where it is."""
+    depth factor from :mod:`anra_torch.simulation.plate`; exact for ``T - T_ref`` only when the rest is
+    linear and keeps ``T_ref`` where it is. ValueError for a model where it is not."""
     depth = model.depth
     assert depth is not None
     if model.forcings or model.conductivity is not None or (model.loss > 0 and model.ambient != depth[3]):

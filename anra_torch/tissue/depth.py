@@ -1,37 +1,12 @@
-"""Subsurface temperature from the measured surface: the bioheat forward problem.
+"""Subsurface temperature from the measured surface: the bioheat forward problem under surface heating.
 
-Under surface heating (contact burns, electrosurgery, far-infrared and CO2 lasers: the heat is absorbed
-at the surface) the temperature below the frame is fixed by the measured surface history and the tissue's
-diffusivity ``a`` and loss (perfusion) rate ``b``: with ``theta = T - T_body``::
-
-    d theta / dt = a (d_xx + d_yy + d_zz) theta - b theta,   theta(x, y, 0, t) = measured surface,
-
-in a half-space (or a layer of a given thickness whose bottom stays at ``T_body``), starting in equilibrium
-with the first frame. A well-posed forward problem: no inversion.
-
-How it is solved (chosen by measuring, see ``experiments/damage_depth.py``): the lateral terms matter
-(under a spot 1-2.5 mm wide heat leaves sideways as well as downwards), so the frame is the boundary of a
-3-D problem. With uniform ``a`` and ``b`` it separates exactly:
-
-* laterally, the cosine modes (DCT-II) of the frame, or of the frame continued ``margin`` mm beyond its
-  edges (:func:`~anra_torch.tissue.depth_window.widen`: the frame is a window, and its edges then neither
-  hold the heat in nor invent it), each with its own decay ``c = a |k|^2 + b`` (``k = pi (p / H, q / W) /
-  dx``, the continuous wavenumbers); a node at depth ``z`` takes the modes with ``|k| z < 9.2`` (the
-  others reach it below 1e-4 of their surface amplitude);
-* in depth, the second-order finite-difference operator on nodes ``0 = z_0 < z_1 < ...`` whose spacing
-  grows geometrically from :data:`FIRST_STEP` (the profiles broaden with depth), down to a bottom so deep
-  that no heat reaches it in the record (or a shallower layer's: the grid stops where the heat does,
-  whatever the thickness);
-* in time, each mode (lateral x depth eigenmode) is integrated EXACTLY between frames for a surface that
-  varies linearly between them (an exponential integrator: ``phi_1``, ``phi_2``), so the frame rate sets no
-  stability limit and the only errors are the depth grid's and the surface's sampling.
-
-The march steps from frame to frame (a recurrence: each step is one vectorised update of every video's,
-pixel's and mode's state), and the physical temperatures of a block of frames are formed at once.
-Everything runs on the input's device in its dtype (constants built once in float64 and cached) and is
-differentiable with respect to the frames, ``a`` and ``b``.
-
-Damage in depth from the same solve: :mod:`~anra_torch.tissue.depth_damage`.
+With ``theta = T - T_body``, the tissue below the frame obeys Pennes' equation
+``d theta / dt = a (d_xx + d_yy + d_zz) theta - b theta``, where ``a`` is the diffusivity and ``b`` the
+loss rate by perfusion. The measured frames are its surface temperature, and the tissue starts in
+equilibrium with the first frame, in a half-space or in a layer whose bottom stays at ``T_body``: a
+well-posed forward problem, no inversion. The solve runs on the frames' device and dtype and is
+differentiable with respect to the frames, ``a`` and ``b``. How it is solved: ``docs/architecture.md``,
+"The depth model". Damage in depth from the same solve: :mod:`~anra_torch.tissue.depth_damage`.
 
 Units: mm, s, C, mm^2/s, 1/s.
 """
@@ -66,8 +41,9 @@ _F64 = torch.float64
 
 
 def _nodes_with(wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The geometric grid down to the deepest ``wanted`` depth with every ``wanted`` depth inserted (grid
-    nodes closer than a third of their spacing to one dropped), and where each wanted depth sits."""
+    """The geometric grid down to the deepest ``wanted`` depth with every ``wanted`` depth inserted, and
+    the index of each wanted depth. Grid nodes closer to a wanted depth than a third of their spacing are
+    dropped."""
     grid = depth_nodes(max(float(wanted.max()), FIRST_STEP))
     spacing = np.diff(grid, append=grid[-1] + (grid[-1] - grid[-2]))
     distance = np.abs(grid[:, None] - wanted[None, :]).min(1)
@@ -89,25 +65,27 @@ def subsurface_temperature(
 ) -> Tensor:
     """Temperature below every pixel at ``depths``, at every frame, from the measured surface.
 
-    Solves ``dT/dt = a Lap T - b (T - T_body)`` under the frame with the frames as the surface temperature
-    (surface heating), starting in equilibrium with the first frame.
+    Solves ``dT/dt = a Lap T - b (T - T_body)`` with the frames as the surface, from equilibrium.
 
     Args:
-        frames: surface temperatures in ``units``, ``(T, H, W)`` or ``(B, T, H, W)``, finite.
-        dt, dx: frame period in s and pixel size in mm (numbers or ``(B,)``).
-        depths: depths in mm (>= 0; 0 is the surface itself).
-        diffusivity, loss_rate: ``a`` (mm^2/s, positive), ``b`` (1/s, perfusion, >= 0); numbers or ``(B,)``.
-        body_temperature: C (number or ``(B,)``); default the median of each video's first frame.
+        frames: finite surface temperatures in ``units``.
+        dt, dx: frame period in s and pixel size in mm, numbers or ``(B,)``.
+        depths: depths in mm, each >= 0; 0 is the surface itself.
+        diffusivity, loss_rate: ``a > 0`` in mm^2/s and the perfusion ``b >= 0`` in 1/s, numbers or ``(B,)``.
+        body_temperature: C, a number or ``(B,)``; default the median of each video's first frame.
         thickness: None for a half-space; else a layer's thickness in mm, its bottom held at ``T_body``.
-        units: ``"C"`` or ``"K"`` (the output is in Celsius).
+        units: ``"C"`` or ``"K"``; the output is in Celsius either way.
 
     Returns:
-        Temperatures in C, ``(B, T, Z, H, W)`` (``(T, Z, H, W)`` for an unbatched input), in the frames'
-        dtype and device; differentiable with respect to ``frames``, ``diffusivity`` and ``loss_rate``.
+        Temperatures in C, in the frames' dtype and device; differentiable in ``frames``, ``a`` and ``b``.
 
     Raises:
-        ValueError: bad shapes, spacings, rates, depths, non-finite frames, or units that do not fit.
-        TypeError: rates that are not numbers.
+        ValueError: bad shapes, fewer than 2 frames, bad spacings, rates, depths or thickness, non-finite
+            frames, or units that do not fit the values.
+        TypeError: frames that are not a real tensor or array, rates that are not numbers.
+
+    Shape:
+        ``(B, T, H, W)`` -> ``(B, T, Z, H, W)``, ``Z = len(depths)``; ``(T, H, W)`` -> ``(T, Z, H, W)``.
 
     Example:
         >>> frames = torch.full((3, 4, 4), 37.0, dtype=torch.float64)
@@ -148,28 +126,29 @@ def surface_heat_input(
 ) -> Tensor:
     """Heat that has entered the tissue through the surface under each pixel since the first frame.
 
-    The surface flux the measured surface implies (the solution's ``a d theta / dz`` at ``z = 0``,
-    integrated over time; heat per area over ``rho c``, in K mm): where no source acts it stays flat, so it
-    is how the depth model is checked against the recording and how ``a`` and ``b`` are fitted
-    (:func:`anra_torch.tissue.fit_depth_parameters`). Computed with the depth grid of :func:`depth_nodes`
-    down to ``7 sqrt(a t)`` (the heat's reach over the record).
+    The time integral of the surface flux ``a d theta / dz`` at ``z = 0`` that the measured surface
+    implies: heat per area over ``rho c``, in K mm. Where no source acts it stays flat.
 
     Args:
-        frames: surface temperatures in ``units``, finite, ``(T, H, W)`` or ``(B, T, H, W)``.
-        dt, dx: frame period (s) and pixel size (mm).
-        diffusivity, loss_rate: ``a`` (mm^2/s) and ``b`` (1/s), numbers or ``(B,)``.
-        body_temperature: C; default the median of each video's first frame.
-        thickness: None for a half-space, else a layer's (mm).
+        frames: finite surface temperatures in ``units``.
+        dt: frame period in s, a number or ``(B,)``.
+        dx: pixel size in mm, a number or ``(B,)``.
+        diffusivity: ``a`` in mm^2/s, positive; a number or ``(B,)``.
+        loss_rate: ``b`` in 1/s, >= 0; a number or ``(B,)``.
+        body_temperature: ``T_body`` in C; default the median of each video's first frame.
+        thickness: None for a half-space, else a layer's thickness in mm.
         units: ``"C"`` or ``"K"``.
 
     Returns:
-        Cumulative heat input in K mm, ``(B, T, H, W)`` (0 at the first frame).
+        Cumulative heat input in K mm, 0 at the first frame.
 
     Raises:
-        ValueError: bad shapes, spacings, rates or non-finite frames.
+        ValueError: bad shapes, fewer than 2 frames, bad spacings, rates or thickness, non-finite frames,
+            or units that do not fit the values.
+        TypeError: frames that are not a real tensor or array, rates that are not numbers.
 
     Shape:
-        ``(B, T, H, W)`` -> ``(B, T, H, W)``.
+        ``(B, T, H, W)`` -> ``(B, T, H, W)``; ``(T, H, W)`` -> ``(T, H, W)``.
     """
     rise, batched, dt_, dx_, _ = surface_rise(frames, dt, dx, units, body_temperature)
     batch = rise.shape[0]

@@ -1,14 +1,11 @@
 """Damage in depth under every pixel from the measured surface: the doses of the solve of
 :mod:`~anra_torch.tissue.depth`.
 
-Damage in depth (:func:`damage_in_depth`): Omega and CEM43 of every depth node's history
-(:class:`~anra_torch.tissue.depth_doses.DoseAccumulator`, the rules of :mod:`~anra_torch.tissue.dose`), the
-peak-temperature profile, the damage depth (the deepest point with ``Omega >= 1``: ``ln Omega``
-interpolated linearly between nodes) and the depth of a CEM43 threshold, each with a standard error
-propagated from the standard errors of ``a`` and ``b`` (one extra solve each: the linearised propagation),
-from the frames' noise (analytically: :mod:`~anra_torch.tissue.depth_errors`) and from the frames'
-sampling in time (the two dose rules' difference). Memory is flat in the number of frames: the march
-forms the temperatures a block of frames at a time.
+:func:`damage_in_depth` gives Omega, CEM43 and the peak temperature at every depth node, the damage
+depth, which is the deepest point with ``Omega >= 1``, and the depth of a CEM43 threshold. Each comes with
+a standard error from those of ``a`` and ``b``, from the frames' noise and from their sampling in time.
+Memory does not grow with the number of frames. How the errors are propagated: ``docs/architecture.md``,
+"The depth model".
 
 Units: mm, s, C, mm^2/s, 1/s.
 """
@@ -69,23 +66,23 @@ _TINY = 1e-300  # a dose floor for logarithms
 
 @dataclass(frozen=True)
 class DepthMaps:
-    """Output of :func:`damage_in_depth` (batched: leading ``B``; a single video drops it).
+    """Output of :func:`damage_in_depth`: batched maps lead with ``B``, a single video's drop it.
 
     Attributes:
-        depths: node depths in mm, ``(Z,)``; 0 (the surface) first.
-        peak: peak temperature (C) at every node, ``(B, Z, H, W)``; ``peak_std`` its standard error (K).
+        depths: node depths in mm, the surface 0 first, ``(Z,)``.
+        peak: peak temperature in C at every node, ``(B, Z, H, W)``; ``peak_std`` its standard error in K.
         omega: Arrhenius damage integral at every node, ``(B, Z, H, W)``.
-        cem43: CEM43 (min) at every node, ``(B, Z, H, W)``.
-        damage_depth: deepest point with ``Omega >= 1`` (mm; 0 where none), ``(B, H, W)``;
-            ``damage_depth_std`` its standard error (mm).
-        cem43_depth: deepest point with ``CEM43 >= cem43_threshold`` (mm), ``(B, H, W)``;
-            ``cem43_depth_std`` its standard error (mm).
-        cem43_threshold: the CEM43 threshold (min).
-        diffusivity, loss_rate: the ``a`` (mm^2/s) and ``b`` (1/s) used, ``(B,)``; ``diffusivity_std``,
-            ``loss_rate_std`` and ``noise_sd`` (K) the standard errors propagated.
-        body_temperature: C, ``(B,)``.
-        truncated: pixels whose damage reaches the deepest node (their depth is a lower bound),
-            ``(B, H, W)``; never the case by construction unless ``max_depth`` was given.
+        cem43: CEM43 in min at every node, ``(B, Z, H, W)``.
+        damage_depth: deepest point with ``Omega >= 1`` in mm, 0 where none, ``(B, H, W)``;
+            ``damage_depth_std`` its standard error in mm.
+        cem43_depth: deepest point with ``CEM43 >= cem43_threshold`` in mm, ``(B, H, W)``;
+            ``cem43_depth_std`` its standard error in mm.
+        cem43_threshold: the CEM43 threshold in min.
+        diffusivity, loss_rate: the ``a`` in mm^2/s and ``b`` in 1/s used, ``(B,)``; ``diffusivity_std``,
+            ``loss_rate_std`` and ``noise_sd`` in K: the standard errors propagated.
+        body_temperature: in C, ``(B,)``.
+        truncated: pixels whose damage reaches the deepest node, so that their depth is a lower bound,
+            ``(B, H, W)``; possible only when ``max_depth`` is set.
     """
 
     depths: Tensor
@@ -115,10 +112,10 @@ class DepthMaps:
 def _reach(
     rise: Tensor, spacing: tuple, rates: tuple, body: Tensor, thickness: object, continued: Beyond | None
 ) -> float:
-    """Deepest depth (mm) where any video's peak exceeds :data:`DOSE_FLOOR`, one coarse node deeper: the
-    3-D solve on a coarse depth grid (spacings growing :data:`_COARSE_GROWTH`-fold) of the frames averaged
-    over blocks of pixels (at most 32 x 32 of them; continued beyond the frame as ``continued`` says, by
-    as many blocks), peak only. ``spacing``: ``dt``, ``dx``; ``rates``: ``a``, ``b``, each ``(B,)``."""
+    """Deepest depth in mm where any video's peak exceeds :data:`DOSE_FLOOR`, one coarse node deeper: a
+    peak-only 3-D solve on a depth grid growing :data:`_COARSE_GROWTH`-fold, of the frames' means over at
+    most 32 x 32 blocks of pixels, continued beyond the frame as ``continued`` says.
+    ``spacing``: ``dt``, ``dx``; ``rates``: ``a``, ``b``, each ``(B,)``."""
     (dt, dx), (a, b) = spacing, rates
     floor = DOSE_FLOOR - body  # K, (B,)
     if not bool((rise.detach().flatten(1).amax(1) > floor).any()):
@@ -150,7 +147,7 @@ def _reach(
 
 
 def _above(nodes: np.ndarray, thickness: object) -> np.ndarray:
-    """``nodes`` above a layer's bottom (the grid passes its last depth by up to one spacing)."""
+    """``nodes`` above a layer's bottom, which the grid passes by up to one spacing."""
     if thickness is None:
         return nodes
     kept = nodes[nodes < number(thickness, "thickness", "mm", positive=True)]
@@ -159,12 +156,12 @@ def _above(nodes: np.ndarray, thickness: object) -> np.ndarray:
 
 @dataclass(frozen=True)
 class StandardErrors:
-    """The standard errors :func:`damage_in_depth` propagates (0: not propagated).
+    """The standard errors :func:`damage_in_depth` propagates; 0 propagates nothing.
 
     Attributes:
-        diffusivity: of ``a`` (mm^2/s), a number or ``(B,)``.
-        loss_rate: of ``b`` (1/s), a number or ``(B,)``.
-        noise_sd: the frames' white-noise sd (K), a number or ``(B,)``.
+        diffusivity: of ``a`` in mm^2/s, a number or ``(B,)``.
+        loss_rate: of ``b`` in 1/s, a number or ``(B,)``.
+        noise_sd: the frames' white-noise sd in K, a number or ``(B,)``.
     """
 
     diffusivity: float | Tensor = 0.0
@@ -177,24 +174,23 @@ class DepthSettings:
     """How :func:`damage_in_depth` integrates the doses and lays out its grid.
 
     Attributes:
-        constants: Arrhenius constants (default skin).
-        rule: how each node's history is integrated (:data:`anra_torch.tissue.RULES`).
-        cem43_threshold: CEM43 (min) whose depth is mapped.
-        max_depth: deepest node (mm); default one coarse node below the deepest point where the peak
-            exceeds :data:`DOSE_FLOOR` (a coarse pass with ``a + 2`` standard errors).
-        growth: ratio of consecutive depth spacings (from :data:`~anra_torch.tissue.depth_solver.FIRST_STEP`
-            at the surface).
-        lateral: False: each pixel's column on its own (1-D, no heat sideways; too deep under small spots).
-        margin: mm by which the frames are continued beyond every edge
-            (:func:`anra_torch.tissue.depth_window.widen`; 0: the frame's edges hold the heat in; None: as
-            far as the heat reaches over the record, :func:`anra_torch.tissue.depth_cooling.margin_mm`);
-            the maps are the frame's (the temperatures are formed at its pixels only).
-        curved: the frames continued by a Gaussian tail (``widen``'s ``curved``) instead of a line.
-        between: the surface between the frames as high as they allow (their curvature, the switch-off a
-            frame later) as one more copy: the frames' sampling in time
-            (:func:`anra_torch.tissue.depth_errors.perturbed_copies`).
-        coarse: the perturbed solves (``a + se``, ``b + se``) on the frames' ``coarse x coarse`` px means,
-            the base at full resolution.
+        constants: Arrhenius constants, default skin.
+        rule: how each node's history is integrated, one of :data:`anra_torch.tissue.RULES`.
+        cem43_threshold: CEM43 in min whose depth is mapped.
+        max_depth: deepest node in mm; default one coarse node below the deepest point where the peak
+            with ``a`` raised and ``b`` lowered by 2 standard errors exceeds :data:`DOSE_FLOOR`.
+        growth: ratio of consecutive depth spacings, from
+            :data:`~anra_torch.tissue.depth_solver.FIRST_STEP` at the surface.
+        lateral: False solves each pixel's column on its own in 1-D, with no heat sideways.
+        margin: mm by which the frames are continued beyond every edge by
+            :func:`anra_torch.tissue.depth_window.widen`; 0 lets the frame's edges hold the heat in; None
+            continues them as far as the heat reaches over the record,
+            :func:`anra_torch.tissue.depth_cooling.margin_mm`. The maps cover the frame's pixels only.
+        curved: continue the frames by a Gaussian tail, ``widen``'s ``curved``, instead of a line.
+        between: add a copy with the surface between the frames as high as they allow, for the frames'
+            sampling in time: :func:`anra_torch.tissue.depth_errors.perturbed_copies`.
+        coarse: solve the perturbed copies on the frames' ``coarse x coarse`` px means, the base at full
+            resolution.
     """
 
     constants: ArrheniusConstants = SKIN
@@ -210,7 +206,7 @@ class DepthSettings:
 
 
 def _parameters(values: dict[str, object], like: Tensor) -> list[Tensor]:
-    """``a``, ``b`` and the three standard errors (detached) as ``(B,)``, checked."""
+    """``a``, ``b`` and the three standard errors as ``(B,)``, checked; the errors detached."""
     units = {"diffusivity": "mm^2/s", "loss_rate": "1/s", "diffusivity_std": "mm^2/s", "loss_rate_std": "1/s"}
     out = []
     for name, value in values.items():
@@ -249,31 +245,31 @@ def damage_in_depth(
     """Omega, CEM43 and the peak temperature at every depth node under every pixel, the damage depth and
     the depth of a CEM43 threshold, each with its standard error.
 
-    The standard errors propagate those of ``a`` and ``b`` to first order (one extra solve with each
-    shifted by its standard error: the root sum of squares of the changes), the frames' white noise
-    analytically (:mod:`anra_torch.tissue.depth_errors`) and the frames' sampling in time (half the
-    difference between the depths by the two rules of :data:`anra_torch.tissue.RULES`), in quadrature.
+    The standard error adds in quadrature the parts from the errors of ``a`` and ``b``, to first order,
+    from the frames' white noise and from the frames' sampling in time.
 
     Args:
-        frames: surface temperatures in ``units`` (finite), ``(T, H, W)`` or ``(B, T, H, W)``; the solve
-            runs in their dtype (float32 is within the error budget: 1e-5 K).
-        dt: frame period in s; dx: pixel size in mm (numbers or ``(B,)``).
-        diffusivity: ``a`` (mm^2/s); loss_rate: ``b`` (1/s); numbers or ``(B,)``.
-        errors: the standard errors to propagate (:class:`StandardErrors`).
-        body_temperature: C; default the median of each video's first frame.
-        thickness: None for a half-space, else a layer's thickness (mm) over tissue at ``T_body``.
+        frames: finite surface temperatures in ``units``; the solve runs in their dtype.
+        dt: frame period in s; dx: pixel size in mm; numbers or ``(B,)``.
+        diffusivity: ``a`` in mm^2/s; loss_rate: ``b`` in 1/s; numbers or ``(B,)``.
+        errors: the standard errors to propagate, :class:`StandardErrors`.
+        body_temperature: in C; default the median of each video's first frame.
+        thickness: None for a half-space, else a layer's thickness in mm over tissue at ``T_body``.
         units: ``"C"`` or ``"K"``.
-        settings: the doses' rule and constants, the grid (:class:`DepthSettings`).
+        settings: the doses' rule and constants and the grid, :class:`DepthSettings`.
 
     Returns:
         :class:`DepthMaps`; differentiable with respect to ``frames``, ``diffusivity`` and ``loss_rate``.
 
     Raises:
-        ValueError: bad shapes, spacings, rates, rule, threshold or non-finite frames.
-        TypeError: rates that are not numbers, ``constants`` not :class:`ArrheniusConstants`.
+        ValueError: bad shapes, spacings, rates, rule, threshold, margin, depths or thickness, fewer than 2
+            frames, non-finite frames, or units that do not fit the values.
+        TypeError: frames not a real tensor or array, values that are not numbers, ``settings`` not
+            :class:`DepthSettings` or ``constants`` not :class:`ArrheniusConstants`.
 
     Shape:
-        ``frames`` ``(B, T, H, W)``; maps ``(B, H, W)``; profiles ``(B, Z, H, W)``.
+        ``frames`` ``(B, T, H, W)``; maps ``(B, H, W)``; profiles ``(B, Z, H, W)``. A single video
+        ``(T, H, W)`` gives them without ``B``.
     """
     settings = _checked(settings)
     rise, batched, dt_, dx_, body = surface_rise(frames, dt, dx, units, body_temperature)
@@ -289,8 +285,8 @@ def damage_in_depth(
 
 
 def _margin_pixels(settings: DepthSettings, dt: Tensor, dx: Tensor, frames: int) -> int:
-    """The margin in whole pixels, a multiple of ``coarse`` (the copies' pixel means tile the frame); None:
-    as far as the heat reaches over the record (:func:`anra_torch.tissue.depth_cooling.margin_mm`)."""
+    """The margin in whole pixels, a multiple of ``coarse`` so that the copies' pixel means tile the frame;
+    None: as far as the heat reaches over the record, :func:`anra_torch.tissue.depth_cooling.margin_mm`."""
     if settings.margin is None:
         margin = margin_mm(float(dt.max()) * (frames - 1))
     else:
@@ -309,8 +305,8 @@ def _grid(
     settings: tuple,
     continued: Beyond | None,
 ) -> tuple[tuple[float, ...], int]:
-    """The solver's depth nodes and how many of them are reported: down to ``max_depth`` (default where the
-    peak with ``a + 2 se`` exceeds :data:`DOSE_FLOOR`), then to a bottom no heat reaches in the record."""
+    """The solver's depth nodes and how many of them are reported: down to ``max_depth``, by default where
+    the peak with ``a + 2 se``, ``b - 2 se`` exceeds :data:`DOSE_FLOOR`, then to a bottom no heat reaches."""
     thickness, max_depth, growth = settings
     a, b = rates
     if max_depth is None:
@@ -334,9 +330,9 @@ def _solve(
     settings: DepthSettings,
     continued: Beyond | None,
 ) -> DepthMaps:
-    """The march of the base problem and its perturbed copies (on ``coarse x coarse`` pixel means), their
+    """The march of the base problem and of its perturbed copies on ``coarse x coarse`` pixel means, their
     doses and the maps with their spread. ``per_video``: ``dt``, ``dx``, the body temperature;
-    ``continued``: how the frames are continued beyond the window (:func:`window_problem`) or None."""
+    ``continued``: how the frames are continued beyond the window, :func:`window_problem`, or None."""
     dt, dx, body = per_video
     a, b = rates
     coarse, batch, (h, w) = settings.coarse, rise.shape[0], rise.shape[-2:]
@@ -386,8 +382,8 @@ def _solve(
 def _depth_map(
     name: str, marched: tuple, depths: Tensor, node_variance: Tensor, levels: tuple[float, int]
 ) -> tuple[Tensor, Tensor]:
-    """The depth where dose ``name`` reaches its threshold and its standard error: the parameters' part
-    (the copies' spread), the frames' sampling in time and their noise, in quadrature."""
+    """The depth where dose ``name`` reaches its threshold and its standard error: the copies' spread for
+    the parameters, the frames' sampling in time and their noise, in quadrature."""
     doses, copies, weights = marched
     threshold, coarse = levels
     batch, (h, w) = node_variance.shape[0], doses.peak.shape[-2:]
@@ -407,7 +403,7 @@ def _depth_map(
 
 def _upsampled(x: Tensor, h: int, w: int) -> Tensor:
     """``(B, Z, H', W')`` values at the centres of blocks of ``ceil(H / H')`` px, interpolated bilinearly to
-    the ``(B, Z, H, W)`` pixels (the same tensor when ``H' = H``)."""
+    the ``(B, Z, H, W)`` pixels; the same tensor when ``H' = H``."""
     if x.shape[-2:] == (h, w):
         return x
     factor = math.ceil(h / x.shape[-2])
@@ -423,11 +419,11 @@ def _march_doses(
     settings: DepthSettings,
     grid: tuple[tuple, int, Beyond | None],
 ) -> DoseAccumulator:
-    """Peak, Omega and CEM43 at the reported nodes of the stacked ``(V B, T, H, W)`` rises (the base videos
-    first), and for the base videos the doses by the other rule and their noise variance.
-    ``per_video``: ``dt``, ``dx`` and the body temperature, ``(B,)`` each; ``rho`` ``(B, Z)`` (``(0, Z)``:
-    no video gets the other rule nor the noise); ``grid``: the nodes, how many are reported and how the
-    frames are continued beyond the window (:func:`window_problem`; None: the frame's cosine modes)."""
+    """Peak, Omega and CEM43 at the reported nodes of the stacked rises ``(V B, T, H, W)``, base videos
+    first; for the base videos also the doses by the other rule and their noise variance.
+    ``per_video``: ``dt``, ``dx`` and the body temperature, ``(B,)`` each; ``rho`` ``(B, Z)``, and
+    ``(0, Z)`` gives no video the other rule nor the noise; ``grid``: the nodes, how many are reported and
+    how the frames are continued beyond the window, :func:`window_problem`, or None for cosine modes."""
     nodes, reported, continued = grid
     n, (h, w) = stacked.shape[0], stacked.shape[-2:]
     batch = per_video[0].numel()

@@ -1,19 +1,10 @@
-"""The depth where a dose crosses its threshold (:func:`threshold_depth`) and the standard errors of the
-depth maps: the variance of that depth from the doses' noise (:func:`threshold_variance`), the perturbed
-copies of a depth problem (``a + se``, ``b + se``), the spread of their results, and the frames' noise
-propagated analytically to every depth node.
+"""The depth where a dose crosses its threshold, and the standard errors of the depth maps.
 
-The maps are solved for the base problem and its copies at once (:func:`anra_torch.tissue.damage_in_depth`);
-the parameters' part of a standard error is the root sum of squares of the copies' changes (one linearised
-solve each). The noise's part needs no copy: a white surface noise of sd ``sigma`` (per pixel and frame)
-reaches depth ``z`` through each lateral cosine mode ``k`` as ``H_k(z, w) = exp(-z sqrt((a |k|^2 + b + i w)
-/ a))`` (the half-space's transfer function at angular frequency ``w``), so the temperature noise at a node
-has the variance ``C_0(z) = sigma^2 / N sum_k dt / (2 pi) int |H_k|^2 sinc^4(w dt / 2) dw`` (``N`` pixels;
-the frames joined by straight lines, all aliases)
-and the zero-frequency power ``S(z) = sigma^2 / N sum_k |H_k(z, 0)|^2`` (the sum of its autocovariance over
-all lags, in frames). :func:`noise_correlation` returns ``C_0`` and the frame-to-frame correlation ``rho``
-of the exponential autocovariance with both: ``S = C_0 (1 + rho) / (1 - rho)``;
-:class:`anra_torch.tissue.depth_doses.DoseAccumulator` carries them through the doses.
+:func:`threshold_depth` finds that depth and :func:`threshold_variance` its variance from the doses'
+noise. :func:`perturbed_copies` stacks the copies of a depth problem with ``a + se`` and ``b + se``, and
+:func:`spread` turns their results into the parameters' part of a standard error.
+:func:`noise_correlation` gives the temperature noise that a white surface noise puts at every depth node.
+The derivations: ``docs/architecture.md``, "The depth model". Units: mm, s, K, mm^2/s, 1/s.
 """
 
 from __future__ import annotations
@@ -46,16 +37,16 @@ _ALIASES = 8
 def perturbed_copies(
     rise: Tensor, a: Tensor, b: Tensor, errors: tuple[Tensor, Tensor], *, switch: Tensor | None = None
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """The base problem and the perturbed copies of each non-zero standard error (``a + se``, ``b + se``),
-    stacked along the batch: ``(rise, a, b, weights)``, ``weights`` ``(V - 1,)`` (1 each).
+    """The base problem and its perturbed copies, stacked along the batch.
 
-    With ``switch`` (each video's last frame before its switch-off, ``(B,)``), one more copy: the surface
-    between the frames as high as the frames allow, where the solve takes the straight line through them
-    (the frames' sampling in time): moved by what a curve of the frames' own curvature puts above that line
-    on average over an interval (``-(g_(n+1) - 2 g_n + g_(n-1)) / 12``) and switched off a frame later
-    (the frame after ``switch`` at least the heating's own continuation ``2 g_s - g_(s-1)``). The truth
-    lies anywhere between the base and this copy (a switch-off between two frames, anywhere): its weight
-    1/3, the mean square of an error spread evenly between none and the copy's change."""
+    One copy of weight 1 per non-zero standard error: ``a + se``, then ``b + se``. With ``switch``, each
+    video's last frame before its switch-off ``(B,)``, one more copy of weight :data:`BETWEEN_WEIGHT`: the
+    surface of :func:`between_frames`.
+
+    Returns:
+        ``(rise, a, b, weights)``: rises ``(V B, T, H, W)``, rates ``(V B,)``, the copies' weights
+        ``(V - 1,)``.
+    """
     sa, sb = errors
     rises, rates, losses = [rise], [a], [b]
     weights: list[float] = []
@@ -71,12 +62,12 @@ def perturbed_copies(
 
 
 def between_frames(rise: Tensor, switch: Tensor) -> Tensor:
-    """The surface between the frames as high as the frames allow (see :func:`perturbed_copies`): each frame
-    moved by ``-(g_(n+1) - 2 g_n + g_(n-1)) / 12`` and the frame after ``switch`` (each video's last frame
-    before its switch-off, ``(B,)``) at least the heating's own continuation ``2 g_s - g_(s-1)``.
+    """The surface between the frames as high as the frames allow: each frame moved by
+    ``-(g_(n+1) - 2 g_n + g_(n-1)) / 12``, and the frame after ``switch`` raised to at least the heating's
+    own continuation ``2 g_s - g_(s-1)``. ``switch``: each video's last frame before its switch-off.
 
     Shape:
-        ``(B, T, H, W)`` -> ``(B, T, H, W)`` (``T > 2``).
+        ``rise`` ``(B, T, H, W)`` with ``T > 2``, ``switch`` ``(B,)`` -> ``(B, T, H, W)``.
     """
     bend = torch.zeros_like(rise)
     bend[:, 1:-1] = rise[:, 2:] - 2 * rise[:, 1:-1] + rise[:, :-2]
@@ -87,10 +78,11 @@ def between_frames(rise: Tensor, switch: Tensor) -> Tensor:
 
 
 def spread(values: Tensor, weights: Tensor, other: Tensor | None = None) -> tuple[Tensor, Tensor]:
-    """The base value and the root of the perturbed copies' weighted squared changes (``weights``, ``(V -
-    1,)``: see :func:`perturbed_copies`), from ``(V B, ...)``; with ``other`` (the base's depth from its dose
-    by the other integration rule, ``(B, ...)``), half the two rules' difference is added in quadrature: the
-    frames' sampling in time."""
+    """The base value and its standard error: the root of the copies' weighted squared changes.
+
+    ``values`` ``(V B, ...)`` holds the base, then each copy; ``weights`` ``(V - 1,)`` are the copies'
+    weights from :func:`perturbed_copies`. With ``other``, the base's depth by the other integration rule
+    ``(B, ...)``, half the two rules' difference is added in quadrature. Returns two ``(B, ...)``."""
     stacked = values.reshape(len(weights) + 1, -1, *values.shape[1:])
     base = stacked[0]
     change = (stacked[1:] - base) ** 2
@@ -103,14 +95,16 @@ def spread(values: Tensor, weights: Tensor, other: Tensor | None = None) -> tupl
 def noise_correlation(
     depths: Tensor, a: Tensor, b: Tensor, dt: Tensor, dx: Tensor, size: tuple[int, int], noise: Tensor
 ) -> tuple[Tensor, Tensor]:
-    """The temperature noise a white surface noise puts at each depth: its variance (K^2) and its
-    frame-to-frame correlation, each ``(B, Z)`` (float64; see the module docstring).
+    """The temperature noise a white surface noise puts at each depth node, in float64.
 
     Args:
-        depths: node depths (mm), ``(Z,)``.
-        a, b, dt, dx, noise: diffusivity (mm^2/s), loss rate (1/s), frame period (s), pixel size (mm) and
-            the frames' noise sd (K), each ``(B,)``.
-        size: the frame ``(H, W)`` (its cosine modes).
+        depths: node depths in mm, ``(Z,)``.
+        a, b, dt, dx, noise: diffusivity in mm^2/s, loss rate in 1/s, frame period in s, pixel size in mm
+            and the frames' noise sd in K, each ``(B,)``.
+        size: the frame ``(H, W)`` whose cosine modes carry the noise.
+
+    Returns:
+        The variance in K^2 and the frame-to-frame correlation of an exponential autocovariance.
 
     Shape:
         ``(Z,)`` -> ``(B, Z)``, ``(B, Z)``.
@@ -144,13 +138,14 @@ def noise_correlation(
 
 
 def threshold_depth(values: Tensor, depths: Tensor, threshold: float | Tensor) -> Tensor:
-    """Deepest point where ``values >= threshold`` along the depth axis, ``log(values)`` interpolated
-    linearly between the nodes around it (0 where no node reaches it). Differentiable in ``values``.
+    """Deepest point along the depth axis where ``values >= threshold``, with ``log(values)``
+    interpolated linearly between the nodes around it; 0 where no node reaches it. Differentiable in
+    ``values``.
 
     Args:
-        values: a positive dose at every node (Omega, CEM43), ``(..., Z, H, W)``.
-        depths: node depths in mm, ``(Z,)``, increasing.
-        threshold: the dose (> 0).
+        values: a positive dose at every node, such as Omega or CEM43, ``(..., Z, H, W)``.
+        depths: node depths in mm, increasing, ``(Z,)``.
+        threshold: the dose, positive.
 
     Returns:
         Depth in mm, ``(..., H, W)``.
@@ -179,8 +174,12 @@ def threshold_depth(values: Tensor, depths: Tensor, threshold: float | Tensor) -
 
 
 def threshold_variance(values: Tensor, variance: Tensor, depths: Tensor, threshold: float) -> Tensor:
-    """The variance (mm^2) of :func:`threshold_depth` from the dose's noise variance ``variance`` at every
-    node: ``Var(ln D)`` interpolated to the crossing, over the squared slope of ``ln D`` there."""
+    """The variance in mm^2 of :func:`threshold_depth` from the dose's noise variance ``variance`` at every
+    node: ``Var(ln D)`` interpolated to the crossing, over the squared slope of ``ln D`` there.
+
+    Shape:
+        ``values``, ``variance`` ``(..., Z, H, W)`` -> ``(..., H, W)``.
+    """
     z = depths.to(device=values.device, dtype=values.dtype)
     n = values.shape[-3]
     index = torch.arange(n, device=values.device).view(-1, 1, 1)

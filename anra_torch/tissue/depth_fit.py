@@ -1,46 +1,12 @@
-"""The diffusivity and perfusion of the depth model, fitted where the recording cools: no source acts there.
+"""The diffusivity and perfusion of the depth model, fitted where the recording cools and no source acts.
 
-The surface alone cannot tell ``a`` in one dimension (a half-space's surface cools the same way whatever
-``a``, given its own history), and the plain ANRA balance reads the heat that leaves downwards as lateral
-spreading. The depth model itself gives a consistent estimate by forecasting the cooling. Up to the frame
-``t_0`` two frames after the switch-off, the measured surface drives the tissue below (the depth model of
-:mod:`anra_torch.tissue.depth`); from ``t_0`` on no source acts, the surface is free and loses
-``a beta theta`` to the air (``beta = h / k``, 1/mm), and the state at ``t_0`` alone fixes how the surface
-cools (:func:`anra_torch.tissue.depth_solver.free_surface_operator`, exact in time). The lateral modes cool
-at ``a |k|^2 + b`` on top of the depth's own decay: that is what tells ``a`` from ``b``, and ``beta`` from
-both. :func:`fit_depth_parameters` finds ``(a, b, beta)`` by Levenberg-Marquardt on
-
-    r(n, p) = S[measured - forecast](t_n, p),   t_n > t_0,  p at least ``EDGE`` mm inside the frame,
-
-where ``S`` keeps the cosine modes (of the frame and a margin) below ``3.7 / SMOOTHING`` 1/mm whose change
-stands above the noise, Gaussian-weighted (``exp(-k^2 s^2 / 2)``, the same on both sides).
-
-The frame is a window, not the world: the heat crosses its edges. The frames are continued beyond every
-edge (:mod:`~anra_torch.tissue.depth_cooling`, :func:`anra_torch.tissue.depth_window.widen`: a Gaussian
-tail, the logarithm of each edge's last pixels continued by a parabola) by
-:data:`~anra_torch.tissue.depth_cooling.MARGIN` mm, or by :data:`~anra_torch.tissue.depth_cooling.REACH`
-diffusion lengths of the record when the heat reaches further, so that the heat leaves
-through the frame's edges as it does in the tissue, the widened frame's own walls (the cosine modes'
-zero flux) stand where no heat reaches, the cooling evolves freely there, and the residual is read only
-inside the frame, away from its edges.
-
-Standard errors: the larger of the measured white noise's (through the residual's linear operators,
-analytic, first order: the measured side and the forecast's state) and the jackknife's over rings of the
-window by distance from the edges and halves of the cooling (one linearised step each: parts that
-disagree about ``a`` show the model's own error), and in quadrature the edges' part: the change of the fit
-(one linearised step) when the frames are continued beyond the window with their curvature mirrored
-instead; and the frames' sampling at the switch-off: the tissue's state at ``t_0`` is driven by the frames
-joined by straight lines, while after a switch-off the surface falls as the square root of the time since
-it (a slow camera's straight line across that fall puts heat into the tissue that was never there, which
-the fit reads as a larger loss to the air and a smaller perfusion). The change of the fit (one linearised
-step) under the frames of :func:`square_root_drop` (a switch-off right at the last heated frame) enters
-with weight 1/3: the switch-off lies anywhere between two frames, the error anywhere between none and that
-change.
-
-Volumetric heating (a near-infrared laser deposits its heat below the surface) breaks the model: heat
-keeps rising from below after the switch-off and no ``(a, b, beta)`` forecasts the cooling.
-:attr:`DepthParameters.misfit` is the share of the cooling signal the forecast misses beyond the noise;
-above :data:`VOLUMETRIC_MISFIT` the recording is flagged and its depth maps must not be trusted.
+:func:`fit_depth_parameters` fits the diffusivity ``a``, the perfusion ``b`` and the surface's loss to the
+air ``beta = h / k`` by forecasting the cooling: from two frames after the switch-off on, the depth
+model's state fixes how the free surface cools, and the fit matches the forecast to the measured cooling
+inside the frame, with the frames continued beyond its edges. :attr:`DepthParameters.misfit` is the share
+of the cooling the forecast misses; above :data:`VOLUMETRIC_MISFIT` the heat looks deposited below the
+surface, as a near-infrared laser does, and the depth maps must not be trusted. The method and its
+standard errors: ``docs/architecture.md``, "The depth model".
 
 Units: mm, s, mm^2/s, 1/s, K.
 """
@@ -87,21 +53,20 @@ _F64 = torch.float64
 
 @dataclass(frozen=True)
 class DepthParameters:
-    """Output of :func:`fit_depth_parameters` (batched: leading ``B``; a single video drops it).
+    """Output of :func:`fit_depth_parameters`: batched values lead with ``B``, a single video's drop it.
 
     Attributes:
         diffusivity: ``a`` in mm^2/s, ``(B,)``; ``diffusivity_std`` its standard error.
-        loss_rate: ``b`` (perfusion) in 1/s, ``(B,)``; ``loss_rate_std`` its standard error.
-        surface_loss: ``beta = h / k`` in 1/mm of the heat the surface loses after the switch-off (air,
-            radiation; not part of the depth model: the surface temperature is measured), ``(B,)``;
-            ``surface_loss_std`` its standard error.
-        noise_sd: the frames' white noise (K), ``(B,)``.
-        cooling_start: first frame of the fit (two after the switch-off), ``(B,)``.
-        misfit: share of the cooling signal the forecast misses beyond the noise, ``(B,)`` (0: a perfect
-            model).
+        loss_rate: ``b``, the perfusion, in 1/s, ``(B,)``; ``loss_rate_std`` its standard error.
+        surface_loss: ``beta = h / k`` in 1/mm, the surface's loss to the air and by radiation after the
+            switch-off, ``(B,)``; ``surface_loss_std`` its standard error.
+        noise_sd: the frames' white-noise sd in K, ``(B,)``.
+        cooling_start: first frame of the fit, two after the switch-off, ``(B,)``.
+        misfit: share of the cooling signal the forecast misses beyond the noise, 0 for a perfect model,
+            ``(B,)``.
         volumetric: ``misfit > VOLUMETRIC_MISFIT``: the heat looks deposited below the surface, ``(B,)``.
-        valid: a fit was possible (enough frames after the switch-off and modes above the noise), ``(B,)``.
-        messages: per video, why there is no fit or why it is flagged ("" otherwise).
+        valid: whether a fit was possible, with enough cooling frames and modes above the noise, ``(B,)``.
+        messages: per video, why there is no fit or why it is flagged; "" otherwise.
     """
 
     diffusivity: Tensor
@@ -129,8 +94,8 @@ class DepthParameters:
 
 
 def _residual(c: Cooling, theta: Tensor, beta_step: float = 0.0) -> Tensor:
-    """Residual ``(B, C, S, F, P)`` of ``C`` candidates ``theta`` ``(B, C, 3)`` = ``(ln a, b, beta)`` per
-    video; ``S = 2`` with ``beta_step`` (the second with ``beta + beta_step``), else 1."""
+    """Residual ``(B, C, S, F, P)`` of ``C`` candidates ``theta`` ``(B, C, 3)``, each ``(ln a, b, beta)``;
+    ``S = 2`` with ``beta_step``, the second at ``beta + beta_step``, else 1."""
     batch, count = theta.shape[:2]
     many = c.repeat(count)
     flat = theta.reshape(-1, 3)
@@ -146,8 +111,8 @@ def _clamp(theta: Tensor) -> Tensor:
 
 
 def _jacobian(c: Cooling, theta: Tensor) -> tuple[Tensor, Tensor]:
-    """Residual ``(B, F, P)`` and its Jacobian ``(B, F, P, 3)`` at ``theta`` ``(B, 3)``: forward differences
-    (``a`` and ``b`` as two more candidates, ``beta`` on the base's state)."""
+    """Residual ``(B, F, P)`` and its Jacobian ``(B, F, P, 3)`` at ``theta`` ``(B, 3)`` by forward
+    differences: ``a`` and ``b`` as two more candidates, ``beta`` on the base's state."""
     step = theta.new_tensor(_STEP)
     shifts = torch.zeros(3, 3, dtype=theta.dtype, device=theta.device)
     shifts[1, 0], shifts[2, 1] = step[0], step[1]
@@ -158,8 +123,7 @@ def _jacobian(c: Cooling, theta: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def _start(c: Cooling) -> Tensor:
-    """The best of a coarse grid of ``ln a`` (0.03-0.8 mm^2/s) at ``b = 0.003``, ``beta = 0.02``:
-    ``(B, 3)``."""
+    """The best ``(B, 3)`` of a coarse grid of ``a`` in 0.03-0.8 mm^2/s at ``b = 0.003``, ``beta = 0.02``."""
     grid = torch.linspace(math.log(0.03), math.log(0.8), 9, dtype=_F64, device=c.spectrum.device)
     theta = torch.stack([grid, torch.full_like(grid, 0.003), torch.full_like(grid, 0.02)], -1)
     theta = theta.expand(c.start.shape[0], -1, -1)
@@ -197,13 +161,8 @@ def _levenberg_marquardt(c: Cooling, theta: Tensor, iterations: int = 15) -> tup
 
 
 def _errors(c: Cooling, theta: Tensor, r: Tensor, jac: Tensor, noise: Tensor) -> Tensor:
-    """Standard errors of ``(ln a, b, beta)`` ``(B, 3)``: the larger of the noise's and the jackknife's over
-    eight groups (rings of the window by distance from the frame's edges, the cooling's halves; one
-    linearised step per group without it).
-
-    The noise's: the frames' white noise through the residual's linear operators, analytic (the measured
-    side's frames after ``t_0``, and the forecast's, whose state carries the noise of every frame before:
-    the adjoint of the forecast, by automatic differentiation, on the Jacobian's columns)."""
+    """Standard errors ``(B, 3)`` of ``(ln a, b, beta)``: the larger of the white noise's, propagated
+    analytically through the residual, and the jackknife's over the eight groups of :func:`_groups`."""
     jj = torch.einsum("bfpi,bfpj->bij", jac, jac)
     inverse = torch.linalg.pinv(jj)
     modes = torch.einsum("kp,bfpi->bfki", c.basis, jac) * c.weight.view(-1, 1, c.weight.shape[1], 1)
@@ -221,8 +180,8 @@ def _errors(c: Cooling, theta: Tensor, r: Tensor, jac: Tensor, noise: Tensor) ->
 
 
 def _history(c: Cooling, theta: Tensor, jac: Tensor) -> Tensor:
-    """``G^T G`` ``(B, 3, 3)``, ``G`` the derivative of ``J^T (forecast)`` with respect to the spectrum of
-    every frame (per unit noise in each mode and frame)."""
+    """``G^T G`` ``(B, 3, 3)``, where ``G`` is the derivative of ``J^T forecast`` with respect to the
+    spectrum of every frame, per unit noise in each mode and frame."""
     with torch.enable_grad():
         spectrum = c.spectrum.detach().clone().requires_grad_(True)
         first = spectrum[:, 0] * (c.first != 0)
@@ -240,8 +199,8 @@ def _history(c: Cooling, theta: Tensor, jac: Tensor) -> Tensor:
 
 
 def _groups(c: Cooling, r: Tensor) -> Tensor:
-    """The jackknife group ``(F, P)`` of every residual: ring of the window by distance from the frame's
-    edges (4: the edges' continuation errs most near them) x half of the frames."""
+    """The jackknife group ``(F, P)`` of every residual: one of 4 rings of the window by distance from the
+    frame's edges, times one of 2 halves of the frames."""
     f, p = r.shape[1:]
     side = round(math.sqrt(p))
     rows = torch.arange(p, device=r.device) // side
@@ -253,22 +212,20 @@ def _groups(c: Cooling, r: Tensor) -> Tensor:
 
 
 def _shift(other: Cooling, theta: Tensor, r: Tensor, jac: Tensor) -> Tensor:
-    """The change of the fit ``(B, 3)`` when the data are ``other``'s instead: one linearised step on the
-    fit's Jacobian, ``-(J^T J)^+ J^T (r' - r)``."""
+    """The change of the fit ``(B, 3)`` when the data are ``other``'s instead, by one linearised step on
+    the fit's Jacobian: ``-(J^T J)^+ J^T (r' - r)``."""
     moved = _residual(other, theta.unsqueeze(1))[:, 0, 0] - r
     jj = torch.einsum("bfpi,bfpj->bij", jac, jac)
     return -(torch.linalg.pinv(jj) @ torch.einsum("bfpi,bfp->bi", jac, moved).unsqueeze(-1)).squeeze(-1)
 
 
 def square_root_drop(rise: Tensor, switch: Tensor) -> Tensor:
-    """The frames with the surface falling as the square root of the time since a switch-off right at the
-    last heated frame ``switch`` ``(B,)`` (each video's), in the heat they put into the tissue: the solve
-    joins the frames by straight lines, and ``sqrt`` puts ``2/3 - 1/2 = 1/6`` of the drop ``D`` to the next
-    frame less heat into that interval; the next frame lowered by ``D / 6`` (a hat of width ``2 dt``) takes
-    the same out. ``D`` per pixel, where it falls.
+    """The frames that put into the tissue the heat of a surface falling as the square root of the time
+    since a switch-off right at each video's last heated frame ``switch``: the frame after it lowered by
+    a sixth of the drop ``D`` to it, per pixel where the surface falls.
 
     Shape:
-        ``(B, T, H, W)`` -> ``(B, T, H, W)``.
+        ``rise`` ``(B, T, H, W)``, ``switch`` ``(B,)`` -> ``(B, T, H, W)``.
     """
     at = switch.clamp(0, rise.shape[1] - 2).view(-1, 1, 1, 1).expand(-1, 1, *rise.shape[2:])
     after = rise.gather(1, at + 1)
@@ -277,8 +234,8 @@ def square_root_drop(rise: Tensor, switch: Tensor) -> Tensor:
 
 
 def _dropped(rise: Tensor, dx: Tensor, dt: Tensor, noise: Tensor, start: Tensor, spectrum: Tensor) -> Cooling:
-    """What the fit sees of :func:`square_root_drop`'s frames: the modes of the one frame it changes put
-    into the recording's ``spectrum`` (``(B, T, K)``, :func:`cooling_modes`)."""
+    """What the fit sees of :func:`square_root_drop`'s frames: the modes of the one frame it changes, put
+    into the recording's ``spectrum`` ``(B, T, K)`` from :func:`cooling_modes`."""
     b, t, h, w = rise.shape
     switch = (start - 2).clamp(0, t - 2)
     pair = rise.gather(1, torch.stack([switch, switch + 1], 1).view(b, 2, 1, 1).expand(-1, -1, h, w))
@@ -304,26 +261,27 @@ def fit_depth_parameters(
     body_temperature: float | Tensor | None = None,
     noise_sd: float | Tensor | None = None,
 ) -> DepthParameters:
-    """Fit ``a``, ``b`` and the surface's loss to the air on a recording's cooling (see the module docstring).
+    """Fit ``a``, ``b`` and the surface's loss to the air on a recording's cooling.
 
     Args:
-        frames: surface temperatures in ``units`` (finite), ``(T, H, W)`` or ``(B, T, H, W)``: a heating
-            (any surface source) followed by at least :data:`MIN_COOLING_FRAMES` frames of cooling.
-        dt: frame period in s; dx: pixel size in mm (numbers or ``(B,)``).
+        frames: finite surface temperatures in ``units``: a heating by any surface source, then at least
+            :data:`MIN_COOLING_FRAMES` frames of cooling.
+        dt: frame period in s; dx: pixel size in mm; numbers or ``(B,)``.
         units: ``"C"`` or ``"K"``.
-        body_temperature: C; default the median of each video's first frame.
-        noise_sd: white-noise sd of the frames (K); default measured
-            (:func:`anra_torch.balance.noise.estimate_noise_sd`).
+        body_temperature: in C; default the median of each video's first frame.
+        noise_sd: white-noise sd of the frames in K; default measured by
+            :func:`anra_torch.balance.noise.estimate_noise_sd`.
 
     Returns:
-        :class:`DepthParameters` (computed in float64, without gradients). Where no fit is possible
+        :class:`DepthParameters`, computed in float64 without gradients. Where no fit is possible
         ``valid`` is False, the values are NaN and the message says why.
 
     Raises:
-        ValueError: bad shapes, spacings, units or non-finite frames.
+        ValueError: bad shapes, spacings, units, noise sd, fewer than 2 frames or non-finite frames.
+        TypeError: frames that are not a real tensor or array, values that are not numbers.
 
     Shape:
-        ``frames`` ``(B, T, H, W)`` -> values ``(B,)``.
+        ``frames`` ``(B, T, H, W)`` -> values ``(B,)``; ``(T, H, W)`` -> single values.
     """
     with torch.no_grad():
         rise, batched, dt_, dx_, _ = surface_rise(frames, dt, dx, units, body_temperature)

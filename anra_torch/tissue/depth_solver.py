@@ -1,9 +1,9 @@
-"""The engine of the depth model: depth grid, operator, lateral modes and the exact march between frames.
+"""The engine of the depth model: depth grid, depth operator, lateral cosine modes, exact march in time.
 
-:mod:`anra_torch.tissue.depth` (subsurface temperature, damage in depth) and
-:mod:`anra_torch.tissue.depth_fit` (``a`` and ``b`` from the cooling) share it; the method is described in
-:mod:`anra_torch.tissue.depth`. Everything is built once in float64 on the CPU (cached), then moved to the
-frames' device and dtype. Units: mm, s, K, mm^2/s, 1/s.
+Shared by :mod:`~anra_torch.tissue.depth`, :mod:`~anra_torch.tissue.depth_damage` and
+:mod:`~anra_torch.tissue.depth_fit`; the method: ``docs/architecture.md``, "The depth model". Operators
+are built once in float64 on the CPU, cached, then moved to the frames' device and dtype.
+Units: mm, s, K, mm^2/s, 1/s.
 """
 
 from __future__ import annotations
@@ -57,15 +57,20 @@ BLOCK_VALUES = 2**22
 
 
 def depth_nodes(max_depth: float, *, first: float = FIRST_STEP, growth: float = GROWTH) -> np.ndarray:
-    """Depths (mm) of the reported nodes: 0, then spacings ``first * growth^j`` until ``max_depth`` is passed.
+    """Depths in mm of the reported nodes: 0, then spacings ``first * growth^j`` until ``max_depth`` is
+    passed.
 
     Args:
-        max_depth: deepest depth (mm) to cover (> 0).
-        first: spacing at the surface (mm).
-        growth: ratio of consecutive spacings (>= 1).
+        max_depth: deepest depth to cover in mm, positive.
+        first: spacing at the surface in mm, positive.
+        growth: ratio of consecutive spacings, >= 1.
 
     Returns:
-        Node depths ``(Z,)`` (float64 NumPy), ``0`` first.
+        Node depths in mm as a float64 NumPy array, 0 first.
+
+    Raises:
+        ValueError: a value that is not finite, not positive or a ``growth`` below 1.
+        TypeError: a value that is not a number.
 
     Shape:
         ``(Z,)``.
@@ -86,8 +91,8 @@ def depth_nodes(max_depth: float, *, first: float = FIRST_STEP, growth: float = 
 
 
 def solver_nodes(reported: np.ndarray, bottom: float) -> tuple[float, ...]:
-    """The reported nodes continued by spacings growing :data:`DEEP_GROWTH`-fold to ``bottom`` (the last
-    node, held at the body temperature)."""
+    """The reported nodes continued down to ``bottom``, the last node, which is held at the body
+    temperature; below the reported nodes each spacing grows by :data:`DEEP_GROWTH`."""
     nodes, step = list(reported), reported[-1] - reported[-2]
     while nodes[-1] < bottom:
         step *= DEEP_GROWTH
@@ -100,12 +105,12 @@ def solver_nodes(reported: np.ndarray, bottom: float) -> tuple[float, ...]:
 
 @lru_cache(maxsize=64)
 def depth_operator(nodes: tuple[float, ...], reported: int) -> dict[str, Tensor]:
-    """The depth operator on ``nodes`` (surface first, bottom last), diagonalised (float64, CPU).
+    """The depth operator on ``nodes``, surface first and bottom last, diagonalised: float64 on the CPU.
 
-    ``u_t = A u + f g`` on the interior nodes, ``A = D^-1 S`` (``D`` the nodes' half-spacing sums, ``S``
-    symmetric) ``= D^-1/2 Q diag(lambda) Q^T D^1/2``. Keys: ``lam`` ``(M,)`` (1/mm^2), ``forcing`` ``(M,)``
-    (the modal ``f``), ``to_nodes`` ``(reported - 1, M)`` (modes to the reported interior nodes), ``heat``
-    ``(M,)`` (modes to the trapezoid integral over depth, mm), ``surface_weight`` (the surface node's)."""
+    On the interior nodes ``u_t = A u + f g``, ``A = D^-1/2 Q diag(lambda) Q^T D^1/2``, ``g`` the surface.
+    Keys: ``lam`` ``(M,)``, the eigenvalues in 1/mm^2; ``forcing`` ``(M,)``, the modal ``f``; ``heat``
+    ``(M,)``, each mode's trapezoid integral over depth in mm; ``to_nodes`` ``(reported - 1, M)``, modes to
+    the reported interior nodes; ``surface_weight``, the surface node's trapezoid weight in mm."""
     z = np.asarray(nodes)
     h = np.diff(z)
     w = 0.5 * (h[:-1] + h[1:])
@@ -129,13 +134,12 @@ def depth_operator(nodes: tuple[float, ...], reported: int) -> dict[str, Tensor]
 
 @lru_cache(maxsize=64)
 def free_surface_operator(nodes: tuple[float, ...], beta: float) -> dict[str, Tensor]:
-    """The depth operator on ``nodes`` with the surface node free, losing ``a beta theta`` (``beta = h / k``,
-    1/mm: air), diagonalised (float64, CPU): the cooling after the switch-off, no source acting.
+    """The depth operator of the cooling after the switch-off, diagonalised: float64 on the CPU.
 
-    The surface node's half cell ``h_0 / 2`` balances the flux from below against the loss; interior nodes
-    as in :func:`depth_operator`, the bottom held at 0. Keys: ``lam`` ``(M,)`` (1/mm^2), ``to_modes``
-    ``(M, M)`` (node values, surface first, to modal coefficients), ``surface`` ``(M,)`` (modes to the
-    surface node)."""
+    No source acts: the surface node is free and loses ``a beta theta`` to the air, ``beta = h / k`` in
+    1/mm; interior nodes as in :func:`depth_operator`, the bottom held at 0. Keys: ``lam`` ``(M,)`` in
+    1/mm^2; ``to_modes`` ``(M, M)``, node values, surface first, to modal coefficients; ``surface``
+    ``(M,)``, modes to the surface node."""
     z = np.asarray(nodes)
     h = np.diff(z)
     w = np.concatenate([[0.5 * h[0]], 0.5 * (h[:-1] + h[1:])])
@@ -153,7 +157,7 @@ def free_surface_operator(nodes: tuple[float, ...], beta: float) -> dict[str, Te
 
 @lru_cache(maxsize=16)
 def dct_matrix(n: int) -> Tensor:
-    """Orthonormal DCT-II matrix ``(n, n)`` (float64, CPU): ``C[p, i] = s_p cos(pi p (i + 1/2) / n)``."""
+    """Orthonormal DCT-II matrix ``(n, n)``, float64 on the CPU: ``C[p, i] = s_p cos(pi p (i + 1/2) / n)``."""
     p, i = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
     c = np.cos(np.pi * p * (i + 0.5) / n) * math.sqrt(2.0 / n)
     c[0] /= math.sqrt(2.0)
@@ -165,11 +169,11 @@ def dct_matrix(n: int) -> Tensor:
 class ModalProblem:
     """One batch's forward problem in lateral modes, on the frames' device and dtype.
 
-    ``spectrum`` ``(B, T, K)``: the surface rise (K) in ``K`` lateral cosine modes; ``dt``, ``a``, ``b``
-    ``(B,)``; ``operator``: :func:`depth_operator`'s tensors; ``decay`` ``(B, K, M)``: ``-mu = a |k|^2 + b - a
-    lambda`` (1/s) of every lateral x depth mode; ``depths`` the reported nodes (mm) and ``step`` the
-    largest pixel (mm) when the modes are the frame's cosine modes (0 otherwise): a node at depth ``z`` then
-    takes the modes with ``|k| < MODE_REACH / z`` only (the others fall below ``exp(-MODE_REACH)`` there)."""
+    ``spectrum`` ``(B, T, K)``: the surface rise in K in ``K`` lateral cosine modes; ``dt``, ``a``, ``b``
+    ``(B,)`` in s, mm^2/s, 1/s; ``operator``: :func:`depth_operator`'s tensors; ``decay`` ``(B, K, M)``:
+    ``-mu = a |k|^2 + b - a lambda`` in 1/s of every lateral x depth mode; ``depths``: the reported nodes in
+    mm; ``step``: the largest pixel in mm when the modes are the frame's cosine modes, else 0, and a node at
+    depth ``z`` then takes only the modes with ``|k| < MODE_REACH / z``."""
 
     spectrum: Tensor
     dt: Tensor
@@ -184,8 +188,8 @@ class ModalProblem:
 def modal_problem(
     spectrum: Tensor, k2: Tensor, dt: Tensor, a: Tensor, b: Tensor, nodes: tuple, reported: int
 ) -> ModalProblem:
-    """:class:`ModalProblem` of the lateral modes ``spectrum`` ``(B, T, K)`` of squared wavenumbers ``k2``
-    ``(B, K)`` (1/mm^2) on the depth ``nodes``."""
+    """:class:`ModalProblem` of the lateral modes ``spectrum`` ``(B, T, K)`` with squared wavenumbers
+    ``k2`` ``(B, K)`` in 1/mm^2, on the depth ``nodes``."""
     operator = {
         k: v.to(device=spectrum.device, dtype=spectrum.dtype)
         for k, v in depth_operator(nodes, reported).items()
@@ -196,7 +200,7 @@ def modal_problem(
 
 
 def wavenumbers(h: int, w: int, dx: Tensor) -> Tensor:
-    """``|k|^2`` (1/mm^2) of the ``h x w`` frame's cosine modes, ``(B, H W)``."""
+    """``|k|^2`` in 1/mm^2 of the cosine modes of an ``h x w`` frame, ``(B, H W)`` for ``dx`` ``(B,)``."""
     like = {"device": dx.device, "dtype": dx.dtype}
     ky = (math.pi / h) * torch.arange(h, **like)[None, :] / dx[:, None]
     kx = (math.pi / w) * torch.arange(w, **like)[None, :] / dx[:, None]
@@ -220,8 +224,8 @@ def frame_problem(
     *,
     lateral: bool = True,
 ) -> ModalProblem:
-    """:class:`ModalProblem` of every cosine mode of the surface ``rise`` ``(B, T, H, W)`` (K); with
-    ``lateral=False`` every mode has ``k = 0``: each pixel's column on its own (per-pixel 1-D)."""
+    """:class:`ModalProblem` of every cosine mode of the surface rise ``rise`` ``(B, T, H, W)`` in K.
+    With ``lateral=False`` every mode has ``k = 0``: each pixel's column on its own, in 1-D."""
     ch, cw = dct_matrices(rise)
     spectrum = (ch @ rise @ cw.T).flatten(2)
     k2 = wavenumbers(*rise.shape[-2:], dx)
@@ -230,7 +234,7 @@ def frame_problem(
 
 
 def phi_functions(z: Tensor) -> tuple[Tensor, Tensor]:
-    """``phi_1(z) = (e^z - 1) / z`` and ``phi_2(z) = (e^z - 1 - z) / z^2`` for ``z <= 0`` (series near 0)."""
+    """``phi_1(z) = (e^z - 1) / z`` and ``phi_2(z) = (e^z - 1 - z) / z^2`` for ``z <= 0``; series near 0."""
     small = z.abs() < 1e-3
     safe = torch.where(small, -1.0, z)
     e = torch.expm1(safe)
@@ -240,11 +244,14 @@ def phi_functions(z: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def march(problem: ModalProblem, block: int) -> Iterator[tuple[int, Tensor]]:
-    """The modal states ``(B, L, K, M)`` at frames ``start .. start + L - 1``, block by block.
+    """The modal states of every frame, ``block`` frames at a time, stepped exactly between frames.
 
-    Each mode obeys ``w' = mu w + a f_m g(t)`` with ``g`` linear between frames; one frame's exact step is
+    Each mode obeys ``w' = mu w + a f_m g(t)`` with the surface ``g`` linear between frames:
     ``w <- e^(mu dt) w + a f_m dt ((phi_1 - phi_2) g_n + phi_2 g_(n+1))``. The first frame's state is the
-    steady one (``w = a f_m g_0 / (-mu)``): the tissue in equilibrium with the first frame.
+    steady one, ``w = a f_m g_0 / (-mu)``: the tissue in equilibrium with the first frame.
+
+    Yields:
+        ``(start, states)``: the states of frames ``start .. start + L - 1``, ``(B, L, K, M)``.
     """
     p = problem
     z = -p.decay * p.dt.view(-1, 1, 1)
@@ -268,10 +275,8 @@ def march(problem: ModalProblem, block: int) -> Iterator[tuple[int, Tensor]]:
 
 def state_at(problem: ModalProblem, last: Tensor, *, start: Tensor | None = None) -> Tensor:
     """The modal state ``(B, K, M)`` of :func:`march` at frame ``last`` ``(B,)`` of each video, in closed
-    form: ``w_N = E^N w_0 + old . sum_L E^L g_(N-1-L) + new . sum_L E^L g_(N-L)`` (no loop over frames).
-
-    ``start`` ``(B, K)``: the first frame's surface whose steady state is ``w_0`` (default the spectrum's
-    first frame)."""
+    form: ``w_N = E^N w_0 + old . sum_L E^L g_(N-1-L) + new . sum_L E^L g_(N-L)``. ``start`` ``(B, K)`` is
+    the first frame's surface whose steady state is ``w_0``; default the spectrum's first frame."""
     p = problem
     z = -p.decay * p.dt.view(-1, 1, 1)
     phi1, phi2 = phi_functions(z)
@@ -300,8 +305,9 @@ def state_at(problem: ModalProblem, last: Tensor, *, start: Tensor | None = None
 
 
 def node_temperatures(rise: Tensor, problem: ModalProblem, start: int, states: Tensor) -> Tensor:
-    """Rise (K) at the reported nodes, surface first, of a block of states of every cosine mode of
-    ``rise`` ``(B, T, H, W)``: ``(B, L, Z, H, W)`` (each node from the modes that reach it)."""
+    """Temperature rise in K at the reported nodes, surface first, ``(B, L, Z, H, W)``, from a block of
+    :func:`march` states of every cosine mode of ``rise`` ``(B, T, H, W)``; a node sums the modes that
+    reach it."""
     h, w = rise.shape[-2:]
     ch, cw = dct_matrices(rise)
     inner = torch.matmul(problem.operator["to_nodes"], states.transpose(-1, -2))  # (B, L, Z - 1, K)
@@ -319,8 +325,8 @@ modes with ``|k| z < MODE_REACH`` (the others below 1e-4 of their surface amplit
 
 @lru_cache(maxsize=64)
 def _bands(depths: tuple[float, ...], h: int, w: int, step: float) -> tuple[tuple[int, int, int, int], ...]:
-    """Groups of consecutive interior nodes ``[low, high)`` with the ``p x q`` lowest cosine modes they take
-    (all of them when ``step`` is 0)."""
+    """Groups ``[low, high)`` of consecutive interior nodes, each with the ``p x q`` lowest cosine modes
+    its nodes take; all of them when ``step`` is 0."""
     out: list[list[int]] = []
     for j, z in enumerate(depths):
         p, q = h, w
@@ -336,8 +342,13 @@ def _bands(depths: tuple[float, ...], h: int, w: int, step: float) -> tuple[tupl
 
 # ------------------------------------------------------------------------------------------ inputs
 def check_rate(value: object, name: str, unit: str, batch: int, like: Tensor, *, positive: bool) -> Tensor:
-    """A per-video rate (``a`` or ``b``, or a standard error) as ``(B,)`` on ``like``'s device and dtype;
-    gradients kept."""
+    """A per-video rate, ``a``, ``b`` or a standard error, as ``(B,)`` on ``like``'s device and dtype,
+    gradients kept.
+
+    Raises:
+        TypeError: not a number or tensor.
+        ValueError: not one value or ``(B,)``; not finite; not positive if ``positive``, else negative.
+    """
     if isinstance(value, Tensor):
         x = value.to(device=like.device, dtype=like.dtype).reshape(-1)
     else:
@@ -361,8 +372,15 @@ def check_rate(value: object, name: str, unit: str, batch: int, like: Tensor, *,
 def surface_rise(
     frames: object, dt: object, dx: object, units: str, body_temperature: object
 ) -> tuple[Tensor, bool, Tensor, Tensor, Tensor]:
-    """Checked inputs: the surface rise ``(B, T, H, W)`` over the body temperature (K), whether the input
-    was batched, ``dt`` and ``dx`` ``(B,)``, and the body temperature ``(B,)`` (C)."""
+    """The checked inputs of a depth solve: the surface rise over the body temperature in K
+    ``(B, T, H, W)``, whether the input was batched, ``dt`` in s and ``dx`` in mm ``(B,)``, and the body
+    temperature in C ``(B,)``.
+
+    Raises:
+        ValueError: bad shape, spacings or body temperature; under 2 frames; non-finite frames; units that
+            do not fit the values.
+        TypeError: frames not a real tensor or array, a body temperature not a number.
+    """
     video, batched = as_video(frames, min_frames=2)
     to_celsius(video, units)  # checks the unit against the values (float64 copy, discarded)
     if not bool(torch.isfinite(video.detach()).all()):
@@ -383,10 +401,13 @@ def surface_rise(
 
 
 def bottom_depth(thickness: object, deepest: float, a: Tensor, duration: float) -> float:
-    """The bottom node (mm): deep enough that no heat reaches it in the record (``7 sqrt(a t)`` below the
-    deepest reported node: an erfc tail under 1e-6), rounded up to whole mm so that a small change of ``a``
-    keeps the grid (and the gradient is the fixed grid's); a layer's ``thickness`` where it is shallower
-    (a deeper layer is, over the record, the half-space: the grid stops where the heat does)."""
+    """The bottom node in mm: ``7 sqrt(a t)`` below the deepest reported node, where no heat arrives over
+    the record ``t = duration``, rounded up to whole mm; a layer's ``thickness`` where that is shallower.
+
+    Raises:
+        ValueError: a ``thickness`` that is not positive or not deeper than ``deepest``.
+        TypeError: a ``thickness`` that is not a number.
+    """
     free = float(math.ceil(deepest + 7.0 * math.sqrt(float(a.detach().max()) * duration) + 0.1))
     if thickness is not None:
         thickness = number(thickness, "thickness", "mm", positive=True)
@@ -400,12 +421,8 @@ def bottom_depth(thickness: object, deepest: float, a: Tensor, duration: float) 
 
 # ------------------------------------------------------------------------------------------ heat input
 def heat_input(problem: ModalProblem) -> Tensor:
-    """Cumulative heat (K mm) that entered through the surface in each lateral mode, ``(B, T, K)``.
-
-    Over a frame interval it is ``a (eta lambda) . int w dt + a (eta . f) int g dt`` (``eta``: the modes'
-    depth integrals): the discrete scheme conserves heat exactly, the surface flux being ``a (g - u_1) /
-    z_1``. ``int w dt = (w_(n+1) - w_n - a f int g dt) / mu`` is exact for the exact step and ``int g dt``
-    the trapezoid, exact for ``g`` linear between frames."""
+    """Cumulative heat in K mm that entered through the surface in each lateral mode, ``(B, T, K)``, 0 at
+    the first frame."""
     p = problem
     a = p.a.view(-1, 1, 1)
     eta, lam, forcing = p.operator["heat"], p.operator["lam"], p.operator["forcing"]
