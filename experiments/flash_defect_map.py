@@ -16,11 +16,14 @@ plate's ``L^2 / a_z`` error; each true defect's depth fraction against the found
 most; what the diagnosis names (``depth_conduction``, ``delamination`` and where, effects with a gain
 ``<= 0`` or centred outside the frame) and which defects the map lists.
 
-Run: ``python -m experiments.flash_defect_map [--map-only] [--held-out] [--out DIR] [--plates 1,2,...]``;
-``--held-out`` runs :data:`HELD_OUT` (20 plates that break more of the map's assumptions) instead. With
+Run: ``python -m experiments.flash_defect_map [--map-only] [--held-out | --probes] [--out DIR]
+[--plates 1,2,...]``;
+``--held-out`` runs :data:`HELD_OUT` (20 plates that break more of the map's assumptions) instead,
+``--probes`` :data:`PROBES` (plates 1 and 2 taken apart, one defect at a time). With
 ``--map-only`` (the map that ``--maps`` writes, without the diagnosis) about 6 minutes on a loaded 2-core
-machine; with the diagnosis from 2 to more than 35 minutes a plate there. A plate whose result is in
-``DIR`` is not run again. It prints one line per plate and the Markdown table of docs/results/flash.md.
+machine; with the diagnosis 17-57 s a plate (two runs side by side on a 2-core machine). A plate whose
+result is in ``DIR`` is not run again. It prints one line per plate and the Markdown table of
+docs/results/flash.md.
 """
 
 from __future__ import annotations
@@ -187,6 +190,31 @@ frame, other cameras (pixel size 0.2-0.6 mm, frame count, noise), an isotropic p
 a plate thinner than any tuned one (0.6 mm: the back wall shows by 0.25 s)."""
 
 
+_TRIANGLE = _polygon(0.2, (3.0, 3.0), (10.0, 4.0), (5.0, 10.0))  # plate 1's shallow defect, 23.5 mm^2
+
+PROBES: dict[str, dict] = {
+    "1.0 mm, intact (plate 1 without its defects)": dict(thickness=1.0, duration=4.0, seed=1),
+    "1.0 mm, plate 1's triangle d/L 0.2 alone": dict(
+        thickness=1.0, duration=4.0, defects=(_TRIANGLE,), seed=1
+    ),
+    "1.0 mm, a disc of the triangle's area at its centroid, d/L 0.2": dict(
+        thickness=1.0,
+        duration=4.0,
+        defects=(_ellipse(6.0, 17.0 / 3.0, math.sqrt(23.5 / math.pi), math.sqrt(23.5 / math.pi), 0.2),),
+        seed=1,
+    ),
+    "1.0 mm, plate 1's ellipse d/L 0.8 alone": dict(
+        thickness=1.0, duration=4.0, defects=(_ellipse(14.0, 13.5, 3.5, 3.0, 0.8),), seed=1
+    ),
+    "1.3 mm, plate 2's ellipse d/L 0.67 inside the frame": dict(
+        thickness=1.3, duration=3.8, defects=(_ellipse(9.6, 9.6, 5.0, 3.0, 0.87, 20.0),), seed=2
+    ),
+}
+"""Plates 1 and 2 taken apart (``--probes``; each simulated with its parent plate's seed): which of their
+defects breaks the diagnosis, and whether a defect running out of the frame is what gives plate 2's
+delamination a negative gain."""
+
+
 def auc(scores: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """ROC AUC of each row of ``scores`` ``(K, P)`` against ``truth`` ``(P,)`` (ties share their rank)."""
     positives, negatives = int(truth.sum()), int((~truth).sum())
@@ -269,8 +297,10 @@ def _maps_only(path: Path, maps_path: Path) -> dict:
 def evaluate(name: str, case: dict, out: Path, seed: int, *, diagnose: bool = True) -> dict:
     """Simulate one plate, run ``anra diagnose --maps`` (or only its map), score the maps."""
     path, maps_path = out / f"plate{seed}.npz", out / f"plate{seed}_maps.npz"
+    case = dict(case)
+    simulated = case.pop("seed", seed)  # a probe is simulated with its parent plate's seed
     plate = reference_plate_video(
-        PlateSetup(**{"shape": SHAPE, "dx": DX, "n_frames": FRAMES, **case}, seed=seed)
+        PlateSetup(**{"shape": SHAPE, "dx": DX, "n_frames": FRAMES, **case}, seed=simulated)
     )
     np.savez(path, frames=plate.frames.numpy(), dt=plate.dt, dx=plate.dx)
     start = time.perf_counter()
@@ -349,11 +379,13 @@ HEADER = (
 )
 
 
-def run(out: Path, chosen: list[int], *, diagnose: bool = True, held_out: bool = False) -> list[dict]:
-    """Evaluate the chosen plates (1-based) of :data:`PLATES` or :data:`HELD_OUT`, reusing results already
-    in ``out``; return every result."""
+def run(
+    out: Path, chosen: list[int], *, diagnose: bool = True, held_out: bool = False, probes: bool = False
+) -> list[dict]:
+    """Evaluate the chosen plates (1-based) of :data:`PLATES`, :data:`HELD_OUT` or :data:`PROBES`, reusing
+    results already in ``out``; return every result."""
     results = []
-    plates, first = (HELD_OUT, 21) if held_out else (PLATES, 1)
+    plates, first = (PROBES, 41) if probes else (HELD_OUT, 21) if held_out else (PLATES, 1)
     for index, (name, case) in enumerate(plates.items(), 1):
         cached = out / f"plate{index + first - 1}.json"
         if index in chosen and not cached.is_file():
@@ -421,20 +453,25 @@ def cli() -> None:
     parser.add_argument(
         "--map-only",
         action="store_true",
-        help="only the map (flash_maps, what --maps writes), not the diagnosis: minutes instead of an hour",
+        help="only the map (flash_maps, what --maps writes), not the diagnosis",
     )
     parser.add_argument(
         "--held-out",
         action="store_true",
         help="the plates of HELD_OUT (seeds 21-40: other cameras, flashes and defects) instead of PLATES",
     )
+    parser.add_argument(
+        "--probes",
+        action="store_true",
+        help="the plates of PROBES (plates 1 and 2 taken apart, one defect at a time) instead of PLATES",
+    )
     args = parser.parse_args()
-    count = len(HELD_OUT if args.held_out else PLATES)
+    count = len(PROBES if args.probes else HELD_OUT if args.held_out else PLATES)
     chosen = list(range(1, count + 1)) if args.plates is None else [int(p) for p in args.plates.split(",")]
     with contextlib.ExitStack() as stack:
         out = args.out or Path(stack.enter_context(tempfile.TemporaryDirectory()))
         out.mkdir(parents=True, exist_ok=True)
-        results = run(out, chosen, diagnose=not args.map_only, held_out=args.held_out)
+        results = run(out, chosen, diagnose=not args.map_only, held_out=args.held_out, probes=args.probes)
         print("\n".join(summary(results)))
 
 
