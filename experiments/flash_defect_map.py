@@ -61,14 +61,30 @@ def _polygon(depth: float, *vertices: tuple[float, float]) -> Defect:
     return Defect("polygon", vertices=vertices, depth=depth)
 
 
+def _equal_area_disc(polygon: Defect) -> Defect:
+    """The disc of ``polygon``'s area at its centroid, at its depth (shoelace formulas)."""
+    x, y = np.array(polygon.vertices).T
+    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+    area = 0.5 * cross.sum()
+    cx, cy = (
+        ((x + np.roll(x, -1)) * cross).sum() / (6 * area),
+        ((y + np.roll(y, -1)) * cross).sum() / (6 * area),
+    )
+    radius = math.sqrt(abs(area) / math.pi)
+    return _ellipse(float(cx), float(cy), radius, radius, polygon.depth)
+
+
+_TRIANGLE = _polygon(0.2, (3.0, 3.0), (10.0, 4.0), (5.0, 10.0))  # plate 1's shallow defect
+_DEEP_ELLIPSE = _ellipse(14.0, 13.5, 3.5, 3.0, 0.8)  # plate 1's deep defect
+_PLATE2 = dict(thickness=1.3, duration=3.8)
+_PLATE2_ELLIPSE = dict(a=5.0, b=3.0, depth=0.87, angle=20.0)
+
 PLATES: dict[str, dict] = {
     "1.0 mm, triangle d/L 0.2 + ellipse 0.8, to 1.8 L^2/a_z": dict(
-        thickness=1.0,
-        duration=4.0,
-        defects=(_polygon(0.2, (3.0, 3.0), (10.0, 4.0), (5.0, 10.0)), _ellipse(14.0, 13.5, 3.5, 3.0, 0.8)),
+        thickness=1.0, duration=4.0, defects=(_TRIANGLE, _DEEP_ELLIPSE)
     ),
     "1.3 mm, ellipse d/L 0.67 out of the frame": dict(
-        thickness=1.3, duration=3.8, defects=(_ellipse(17.5, 8.0, 5.0, 3.0, 0.87, 20.0),)
+        **_PLATE2, defects=(_ellipse(17.5, 8.0, **_PLATE2_ELLIPSE),)
     ),
     "2.0 mm, rotated rectangle d/L 0.5": dict(
         thickness=2.0, duration=8.0, defects=(_rectangle(10.0, 9.5, 4.0, 2.5, 1.0, 30.0),)
@@ -190,24 +206,17 @@ frame, other cameras (pixel size 0.2-0.6 mm, frame count, noise), an isotropic p
 a plate thinner than any tuned one (0.6 mm: the back wall shows by 0.25 s)."""
 
 
-_TRIANGLE = _polygon(0.2, (3.0, 3.0), (10.0, 4.0), (5.0, 10.0))  # plate 1's shallow defect, 23.5 mm^2
+_PLATE1 = dict(thickness=1.0, duration=4.0, seed=1)
 
 PROBES: dict[str, dict] = {
-    "1.0 mm, intact (plate 1 without its defects)": dict(thickness=1.0, duration=4.0, seed=1),
-    "1.0 mm, plate 1's triangle d/L 0.2 alone": dict(
-        thickness=1.0, duration=4.0, defects=(_TRIANGLE,), seed=1
-    ),
+    "1.0 mm, intact (plate 1 without its defects)": dict(_PLATE1),
+    "1.0 mm, plate 1's triangle d/L 0.2 alone": dict(_PLATE1, defects=(_TRIANGLE,)),
     "1.0 mm, a disc of the triangle's area at its centroid, d/L 0.2": dict(
-        thickness=1.0,
-        duration=4.0,
-        defects=(_ellipse(6.0, 17.0 / 3.0, math.sqrt(23.5 / math.pi), math.sqrt(23.5 / math.pi), 0.2),),
-        seed=1,
+        _PLATE1, defects=(_equal_area_disc(_TRIANGLE),)
     ),
-    "1.0 mm, plate 1's ellipse d/L 0.8 alone": dict(
-        thickness=1.0, duration=4.0, defects=(_ellipse(14.0, 13.5, 3.5, 3.0, 0.8),), seed=1
-    ),
+    "1.0 mm, plate 1's ellipse d/L 0.8 alone": dict(_PLATE1, defects=(_DEEP_ELLIPSE,)),
     "1.3 mm, plate 2's ellipse d/L 0.67 inside the frame": dict(
-        thickness=1.3, duration=3.8, defects=(_ellipse(9.6, 9.6, 5.0, 3.0, 0.87, 20.0),), seed=2
+        **_PLATE2, defects=(_ellipse(9.6, 9.6, **_PLATE2_ELLIPSE),), seed=2
     ),
 }
 """Plates 1 and 2 taken apart (``--probes``; each simulated with its parent plate's seed): which of their
@@ -455,12 +464,13 @@ def cli() -> None:
         action="store_true",
         help="only the map (flash_maps, what --maps writes), not the diagnosis",
     )
-    parser.add_argument(
+    sets = parser.add_mutually_exclusive_group()
+    sets.add_argument(
         "--held-out",
         action="store_true",
         help="the plates of HELD_OUT (seeds 21-40: other cameras, flashes and defects) instead of PLATES",
     )
-    parser.add_argument(
+    sets.add_argument(
         "--probes",
         action="store_true",
         help="the plates of PROBES (plates 1 and 2 taken apart, one defect at a time) instead of PLATES",
