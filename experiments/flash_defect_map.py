@@ -16,10 +16,11 @@ plate's ``L^2 / a_z`` error; each true defect's depth fraction against the found
 most; what the diagnosis names (``depth_conduction``, ``delamination`` and where, effects with a gain
 ``<= 0`` or centred outside the frame) and which defects the map lists.
 
-Run: ``python -m experiments.flash_defect_map [--map-only] [--held-out | --probes] [--out DIR]
+Run: ``python -m experiments.flash_defect_map [--map-only] [--held-out | --probes] [--layered] [--out DIR]
 [--plates 1,2,...]``;
 ``--held-out`` runs :data:`HELD_OUT` (20 plates that break more of the map's assumptions) instead,
-``--probes`` :data:`PROBES` (plates 1 and 2 taken apart, one defect at a time). With
+``--probes`` :data:`PROBES` (plates 1 and 2 taken apart, one defect at a time); ``--layered`` runs the
+diagnosis with ``--layered`` (its forecasts through the plate's thickness). With
 ``--map-only`` (the map that ``--maps`` writes, without the diagnosis) about 6 minutes on a loaded 2-core
 machine; with the diagnosis 17-57 s a plate (two runs side by side on a 2-core machine). A plate whose
 result is in ``DIR`` is not run again. It prints one line per plate and the Markdown table of
@@ -268,6 +269,7 @@ def _named(diagnosis: dict, truth: np.ndarray, dx: float) -> dict:
     effects = diagnosis.get("effects", [])
     if effects is None:
         return {
+            "gain": None,
             "depth_conduction": None,
             "delamination_over_defect": [],
             "bad_effects": [],
@@ -287,6 +289,7 @@ def _named(diagnosis: dict, truth: np.ndarray, dx: float) -> dict:
             if e["name"] == "delamination":
                 delaminations.append(bool(inside and truth[row, col]))
     return {
+        "gain": diagnosis.get("gain"),
         "depth_conduction": any(e["name"] == "depth_conduction" for e in effects),
         "delamination_over_defect": delaminations,
         "bad_effects": bad,
@@ -303,7 +306,9 @@ def _maps_only(path: Path, maps_path: Path) -> dict:
     return {"defect_map": maps.record(), "effects": None}
 
 
-def evaluate(name: str, case: dict, out: Path, seed: int, *, diagnose: bool = True) -> dict:
+def evaluate(
+    name: str, case: dict, out: Path, seed: int, *, diagnose: bool = True, layered: bool = False
+) -> dict:
     """Simulate one plate, run ``anra diagnose --maps`` (or only its map), score the maps."""
     path, maps_path = out / f"plate{seed}.npz", out / f"plate{seed}_maps.npz"
     case = dict(case)
@@ -314,7 +319,8 @@ def evaluate(name: str, case: dict, out: Path, seed: int, *, diagnose: bool = Tr
     np.savez(path, frames=plate.frames.numpy(), dt=plate.dt, dx=plate.dx)
     start = time.perf_counter()
     if diagnose:
-        diagnosis = _run(["diagnose", str(path), "--json", "--maps", str(maps_path)])
+        argv = ["diagnose", str(path), "--json", "--maps", str(maps_path)]
+        diagnosis = _run(argv + (["--layered"] if layered else []))
     else:
         diagnosis = _maps_only(path, maps_path)
     seconds = time.perf_counter() - start
@@ -362,6 +368,8 @@ def _line(r: dict) -> str:
         return f"| {r['name']} | error: {r['error']} |"
     d = r["diagnosis"]
     names = ", ".join(d["names"]) or "none"
+    if d.get("gain") is not None:
+        names += f" (gain {d['gain']:.2f})"
     bad = "; ".join(d["bad_effects"]) or "none"
     wall = "yes" if r["back_wall_in_recording"] else "no"
     plate = f"{100 * r['plate_time_error']:+.1f} % ({'reached' if r['back_wall_reached'] else 'not reached'})"
@@ -389,7 +397,13 @@ HEADER = (
 
 
 def run(
-    out: Path, chosen: list[int], *, diagnose: bool = True, held_out: bool = False, probes: bool = False
+    out: Path,
+    chosen: list[int],
+    *,
+    diagnose: bool = True,
+    held_out: bool = False,
+    probes: bool = False,
+    layered: bool = False,
 ) -> list[dict]:
     """Evaluate the chosen plates (1-based) of :data:`PLATES`, :data:`HELD_OUT` or :data:`PROBES`, reusing
     results already in ``out``; return every result."""
@@ -398,7 +412,7 @@ def run(
     for index, (name, case) in enumerate(plates.items(), 1):
         cached = out / f"plate{index + first - 1}.json"
         if index in chosen and not cached.is_file():
-            result = evaluate(name, case, out, index + first - 1, diagnose=diagnose)
+            result = evaluate(name, case, out, index + first - 1, diagnose=diagnose, layered=layered)
             cached.write_text(json.dumps(result))
             print(_line(result), flush=True)
         if cached.is_file():
@@ -475,13 +489,25 @@ def cli() -> None:
         action="store_true",
         help="the plates of PROBES (plates 1 and 2 taken apart, one defect at a time) instead of PLATES",
     )
+    parser.add_argument(
+        "--layered",
+        action="store_true",
+        help="run anra diagnose with --layered (the plate forecast through its thickness)",
+    )
     args = parser.parse_args()
     count = len(PROBES if args.probes else HELD_OUT if args.held_out else PLATES)
     chosen = list(range(1, count + 1)) if args.plates is None else [int(p) for p in args.plates.split(",")]
     with contextlib.ExitStack() as stack:
         out = args.out or Path(stack.enter_context(tempfile.TemporaryDirectory()))
         out.mkdir(parents=True, exist_ok=True)
-        results = run(out, chosen, diagnose=not args.map_only, held_out=args.held_out, probes=args.probes)
+        results = run(
+            out,
+            chosen,
+            diagnose=not args.map_only,
+            held_out=args.held_out,
+            probes=args.probes,
+            layered=args.layered,
+        )
         print("\n".join(summary(results)))
 
 

@@ -112,6 +112,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="also fit a stationary source map dT/dt = a Lap T - b T + q(x, y) on the same frames (a "
         "measured beam that is not a Gaussian spot) and report its forecast RMSE and gain ('source_map')",
     )
+    _add_flash_arguments(parser)
+    parser.set_defaults(run=run)
+
+
+def _add_flash_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--maps`` and ``--layered``: a flash recording's defect map and its plate's layered forecast."""
     parser.add_argument(
         "--maps",
         metavar="FILE",
@@ -121,7 +127,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "'defect_map' (the plate's L^2/a_z, the defects), the report flash.md; the diagnosis looks for a "
         "delamination at the map's defects only",
     )
-    parser.set_defaults(run=run)
+    parser.add_argument(
+        "--layered",
+        action="store_true",
+        help="with --maps: forecast the plate on layers through its thickness (the diffusion into depth and "
+        "a delamination's face resolved) instead of by its surface alone; an experimental option, measured "
+        "on docs/results/flash.md",
+    )
 
 
 def _print_decimated(d: dict[str, Any]) -> None:
@@ -149,15 +161,22 @@ def _write_reports(folder: Any, recording: Video, done: Any, maps: Any) -> list[
     return written
 
 
+def _check_options(args: argparse.Namespace) -> None:
+    """The options that need no video: the fit fraction, the outputs, ``--layered`` with ``--maps``."""
+    if not 0 < args.fit_fraction < 1:
+        raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
+    if args.report is not None:
+        check_output(args.report, [args.video], name="--report", folder=True)
+    if args.maps is not None:
+        check_output(args.maps, [args.video], name="--maps")
+    elif args.layered:
+        raise ValueError("--layered needs --maps FILE (the flash map's plate), got no --maps")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``anra diagnose`` with the parsed ``args``; returns the exit status (0 ok, 2 error)."""
     try:
-        if not 0 < args.fit_fraction < 1:
-            raise ValueError(f"--fit-fraction must be in (0, 1), got {args.fit_fraction:g}")
-        if args.report is not None:
-            check_output(args.report, [args.video], name="--report", folder=True)
-        if args.maps is not None:
-            check_output(args.maps, [args.video], name="--maps")
+        _check_options(args)
         recording, decimated = open_for_diagnosis(
             args.video,
             dt=args.dt,
@@ -176,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
             assimilate=args.assimilate,
             source_map=args.source_map,
             decimated=decimated,
-            hints=None if maps is None else flash_hints(maps.defects),
+            hints=None if maps is None else flash_hints(maps.defects, layered=args.layered),
         )
         summary = done.to_record()
     except (ValueError, TypeError, OSError) as err:

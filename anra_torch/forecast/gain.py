@@ -38,6 +38,7 @@ from anra_torch.forecast.core import (
     split_index,
     time_average,
 )
+from anra_torch.forecast.layered import layered_forecast, layered_plate
 from anra_torch.selection import Diagnosis, diagnose_terms
 
 __all__ = ["GainResult", "assess_gain"]
@@ -171,6 +172,11 @@ class _Forecasts:
         diagnosis, dt, dx = self.diagnosis, self.dt, self.dx
         fit_duration = self.split * dt
         names = {effect.name for effect in chosen}
+        plate = layered_plate(diagnosis, names)
+        if plate is not None:
+            return layered_forecast(
+                self.video, self.split, dt, dx, plate, assimilated=self.assimilated, forcing=self.forcing
+            )
 
         def step(frame: int, state: Tensor) -> Tensor:  # one frame ahead from frame ``frame``
             retimed = extended_effects(diagnosis, fit_duration=fit_duration, start=frame * dt, duration=dt)

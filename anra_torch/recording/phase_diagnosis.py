@@ -119,15 +119,18 @@ def diagnose_recording(
     return out
 
 
-def flash_hints(defects: DefectMap) -> dict[str, Any]:
+def flash_hints(defects: DefectMap, *, layered: bool = False) -> dict[str, Any]:
     """The diagnosis' hints (:func:`~anra_torch.selection.diagnose_terms`) from a flash recording's defect
     map: the depth term held at the map's plate ``{"T_ref", "plate_time", "t_heat"}`` (the temperature
     before the flash, ``L^2 / a_z`` in s, the flash's time before the first frame in s); a delamination
     looked for at the map's defects only (where the cooling says the heat stops early), each a region
     ``{"x", "y", "radius", "depth_fraction", "plate_time"}`` (its centroid and the radius of its area's
     disc in mm, its ``d / L``, the map's ``L^2 / a_z`` in s); a map without a defect rules the
-    delamination out."""
+    delamination out. ``layered``: the plate's forecasts resolved through its thickness
+    (:mod:`anra_torch.forecast.layered`; the plate's ``"layered"`` 1.0)."""
     plate = {"T_ref": defects.t_ref, "plate_time": defects.plate_time, "t_heat": -defects.first_time}
+    if layered:
+        plate["layered"] = 1.0
     regions = tuple(
         {
             "x": d.x,
