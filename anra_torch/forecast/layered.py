@@ -52,16 +52,16 @@ __all__ = [
 
 LAYERS = (0.004, 1.2, 0.08)
 """The layers through the thickness, as shares of it: the top one's, the growth from one to the next, the
-thickest (30 layers; the profile 0.07 s after the flash on a 1 mm plate at 0.45 mm^2/s spans about 10)."""
+thickest (24 layers, :func:`depth_faces`; the profile 0.07 s after the flash on a 1 mm plate at 0.45 mm^2/s
+spans about 10)."""
 
 _F64 = torch.float64
 _STABLE = 0.8  # an explicit lateral step's share of its stability limit
 SETTLED = 4.0
 """The run starts at the first frame this many times as long after the flash as the first: the earliest
 frames, where the profile through the thickness is steepest, are the least like the plate's model (a camera's
-flash and afterglow; on the independent plate its top cells: at 1.5 frame periods after the flash the surface
-read 34 % above the plate's profile, 1 % at 6; started there the forecast of an intact 1.3 mm plate missed by
-0.0006 K, started from 1.5 by 0.012 K)."""
+flash and afterglow; the independent plate's top cells, whose extrapolated surface is far above the plate's
+profile in its first frames)."""
 ASSIMILATED = 10
 """The most frames before the split assimilated: the run from the flash is scaled at the split by each pixel's
 mean ratio of the measured surface to the model's over them (the white noise averaged, the profile through the
@@ -202,6 +202,7 @@ class _Layers:
         self.substeps = max(1, math.ceil(dt * fastest / _STABLE))
         h = dt / self.substeps
         self.intact = torch.linalg.matrix_exp(_depth_operator(self.faces, plate.plate_time, None) * h)
+        self.last: tuple[int, Tensor] | None = None
         self.cut = None
         if self.fraction is not None:
             self.cut = torch.linalg.matrix_exp(
@@ -226,8 +227,8 @@ class _Layers:
         """The layers at frame ``k + 1`` from those at frame ``k``; the edge ring follows the frames."""
         h = self.dt / self.substeps
         elapsed = -self.plate.t_heat + k * self.dt
-        start = self.profiles(elapsed) * self.frames[k][None]  # the ring's layers at both frames
-        end = self.profiles(elapsed + self.dt) * self.frames[k + 1][None]
+        start = self._ring(k, elapsed)  # the ring's layers at both frames
+        end = self._ring(k + 1, elapsed + self.dt)
         t_ref = self.plate.t_ref
         for s in range(self.substeps):
             t = torch.tensor(k * self.dt + s * h, dtype=_F64, device="cpu")
@@ -240,6 +241,13 @@ class _Layers:
             w = (s + 1) / self.substeps
             state = _edges(state + h * rhs, (1 - w) * start + w * end)
         return state
+
+    def _ring(self, k: int, elapsed: float) -> Tensor:
+        """Frame ``k``'s surface times the profiles at ``elapsed`` s, ``(layers, H, W)``; the last one kept
+        (a frame's end is the next frame's start)."""
+        if self.last is None or self.last[0] != k:
+            self.last = (k, self.profiles(elapsed) * self.frames[k][None])
+        return self.last[1]
 
     def into_depth(self, state: Tensor, intact: Tensor) -> Tensor:
         """One step of the diffusion into depth: ``intact``, the intact plate's, blended over a defect with
