@@ -39,6 +39,7 @@ __all__ = [
 ]
 
 _TERMS = 8  # each series' terms on its side of t = tau / 4: the first left out is below exp(-39)
+_TIES = 1e-12  # rss within this share of its row's range of the minimum: equal to rounding (refine_minimum)
 
 
 def log_surface(elapsed: Tensor, tau: Tensor) -> Tensor:
@@ -119,6 +120,11 @@ def refine_minimum(rss: Tensor, taus: Tensor) -> tuple[Tensor, Tensor]:
     """
     k = rss.argmin(1)
     points = rss.shape[1] - 1
+    # a half-space's row is flat at the grid's top to rounding (its terms cancel to ~1e-14 of its range, and
+    # which point is lowest then depends on the machine's summation order): within _TIES of the row's range
+    # of its minimum, the half-space is the minimum
+    low = rss.gather(1, k[:, None])[:, 0]
+    k = torch.where(rss[:, -1] <= low + _TIES * (rss.amax(1) - low), torch.full_like(k, points), k)
     log_taus = torch.log(taus[:-1])
     step = log_taus[1] - log_taus[0]
     kk = k.clamp(1, points - 2)
