@@ -4,33 +4,40 @@ cache on disk that the xdist workers share for results several tests compute ali
 
 from __future__ import annotations
 
-import hashlib
 import os
-import pickle
-import re
-from collections.abc import Callable, Sequence
-from pathlib import Path
-from typing import Any
 
-import numpy as np
-import pytest
-import torch
-from filelock import FileLock
-
-import anra_torch.cli.diagnose as diagnose_command
-from anra_torch.cli import main
-from anra_torch.effects import HiddenEffectVideo, hidden_effect_video
-from anra_torch.simulation.synthetic import paper_video
-from anra_torch.video import save_npz
-
-if "PYTEST_XDIST_WORKER_COUNT" in os.environ:
-    # Under `pytest -n N` each worker gets its share of the cores: torch's default (all cores per worker)
-    # oversubscribes them, and its OpenMP kernels (e.g. reflect padding) then spin for ~10 ms per call.
-    _THREADS = max(1, (os.cpu_count() or 1) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"]))
-    torch.set_num_threads(_THREADS)
-    # The same share for the processes tests start (examples, entry points): unset, each took all cores
-    # beside the other worker and spun (the example and entry-point tests: 59 CPU-s, 24 with one thread).
+_WORKERS = os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+_THREADS = max(1, (os.cpu_count() or 1) // int(_WORKERS)) if _WORKERS else None
+if _THREADS is not None:
+    # Under `pytest -n N` each worker gets its share of the cores, set before NumPy and torch load: NumPy's
+    # OpenBLAS reads OMP_NUM_THREADS only then, and with all cores per worker its threads spin beside the
+    # other worker (the reference plates' solves: a 48 px flash plate 22 CPU-s, 7 with one thread). The
+    # processes tests start (examples, entry points) inherit it: unset, each took all cores and spun (59
+    # CPU-s, 24 with one thread).
     os.environ.setdefault("OMP_NUM_THREADS", str(_THREADS))
+
+import hashlib  # noqa: E402 - after the thread share above, which NumPy's BLAS reads as it loads
+import pickle  # noqa: E402
+import re  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+from filelock import FileLock  # noqa: E402
+
+import anra_torch.cli.diagnose as diagnose_command  # noqa: E402
+from anra_torch.cli import main  # noqa: E402
+from anra_torch.effects import HiddenEffectVideo, hidden_effect_video  # noqa: E402
+from anra_torch.simulation.synthetic import paper_video  # noqa: E402
+from anra_torch.video import save_npz  # noqa: E402
+
+if _THREADS is not None:
+    # torch's default (all cores per worker) oversubscribes them too, and its OpenMP kernels (e.g. reflect
+    # padding) then spin for ~10 ms per call.
+    torch.set_num_threads(_THREADS)
 
 TOLERANCES = {torch.float32: 1e-4, torch.float64: 1e-10}
 """Relative tolerance for results that are exact up to rounding, per dtype."""
