@@ -10,8 +10,10 @@ layers through the thickness, in the depth ``zeta = z / L`` where the diffusion 
 ``(1 / (L^2 / a_z)) d^2 T / d zeta^2`` (front-face data fix only ``L^2 / a_z``, and nothing else is
 needed): the layers graded from the surface (:data:`LAYERS`), the diffusion into depth stepped exactly
 (the layers' propagator), each layer taking the lateral diffusion (the anisotropy when named, else the
-isotropic ``a``) and the other named terms; a delamination is a face at its ``d / L`` through which
-``strength`` of the heat does not pass over its disc.
+isotropic ``a``) and the other named terms; a delamination is a face at its ``d / L`` over its disc, passing
+a share of the intact conductance that the layers fit themselves (:func:`fitted_face`: the share of
+:data:`PASSED` whose run forecasts the last frames before the split best; the balance's strength, a share of
+the plate's rate, said 0.5-0.83 of a rate for defects that pass no heat).
 
 The run starts from a frame :data:`SETTLED` times as long after the flash as the first, each pixel at the
 plate's (over a defect the layer's) profile through the thickness at that time, scaled to the measured
@@ -29,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 import torch.nn.functional as nnf
@@ -44,7 +46,10 @@ __all__ = [
     "LAYERS",
     "SETTLED",
     "LayeredPlate",
+    "FACE_SPLIT",
+    "PASSED",
     "depth_faces",
+    "fitted_face",
     "layered_forecast",
     "layered_plate",
     "surface",
@@ -56,7 +61,15 @@ thickest (24 layers, :func:`depth_faces`; the profile 0.07 s after the flash on 
 spans about 10)."""
 
 _F64 = torch.float64
+PASSED = (0.0, 0.03, 0.1, 0.3)
+"""The shares of the intact conductance a defect's face may pass (:func:`fitted_face`), graded towards none: a
+delamination's gap passes little heat, and the forecast's error grows fastest as the face begins to pass
+some. The balance's ``strength`` is a share of the plate's rate, not of the face's conductance, and is not
+used."""
+FACE_SPLIT = 0.8
+"""The share of the frames before the split from which :func:`fitted_face` forecasts the rest."""
 _STABLE = 0.8  # an explicit lateral step's share of its stability limit
+_LEVELS = 16  # a defect face's share of the heat it stops, in steps of 1/16 (one propagator a step)
 SETTLED = 4.0
 """The run starts at the first frame this many times as long after the flash as the first: the earliest
 frames, where the profile through the thickness is steepest, are the least like the plate's model (a camera's
@@ -78,7 +91,8 @@ class LayeredPlate:
         plate_time: ``L^2 / a_z`` in s.
         t_heat: the flash's time relative to the first frame in s (< 0).
         t_ref: the temperature before the flash (data units).
-        defect: the delamination's ``(x, y, radius, d / L, strength)`` (mm, mm, mm, 1, 1), or None.
+        defect: the delamination's ``(x, y, radius, d / L, strength)`` (mm, mm, mm, 1, 1; ``strength`` the
+            share of the intact conductance its face stops), or None.
         others: the model's other effects, each acting on every layer.
     """
 
@@ -139,7 +153,8 @@ def layered_forecast(
         split: the last frame the forecast knows.
         dt: frame period in s.
         dx: pixel size in mm.
-        plate: from :func:`layered_plate`.
+        plate: from :func:`layered_plate`; a defect's face as :func:`fitted_face` fits it to the frames up to
+            the split.
         assimilated: the last frames up to the split assimilated into the state (at most
             :data:`ASSIMILATED`): each pixel's layers are scaled at the split by the mean ratio of the
             measured surface to the model's over them.
@@ -151,6 +166,62 @@ def layered_forecast(
     Raises:
         ValueError: lateral diffusivities that are not positive (definite): the model cannot be simulated.
     """
+    return _run(video, split, dt, dx, fitted_face(video[: split + 1], dt, dx, plate), assimilated, forcing)
+
+
+def fitted_face(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> LayeredPlate:
+    """``plate`` with its defect's face passing the share of :data:`PASSED` whose run forecasts best the
+    last ``1 -`` :data:`FACE_SPLIT` of ``frames`` ``(T, H, W)`` from the frames before them (RMSE over the
+    defect's neighbourhood: its disc and the lateral diffusion length over the frames around it, the ring
+    following the frames; no stationary heat input); ``plate`` itself where it has no defect or too few
+    frames."""
+    if plate.defect is None:
+        return plate
+    split = frames.shape[0] - 1
+    inner = round(FACE_SPLIT * split)
+    if inner - _begin(-plate.t_heat, dt, inner) < 2:
+        return plate
+    x, y, radius, fraction, _ = plate.defect
+    reach = radius + math.sqrt(max(plate.lateral[:2]) * split * dt) + 2 * dx
+    # the other terms are placed on the whole frame: only a plate without them is forecast on a crop
+    rows, cols = (slice(0, None), slice(0, None)) if plate.others else _around(x, y, reach, frames.shape, dx)
+    part = frames[:, rows, cols]
+    moved = (x - (cols.start or 0) * dx, y - (rows.start or 0) * dx, radius, fraction)
+    truth = part[inner + 1 :, 1:-1, 1:-1].to(_F64)
+
+    def misfit(passed: float) -> float:
+        model = replace(plate, defect=(*moved, 1.0 - passed))
+        run = _run(part, inner, dt, dx, model, ASSIMILATED, None)[:, 1:-1, 1:-1]
+        return float((run - truth).pow(2).mean())
+
+    best = min(PASSED, key=misfit)
+    return replace(plate, defect=(x, y, radius, fraction, 1.0 - best))
+
+
+def _around(x: float, y: float, reach: float, shape: torch.Size, dx: float) -> tuple[slice, slice]:
+    """The rows and columns of frames ``shape`` ``(T, H, W)`` within ``reach`` mm of ``(x, y)`` mm (at least 5
+    px each way where the frame has them)."""
+
+    def span(centre: float, size: int) -> slice:
+        low = max(0, math.floor((centre - reach) / dx))
+        high = min(size, math.ceil((centre + reach) / dx))
+        if high - low < 5:
+            low, high = max(0, min(low, size - 5)), min(size, max(high, low + 5))
+        return slice(low, high)
+
+    return span(y, int(shape[1])), span(x, int(shape[2]))
+
+
+def _run(
+    video: Tensor,
+    split: int,
+    dt: float,
+    dx: float,
+    plate: LayeredPlate,
+    assimilated: int,
+    forcing: Tensor | None,
+) -> Tensor:
+    """:func:`layered_forecast` with ``plate``'s face as it is."""
     a_x, a_y, a_xy = plate.lateral
     if not (a_x > 0 and a_y > 0 and a_x * a_y > a_xy**2):
         raise ValueError(
@@ -203,11 +274,7 @@ class _Layers:
         h = dt / self.substeps
         self.intact = torch.linalg.matrix_exp(_depth_operator(self.faces, plate.plate_time, None) * h)
         self.last: tuple[int, Tensor] | None = None
-        self.cut = None
-        if self.fraction is not None:
-            self.cut = torch.linalg.matrix_exp(
-                _depth_operator(self.faces, plate.plate_time, self.fraction) * h
-            )
+        self.over, self.cut = _face_steps(self.faces, plate.plate_time, self.fraction, self.block, h)
 
     def profiles(self, elapsed: float) -> Tensor:
         """Each pixel's temperature through the thickness ``elapsed`` s after the flash over its surface's,
@@ -250,12 +317,34 @@ class _Layers:
         return self.last[1]
 
     def into_depth(self, state: Tensor, intact: Tensor) -> Tensor:
-        """One step of the diffusion into depth: ``intact``, the intact plate's, blended over a defect with
-        the step of the layers cut at its face."""
+        """One step of the diffusion into depth: ``intact``, the intact plate's, with the pixels over a defect
+        stepped through their own face (:func:`_face_steps`)."""
         if self.cut is None:
             return intact
-        cut = torch.einsum("ij,jhw->ihw", self.cut, state)
-        return intact * (1 - self.block) + cut * self.block
+        out = intact.clone()
+        out[:, self.over] = torch.bmm(self.cut, state[:, self.over].T[:, :, None])[:, :, 0].T
+        return out
+
+
+def _face_steps(
+    faces: Tensor, plate_time: float, fraction: float | None, block: Tensor, h: float
+) -> tuple[Tensor, Tensor | None]:
+    """The pixels over a defect ``(H, W)`` bool and each one's propagator of the diffusion into depth over
+    ``h`` s ``(pixels, n, n)``: its face at ``fraction`` passing ``1 - block`` of the intact conductance
+    (``block`` in steps of :data:`_LEVELS`; one matrix exponential per step present)."""
+    level = (block * _LEVELS).round()
+    over = level > 0
+    if fraction is None or not bool(over.any()):
+        return over, None
+    steps, which = torch.unique(level[over], return_inverse=True)
+    device = block.device
+    propagators = torch.stack(
+        [
+            torch.linalg.matrix_exp(_depth_operator(faces, plate_time, fraction, 1 - float(s) / _LEVELS) * h)
+            for s in steps.cpu()
+        ]
+    ).to(device)
+    return over, propagators[which]
 
 
 def depth_faces(cut: float | None = None) -> Tensor:
@@ -275,14 +364,15 @@ def depth_faces(cut: float | None = None) -> Tensor:
     return grid
 
 
-def _depth_operator(faces: Tensor, plate_time: float, cut: float | None) -> Tensor:
+def _depth_operator(faces: Tensor, plate_time: float, cut: float | None, passed: float = 0.0) -> Tensor:
     """The finite-volume operator of ``dT/dt = (1 / (L^2 / a_z)) d^2 T / d zeta^2`` on the layers between
-    ``faces`` ``(n + 1,)``, both faces insulated, no heat through the face at ``cut``, ``(n, n)``."""
+    ``faces`` ``(n + 1,)``, both faces insulated, the face at ``cut`` passing ``passed`` of its conductance
+    (0: no heat), ``(n, n)``."""
     size = faces.diff()
     centres = (faces[1:] + faces[:-1]) / 2
     g = 1 / (plate_time * centres.diff())  # the conductance between neighbouring centres
     if cut is not None:
-        g = torch.where((faces[1:-1] - cut).abs() < 1e-12, torch.zeros_like(g), g)
+        g = torch.where((faces[1:-1] - cut).abs() < 1e-12, g * passed, g)
     n = len(size)
     k = torch.arange(n - 1, device=faces.device)
     operator = torch.zeros(n, n, dtype=faces.dtype, device=faces.device)

@@ -12,7 +12,13 @@ import pytest
 import torch
 
 from anra_torch.effects import Effect
-from anra_torch.forecast.layered import LayeredPlate, depth_faces, layered_forecast, layered_plate
+from anra_torch.forecast.layered import (
+    LayeredPlate,
+    depth_faces,
+    fitted_face,
+    layered_forecast,
+    layered_plate,
+)
 
 T_REF = 20.0
 
@@ -158,3 +164,23 @@ def test_a_defects_face_forecasts_an_independent_plate_better() -> None:
         forecast = layered_forecast(frames, split, dt, 0.4, model, assimilated=10)[:, 3:-3, 3:-3]
         errors.append(float((forecast - truth).pow(2).mean().sqrt()))
     assert errors[0] < 0.7 * errors[1], errors
+
+
+@pytest.mark.parametrize("transmission", [0.0, 0.3])
+def test_the_face_passes_the_share_of_heat_the_independent_plates_defect_passes(transmission: float) -> None:
+    """On the independent finite-volume plate (no noise) with a disc at ``d / L`` 0.5 passing ``transmission``
+    of the intact conductance, the face fitted to the frames up to the split passes that share (the nearest
+    of :data:`PASSED`), whatever the strength the plate came with."""
+    from anra_torch.simulation.plate_reference import Defect, PlateSetup, reference_plate_video
+
+    disc = Defect("ellipse", centre=(4.8, 4.8), size=(2.4, 2.4), depth=0.5, transmission=transmission)
+    setup = PlateSetup(thickness=1.0, duration=3.0, shape=(24, 24), dx=0.4, n_frames=60, defects=(disc,),
+                       noise_sd=0.0, seed=3)  # fmt: skip
+    video = reference_plate_video(setup)
+    frames, dt = torch.as_tensor(video.frames).to(torch.float64)[:36], 3.0 / 60
+    model = plate(
+        lateral=(7.3, 1.1, 0.0), plate_time=video.plate_time, t_heat=-dt, defect=(4.8, 4.8, 2.4, 0.5, 0.5)
+    )
+    fitted = fitted_face(frames, dt, 0.4, model)
+    assert fitted.defect is not None and fitted.defect[4] == pytest.approx(1 - transmission)
+    assert fitted.defect[:4] == model.defect[:4] and fitted.lateral == model.lateral
