@@ -127,10 +127,12 @@ def flash_hints(defects: DefectMap, *, layered: bool = False) -> dict[str, Any]:
     ``{"x", "y", "radius", "depth_fraction", "plate_time"}`` (its centroid and the radius of its area's
     disc in mm, its ``d / L``, the map's ``L^2 / a_z`` in s); a map without a defect rules the
     delamination out. ``layered``: the plate's forecasts resolved through its thickness
-    (:mod:`anra_torch.forecast.layered`; the plate's ``"layered"`` 1.0)."""
+    (:mod:`anra_torch.forecast.layered`; the plate's ``"layered"`` 1.0 and the map's lateral diffusivities
+    ``"a_x"``, ``"a_y"``, ``"a_xy"`` in mm^2/s)."""
     plate = {"T_ref": defects.t_ref, "plate_time": defects.plate_time, "t_heat": -defects.first_time}
     if layered:
         plate["layered"] = 1.0
+        plate.update(zip(("a_x", "a_y", "a_xy"), defects.lateral, strict=True))
     regions = tuple(
         {
             "x": d.x,
