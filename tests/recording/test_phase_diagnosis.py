@@ -124,7 +124,7 @@ def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
     equal-area radius, depth fraction, the map's plate time; none: the delamination is ruled out) and its
     plate into the depth term's, and every phase's balance diagnosis, the inner comparisons' too, is given
     them (the flash's time from the phase's first frame); ``layered`` marks the plate for the forecasts
-    through its thickness."""
+    through its thickness and gives them the map's lateral tensor."""
     import anra_torch.recording.phase_diagnosis as recording
     from anra_torch.flash import DefectMap, FoundDefect
 
@@ -138,7 +138,8 @@ def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
     plate = {"T_ref": 20.0, "plate_time": 8.0, "t_heat": -0.1}
     assert hints == {"depth_conduction": (plate,), "delamination": (region,)}
     assert flash_hints(replace(defects, defects=()))["delamination"] == ()
-    assert flash_hints(defects, layered=True)["depth_conduction"] == ({**plate, "layered": 1.0},)
+    layered = {**plate, "layered": 1.0, "a_x": 7.0, "a_y": 1.0, "a_xy": 0.0}  # with the map's lateral tensor
+    assert flash_hints(defects, layered=True)["depth_conduction"] == (layered,)
     real, given = recording.diagnose_terms, []
 
     def recorded(*args, **kwargs):
