@@ -57,8 +57,8 @@ _F64 = torch.float64
 PASSED = (0.0, 0.03, 0.1, 0.3)
 """The shares of the intact conductance a defect's face may pass (:func:`fitted_face`), graded towards none: a
 delamination's gap passes little heat, and the forecast's error grows fastest as the face begins to pass
-some. The balance's ``strength`` is a share of the plate's rate, not of the face's conductance, and is not
-used."""
+some; tried in order until the forecast's error rises. The balance's ``strength`` is a share of the plate's
+rate, not of the face's conductance, and is not used."""
 FACE_SPLIT = 0.8
 """The share of the frames before the split from which :func:`fitted_face` forecasts the rest."""
 SETTLED = 4.0
@@ -190,7 +190,12 @@ def fitted_face(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> La
         run = _run(part, inner, dt, dx, model, ASSIMILATED, None)[:, 1:-1, 1:-1]
         return float((run - truth).pow(2).mean())
 
-    best = min(PASSED, key=misfit)
+    best, lowest = PASSED[0], misfit(PASSED[0])
+    for passed in PASSED[1:]:  # in order until the misfit rises (one minimum along the shares)
+        error = misfit(passed)
+        if error >= lowest:
+            break
+        best, lowest = passed, error
     return replace(plate, defect=(x, y, radius, fraction, 1.0 - best))
 
 
