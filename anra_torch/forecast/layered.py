@@ -96,16 +96,17 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
     measured = None
     if anisotropy is not None:
         lateral = (anisotropy.params["a_x"], anisotropy.params["a_y"], anisotropy.params["a_xy"])
-        measured = tuple(held[0][k] for k in ("a_x", "a_y", "a_xy")) if "a_x" in held[0] else None
+        hint = held[0]
+        measured = (hint["a_x"], hint["a_y"], hint["a_xy"]) if "a_x" in hint else None
     defect = None
     plate_time = depth.params["depth_time"]
     if delamination is not None:
         p = delamination.params
         fraction = math.sqrt(min(p["depth_time"] / plate_time, 1.0))
-        defect = (p["x"], p["y"], p["radius"], fraction, min(max(p["strength"], 0.0), 1.0))
+        defect = (p["x"], p["y"], p["radius"], fraction, 1.0 - PASSED[0])  # until fitted_face fits it
     others = tuple(e for e in chosen if e.name in rest)
     t_heat, t_ref = depth.params["t_heat"], depth.params["T_ref"]
-    return LayeredPlate(lateral, plate_time, t_heat, t_ref, defect, others, measured)  # type: ignore[arg-type]
+    return LayeredPlate(lateral, plate_time, t_heat, t_ref, defect, others, measured)
 
 
 def layered_forecast(
@@ -151,18 +152,25 @@ def fitted_plate(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> L
         ValueError: no candidate positive definite (the model cannot be simulated).
     """
     candidates = [c for c in (plate.lateral, plate.measured) if c is not None and definite(c)]
-    if len(candidates) > 1:
-        split = frames.shape[0] - 1
-        inner = round(FACE_SPLIT * split)
-        truth = frames[inner + 1 :, 1:-1, 1:-1].to(_F64)
-        if inner - _begin(-plate.t_heat, dt, inner) >= 2:
-
-            def misfit(lateral: tuple[float, float, float]) -> float:
-                run = _run(frames, inner, dt, dx, replace(plate, lateral=lateral), ASSIMILATED, None)
-                return float((run[:, 1:-1, 1:-1] - truth).pow(2).mean())
-
-            candidates = [min(candidates, key=misfit)]
+    if len(candidates) > 1 and _inner(frames, dt, plate) is not None:
+        candidates = [min(candidates, key=lambda c: _misfit(frames, dt, dx, replace(plate, lateral=c)))]
     return fitted_face(frames, dt, dx, replace(plate, lateral=candidates[0]) if candidates else plate)
+
+
+def _inner(frames: Tensor, dt: float, plate: LayeredPlate) -> int | None:
+    """The frame from which the fits forecast the rest of ``frames`` (:data:`FACE_SPLIT` of them), or None
+    where the run would start less than 2 frames before it."""
+    inner = round(FACE_SPLIT * (frames.shape[0] - 1))
+    return inner if inner - _begin(-plate.t_heat, dt, inner) >= 2 else None
+
+
+def _misfit(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> float:
+    """The mean squared error of ``plate``'s run forecasting ``frames`` ``(T, H, W)`` after :func:`_inner`'s
+    frame from those before it, inside the outermost pixel ring (which follows the frames)."""
+    inner = _inner(frames, dt, plate)
+    assert inner is not None
+    run = _run(frames, inner, dt, dx, plate, ASSIMILATED, None)
+    return float((run - frames[inner + 1 :].to(_F64))[:, 1:-1, 1:-1].pow(2).mean())
 
 
 def fitted_face(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> LayeredPlate:
@@ -171,24 +179,17 @@ def fitted_face(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> La
     defect's neighbourhood: its disc and the lateral diffusion length over the frames around it, the ring
     following the frames; no stationary heat input); ``plate`` itself where it has no defect or too few
     frames."""
-    if plate.defect is None:
-        return plate
-    split = frames.shape[0] - 1
-    inner = round(FACE_SPLIT * split)
-    if inner - _begin(-plate.t_heat, dt, inner) < 2:
+    if plate.defect is None or _inner(frames, dt, plate) is None:
         return plate
     x, y, radius, fraction, _ = plate.defect
-    reach = radius + math.sqrt(max(plate.lateral[:2]) * split * dt) + 2 * dx
+    reach = radius + math.sqrt(max(plate.lateral[:2]) * (frames.shape[0] - 1) * dt) + 2 * dx
     # the other terms are placed on the whole frame: only a plate without them is forecast on a crop
     rows, cols = (slice(0, None), slice(0, None)) if plate.others else _around(x, y, reach, frames.shape, dx)
     part = frames[:, rows, cols]
     moved = (x - (cols.start or 0) * dx, y - (rows.start or 0) * dx, radius, fraction)
-    truth = part[inner + 1 :, 1:-1, 1:-1].to(_F64)
 
     def misfit(passed: float) -> float:
-        model = replace(plate, defect=(*moved, 1.0 - passed))
-        run = _run(part, inner, dt, dx, model, ASSIMILATED, None)[:, 1:-1, 1:-1]
-        return float((run - truth).pow(2).mean())
+        return _misfit(part, dt, dx, replace(plate, defect=(*moved, 1.0 - passed)))
 
     best, lowest = PASSED[0], misfit(PASSED[0])
     for passed in PASSED[1:]:  # in order until the misfit rises (one minimum along the shares)

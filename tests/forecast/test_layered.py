@@ -31,8 +31,8 @@ def plate(**changes: object) -> LayeredPlate:
 def test_the_model_of_a_flash_plate_is_read_from_the_chosen_effects() -> None:
     """Only a diagnosis with a defect map's plate asked to be layered among its hints and the depth term
     chosen is a layered plate's; the anisotropy sets the lateral tensor (the map's beside it), the
-    delamination the face (its ``d / L``, strength at most 1), the other effects act on every layer; an
-    effect that replaces the diffusion otherwise: not layered."""
+    delamination the face (its ``d / L``, passing no heat until fitted), the other effects act on every
+    layer; an effect that replaces the diffusion otherwise: not layered."""
     depth = Effect("depth_conduction", {"strength": 1.0, "t_heat": -0.1, "depth_time": 4.0, "T_ref": T_REF})
     anisotropy = Effect("anisotropy", {"a_x": 6.0, "a_y": 1.0, "a_xy": 0.5})
     delamination = Effect(
