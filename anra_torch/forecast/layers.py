@@ -6,8 +6,8 @@ and nothing else is needed). :class:`Layers` steps them one frame ahead: the dif
 (each step's propagator; over a defect's disc each pixel through its own face, which passes a share of
 the intact conductance), split around the lateral diffusion, stepped exactly in the sine basis of the
 frame's interior (:class:`_Across`), with the mixed derivative ``a_xy`` and the plate's other terms held
-over the step; the frame's outermost pixel ring follows the measured frames. :mod:`anra_torch.forecast.layered` builds the plate
-from a diagnosis and forecasts with it.
+over the step; the frame's outermost pixel ring follows the measured frames.
+:mod:`anra_torch.forecast.layered` builds the plate from a diagnosis and forecasts with it.
 """
 
 from __future__ import annotations
