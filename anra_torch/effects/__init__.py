@@ -2,8 +2,8 @@
 
 A model is ``dT/dt = D[T] + sum of effect terms``, where ``D[T]`` is ``a Lap T`` (5-point Laplacian) unless
 one effect replaces it. Each effect module (``linear_loss``, ``source``, ``advection``, ``anisotropy``,
-``heterogeneity``, ``nonlinear_diffusion``, ``periodic_source``, ``depth_conduction``, ``delamination``)
-holds one
+``heterogeneity``, ``nonlinear_diffusion``, ``periodic_source``, ``depth_conduction``, ``delamination``,
+``delamination_2``) holds one
 :class:`~anra_torch.effects.EffectSpec`: its forward term and parameters (units, checks, random
 detectable draws), its regressors or shape fit for the diagnosis, and how it is written, re-timed and
 drawn. :data:`EFFECTS` lists them (registry order).

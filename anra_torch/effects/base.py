@@ -8,7 +8,7 @@ re-time and draw it. Nothing outside its module branches on its name.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -227,6 +227,9 @@ class EffectSpec:
             that the independent simulator solves (:class:`~anra_torch.simulation.Continuum`:
             coefficients, fields and heat inputs, none of this module's operators); None when the
             independent simulator has no model of it.
+        tried: ``hints -> bool``: whether the diagnosis looks for it given the balance's candidate shapes
+            by effect (:func:`~anra_torch.selection.checked_hints`; ``{}`` without any), e.g. a second
+            delamination only where a defect map gives two regions or more; by default always.
     """
 
     name: str
@@ -258,6 +261,7 @@ class EffectSpec:
     min_size: float = 0.0
     heat_input: bool = False
     continuum: Callable[[dict[str, float], Continuum, Grid], None] | None = None
+    tried: Callable[[Mapping[str, tuple[dict[str, float], ...]]], bool] = lambda hints: True
 
 
 def require(condition: bool, name: str, key: str, need: str, params: dict[str, float]) -> None:

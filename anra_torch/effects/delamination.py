@@ -23,7 +23,9 @@ map, :func:`anra_torch.flash.defect_map`, where the cooling says the heat stops 
 them: its radius the region's equal-area radius, its centre within 0.7 of the radius of the region's
 centroid, its layer's ``d / L`` within 0.1 of the region's, its layer's time that share of the map's plate
 time where the region carries one (with its radius and depth free the disc grew over the frame into a
-second depth rate of negative strength); an empty set of regions rules it out.
+second depth rate of negative strength); an empty set of regions rules it out. A second defect of the map
+is :mod:`~anra_torch.effects.delamination_2`'s (the same term and fit under another name, :data:`REGRESSORS`):
+each delamination is held at the regions the others in the model do not cover.
 Validated on the independent 3-D plates of :func:`anra_torch.simulation.flash_plate_video` (the lateral
 and the depth problems do not separate over a defect, so the 2-D independent simulator has no model of it).
 Random draw: under the first hot spot (radius 1-2 of its sigmas), ``d / L`` in 0.2-0.5, ``strength``
@@ -34,6 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -48,13 +51,18 @@ from anra_torch.effects.shapes import draw_circle, edge_disc, optimise, peak, pi
 if TYPE_CHECKING:
     from anra_torch.balance import BalanceSystem, Fit
 
-__all__ = ["SPEC"]
+__all__ = ["REGRESSORS", "SPEC", "spec_fields"]
 
 _F64 = torch.float64
 _MIN_RADIUS_PX = 2.0
 _STRENGTH = (0.2, 5.0)
 _HELD_SHIFT = 0.7  # a held disc's centre moves at most this share of its radius along each axis
 _HELD_DEPTH = 0.1  # ... its layer's d / L at most this far from the region's (a defect map's accuracy)
+_HINTS = "delamination"  # every delamination reads the candidate regions given under this name
+
+REGRESSORS = {"delamination": "Y", "delamination_2": "Y2"}
+"""Each delamination effect (this module's, :mod:`~anra_torch.effects.delamination_2`'s) by name, its
+fitted term's regressor: a model names each once, so a second defect of a defect map needs a second name."""
 
 
 def _difference(elapsed: Tensor, p: dict[str, float]) -> Tensor:
@@ -97,14 +105,14 @@ def _sample(rng: np.random.Generator, g: Geometry) -> dict[str, float]:
     }
 
 
-def _check(p: dict[str, float]) -> None:
-    require(p["radius"] > 0, "delamination", "radius", "positive in mm", p)
-    require(p["strength"] >= 0, "delamination", "strength", "non-negative (1: no heat crosses the defect)", p)
-    require(p["plate_time"] > 0, "delamination", "plate_time", "positive in s (L^2 / a_z)", p)
-    require(p["t_heat"] < 0, "delamination", "t_heat", "before the first frame (< 0 s)", p)
+def _check(name: str, p: dict[str, float]) -> None:
+    require(p["radius"] > 0, name, "radius", "positive in mm", p)
+    require(p["strength"] >= 0, name, "strength", "non-negative (1: no heat crosses the defect)", p)
+    require(p["plate_time"] > 0, name, "plate_time", "positive in s (L^2 / a_z)", p)
+    require(p["t_heat"] < 0, name, "t_heat", "before the first frame (< 0 s)", p)
     require(
         0 < p["depth_time"] <= p["plate_time"],
-        "delamination",
+        name,
         "depth_time",
         "in (0, plate_time] s (d <= L)",
         p,
@@ -121,8 +129,8 @@ def _bounds(p: dict[str, float], lo: float, hi: float, duration: float) -> tuple
     return min(lo, p["T_ref"]), max(hi, p["T_ref"])
 
 
-def _from_coefficients(c: dict[str, float], ctx: Context) -> dict[str, float]:
-    p = {**ctx.shape["delamination"], "strength": c["Y"]}
+def _from_coefficients(name: str, c: dict[str, float], ctx: Context) -> dict[str, float]:
+    p = {**ctx.shape[name], "strength": c[REGRESSORS[name]]}
     return {**p, "depth_fraction": math.sqrt(p["depth_time"] / p["plate_time"])}
 
 
@@ -157,7 +165,7 @@ def _regions(system: BalanceSystem, plate_time: float) -> list[_Region]:
     centroid and equal-area radius in mm, depth fraction, the map's plate time ``L^2 / a_z`` in s) as
     ``(x px, y px, radius px, d / L, the map's plate time over the depth term's plate_time)`` (1 without)."""
     regions = []
-    for h in system.hints.get("delamination", ()):
+    for h in system.hints.get(_HINTS, ()):
         fraction = h.get("depth_fraction", 0.5)
         fraction = fraction if math.isfinite(fraction) else 0.5
         scale = h.get("plate_time", math.nan) / plate_time
@@ -183,15 +191,29 @@ def _held(region: _Region, phi: Tensor) -> Tensor:
     return torch.cat([centre, size, (share / (1 - share)).log()[None]])
 
 
+def _uncovered(system: BalanceSystem, fit: Fit, name: str, regions: list[_Region]) -> list[_Region]:
+    """``regions`` less, for each other delamination in ``fit``'s model (its regressor among the fit's
+    columns, :data:`REGRESSORS`), the one nearest its fitted centre in units of the regions' radii: two
+    delaminations are held over two defects of the map, not both over the one that explains most."""
+    kept = list(regions)
+    for other, regressor in REGRESSORS.items():
+        shape = system.shapes.get(other)
+        if other == name or regressor not in fit.columns or shape is None or not kept:
+            continue
+        x, y = shape["x"] / system.dx, shape["y"] / system.dx
+        kept.remove(min(kept, key=lambda r: math.hypot(x - r[0], y - r[1]) / r[2]))
+    return kept
+
+
 def _held_fit(
-    system: BalanceSystem, loss: Callable[[Tensor], Tensor], start: Tensor | None, plate_time: float
+    system: BalanceSystem, loss: Callable[[Tensor], Tensor], start: Tensor | None, regions: list[_Region]
 ) -> Tensor:
-    """With candidate regions (:func:`_regions`): the disc held at each in turn (:func:`_held`: with its
-    radius and depth free the disc grows over the frame as a second depth rate, its strength unphysical),
-    its centre refined from the region's centroid (and from ``start``'s where ``start`` lies on the
-    region); the best region's ``theta``."""
+    """With candidate regions (:func:`_regions`, :func:`_uncovered`): the disc held at each in turn
+    (:func:`_held`: with its radius and depth free the disc grows over the frame as a second depth rate, its
+    strength unphysical), its centre refined from the region's centroid (and from ``start``'s where
+    ``start`` lies on the region); the best region's ``theta``."""
     best: tuple[float, Tensor] | None = None
-    for region in _regions(system, plate_time):
+    for region in regions:
         phis = [torch.zeros(3, dtype=_F64, device=system.frames.device)]
         if start is not None and abs(float(start[2]) - math.log(region[2] - _MIN_RADIUS_PX)) < 1e-9:
             depth = math.sqrt(float(torch.sigmoid(start[3])) / region[4])  # start's layer, d / L
@@ -210,7 +232,7 @@ def _held_fit(
         if best is None or value < best[0]:
             best = (value, theta)
     if best is None:
-        raise RuntimeError("delamination: held fit without candidate regions")
+        raise ValueError("delamination: the held fit needs a candidate region no other delamination covers")
     return best[1]
 
 
@@ -237,19 +259,24 @@ def _starts(system: BalanceSystem, fit: Fit) -> list[Tensor]:
     return starts
 
 
-def _fit(system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
-    """Fit the disc and its layer's depth time to the residual of ``fit`` (or refine ``start``)."""
+def _fit(name: str, system: BalanceSystem, fit: Fit, start: Tensor | None) -> Shape:
+    """Fit the disc of delamination ``name`` and its layer's depth time to the residual of ``fit`` (or
+    refine ``start``): held at the candidate regions no other delamination of the model covers
+    (:func:`_uncovered`) where the balance has regions, else from the residual's strongest structure
+    (only one delamination: a second is tried with regions alone, :data:`REGRESSORS`)."""
     plate = system.shapes.get("depth_conduction")
     if plate is None:  # only tried after depth_conduction (EffectSpec.requires): its plate is fitted
-        raise RuntimeError("delamination needs the depth_conduction fit of this balance first")
+        raise RuntimeError(f"{name} needs the depth_conduction fit of this balance first")
     columns, scale = list(fit.columns), fit.rss
 
     def loss(theta: Tensor) -> Tensor:
         term, weight = delamination_term(system, theta, plate)
         return system.profile_loss(columns, term, NoiseSpec("T", weight.detach())) / scale
 
-    if system.hints.get("delamination"):
-        theta = _held_fit(system, loss, start, plate["depth_time"])
+    others = [o for o, regressor in REGRESSORS.items() if o != name and regressor in columns]
+    if system.hints.get(_HINTS) or others:
+        regions = _uncovered(system, fit, name, _regions(system, plate["depth_time"]))
+        theta = _held_fit(system, loss, start, regions)
     else:
         starts = _starts(system, fit)
         theta = optimise(loss, starts if start is None else [start, *starts], iterations=25, runs=2)
@@ -284,42 +311,47 @@ def _equation(p: dict[str, float]) -> str:
     )
 
 
-def _draw(ax: Any, p: dict[str, float]) -> str:
+def _draw(name: str, ax: Any, p: dict[str, float]) -> str:
     draw_circle(ax, p["x"], p["y"], p["radius"], "w--")
     where = f"({p['x']:.2f}, {p['y']:.2f}) mm"
-    return f"delamination r = {p['radius']:.2f} mm at {where}, d/L {p['depth_fraction']:.2f}"
+    return f"{name} r = {p['radius']:.2f} mm at {where}, d/L {p['depth_fraction']:.2f}"
 
 
-SPEC = EffectSpec(
-    name="delamination",
-    params={
-        "x": "mm",
-        "y": "mm",
-        "radius": "mm",
-        "strength": "1",
-        "depth_time": "s",
-        "t_heat": "s",
-        "plate_time": "s",
-        "T_ref": "data units",
-    },
-    build=_build,
-    sample=_sample,
-    help="+ strength disc (r_plate - r_layer) (T - T_ref): a disc where heat flowing into depth stops "
-    "short (a subsurface defect)",
-    check=_check,
-    rates=_rates,
-    bounds=_bounds,
-    derived=lambda p: {"depth_fraction": math.sqrt(p["depth_time"] / p["plate_time"])},
-    derived_units={"depth_fraction": "1"},
-    positions=(("x", "y"),),
-    regressors=("Y",),
-    from_coefficients=_from_coefficients,
-    valid=_inside,
-    shape=_fit,
-    look_elsewhere=4.0,
-    equation=_equation,
-    retime=_retime,
-    positive=frozenset({"radius", "depth_time", "plate_time"}),
-    draw=_draw,
-    requires=("depth_conduction",),
-)
+def spec_fields(name: str) -> dict[str, Any]:
+    """The :class:`~anra_torch.effects.EffectSpec` fields of delamination ``name`` (a key of
+    :data:`REGRESSORS`) but what sets one apart from another: ``requires`` and ``tried``."""
+    return {
+        "name": name,
+        "params": {
+            "x": "mm",
+            "y": "mm",
+            "radius": "mm",
+            "strength": "1",
+            "depth_time": "s",
+            "t_heat": "s",
+            "plate_time": "s",
+            "T_ref": "data units",
+        },
+        "build": _build,
+        "sample": _sample,
+        "help": "+ strength disc (r_plate - r_layer) (T - T_ref): a disc where heat flowing into depth stops "
+        "short (a subsurface defect)",
+        "check": partial(_check, name),
+        "rates": _rates,
+        "bounds": _bounds,
+        "derived": lambda p: {"depth_fraction": math.sqrt(p["depth_time"] / p["plate_time"])},
+        "derived_units": {"depth_fraction": "1"},
+        "positions": (("x", "y"),),
+        "regressors": (REGRESSORS[name],),
+        "from_coefficients": partial(_from_coefficients, name),
+        "valid": _inside,
+        "shape": partial(_fit, name),
+        "look_elsewhere": 4.0,
+        "equation": _equation,
+        "retime": _retime,
+        "positive": frozenset({"radius", "depth_time", "plate_time"}),
+        "draw": partial(_draw, name),
+    }
+
+
+SPEC = EffectSpec(**spec_fields("delamination"), requires=("depth_conduction",))

@@ -10,6 +10,7 @@ from anra_torch.effects import (
     advection,
     anisotropy,
     delamination,
+    delamination_2,
     depth_conduction,
     heterogeneity,
     linear_loss,
@@ -33,6 +34,7 @@ EFFECTS: dict[str, EffectSpec] = {
         periodic_source.SPEC,
         depth_conduction.SPEC,
         delamination.SPEC,
+        delamination_2.SPEC,
     )
 }
 """The effects by name (the names and parameter names of every truth record and diagnosis)."""

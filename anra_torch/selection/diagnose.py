@@ -18,6 +18,8 @@ effect                   regressors besides ``L = Lap T``      the effect's term
                          heating time and plate depth time
 ``delamination``         ``Y = disc (r_plate - r_layer)``      ``+ strength Y``
                          ``(T - T_ref)``, after depth
+``delamination_2``       ``Y2``: ``Y`` over another region     ``+ strength Y2``
+                         of a defect map, after ``Y``
 =======================  ====================================  ====================================
 
 ``N`` equals ``(T - Tbar) L + |grad T|^2``; written as the Laplacian of a square it is linear in the
@@ -75,7 +77,7 @@ from anra_torch.balance import Artefacts, BalanceSystem, Fit, NoiseModel, find_a
 from anra_torch.checks import as_video, mostly_finite, positive
 from anra_torch.effects import EFFECTS, Shape
 from anra_torch.layers import GaussianSmoothing, TimeDerivative
-from anra_torch.selection.stepwise import Selection, checked_hints
+from anra_torch.selection.stepwise import Selection, checked_hints, tried
 
 __all__ = ["ALPHA", "SMOOTHING", "Diagnosis", "diagnose_terms", "fit_effects", "minimum_frame_size"]
 
@@ -208,7 +210,7 @@ def diagnose_terms(
             :class:`~anra_torch.balance.NoiseModel` (e.g. the one a camera's noise was planted with);
             default measured from the video (:func:`~anra_torch.balance.measure_noise`).
         effects: names in :data:`anra_torch.effects.EFFECTS` to look for; default those searched by
-            default (every effect but ``periodic_source``).
+            default (every effect but ``periodic_source``); those the ``hints`` let it try (``tried``).
         time_family: Holoborodko time family of ``dT/dt`` (:data:`anra_torch.layers.stencils.TIME_FAMILIES`).
         hints: candidate shapes ``{"x", "y", "radius"}`` (mm) by effect: :meth:`Selection.in_hint`.
 
@@ -235,7 +237,7 @@ def diagnose_terms(
         raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
     names = _known([n for n, spec in EFFECTS.items() if spec.searched] if effects is None else effects)
     video, artefacts, system, plain = _balance(video, dt, dx, smoothing, noise_sd, time_family, hints)
-    selection = Selection(system, alpha, names, _background(video[0]))
+    selection = Selection(system, alpha, tried(names, system.hints), _background(video[0]))
     selection.forward()
     selection.backward()
     # Localised shapes are refitted to the final model (without themselves).

@@ -18,7 +18,7 @@ from anra_torch.balance import BalanceSystem, Fit
 from anra_torch.effects import EFFECTS, Context, Shape
 from anra_torch.selection.statistics import search_discount, wald_score
 
-__all__ = ["MIN_SHARE", "Selection", "checked_hints"]
+__all__ = ["MIN_SHARE", "Selection", "checked_hints", "tried"]
 
 MIN_SHARE = 0.01
 """The smallest share of ``dT/dt`` (:meth:`Selection.share`) an effect must make to be named: below it a
@@ -49,6 +49,13 @@ def checked_hints(
                       and c.get("radius", 0.0) > 0):  # fmt: skip
                 raise ValueError(f"hints[{name!r}] need a finite x, y and a positive radius in mm, got {c}")
     return out
+
+
+def tried(names: Sequence[str], hints: Mapping[str, tuple[dict[str, float], ...]]) -> list[str]:
+    """``names`` less the effects the balance's ``hints`` (:func:`checked_hints`) do not let the search try
+    (:attr:`~anra_torch.effects.EffectSpec.tried`, e.g. a second delamination without two candidate
+    regions): an effect never tried is not counted among those tested (each one's Bonferroni share)."""
+    return [name for name in names if EFFECTS[name].tried(hints)]
 
 
 class Selection:
@@ -232,6 +239,7 @@ class Selection:
             name not in effects
             and all(needed in effects for needed in group.requires)
             and self.system.hints.get(name) != ()  # candidate shapes were looked for and none was found
+            and group.tried(self.system.hints)
             and not (group.replaces_diffusion and any(EFFECTS[e].replaces_diffusion for e in effects))
         )
 
