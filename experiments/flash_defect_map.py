@@ -263,20 +263,23 @@ def _depths(
     return rows
 
 
-def _named(diagnosis: dict, truth: np.ndarray, dx: float) -> dict:
-    """What the diagnosis names: depth_conduction, delaminations (centre over a true defect or not), effects
-    with a gain <= 0 or centred outside the frame."""
+def _named(diagnosis: dict, truth: np.ndarray, dx: float, fraction: np.ndarray | None = None) -> dict:
+    """What the diagnosis names: depth_conduction, delaminations (every one, ``delamination`` and
+    ``delamination_2``: centre over a true defect or not, and the true d/L under it, ``fraction`` ``(H, W)``
+    NaN off the defects, which tells the defects apart), effects with a gain <= 0 or centred outside the
+    frame."""
     effects = diagnosis.get("effects", [])
     if effects is None:
         return {
             "gain": None,
             "depth_conduction": None,
             "delamination_over_defect": [],
+            "delamination_defects": [],
             "bad_effects": [],
             "names": ["(not run)"],
         }
     height, width = truth.shape
-    bad, delaminations = [], []
+    bad, delaminations, under = [], [], []
     for e in effects:
         params, gain = e.get("params", {}), e.get("gain")
         if gain is None or gain <= 0:
@@ -286,12 +289,15 @@ def _named(diagnosis: dict, truth: np.ndarray, dx: float) -> dict:
             inside = 0 <= col < width and 0 <= row < height
             if not inside:
                 bad.append(f"{e['name']} centred outside the frame")
-            if e["name"] == "delamination":
+            if e["name"].startswith("delamination"):
                 delaminations.append(bool(inside and truth[row, col]))
+                value = float(fraction[row, col]) if inside and fraction is not None else math.nan
+                under.append(value if math.isfinite(value) else None)
     return {
         "gain": diagnosis.get("gain"),
         "depth_conduction": any(e["name"] == "depth_conduction" for e in effects),
         "delamination_over_defect": delaminations,
+        "delamination_defects": under,
         "bad_effects": bad,
         "names": [e["name"] for e in effects],
     }
@@ -349,7 +355,7 @@ def evaluate(
             ]
             for d in found
         ),
-        diagnosis=_named(diagnosis, truth, plate.dx),
+        diagnosis=_named(diagnosis, truth, plate.dx, plate.depth_fraction),
     )
     if truth.any():
         result["auc"] = float(auc(score.reshape(1, -1), truth.ravel())[0])
@@ -455,7 +461,10 @@ def _diagnosis_summary(results: list[dict]) -> list[str]:
 
     def exact(r: dict) -> bool:
         over = r["diagnosis"]["delamination_over_defect"]
-        return all(over) and len(over) >= len(r.get("depths", []))
+        if "delamination_defects" not in r["diagnosis"]:  # written before the defects were told apart
+            return all(over) and len(over) >= len(r.get("depths", []))
+        covered = {round(v, 6) for v in r["diagnosis"]["delamination_defects"] if v is not None}
+        return all(over) and covered >= {round(t, 6) for t, _ in r.get("depths", [])}
 
     named = sum(r["diagnosis"]["depth_conduction"] for r in ran)
     clean = sum(not r["diagnosis"]["bad_effects"] for r in ran)

@@ -125,7 +125,7 @@ def _add_flash_arguments(parser: argparse.ArgumentParser) -> None:
         "(lateral conduction taken off) and the defects it shows, and write to FILE (.npz) defect_score, "
         "defect_mask, depth_fraction, depth_time and the contrasts tsr_d2, pct, ppt; the JSON gets "
         "'defect_map' (the plate's L^2/a_z, the defects), the report flash.md; the diagnosis looks for a "
-        "delamination at the map's defects only",
+        "delamination at the map's defects only (a second, delamination_2, at another of them)",
     )
     parser.add_argument(
         "--layered",

@@ -77,7 +77,9 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
     """The model of ``diagnosis``' effects ``names`` (timed from its first frame) through the thickness, or
     None where it is not asked for or not a flash plate's: no defect map's plate among the diagnosis' hints
     or one without ``"layered"`` (:func:`~anra_torch.recording.flash_hints`' option), ``depth_conduction``
-    not among them, or an effect that replaces the diffusion other than the anisotropy.
+    not among them, or an effect that replaces the diffusion other than the anisotropy. The layers model
+    the first delamination's face only: a second (``delamination_2``) is left out of them (not yet a second
+    face at its own depth), so that it forecasts nothing there.
 
     Raises:
         ValueError: asked for, with effects that cannot be simulated
@@ -90,6 +92,7 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
     rest = {e.name: e for e in chosen}  # what the layers do not model themselves acts on each layer
     depth = rest.pop("depth_conduction", None)
     delamination, anisotropy = rest.pop("delamination", None), rest.pop("anisotropy", None)
+    rest.pop("delamination_2", None)  # the layers hold one face: a second delamination is left out of them
     if depth is None or any(e.replaces_diffusion for e in rest.values()):
         return None
     lateral = (diagnosis.base, diagnosis.base, 0.0)

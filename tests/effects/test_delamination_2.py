@@ -83,3 +83,16 @@ def test_one_region_or_none_leaves_the_second_untried(two_defects) -> None:
     for hints in ({"delamination": REGIONS[:1]}, None):
         d = diagnose_terms(*two_defects, effects=NAMES, hints=hints)
         assert "delamination_2" not in d.scores and d.names == NAMES[:2], (d.names, d.scores)
+
+
+def test_the_layered_forecast_holds_the_first_face_only() -> None:
+    """The layers hold one face (the first delamination's): a second is left out of them, not run as the
+    surface balance's term on every layer."""
+    from anra_torch.forecast.layered import layered_plate
+
+    held = {"T_ref": 30.0, "plate_time": 5.0, "t_heat": -0.08, "layered": 1.0}
+    effects = [Effect(n, p).to_dict() for n, p in zip(NAMES, (PLATE, FIRST, SECOND), strict=True)]
+    diagnosis = SimpleNamespace(hints={"depth_conduction": (held,)}, base=0.5, effects=effects)
+    model = layered_plate(diagnosis, set(NAMES))  # type: ignore[arg-type]
+    assert model is not None and model.others == ()
+    assert model.defect is not None and model.defect[:3] == (FIRST["x"], FIRST["y"], FIRST["radius"])
