@@ -78,8 +78,8 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
     None where it is not asked for or not a flash plate's: no defect map's plate among the diagnosis' hints
     or one without ``"layered"`` (:func:`~anra_torch.recording.flash_hints`' option), ``depth_conduction``
     not among them, or an effect that replaces the diffusion other than the anisotropy. The layers model
-    the first delamination's face only: a second (``delamination_2``) is left out of them (not yet a second
-    face at its own depth), so that it forecasts nothing there.
+    the first delamination's face only: a second (``delamination_2``, not tried where the plate is layered,
+    but a model may give it) is left out of them (not yet a second face at its own depth).
 
     Raises:
         ValueError: asked for, with effects that cannot be simulated

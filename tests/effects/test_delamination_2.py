@@ -47,6 +47,10 @@ def test_tried_only_with_two_candidate_regions_or_more() -> None:
     assert spec.requires == ("depth_conduction", "delamination") and spec.regressors == ("Y2",)
     assert not spec.tried({}) and not spec.tried({"delamination": (REGIONS[0],)})
     assert spec.tried({"delamination": tuple(REGIONS)})
+    plate = {"T_ref": 30.0, "plate_time": 5.0, "t_heat": -0.08}
+    assert spec.tried({"delamination": tuple(REGIONS), "depth_conduction": (plate,)})
+    # not where the plate is forecast on layers, which hold one face
+    assert not spec.tried({"delamination": tuple(REGIONS), "depth_conduction": ({**plate, "layered": 1.0},)})
     assert all(EFFECTS[n].tried({}) for n in EFFECTS if n != "delamination_2")
     assert tried(NAMES, {}) == NAMES[:2] and tried(NAMES, {"delamination": tuple(REGIONS)}) == NAMES
 
@@ -86,8 +90,9 @@ def test_one_region_or_none_leaves_the_second_untried(two_defects) -> None:
 
 
 def test_the_layered_forecast_holds_the_first_face_only() -> None:
-    """The layers hold one face (the first delamination's): a second is left out of them, not run as the
-    surface balance's term on every layer."""
+    """The layers hold one face (the first delamination's): a second, given in a model (it is not tried
+    where the plate is layered), is left out of them, not run as the surface balance's term on every
+    layer."""
     from anra_torch.forecast.layered import layered_plate
 
     held = {"T_ref": 30.0, "plate_time": 5.0, "t_heat": -0.08, "layered": 1.0}
