@@ -20,6 +20,13 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
   ``"forecast"``. Each removal is listed in the diagnosis' ``negligible`` with its rule and cost. A split
   on which the model itself cannot be fitted or forecast (a plate's depth from 5 frames) judges none of its
   effects; when no split is left, the model stays as the selection named it, its costs unknown (None).
+- **Layered plates.** Where the layered forecast is asked for (:mod:`~anra_torch.forecast.layered`), an
+  inner refit is forecast as the layers run it (:func:`~anra_torch.forecast.layered.within_layered`): a
+  tensor that is not positive definite at the defect map's, a negative loss rate as none. The balance's
+  refits on fewer frames land there (plate 3 of experiments.flash_defect_map: the models without one of
+  its effects refused on all or 2 of 3 splits, no removal judged, the loss the truth lacks kept with a
+  held-out gain of -0.26); the surviving
+  model's anisotropy refitted so takes the map's tensor too instead of leaving the model.
 - **Offset steps.** Where the artefact search found global offset steps, the frames are forecast with the
   found steps taken out and scored frame by frame about their mean (the balance's per-frame fixed effects):
   a recalibration the camera made is forecast by no model and decides nothing. Where it found a static
@@ -62,6 +69,8 @@ from anra_torch.forecast.core import (
     split_index,
 )
 from anra_torch.forecast.gain import _Forecasts
+from anra_torch.forecast.layered import within_layered
+from anra_torch.forecast.layers import definite
 from anra_torch.forecast.pattern import pixel_forcing
 from anra_torch.selection import Diagnosis, diagnose_terms, fit_effects
 
@@ -178,8 +187,31 @@ def _refit(
         dropped = [n for n in final.negligible if n.get("rule") == "unphysical"]
         unphysical.extend(n for n in dropped if n not in unphysical)
         if not any(n["name"] in kept for n in dropped):
-            return final, unphysical
+            return _layered_tensor(final, diagnosis, unphysical)
         kept = final.names
+
+
+def _layered_tensor(final: Diagnosis, diagnosis: Diagnosis, unphysical: list) -> tuple[Diagnosis, list]:
+    """``final`` and ``unphysical`` (:func:`_refit`'s), or, where the layered forecast is asked for and the
+    anisotropy was dropped because its refitted tensor is not positive definite, ``final`` with the
+    anisotropy back at the defect map's tensor (:func:`~anra_torch.forecast.layered.within_layered`, as the
+    inner splits judged it) and ``unphysical`` without it. The other effects stay as refitted without it
+    (``base`` the isotropic ``a``, which the layers use only without the anisotropy)."""
+    named = {e["name"]: e for e in diagnosis.effects}
+    entry = {n["name"]: n for n in unphysical}.get("anisotropy")
+    if entry is None or entry["name"] not in named or _definite(entry):
+        return final, unphysical
+    record = {**named[entry["name"]], "params": dict(entry["params"])}
+    restored = within_layered(replace(final, effects=[*final.effects, record]))
+    if not _definite(restored.effects[-1]):  # not a layered plate's, or no map's tensor
+        return final, unphysical
+    return restored, [n for n in unphysical if n is not entry]
+
+
+def _definite(record: dict) -> bool:
+    """Whether the tensor of an anisotropy's record ``{"params": {"a_x", "a_y", "a_xy", ...}}`` is PD."""
+    params = record["params"]
+    return definite((params["a_x"], params["a_y"], params["a_xy"]))
 
 
 def without_offsets(frames: Tensor, artefacts: Artefacts) -> Tensor:
@@ -324,6 +356,7 @@ def _validation(
 
     ``within``: (offset steps found: scored frame by frame about the mean; fixed pattern found: forecast
     with the model's own per-pixel fixed effects, :func:`~anra_torch.forecast.pattern.pixel_forcing`)."""
+    inner = within_layered(inner)  # a layered plate's refit bounded where the layers need it bounded
     horizon = video.shape[0] - split
     window = max(1, min(TIME_WINDOW if time_window is None else time_window, (horizon - 1) // 2))
     n_assimilated = split + 1 if assimilate is None else min(assimilate, split + 1)

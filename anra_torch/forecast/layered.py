@@ -24,7 +24,8 @@ layers are scaled by the mean ratio of the measured surface to the model's over 
 :func:`layered_plate` says whether a diagnosis asks for it and is a flash plate's (a defect map's plate
 among its hints, from :func:`~anra_torch.recording.flash_hints` with ``layered``, and ``depth_conduction``
 named; no effect that replaces the diffusion but the anisotropy); :func:`layered_forecast` makes the
-forecast. ``anra diagnose --maps FILE --layered`` uses it; docs/results/flash.md measures it.
+forecast; :func:`within_layered` bounds a refit as the layers run it (the earned diagnosis' inner splits).
+``anra diagnose --maps FILE --layered`` uses it; docs/results/flash.md measures it.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from dataclasses import replace
 import torch
 from torch import Tensor
 
+from anra_torch.effects import EFFECTS
 from anra_torch.forecast.core import extended_effects
 from anra_torch.forecast.layers import LayeredPlate, Layers, definite, surface
 from anra_torch.selection import Diagnosis
@@ -50,6 +52,7 @@ __all__ = [
     "fitted_plate",
     "layered_forecast",
     "layered_plate",
+    "within_layered",
 ]
 
 _F64 = torch.float64
@@ -110,6 +113,39 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
     others = tuple(e for e in chosen if e.name in rest)
     t_heat, t_ref = depth.params["t_heat"], depth.params["T_ref"]
     return LayeredPlate(lateral, plate_time, t_heat, t_ref, defect, others, measured)
+
+
+def within_layered(diagnosis: Diagnosis) -> Diagnosis:
+    """``diagnosis`` with what the layered forecast does not need from the balance bounded, where the
+    layered forecast is asked for (:func:`layered_plate`'s conditions for all its effects); else
+    ``diagnosis`` itself, for the other forecasts to refuse what cannot be simulated.
+
+    - an anisotropy whose tensor is not positive definite takes the defect map's (the layered plate's
+      other candidate, :func:`fitted_plate`, which leaves out one not positive definite);
+    - a linear loss whose rate ``b`` (1/s) is negative, a heat gain, is no loss (``b = 0``).
+
+    Both come from a balance that cools every pixel at the plate's rate since the flash: fitted on fewer
+    frames (:func:`~anra_torch.forecast.earned_diagnosis`' inner splits, plate 3 of
+    experiments.flash_defect_map), they took up its misfit (``a_x`` -0.94 mm^2/s, ``b`` -0.028 1/s), which
+    the layers, resolving the depth themselves, do not have.
+    """
+    held = diagnosis.hints.get("depth_conduction")
+    effects = {record["name"]: dict(record) for record in diagnosis.effects}
+    if not held or not held[0].get("layered") or "depth_conduction" not in effects:
+        return diagnosis
+    anisotropy, loss = effects.pop("anisotropy", None), effects.get("linear_loss")
+    if any(EFFECTS[name].replaces_diffusion for name in effects):
+        return diagnosis
+    measured: dict[str, float] = {k: held[0][k] for k in ("a_x", "a_y", "a_xy") if k in held[0]}
+    if anisotropy is not None and len(measured) == 3:
+        params = anisotropy["params"]
+        if not definite((params["a_x"], params["a_y"], params["a_xy"])):
+            derived = EFFECTS[anisotropy["name"]].derived
+            anisotropy["params"] = {**params, **measured, **(derived(measured) if derived else {})}
+    if loss is not None and loss["params"]["b"] < 0:
+        loss["params"] = {**loss["params"], "b": 0.0}
+    chosen = {**effects, **({} if anisotropy is None else {anisotropy["name"]: anisotropy})}
+    return replace(diagnosis, effects=[chosen[record["name"]] for record in diagnosis.effects])
 
 
 def layered_forecast(

@@ -3,7 +3,10 @@ frames needs it, and the smallest model whose forecast is within the noise of th
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 import torch
@@ -123,3 +126,68 @@ def test_each_model_is_fitted_once_per_split_and_compared_on_the_same_split(monk
     assert sorted(fitted) == sorted([["linear_loss"], []] * 3)
     assert kept == ["linear_loss"] and removed == []
     assert cost == {"linear_loss": pytest.approx((2.0 + 4.0 + 6.0) / 3)}
+
+
+@pytest.fixture(scope="module")
+def layered_refit():
+    """The independent plate (no noise, 28 x 28 px, 40 frames over 2 s; the map's tensor its own) and its
+    depth term, anisotropy and loss fitted on frames 0 .. 29 with a layered plate's hints."""
+    from anra_torch.simulation.plate_reference import PlateSetup, reference_plate_video
+
+    setup = PlateSetup(thickness=1.0, duration=2.0, shape=(28, 28), dx=0.4, n_frames=40, noise_sd=0.0, seed=3)
+    video = reference_plate_video(setup)
+    frames, dt, dx, split = torch.as_tensor(video.frames).to(torch.float64), 2.0 / 40, 0.4, 29
+    held = {"T_ref": 20.0, "plate_time": video.plate_time, "t_heat": -dt}
+    layered = {**held, "layered": 1.0, "a_x": 7.3, "a_y": 1.1, "a_xy": 0.0}
+    (inner,) = fit_effects(
+        frames[: split + 1], dt, dx, [["depth_conduction", "anisotropy", "linear_loss"]], smoothing=1.0,
+        hints={"depth_conduction": (layered,), "delamination": ()},
+    )  # fmt: skip
+
+    def refit(anisotropy: dict, b: float, plate: dict) -> Any:
+        changed = {"anisotropy": anisotropy, "linear_loss": {"b": b}}
+        effects = [{**e, "params": {**e["params"], **changed[e["name"]]}} if e["name"] in changed else e
+                   for e in inner.effects]  # fmt: skip
+        return replace(inner, effects=effects, hints={**inner.hints, "depth_conduction": (plate,)})
+
+    return SimpleNamespace(frames=frames, dt=dt, dx=dx, split=split, held=held, layered=layered, refit=refit)
+
+
+UNPHYSICAL = {"a_x": -0.94, "a_y": 0.38, "a_xy": 0.1}  # an inner refit's tensor on plate 3
+
+
+def test_a_layered_plates_inner_refit_is_judged_with_the_maps_tensor_and_no_heat_gain(layered_refit) -> None:
+    """An inner split's refit of a flash plate whose tensor is not positive definite and whose loss rate is
+    negative (as the balance's refits of experiments.flash_defect_map's plate 3 on 0.6 of its fit frames)
+    is forecast as the layered plate would run it, with the defect map's tensor and no loss: the same score
+    as that model, where it was infinite and judged no effect. Not asked to be layered, the same refit is
+    still refused (infinite)."""
+    p = layered_refit
+
+    def score(diagnosis: Any) -> float:
+        return earn._validation(p.frames, p.dt, p.dx, diagnosis, p.split, None, None, (False, False))
+
+    expected = score(p.refit({"a_x": 7.3, "a_y": 1.1, "a_xy": 0.0}, 0.0, p.layered))
+    assert math.isfinite(expected)
+    assert score(p.refit(UNPHYSICAL, -0.028, p.layered)) == pytest.approx(expected, rel=1e-12)
+    assert score(p.refit(UNPHYSICAL, -0.028, p.held)) == math.inf
+
+
+def test_a_layered_plates_anisotropy_refitted_unphysical_takes_the_maps_tensor(layered_refit) -> None:
+    """The earned model refitted on the whole fit frames drops an anisotropy whose tensor is not positive
+    definite (rule "unphysical"); for a layered plate it comes back with the defect map's tensor, as its
+    inner splits judged it, and leaves the unphysical entries. Not layered: dropped as before."""
+    p = layered_refit
+    for plate, restored in ((p.layered, True), (p.held, False)):
+        diagnosis = p.refit(UNPHYSICAL, 0.01, plate)
+        final = replace(diagnosis, effects=[e for e in diagnosis.effects if e["name"] != "anisotropy"])
+        dropped = [{"name": "anisotropy", "params": UNPHYSICAL, "rule": "unphysical"}]
+        got, unphysical = earn._layered_tensor(final, diagnosis, dropped)
+        if not restored:
+            assert got is final and unphysical == dropped
+            continue
+        assert unphysical == []
+        assert got.names == ["depth_conduction", "linear_loss", "anisotropy"]
+        maps = {"a_x": 7.3, "a_y": 1.1, "a_xy": 0.0, "ratio": 7.3 / 1.1, "angle_deg": 0.0}  # derived too
+        assert got.effects[-1]["params"] == pytest.approx(maps)
+        assert got.effects[:2] == final.effects  # the others as refitted without it

@@ -4,6 +4,7 @@ and what the layers fit themselves (a defect's face, the lateral tensor) on the 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any
 
@@ -18,6 +19,7 @@ from anra_torch.forecast.layered import (
     fitted_plate,
     layered_forecast,
     layered_plate,
+    within_layered,
 )
 
 T_REF = 20.0
@@ -62,6 +64,61 @@ def test_the_model_of_a_flash_plate_is_read_from_the_chosen_effects() -> None:
     assert model.defect == (2.0, 3.0, 1.5, 0.5, 1.0)
     assert model.others == (loss,)
     assert layered_plate(diagnosis(True), {"depth_conduction", "heterogeneity"}) is None
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """What :func:`within_layered` and :func:`layered_plate` read of a diagnosis."""
+
+    effects: list[dict[str, Any]]
+    hints: dict[str, Any] = field(default_factory=dict)
+    base: float = 3.0
+
+    @property
+    def names(self) -> list[str]:
+        return [e["name"] for e in self.effects]
+
+
+def test_a_layered_plates_refit_takes_the_maps_tensor_and_no_heat_gain() -> None:
+    """A refit of a layered plate (the earned diagnosis' inner splits) whose tensor is not positive definite
+    takes the defect map's, and a negative loss rate is no loss; the layered plate can then be built, as it
+    cannot from the refit itself. A PD tensor and a loss stay; a plate not asked to be layered, or a model the
+    layers do not run (one that replaces the diffusion besides the anisotropy), is returned as it is."""
+    depth = {"strength": 1.0, "t_heat": -0.1, "depth_time": 4.0, "T_ref": T_REF}
+    held = {"T_ref": T_REF, "plate_time": 4.0, "t_heat": -0.1}
+    layered = {"depth_conduction": ({**held, "layered": 1.0, "a_x": 7.0, "a_y": 1.1, "a_xy": 0.2},)}
+
+    def refit(tensor: tuple[float, float, float], b: float, hints: dict, *more: dict) -> Fitted:
+        a_x, a_y, a_xy = tensor
+        effects = [
+            {"name": "depth_conduction", "params": depth},
+            {"name": "anisotropy", "params": {"a_x": a_x, "a_y": a_y, "a_xy": a_xy, "ratio": 2.0}},
+            {"name": "linear_loss", "params": {"b": b, "T_ref": T_REF}},
+            *more,
+        ]
+        return Fitted(effects, hints)
+
+    names = {"depth_conduction", "anisotropy", "linear_loss"}
+    unphysical = refit((-0.94, 0.38, 0.1), -0.028, layered)
+    with pytest.raises(ValueError, match="positive definite"):
+        layered_plate(unphysical, names)
+    bounded = within_layered(unphysical)
+    eigen = np.linalg.eigvalsh(np.array([[7.0, 0.2], [0.2, 1.1]]))
+    tensor = {"a_x": 7.0, "a_y": 1.1, "a_xy": 0.2}  # with its derived values, the ratio and the axis' angle
+    assert bounded.effects[1]["params"] == pytest.approx(
+        {**tensor, "ratio": eigen[1] / eigen[0], "angle_deg": math.degrees(math.atan2(0.4, 5.9)) / 2}
+    )
+    assert bounded.effects[2]["params"] == {"b": 0.0, "T_ref": T_REF}
+    model = layered_plate(bounded, names)
+    assert model is not None and model.lateral == (7.0, 1.1, 0.2)
+    assert [(e.name, e.params["b"]) for e in model.others] == [("linear_loss", 0.0)]
+    assert unphysical.effects[1]["params"]["a_x"] == -0.94  # the refit itself untouched
+    physical = refit((6.0, 1.0, 0.5), 0.01, layered)
+    assert within_layered(physical) == physical
+    not_layered = refit((-0.94, 0.38, 0.1), -0.028, {"depth_conduction": (held,)})
+    replaced = refit((-0.94, 0.38, 0.1), -0.028, layered, {"name": "heterogeneity", "params": {}})
+    for other in (not_layered, replaced):
+        assert within_layered(other) is other
 
 
 def test_the_forecast_computes_where_its_frames_are() -> None:
