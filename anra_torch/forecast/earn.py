@@ -25,8 +25,8 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
   tensor that is not positive definite at the defect map's, a negative loss rate as none. The balance's
   refits on fewer frames land there (plate 3 of experiments.flash_defect_map: the models without one of
   its effects refused on all or 2 of 3 splits, no removal judged, the loss the truth lacks kept with a
-  held-out gain of -0.26); the surviving
-  model's anisotropy refitted so takes the map's tensor too instead of leaving the model.
+  held-out gain of -0.26); the surviving model's anisotropy refitted so takes the map's tensor too
+  instead of leaving the model.
 - **Offset steps.** Where the artefact search found global offset steps, the frames are forecast with the
   found steps taken out and scored frame by frame about their mean (the balance's per-frame fixed effects):
   a recalibration the camera made is forecast by no model and decides nothing. Where it found a static
