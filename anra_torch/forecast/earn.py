@@ -25,8 +25,8 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
   tensor that is not positive definite at the defect map's, a negative loss rate as none. The balance's
   refits on fewer frames land there (plate 3 of experiments.flash_defect_map: the models without one of
   its effects refused on all or 2 of 3 splits, no removal judged, the loss the truth lacks kept with a
-  held-out gain of -0.26); the surviving model's anisotropy refitted so takes the map's tensor too
-  instead of leaving the model.
+  held-out gain of -0.26). The surviving model is refitted as before: an anisotropy refitted there not
+  positive definite leaves it (rule ``"unphysical"``).
 - **Offset steps.** Where the artefact search found global offset steps, the frames are forecast with the
   found steps taken out and scored frame by frame about their mean (the balance's per-frame fixed effects):
   a recalibration the camera made is forecast by no model and decides nothing. Where it found a static
@@ -70,7 +70,6 @@ from anra_torch.forecast.core import (
 )
 from anra_torch.forecast.gain import _Forecasts
 from anra_torch.forecast.layered import within_layered
-from anra_torch.forecast.layers import definite
 from anra_torch.forecast.pattern import pixel_forcing
 from anra_torch.selection import Diagnosis, diagnose_terms, fit_effects
 
@@ -187,31 +186,8 @@ def _refit(
         dropped = [n for n in final.negligible if n.get("rule") == "unphysical"]
         unphysical.extend(n for n in dropped if n not in unphysical)
         if not any(n["name"] in kept for n in dropped):
-            return _layered_tensor(final, diagnosis, unphysical)
+            return final, unphysical
         kept = final.names
-
-
-def _layered_tensor(final: Diagnosis, diagnosis: Diagnosis, unphysical: list) -> tuple[Diagnosis, list]:
-    """``final`` and ``unphysical`` (:func:`_refit`'s), or, where the layered forecast is asked for and the
-    anisotropy was dropped because its refitted tensor is not positive definite, ``final`` with the
-    anisotropy back at the defect map's tensor (:func:`~anra_torch.forecast.layered.within_layered`, as the
-    inner splits judged it) and ``unphysical`` without it. The other effects stay as refitted without it
-    (``base`` the isotropic ``a``, which the layers use only without the anisotropy)."""
-    named = {e["name"]: e for e in diagnosis.effects}
-    entry = {n["name"]: n for n in unphysical}.get("anisotropy")
-    if entry is None or entry["name"] not in named or _definite(entry):
-        return final, unphysical
-    record = {**named[entry["name"]], "params": dict(entry["params"])}
-    restored = within_layered(replace(final, effects=[*final.effects, record]))
-    if not _definite(restored.effects[-1]):  # not a layered plate's, or no map's tensor
-        return final, unphysical
-    return restored, [n for n in unphysical if n is not entry]
-
-
-def _definite(record: dict) -> bool:
-    """Whether the tensor of an anisotropy's record ``{"params": {"a_x", "a_y", "a_xy", ...}}`` is PD."""
-    params = record["params"]
-    return definite((params["a_x"], params["a_y"], params["a_xy"]))
 
 
 def without_offsets(frames: Tensor, artefacts: Artefacts) -> Tensor:

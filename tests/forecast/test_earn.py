@@ -171,23 +171,3 @@ def test_a_layered_plates_inner_refit_is_judged_with_the_maps_tensor_and_no_heat
     assert math.isfinite(expected)
     assert score(p.refit(UNPHYSICAL, -0.028, p.layered)) == pytest.approx(expected, rel=1e-12)
     assert score(p.refit(UNPHYSICAL, -0.028, p.held)) == math.inf
-
-
-def test_a_layered_plates_anisotropy_refitted_unphysical_takes_the_maps_tensor(layered_refit) -> None:
-    """The earned model refitted on the whole fit frames drops an anisotropy whose tensor is not positive
-    definite (rule "unphysical"); for a layered plate it comes back with the defect map's tensor, as its
-    inner splits judged it, and leaves the unphysical entries. Not layered: dropped as before."""
-    p = layered_refit
-    for plate, restored in ((p.layered, True), (p.held, False)):
-        diagnosis = p.refit(UNPHYSICAL, 0.01, plate)
-        final = replace(diagnosis, effects=[e for e in diagnosis.effects if e["name"] != "anisotropy"])
-        dropped = [{"name": "anisotropy", "params": UNPHYSICAL, "rule": "unphysical"}]
-        got, unphysical = earn._layered_tensor(final, diagnosis, dropped)
-        if not restored:
-            assert got is final and unphysical == dropped
-            continue
-        assert unphysical == []
-        assert got.names == ["depth_conduction", "linear_loss", "anisotropy"]
-        maps = {"a_x": 7.3, "a_y": 1.1, "a_xy": 0.0, "ratio": 7.3 / 1.1, "angle_deg": 0.0}  # derived too
-        assert got.effects[-1]["params"] == pytest.approx(maps)
-        assert got.effects[:2] == final.effects  # the others as refitted without it
