@@ -22,11 +22,12 @@ tested in. :func:`earned_diagnosis` asks each effect what it does for a forecast
   effects; when no split is left, the model stays as the selection named it, its costs unknown (None).
 - **Layered plates.** Where the layered forecast is asked for (:mod:`~anra_torch.forecast.layered`), an
   inner refit is forecast as the layers run it (:func:`~anra_torch.forecast.layered.within_layered`): a
-  tensor that is not positive definite at the defect map's, a negative loss rate as none. The balance's
-  refits on fewer frames land there (plate 3 of experiments.flash_defect_map: the models without one of
-  its effects refused on all or 2 of 3 splits, no removal judged, the loss the truth lacks kept with a
-  held-out gain of -0.26). The surviving model is refitted as before: an anisotropy refitted there not
-  positive definite leaves it (rule ``"unphysical"``).
+  tensor that is not positive definite or an isotropic ``a`` that is not positive at the defect map's, a
+  negative loss rate as none. The balance's refits on fewer frames land there (plate 3 of
+  experiments.flash_defect_map: the models without one of its effects refused on all or 2 of 3 splits, no
+  removal judged, the loss the truth lacks kept with a held-out gain of -0.26; plate 11's depth term alone,
+  without the delamination, refused on every split). The surviving model is refitted as before: an
+  anisotropy refitted there not positive definite leaves it (rule ``"unphysical"``).
 - **Offset steps.** Where the artefact search found global offset steps, the frames are forecast with the
   found steps taken out and scored frame by frame about their mean (the balance's per-frame fixed effects):
   a recalibration the camera made is forecast by no model and decides nothing. Where it found a static

@@ -122,12 +122,15 @@ def within_layered(diagnosis: Diagnosis) -> Diagnosis:
 
     - an anisotropy whose tensor is not positive definite takes the defect map's (the layered plate's
       other candidate, :func:`fitted_plate`, which leaves out one not positive definite);
-    - a linear loss whose rate ``b`` (1/s) is negative, a heat gain, is no loss (``b = 0``).
+    - a linear loss whose rate ``b`` (1/s) is negative, a heat gain, is no loss (``b = 0``);
+    - without the anisotropy, an isotropic ``a`` (``base``, mm^2/s) that is not positive takes the mean of the
+      map's ``a_x`` and ``a_y`` (the layers' lateral diffusivity).
 
     Both come from a balance that cools every pixel at the plate's rate since the flash: fitted on fewer
     frames (:func:`~anra_torch.forecast.earned_diagnosis`' inner splits, plate 3 of
-    experiments.flash_defect_map), they took up its misfit (``a_x`` -0.94 mm^2/s, ``b`` -0.028 1/s), which
-    the layers, resolving the depth themselves, do not have.
+    experiments.flash_defect_map), they took up its misfit (``a_x`` -0.94 mm^2/s, ``b`` -0.028 1/s; plate 11
+    without its delamination ``a`` -0.56 mm^2/s), which the layers, resolving the depth themselves, do not
+    have.
     """
     held = diagnosis.hints.get("depth_conduction")
     effects = {record["name"]: dict(record) for record in diagnosis.effects}
@@ -145,7 +148,10 @@ def within_layered(diagnosis: Diagnosis) -> Diagnosis:
     if loss is not None and loss["params"]["b"] < 0:
         loss["params"] = {**loss["params"], "b": 0.0}
     chosen = {**effects, **({} if anisotropy is None else {anisotropy["name"]: anisotropy})}
-    return replace(diagnosis, effects=[chosen[record["name"]] for record in diagnosis.effects])
+    base = diagnosis.base
+    if anisotropy is None and base <= 0 and len(measured) == 3:  # the isotropic lateral a: the map's mean
+        base = (measured["a_x"] + measured["a_y"]) / 2
+    return replace(diagnosis, effects=[chosen[record["name"]] for record in diagnosis.effects], base=base)
 
 
 def layered_forecast(

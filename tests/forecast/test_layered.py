@@ -4,7 +4,7 @@ and what the layers fit themselves (a defect's face, the lateral tensor) on the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
 from typing import Any
 
@@ -81,7 +81,8 @@ class Fitted:
 
 def test_a_layered_plates_refit_takes_the_maps_tensor_and_no_heat_gain() -> None:
     """A refit of a layered plate (the earned diagnosis' inner splits) whose tensor is not positive definite
-    takes the defect map's, and a negative loss rate is no loss; the layered plate can then be built, as it
+    takes the defect map's, and a negative loss rate is no loss; without the anisotropy, an isotropic ``a``
+    that is not positive takes the mean of the map's. The layered plate can then be built and run, as it
     cannot from the refit itself. A PD tensor and a loss stay; a plate not asked to be layered, or a model the
     layers do not run (one that replaces the diffusion besides the anisotropy), is returned as it is."""
     depth = {"strength": 1.0, "t_heat": -0.1, "depth_time": 4.0, "T_ref": T_REF}
@@ -115,6 +116,14 @@ def test_a_layered_plates_refit_takes_the_maps_tensor_and_no_heat_gain() -> None
     assert unphysical.effects[1]["params"]["a_x"] == -0.94  # the refit itself untouched
     physical = refit((6.0, 1.0, 0.5), 0.01, layered)
     assert within_layered(physical) == physical
+    assert bounded.base == unphysical.base  # the anisotropy sets the lateral tensor, not ``base``
+    alone = Fitted([{"name": "depth_conduction", "params": depth}], layered, base=-0.56)  # no delamination
+    with pytest.raises(ValueError, match="positive definite"):
+        layered_forecast(torch.full((6, 8, 8), T_REF + 1.0, dtype=torch.float64, device="cpu"), 3, 0.1, 0.25,
+                         layered_plate(alone, {"depth_conduction"}))  # fmt: skip
+    isotropic = layered_plate(within_layered(alone), {"depth_conduction"})
+    assert isotropic is not None and isotropic.lateral == ((7.0 + 1.1) / 2, (7.0 + 1.1) / 2, 0.0)
+    assert within_layered(replace(alone, base=0.3)).base == 0.3
     not_layered = refit((-0.94, 0.38, 0.1), -0.028, {"depth_conduction": (held,)})
     replaced = refit((-0.94, 0.38, 0.1), -0.028, layered, {"name": "heterogeneity", "params": {}})
     for other in (not_layered, replaced):
