@@ -126,7 +126,7 @@ def within_layered(diagnosis: Diagnosis) -> Diagnosis:
     - without the anisotropy, an isotropic ``a`` (``base``, mm^2/s) that is not positive takes the mean of the
       map's ``a_x`` and ``a_y`` (the layers' lateral diffusivity).
 
-    Both come from a balance that cools every pixel at the plate's rate since the flash: fitted on fewer
+    All three come from a balance that cools every pixel at the plate's rate since the flash: fitted on fewer
     frames (:func:`~anra_torch.forecast.earned_diagnosis`' inner splits, plate 3 of
     experiments.flash_defect_map), they took up its misfit (``a_x`` -0.94 mm^2/s, ``b`` -0.028 1/s; plate 11
     without its delamination ``a`` -0.56 mm^2/s), which the layers, resolving the depth themselves, do not
