@@ -39,7 +39,7 @@ from torch import Tensor
 
 from anra_torch.effects import EFFECTS
 from anra_torch.forecast.core import extended_effects
-from anra_torch.forecast.layers import LayeredPlate, Layers, definite, surface
+from anra_torch.forecast.layers import Defect, LayeredPlate, Layers, definite, surface
 from anra_torch.selection import Diagnosis
 
 __all__ = [
@@ -80,9 +80,8 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
     """The model of ``diagnosis``' effects ``names`` (timed from its first frame) through the thickness, or
     None where it is not asked for or not a flash plate's: no defect map's plate among the diagnosis' hints
     or one without ``"layered"`` (:func:`~anra_torch.recording.flash_hints`' option), ``depth_conduction``
-    not among them, or an effect that replaces the diffusion other than the anisotropy. The layers model
-    the first delamination's face only: a second (``delamination_2``, not tried where the plate is layered,
-    but a model may give it) is left out of them (not yet a second face at its own depth).
+    not among them, or an effect that replaces the diffusion other than the anisotropy. Each delamination
+    (the first, then ``delamination_2``) is a face at its own depth over its disc.
 
     Raises:
         ValueError: asked for, with effects that cannot be simulated
@@ -94,8 +93,8 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
     chosen = [e for e in extended_effects(diagnosis) if e.name in names]
     rest = {e.name: e for e in chosen}  # what the layers do not model themselves acts on each layer
     depth = rest.pop("depth_conduction", None)
-    delamination, anisotropy = rest.pop("delamination", None), rest.pop("anisotropy", None)
-    rest.pop("delamination_2", None)  # the layers hold one face: a second delamination is left out of them
+    delaminations = [rest.pop("delamination", None), rest.pop("delamination_2", None)]
+    anisotropy = rest.pop("anisotropy", None)
     if depth is None or any(e.replaces_diffusion for e in rest.values()):
         return None
     lateral = (diagnosis.base, diagnosis.base, 0.0)
@@ -104,15 +103,14 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
         lateral = (anisotropy.params["a_x"], anisotropy.params["a_y"], anisotropy.params["a_xy"])
         hint = held[0]
         measured = (hint["a_x"], hint["a_y"], hint["a_xy"]) if "a_x" in hint else None
-    defect = None
     plate_time = depth.params["depth_time"]
-    if delamination is not None:
-        p = delamination.params
-        fraction = math.sqrt(min(p["depth_time"] / plate_time, 1.0))
-        defect = (p["x"], p["y"], p["radius"], fraction, 1.0 - PASSED[0])  # until fitted_face fits it
+    defects = tuple(
+        (p["x"], p["y"], p["radius"], math.sqrt(min(p["depth_time"] / plate_time, 1.0)), 1.0 - PASSED[0])
+        for p in (e.params for e in delaminations if e is not None)
+    )  # each passing no heat until fitted_face fits it
     others = tuple(e for e in chosen if e.name in rest)
     t_heat, t_ref = depth.params["t_heat"], depth.params["T_ref"]
-    return LayeredPlate(lateral, plate_time, t_heat, t_ref, defect, others, measured)
+    return LayeredPlate(lateral, plate_time, t_heat, t_ref, defects, others, measured)
 
 
 def within_layered(diagnosis: Diagnosis) -> Diagnosis:
@@ -219,22 +217,31 @@ def _misfit(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> float:
 
 
 def fitted_face(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> LayeredPlate:
-    """``plate`` with its defect's face passing the share of :data:`PASSED` whose run forecasts best the
-    last ``1 -`` :data:`FACE_SPLIT` of ``frames`` ``(T, H, W)`` from the frames before them (RMSE over the
+    """``plate`` with each defect's face in turn passing the share of :data:`PASSED` whose run forecasts best
+    the last ``1 -`` :data:`FACE_SPLIT` of ``frames`` ``(T, H, W)`` from the frames before them (RMSE over the
     defect's neighbourhood: its disc and the lateral diffusion length over the frames around it, the ring
-    following the frames; no stationary heat input); ``plate`` itself where it has no defect or too few
-    frames."""
-    if plate.defect is None or _inner(frames, dt, plate) is None:
+    following the frames; no stationary heat input; the other defects as fitted so far); ``plate`` itself
+    where it has no defect or too few frames."""
+    if _inner(frames, dt, plate) is None:
         return plate
-    x, y, radius, fraction, _ = plate.defect
+    for j in range(len(plate.defects)):
+        plate = replace(plate, defects=_fitted_share(frames, dt, dx, plate, j))
+    return plate
+
+
+def _fitted_share(frames: Tensor, dt: float, dx: float, plate: LayeredPlate, j: int) -> tuple[Defect, ...]:
+    """``plate``'s defects with the ``j``-th one's face passing the share :func:`fitted_face` fits."""
+    x, y, radius, fraction, _ = plate.defects[j]
     reach = radius + math.sqrt(max(plate.lateral[:2]) * (frames.shape[0] - 1) * dt) + 2 * dx
     # the other terms are placed on the whole frame: only a plate without them is forecast on a crop
     rows, cols = (slice(0, None), slice(0, None)) if plate.others else _around(x, y, reach, frames.shape, dx)
     part = frames[:, rows, cols]
-    moved = (x - (cols.start or 0) * dx, y - (rows.start or 0) * dx, radius, fraction)
+    left, top = (cols.start or 0) * dx, (rows.start or 0) * dx
+    moved = [(d[0] - left, d[1] - top, *d[2:]) for d in plate.defects]  # in the crop's coordinates
 
     def misfit(passed: float) -> float:
-        return _misfit(part, dt, dx, replace(plate, defect=(*moved, 1.0 - passed)))
+        defects = tuple((*d[:4], 1.0 - passed) if i == j else d for i, d in enumerate(moved))
+        return _misfit(part, dt, dx, replace(plate, defects=defects))
 
     best, lowest = PASSED[0], misfit(PASSED[0])
     for passed in PASSED[1:]:  # in order until the misfit rises (one minimum along the shares)
@@ -242,7 +249,7 @@ def fitted_face(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> La
         if error >= lowest:
             break
         best, lowest = passed, error
-    return replace(plate, defect=(x, y, radius, fraction, 1.0 - best))
+    return tuple((x, y, radius, fraction, 1.0 - best) if i == j else d for i, d in enumerate(plate.defects))
 
 
 def _around(x: float, y: float, reach: float, shape: torch.Size, dx: float) -> tuple[slice, slice]:

@@ -4,9 +4,10 @@ The layers are graded from the surface (:data:`LAYERS`), in the depth ``zeta = z
 diffusion into depth is ``(1 / (L^2 / a_z)) d^2 T / d zeta^2`` (front-face data fix only ``L^2 / a_z``,
 and nothing else is needed). :class:`Layers` steps them one frame ahead: the diffusion into depth exactly
 (each step's propagator; over a defect's disc each pixel through its own face, which passes a share of
-the intact conductance), split around the lateral diffusion, stepped exactly in the sine basis of the
-frame's interior (:class:`_Across`), with the mixed derivative ``a_xy`` and the plate's other terms held
-over the step; the frame's outermost pixel ring follows the measured frames.
+the intact conductance; each defect a face at its own depth), split around the lateral diffusion, stepped
+exactly in the sine basis of the frame's interior (:class:`_Across`), with the mixed derivative ``a_xy``
+and the plate's other terms held over the step; the frame's outermost pixel ring follows the measured
+frames.
 :mod:`anra_torch.forecast.layered` builds the plate from a diagnosis and forecasts with it.
 """
 
@@ -31,6 +32,8 @@ _F64 = torch.float64
 _STABLE = 0.8  # an explicit substep's rate times its length at most this (a_xy, the other terms)
 _LEVELS = 16  # a defect face's share of the heat it stops, in steps of 1/16 (one propagator a step)
 
+Defect = tuple[float, float, float, float, float]
+
 
 @dataclass(frozen=True)
 class LayeredPlate:
@@ -41,8 +44,8 @@ class LayeredPlate:
         plate_time: ``L^2 / a_z`` in s.
         t_heat: the flash's time relative to the first frame in s (< 0).
         t_ref: the temperature before the flash (data units).
-        defect: the delamination's ``(x, y, radius, d / L, strength)`` (mm, mm, mm, 1, 1; ``strength`` the
-            share of the intact conductance its face stops), or None.
+        defects: each delamination's ``(x, y, radius, d / L, strength)`` (mm, mm, mm, 1, 1; ``strength`` the
+            share of the intact conductance its face stops), each a face at its own depth; none, one or more.
         others: the model's other effects, each acting on every layer.
         measured: the defect map's lateral diffusivities ``(a_x, a_y, a_xy)`` in mm^2/s, the anisotropy's
             other candidate (:func:`~anra_torch.forecast.layered.fitted_plate`), or None.
@@ -52,7 +55,7 @@ class LayeredPlate:
     plate_time: float
     t_heat: float
     t_ref: float
-    defect: tuple[float, float, float, float, float] | None
+    defects: tuple[Defect, ...]
     others: tuple[Effect, ...]
     measured: tuple[float, float, float] | None = None
 
@@ -71,8 +74,9 @@ class Layers:
     def __init__(self, plate: LayeredPlate, frames: Tensor, dt: float, dx: float, forcing: Tensor | None):
         self.plate, self.frames, self.dt, self.dx, self.forcing = plate, frames, dt, dx, forcing
         height, width = frames.shape[1:]
-        self.block, self.fraction = _block(plate, (height, width), dx, frames.device)
-        self.faces = depth_faces(self.fraction).to(frames.device)
+        self.block, self.which, fractions = _block(plate, (height, width), dx, frames.device)
+        faces, self.cuts = _graded(fractions)
+        self.faces = faces.to(frames.device)
         grid = Grid((height, width), dx)
         self.terms = [e.spec.build(e.params, grid) for e in plate.others]
         low, high = float(frames.min()) + plate.t_ref, float(frames.max()) + plate.t_ref
@@ -83,21 +87,22 @@ class Layers:
         self.across = _Across(plate.lateral, (height, width), dx, h, frames.device)
         self.intact = torch.linalg.matrix_exp(_depth_operator(self.faces, plate.plate_time, None) * h / 2)
         self.last: tuple[int, Tensor] | None = None
-        self.over, self.cut = _face_steps(self.faces, plate.plate_time, self.fraction, self.block, h / 2)
+        self.over, self.cut = _face_steps(
+            self.faces, plate.plate_time, self.cuts, (self.block, self.which), h / 2
+        )
 
     def profiles(self, elapsed: float) -> Tensor:
         """Each pixel's temperature through the thickness ``elapsed`` s after the flash over its surface's,
-        ``(layers, H, W)``: the plate's, blended over a defect (the share its face stops) with the layer's
-        above the face (nothing below it)."""
+        ``(layers, H, W)``: the plate's, blended over each defect (the share its face stops, where it is the
+        pixel's defect) with the layer's above its face (nothing below it)."""
         plate, block = self.plate, self.block
         profile = _profile(self.faces, elapsed, plate.plate_time)[:, None, None] * (1 - block)[None]
-        if self.fraction is None:
-            return profile
-        f = self.fraction
-        upper = self.faces[self.faces <= f + 1e-12] / f
-        shallow = torch.zeros_like(self.faces[1:])
-        shallow[: len(upper) - 1] = _profile(upper, elapsed, plate.plate_time * f**2)
-        return profile + shallow[:, None, None] * block[None]
+        for j, cut in enumerate(self.cuts):
+            f = float(self.faces[cut])
+            shallow = torch.zeros_like(self.faces[1:])
+            shallow[:cut] = _profile(self.faces[: cut + 1] / f, elapsed, plate.plate_time * f**2)
+            profile = profile + shallow[:, None, None] * (block * (self.which == j))[None]
+        return profile
 
     def advance(self, state: Tensor, k: int) -> Tensor:
         """The layers at frame ``k + 1`` from those at frame ``k``; the edge ring follows the frames. Each
@@ -191,30 +196,37 @@ def _sines(n: int, dx: float, device: torch.device) -> tuple[Tensor, Tensor]:
 
 
 def _face_steps(
-    faces: Tensor, plate_time: float, fraction: float | None, block: Tensor, h: float
+    faces: Tensor, plate_time: float, cuts: tuple[int, ...], shares: tuple[Tensor, Tensor], h: float
 ) -> tuple[Tensor, Tensor | None]:
     """The pixels over a defect ``(H, W)`` bool and each one's propagator of the diffusion into depth over
-    ``h`` s ``(pixels, n, n)``: its face at ``fraction`` passing ``1 - block`` of the intact conductance
-    (``block`` in steps of :data:`_LEVELS`; one matrix exponential per step present)."""
+    ``h`` s ``(pixels, n, n)``: the face ``faces[cuts[j]]`` of its defect ``j`` (``shares``: the share of
+    the heat stopped and which defect, each ``(H, W)``) passing ``1 - share`` of the intact conductance
+    (the share in steps of :data:`_LEVELS`; one matrix exponential per defect and step present)."""
+    block, which = shares
     level = (block * _LEVELS).round()
     over = level > 0
-    if fraction is None or not bool(over.any()):
+    if not cuts or not bool(over.any()):
         return over, None
-    steps, which = torch.unique(level[over], return_inverse=True)
-    device = block.device
-    propagators = torch.stack(
-        [
-            torch.linalg.matrix_exp(_depth_operator(faces, plate_time, fraction, 1 - float(s) / _LEVELS) * h)
-            for s in steps.cpu()
-        ]
-    ).to(device)
-    return over, propagators[which]
+    steps, index = torch.unique(which[over] * (_LEVELS + 1) + level[over].long(), return_inverse=True)
+    operators = [
+        _depth_operator(
+            faces, plate_time, cuts[int(s) // (_LEVELS + 1)], 1 - (int(s) % (_LEVELS + 1)) / _LEVELS
+        )
+        for s in steps.cpu()
+    ]
+    propagators = torch.stack([torch.linalg.matrix_exp(operator * h) for operator in operators])
+    return over, propagators.to(block.device)[index]
 
 
-def depth_faces(cut: float | None = None) -> Tensor:
+def depth_faces(*cuts: float) -> Tensor:
     """The layers' faces through the thickness as shares of it, 0 to 1, graded (:data:`LAYERS`), with a face
-    at ``cut`` (a defect's ``d / L``) where given (moved there from the nearest, as a mesher puts a node on a
-    crack), ``(layers + 1,)`` float64 on the CPU."""
+    at each of ``cuts`` (each defect's ``d / L``; moved there from the nearest, as a mesher puts a node on a
+    crack; of two cuts nearest the same face, the first's), ``(layers + 1,)`` float64 on the CPU."""
+    return _graded(cuts)[0]
+
+
+def _graded(cuts: tuple[float, ...]) -> tuple[Tensor, tuple[int, ...]]:
+    """:func:`depth_faces` of ``cuts`` and the index of each cut's face in them."""
     first, growth, thickest = LAYERS
     faces, size = [0.0], first
     while faces[-1] + 0.5 * size < 1.0:
@@ -222,21 +234,22 @@ def depth_faces(cut: float | None = None) -> Tensor:
         size = min(size * growth, thickest)
     faces[-1] = 1.0
     grid = torch.tensor(faces, dtype=_F64, device="cpu")
-    if cut is not None:
-        nearest = int((grid[1:-1] - cut).abs().argmin()) + 1
-        grid[nearest] = cut
-    return grid
+    nearest = tuple(int((grid[1:-1] - cut).abs().argmin()) + 1 for cut in cuts)
+    for cut, face in reversed(list(zip(cuts, nearest, strict=True))):  # the first cut at a face placed last
+        grid[face] = cut
+    return grid, nearest
 
 
-def _depth_operator(faces: Tensor, plate_time: float, cut: float | None, passed: float = 0.0) -> Tensor:
+def _depth_operator(faces: Tensor, plate_time: float, cut: int | None, passed: float = 0.0) -> Tensor:
     """The finite-volume operator of ``dT/dt = (1 / (L^2 / a_z)) d^2 T / d zeta^2`` on the layers between
-    ``faces`` ``(n + 1,)``, both faces insulated, the face at ``cut`` passing ``passed`` of its conductance
-    (0: no heat), ``(n, n)``."""
+    ``faces`` ``(n + 1,)``, both faces insulated, the face ``faces[cut]`` (an inner one) passing ``passed``
+    of its conductance (0: no heat), ``(n, n)``."""
     size = faces.diff()
     centres = (faces[1:] + faces[:-1]) / 2
     g = 1 / (plate_time * centres.diff())  # the conductance between neighbouring centres
     if cut is not None:
-        g = torch.where((faces[1:-1] - cut).abs() < 1e-12, g * passed, g)
+        g = g.clone()
+        g[cut - 1] = g[cut - 1] * passed
     n = len(size)
     k = torch.arange(n - 1, device=faces.device)
     operator = torch.zeros(n, n, dtype=faces.dtype, device=faces.device)
@@ -249,17 +262,19 @@ def _depth_operator(faces: Tensor, plate_time: float, cut: float | None, passed:
 
 def _block(
     plate: LayeredPlate, shape: tuple[int, int], dx: float, device: torch.device
-) -> tuple[Tensor, float | None]:
-    """The share of the heat the defect's face stops per pixel ``(H, W)`` and the face's ``d / L``."""
+) -> tuple[Tensor, Tensor, tuple[float, ...]]:
+    """The share of the heat the defects' faces stop per pixel ``(H, W)``, which defect's face it is per pixel
+    ``(H, W)`` int64 (where discs overlap, the one that stops more), and each face's ``d / L``."""
     height, width = shape
-    if plate.defect is None:
-        return torch.zeros(shape, dtype=_F64, device=device), None
-    x, y, radius, fraction, strength = plate.defect
     xs = (torch.arange(width, dtype=_F64, device=device) + 0.5) * dx
     ys = (torch.arange(height, dtype=_F64, device=device) + 0.5) * dx
-    r = torch.sqrt((xs[None, :] - x) ** 2 + (ys[:, None] - y) ** 2)
-    disc = 0.5 * (1 + torch.tanh((radius - r) / dx))  # the delamination's disc, its tanh edge 1 px wide
-    return strength * disc, min(max(fraction, 0.02), 0.98)
+    shares = [torch.zeros(shape, dtype=_F64, device=device)]
+    for x, y, radius, _, strength in plate.defects:
+        r = torch.sqrt((xs[None, :] - x) ** 2 + (ys[:, None] - y) ** 2)
+        shares.append(strength * 0.5 * (1 + torch.tanh((radius - r) / dx)))  # its disc, the edge 1 px wide
+    block, which = torch.stack(shares).max(0)
+    fractions = tuple(min(max(d[3], 0.02), 0.98) for d in plate.defects)
+    return block, (which - 1).clamp(min=0), fractions
 
 
 def _profile(faces: Tensor, elapsed: float, plate_time: float) -> Tensor:

@@ -89,10 +89,9 @@ def test_one_region_or_none_leaves_the_second_untried(two_defects) -> None:
         assert "delamination_2" not in d.scores and d.names == NAMES[:2], (d.names, d.scores)
 
 
-def test_the_layered_forecast_holds_the_first_face_only() -> None:
-    """The layers hold one face (the first delamination's): a second, given in a model (it is not tried
-    where the plate is layered), is left out of them, not run as the surface balance's term on every
-    layer."""
+def test_the_layered_forecast_holds_a_face_for_each_delamination() -> None:
+    """The layers hold each delamination's face at its own depth (the first's, then the second's), not the
+    surface balance's term on every layer."""
     from anra_torch.forecast.layered import layered_plate
 
     held = {"T_ref": 30.0, "plate_time": 5.0, "t_heat": -0.08, "layered": 1.0}
@@ -100,4 +99,6 @@ def test_the_layered_forecast_holds_the_first_face_only() -> None:
     diagnosis = SimpleNamespace(hints={"depth_conduction": (held,)}, base=0.5, effects=effects)
     model = layered_plate(diagnosis, set(NAMES))  # type: ignore[arg-type]
     assert model is not None and model.others == ()
-    assert model.defect is not None and model.defect[:3] == (FIRST["x"], FIRST["y"], FIRST["radius"])
+    assert [d[:3] for d in model.defects] == [(p["x"], p["y"], p["radius"]) for p in (FIRST, SECOND)]
+    depths = [math.sqrt(p["depth_time"] / p["plate_time"]) for p in (FIRST, SECOND)]
+    assert [d[3] for d in model.defects] == pytest.approx(depths)

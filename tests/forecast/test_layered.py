@@ -26,7 +26,7 @@ T_REF = 20.0
 
 
 def plate(**changes: object) -> LayeredPlate:
-    fields = dict(lateral=(2.0, 2.0, 0.0), plate_time=4.0, t_heat=-0.2, t_ref=T_REF, defect=None, others=())
+    fields = dict(lateral=(2.0, 2.0, 0.0), plate_time=4.0, t_heat=-0.2, t_ref=T_REF, defects=(), others=())
     return LayeredPlate(**{**fields, **changes})  # type: ignore[arg-type]
 
 
@@ -61,7 +61,7 @@ def test_the_model_of_a_flash_plate_is_read_from_the_chosen_effects() -> None:
     model = layered_plate(diagnosis(True), {"depth_conduction", "anisotropy", "delamination", "linear_loss"})
     assert model is not None
     assert model.lateral == (6.0, 1.0, 0.5) and model.measured == (7.0, 1.1, 0.2)
-    assert model.defect == (2.0, 3.0, 1.5, 0.5, 1.0)
+    assert model.defects == ((2.0, 3.0, 1.5, 0.5, 1.0),)
     assert model.others == (loss,)
     assert layered_plate(diagnosis(True), {"depth_conduction", "heterogeneity"}) is None
 
@@ -136,7 +136,7 @@ def test_the_forecast_computes_where_its_frames_are() -> None:
     rng = np.random.default_rng(0)
     video = torch.tensor(T_REF + 1 + rng.random((12, 10, 14)), device="cpu")
     loss = Effect("linear_loss", {"b": 0.05, "T_ref": T_REF})
-    model = plate(defect=(1.5, 1.2, 0.8, 0.5, 0.9), others=(loss,))
+    model = plate(defects=((1.5, 1.2, 0.8, 0.5, 0.9),), others=(loss,))
     want = layered_forecast(video, 6, 0.05, 0.25, model, assimilated=3)
     with torch.device("meta"):
         got = layered_forecast(video, 6, 0.05, 0.25, model, assimilated=3)
@@ -163,8 +163,8 @@ def test_a_defects_face_forecasts_an_independent_plate_better() -> None:
     frames, dt, split = torch.as_tensor(video.frames).to(torch.float64), 3.8 / 80, 47
     truth = frames[split + 1 :, 3:-3, 3:-3]
     errors = []
-    for defect in ((4.8, 4.8, math.sqrt(3.0 * 2.0), 0.87 / 1.3, 1.0), None):
-        model = plate(lateral=(7.3, 1.1, 0.0), plate_time=video.plate_time, t_heat=-dt, defect=defect)
+    for defects in (((4.8, 4.8, math.sqrt(3.0 * 2.0), 0.87 / 1.3, 1.0),), ()):
+        model = plate(lateral=(7.3, 1.1, 0.0), plate_time=video.plate_time, t_heat=-dt, defects=defects)
         forecast = layered_forecast(frames, split, dt, 0.4, model, assimilated=10)[:, 3:-3, 3:-3]
         errors.append(float((forecast - truth).pow(2).mean().sqrt()))
     assert errors[0] < 0.7 * errors[1], errors
@@ -183,11 +183,11 @@ def test_the_face_passes_the_share_of_heat_the_independent_plates_defect_passes(
     video = reference_plate_video(setup)
     frames, dt = torch.as_tensor(video.frames).to(torch.float64)[:36], 3.0 / 60
     model = plate(
-        lateral=(7.3, 1.1, 0.0), plate_time=video.plate_time, t_heat=-dt, defect=(4.8, 4.8, 2.4, 0.5, 0.5)
+        lateral=(7.3, 1.1, 0.0), plate_time=video.plate_time, t_heat=-dt, defects=((4.8, 4.8, 2.4, 0.5, 0.5),)
     )
     fitted = fitted_face(frames, dt, 0.4, model)
-    assert fitted.defect is not None and fitted.defect[4] == pytest.approx(1 - transmission)
-    assert fitted.defect[:4] == model.defect[:4] and fitted.lateral == model.lateral
+    assert fitted.defects[0][4] == pytest.approx(1 - transmission)
+    assert fitted.defects[0][:4] == model.defects[0][:4] and fitted.lateral == model.lateral
 
 
 def test_the_lateral_tensor_is_the_candidate_that_forecasts_the_frames_before_the_split() -> None:
@@ -207,3 +207,21 @@ def test_the_lateral_tensor_is_the_candidate_that_forecasts_the_frames_before_th
     for lateral, measured in ((wrong, truth), (truth, wrong), ((-1.0, 1.0, 0.0), truth)):
         model = plate(lateral=lateral, measured=measured, plate_time=1.0, t_heat=-20.0)
         assert fitted_plate(frames, 0.02, 0.25, model).lateral == truth
+
+
+def test_each_defects_face_is_fitted_in_turn() -> None:
+    """Each half of the frame cooling as the layer above a face that stops all heat (the closed form of an
+    insulated layer, 0.5 and 0.3 of the thickness, discs so large their edges meet down the middle): both
+    faces, given passing half the heat, are fitted to pass none, each at its own depth and place."""
+    dt, frames = 0.05, 40
+    elapsed = 0.2 + dt * np.arange(frames)
+    n = np.arange(1, 4000)[:, None]
+    video = torch.empty(frames, 12, 16, dtype=torch.float64)
+    for share, columns in ((0.5, slice(0, 8)), (0.3, slice(8, None))):
+        layer = (1 + 2 * np.exp(-(n**2) * math.pi**2 * elapsed / (16.0 * share**2)).sum(0)) / share
+        video[:, :, columns] = torch.tensor(T_REF + layer)[:, None, None]
+    given = ((2.0 - 1000.0, 1.5, 1000.0, 0.5, 0.5), (2.0 + 1000.0, 1.5, 1000.0, 0.3, 0.5))
+    model = plate(lateral=(0.01, 0.01, 0.0), plate_time=16.0, defects=given)
+    fitted = fitted_face(video, dt, 0.25, model)
+    assert [d[4] for d in fitted.defects] == [1.0, 1.0]
+    assert [d[:4] for d in fitted.defects] == [d[:4] for d in given]
