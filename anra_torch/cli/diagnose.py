@@ -131,8 +131,8 @@ def _add_flash_arguments(parser: argparse.ArgumentParser) -> None:
         "--layered",
         action="store_true",
         help="with --maps: forecast the plate on layers through its thickness (the diffusion into depth and "
-        "a delamination's face resolved) instead of by its surface alone; an experimental option, measured "
-        "on docs/results/flash.md",
+        "each delamination's face resolved) instead of by its surface alone; an experimental option, "
+        "measured on docs/results/flash.md",
     )
 
 

@@ -6,11 +6,8 @@ A model names each effect once; a plate with two defects needs two delaminations
 candidate regions or more (:attr:`EffectSpec.tried`: the defects of a flash defect map,
 :func:`~anra_torch.recording.flash_hints`), held at the best region the first does not cover (the first,
 refitted beside it, likewise at a region this one does not cover); it enters the model, or not, by the
-same tests as every effect. Without regions (no defect map) it is never tried, nor where the plate is to be
-forecast through its thickness (the depth term's hint asks for ``"layered"``,
-:mod:`anra_torch.forecast.layered`): the layers hold one face, the first delamination's, and a second named
-there forecast nothing (on a 2.0 mm plate of ``experiments.flash_defect_map`` it was named with an own gain of
-exactly 0 and lowered the model's gain from 0.947 to 0.943).
+same tests as every effect. Without regions (no defect map) it is never tried. Where the plate is
+forecast through its thickness (:mod:`anra_torch.forecast.layered`) it is a face of its own at its depth.
 """
 
 from __future__ import annotations
@@ -23,8 +20,5 @@ __all__ = ["SPEC"]
 SPEC = EffectSpec(
     **spec_fields("delamination_2"),
     requires=("depth_conduction", "delamination"),
-    tried=lambda hints: (
-        len(hints.get("delamination", ())) >= 2
-        and not any(plate.get("layered") for plate in hints.get("depth_conduction", ()))
-    ),
+    tried=lambda hints: len(hints.get("delamination", ())) >= 2,
 )

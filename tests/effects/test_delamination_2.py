@@ -49,8 +49,8 @@ def test_tried_only_with_two_candidate_regions_or_more() -> None:
     assert spec.tried({"delamination": tuple(REGIONS)})
     plate = {"T_ref": 30.0, "plate_time": 5.0, "t_heat": -0.08}
     assert spec.tried({"delamination": tuple(REGIONS), "depth_conduction": (plate,)})
-    # not where the plate is forecast on layers, which hold one face
-    assert not spec.tried({"delamination": tuple(REGIONS), "depth_conduction": ({**plate, "layered": 1.0},)})
+    # also where the plate is forecast on layers, which hold a face for each delamination
+    assert spec.tried({"delamination": tuple(REGIONS), "depth_conduction": ({**plate, "layered": 1.0},)})
     assert all(EFFECTS[n].tried({}) for n in EFFECTS if n != "delamination_2")
     assert tried(NAMES, {}) == NAMES[:2] and tried(NAMES, {"delamination": tuple(REGIONS)}) == NAMES
 
