@@ -16,11 +16,12 @@ plate's ``L^2 / a_z`` error; each true defect's depth fraction against the found
 most; what the diagnosis names (``depth_conduction``, ``delamination`` and where, effects with a gain
 ``<= 0`` or centred outside the frame) and which defects the map lists.
 
-Run: ``python -m experiments.flash_defect_map [--map-only] [--held-out | --probes] [--layered] [--out DIR]
+Run: ``python -m experiments.flash_defect_map [--map-only] [--held-out | --probes] [--no-layered] [--out DIR]
 [--plates 1,2,...]``;
 ``--held-out`` runs :data:`HELD_OUT` (20 plates that break more of the map's assumptions) instead,
-``--probes`` :data:`PROBES` (plates 1 and 2 taken apart, one defect at a time); ``--layered`` runs the
-diagnosis with ``--layered`` (its forecasts through the plate's thickness). With
+``--probes`` :data:`PROBES` (plates 1 and 2 taken apart, one defect at a time); ``--no-layered`` runs the
+diagnosis with ``--no-layered`` (its forecasts by the surface alone; by default, as ``anra diagnose --maps``,
+through the plate's thickness). With
 ``--map-only`` (the map that ``--maps`` writes, without the diagnosis) about 6 minutes on a loaded 2-core
 machine; with the diagnosis 17-57 s a plate (two runs side by side on a 2-core machine). A plate whose
 result is in ``DIR`` is not run again. It prints one line per plate and the Markdown table of
@@ -313,7 +314,7 @@ def _maps_only(path: Path, maps_path: Path) -> dict:
 
 
 def evaluate(
-    name: str, case: dict, out: Path, seed: int, *, diagnose: bool = True, layered: bool = False
+    name: str, case: dict, out: Path, seed: int, *, diagnose: bool = True, layered: bool = True
 ) -> dict:
     """Simulate one plate, run ``anra diagnose --maps`` (or only its map), score the maps."""
     path, maps_path = out / f"plate{seed}.npz", out / f"plate{seed}_maps.npz"
@@ -326,7 +327,7 @@ def evaluate(
     start = time.perf_counter()
     if diagnose:
         argv = ["diagnose", str(path), "--json", "--maps", str(maps_path)]
-        diagnosis = _run(argv + (["--layered"] if layered else []))
+        diagnosis = _run(argv + ([] if layered else ["--no-layered"]))
     else:
         diagnosis = _maps_only(path, maps_path)
     seconds = time.perf_counter() - start
@@ -409,7 +410,7 @@ def run(
     diagnose: bool = True,
     held_out: bool = False,
     probes: bool = False,
-    layered: bool = False,
+    layered: bool = True,
 ) -> list[dict]:
     """Evaluate the chosen plates (1-based) of :data:`PLATES`, :data:`HELD_OUT` or :data:`PROBES`, reusing
     results already in ``out``; return every result."""
@@ -500,8 +501,10 @@ def cli() -> None:
     )
     parser.add_argument(
         "--layered",
-        action="store_true",
-        help="run anra diagnose with --layered (the plate forecast through its thickness)",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="run anra diagnose with --layered (the default: the plate forecast through its thickness) or "
+        "--no-layered (by its surface alone)",
     )
     args = parser.parse_args()
     count = len(PROBES if args.probes else HELD_OUT if args.held_out else PLATES)

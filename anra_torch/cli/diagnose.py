@@ -129,10 +129,11 @@ def _add_flash_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--layered",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
+        default=None,
         help="with --maps: forecast the plate on layers through its thickness (the diffusion into depth and "
-        "each delamination's face resolved) instead of by its surface alone; an experimental option, "
-        "measured on docs/results/flash.md",
+        "each delamination's face resolved), the default with --maps; --no-layered: by its surface alone "
+        "(the balance's depth rates), as before; both measured on docs/results/flash.md",
     )
 
 
@@ -169,8 +170,9 @@ def _check_options(args: argparse.Namespace) -> None:
         check_output(args.report, [args.video], name="--report", folder=True)
     if args.maps is not None:
         check_output(args.maps, [args.video], name="--maps")
-    elif args.layered:
-        raise ValueError("--layered needs --maps FILE (the flash map's plate), got no --maps")
+    elif args.layered is not None:
+        flag = "--layered" if args.layered else "--no-layered"
+        raise ValueError(f"{flag} needs --maps FILE (the flash map's plate), got no --maps")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -195,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
             assimilate=args.assimilate,
             source_map=args.source_map,
             decimated=decimated,
-            hints=None if maps is None else flash_hints(maps.defects, layered=args.layered),
+            hints=None if maps is None else flash_hints(maps.defects, layered=args.layered is not False),
         )
         summary = done.to_record()
     except (ValueError, TypeError, OSError) as err:

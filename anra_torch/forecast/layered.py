@@ -25,7 +25,8 @@ layers are scaled by the mean ratio of the measured surface to the model's over 
 among its hints, from :func:`~anra_torch.recording.flash_hints` with ``layered``, and ``depth_conduction``
 named; no effect that replaces the diffusion but the anisotropy); :func:`layered_forecast` makes the
 forecast; :func:`within_layered` bounds a refit as the layers run it (the earned diagnosis' inner splits).
-``anra diagnose --maps FILE --layered`` uses it; docs/results/flash.md measures it.
+``anra diagnose --maps FILE`` uses it (``--no-layered``: the surface forecasts); docs/results/flash.md
+measures it.
 """
 
 from __future__ import annotations

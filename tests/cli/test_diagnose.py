@@ -155,9 +155,10 @@ def test_bad_fit_fraction(tmp_path: Path, capsys: pytest.CaptureFixture[str], va
     assert code == 2 and err.startswith("anra: error: ") and err.count("\n") == 1 and "fit" in err
 
 
-def test_layered_needs_maps(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, err = run(capsys, "diagnose", tmp_path / "missing.npz", "--layered")
-    assert code == 2 and err.count("\n") == 1 and "--layered needs --maps" in err
+@pytest.mark.parametrize("flag", ["--layered", "--no-layered"])
+def test_layered_needs_maps(tmp_path: Path, capsys: pytest.CaptureFixture[str], flag: str) -> None:
+    code, out, err = run(capsys, "diagnose", tmp_path / "missing.npz", flag)
+    assert code == 2 and err.count("\n") == 1 and f"{flag} needs --maps" in err
 
 
 @pytest.mark.slow
