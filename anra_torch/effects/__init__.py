@@ -36,7 +36,7 @@ from anra_torch.effects.model import (
 )
 from anra_torch.effects.registry import DIFFUSION_EFFECTS, EFFECTS
 from anra_torch.effects.scene import HiddenEffectVideo, Medium, Sensor, hidden_effect_video
-from anra_torch.effects.simulate import Boundary, simulate_effects, step_rates
+from anra_torch.effects.simulate import Boundary, simulate_effects, simulated_span, step_rates
 
 __all__ = [
     "Boundary",
@@ -61,6 +61,7 @@ __all__ = [
     "hidden_effect_video",
     "independent_effect_video",
     "simulate_effects",
+    "simulated_span",
     "simulate_independent",
     "simulate_scene",
     "step_rates",

@@ -17,7 +17,7 @@ from anra_torch.effects.base import Grid
 from anra_torch.effects.model import Effect, ExtendedHeatRHS, check_effects
 from anra_torch.simulation import BOUNDARIES, integrate, stable_substeps
 
-__all__ = ["Boundary", "simulate_effects", "step_rates"]
+__all__ = ["Boundary", "simulate_effects", "simulated_span", "step_rates"]
 
 
 def step_rates(
@@ -51,12 +51,19 @@ def step_rates(
     duration = number(duration, "duration", "s", minimum=0.0)
     for effect in effects:  # a range the temperatures cannot leave
         low, high = effect.spec.bounds(effect.params, low, high, duration)
-    margin = 0.1 * (high - low)  # central-difference advection can overshoot a little
-    span = (low - margin, high + margin)
+    span = simulated_span(low, high)
     rates = [e.spec.rates(e.params, span) for e in effects]
     diffusivity = [r.diffusivity for r in rates if r.diffusivity is not None]
     a_max = diffusivity[0] if diffusivity else a
     return a_max, sum(r.speed for r in rates), sum(r.decay for r in rates)
+
+
+def simulated_span(low: float, high: float) -> tuple[float, float]:
+    """The temperatures a simulation's rates must hold over: ``[low, high]`` (units of T; the range the
+    effects' bounds give) widened by a tenth of its width on each side (central-difference advection can
+    overshoot a little). The selection checks a fitted effect over the same range."""
+    margin = 0.1 * (high - low)
+    return low - margin, high + margin
 
 
 @dataclass(frozen=True)

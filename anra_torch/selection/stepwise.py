@@ -15,7 +15,7 @@ from collections.abc import Mapping, Sequence
 from torch import Tensor
 
 from anra_torch.balance import BalanceSystem, Fit
-from anra_torch.effects import EFFECTS, Context, Shape
+from anra_torch.effects import EFFECTS, Context, Shape, simulated_span
 from anra_torch.selection.statistics import search_discount, wald_score
 
 __all__ = ["MIN_SHARE", "Selection", "checked_hints", "tried"]
@@ -114,14 +114,27 @@ class Selection:
         spec = EFFECTS[name]
         return search_discount(spec.look_elsewhere, len(spec.regressors), self.scores[name])
 
-    def physical(self, name: str, params: dict[str, float]) -> bool:
-        """Whether fitted ``params`` are valid and simulable over the video's temperatures (a nonlinear
-        diffusivity that turns negative there cannot enter: the forecast could not run it)."""
+    def reach(self, fit: Fit, names: Sequence[str]) -> tuple[float, float]:
+        """The temperatures a forecast of ``names`` as fitted in ``fit`` runs over: the video's, widened by
+        the bounds each effect sets at any duration (a plate cooling towards its ``T_ref``) and by the
+        simulation's margin (:func:`~anra_torch.effects.simulated_span`). Held-out flash plate 21 of
+        experiments.flash_defect_map named a nonlinear diffusivity 0.03 mm^2/s at the frames' coolest and
+        -0.5 over this range, and the forecast then ran no effect at all."""
+        low, high = self.span
+        context = self.context()
+        for name in names:
+            params = EFFECTS[name].from_coefficients(fit.coefficients(), context)
+            low, high = EFFECTS[name].bounds(params, low, high, 0.0)
+        return simulated_span(low, high)
+
+    def physical(self, name: str, params: dict[str, float], reach: tuple[float, float]) -> bool:
+        """Whether fitted ``params`` are valid and simulable over the temperatures ``reach`` (:meth:`reach`;
+        a nonlinear diffusivity that turns negative there cannot enter: the forecast could not run it)."""
         spec = EFFECTS[name]
         try:
             if spec.check is not None:
                 spec.check(params)
-            spec.rates(params, self.span)
+            spec.rates(params, reach)
         except ValueError:
             return False
         return spec.valid(params) and self.in_view(name, params) and self.in_hint(name, params)
@@ -281,10 +294,11 @@ class Selection:
         ``material``, below their physical size: :meth:`material` then updates :attr:`negligible`)."""
         fit = self.fit(self.selected)
         coefficients, context = fit.coefficients(), self.context()
-        bad = set()
+        reach, bad = self.reach(fit, self.selected), set()
         for name in self.selected:
             params = EFFECTS[name].from_coefficients(coefficients, context)
-            if not (self.physical(name, params) and (not material or self.material(name, params, fit))):
+            material_enough = not material or self.material(name, params, fit)
+            if not (self.physical(name, params, reach) and material_enough):
                 bad.add(name)
         return bad
 
@@ -313,7 +327,8 @@ class Selection:
                 self.scores[name] = wald_score(fit, EFFECTS[name].regressors)
                 self.thresholds[name] = self.threshold(name, len(candidates))
                 params = EFFECTS[name].from_coefficients(fit.coefficients(), self.context())
-                significant = self.scores[name] > self.thresholds[name] and self.physical(name, params)
+                reach = self.reach(fit, [*self.selected, name])
+                significant = self.scores[name] > self.thresholds[name] and self.physical(name, params, reach)
                 if not significant:
                     self.negligible.pop(name, None)
                 elif self.material(name, params, fit):

@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from anra_torch.balance import BalanceSystem
+from anra_torch.effects import EFFECTS, simulated_span
 from anra_torch.selection.stepwise import Selection
 
 F64 = torch.float64
@@ -78,7 +79,28 @@ def test_which_effects_may_enter_together() -> None:
     assert chosen.in_view("heterogeneity", disc)
     assert chosen.in_view("heterogeneity", {**disc, "x": -2.9})
     assert not chosen.in_view("heterogeneity", {**disc, "x": -3.1})
-    assert not chosen.physical("heterogeneity", {**disc, "y": 40.0})
+    assert not chosen.physical("heterogeneity", {**disc, "y": 40.0}, chosen.span)
+
+
+def test_an_effect_is_checked_over_the_temperatures_the_forecast_reaches() -> None:
+    """A loss towards an ambient below the frames cools the forecast there (its bounds, at any duration):
+    a nonlinear diffusivity positive over the frames but not down to the ambient cannot be simulated, so it
+    is not physical (held-out flash plate 21 of experiments.flash_defect_map named one, and its forecast
+    then ran no effect at all)."""
+    t = (torch.arange(24, dtype=F64) * DT)[:, None, None]
+    warmer = loss_video(0.5) + 3.0 * torch.exp(-0.5 * t)  # T = 25 + (c + 6) e^(-b t): the same loss
+    chosen = Selection(BalanceSystem(warmer, DT, DX, sigma=1.0, noise_sd=0.01), 0.01, NAMES, background=25.0)
+    low, high = chosen.span
+    assert low > 25.5  # the frames stay above the ambient, 25 C
+    fit = chosen.fit(["linear_loss"])
+    ambient = EFFECTS["linear_loss"].from_coefficients(fit.coefficients(), chosen.context())["T_ref"]
+    assert ambient == pytest.approx(25.0, abs=0.1)
+    reach = chosen.reach(fit, ["linear_loss"])
+    assert reach == pytest.approx(simulated_span(ambient, high))  # down to the loss's T_ref
+    assert chosen.reach(fit, []) == pytest.approx(simulated_span(low, high))
+    nonlinear = {"a0": A, "beta": 1 / (high - 24.3), "T_ref": high}  # a(T) = 0 at 24.3 C
+    assert chosen.physical("nonlinear_diffusion", nonlinear, simulated_span(low, high))
+    assert not chosen.physical("nonlinear_diffusion", nonlinear, reach)
 
 
 def test_a_shape_fitted_after_the_same_effects_is_fitted_once_per_balance(monkeypatch) -> None:
