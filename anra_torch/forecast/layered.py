@@ -82,7 +82,10 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
     None where it is not asked for or not a flash plate's: no defect map's plate among the diagnosis' hints
     or one without ``"layered"`` (:func:`~anra_torch.recording.flash_hints`' option), ``depth_conduction``
     not among them, or an effect that replaces the diffusion other than the anisotropy. Each delamination
-    (the first, then ``delamination_2``) is a face at its own depth over its disc.
+    (the first, then ``delamination_2``) is a face at its own depth over its disc. Without the anisotropy,
+    an isotropic ``a`` that is not positive takes the mean of the map's ``a_x`` and ``a_y``, as in
+    :func:`within_layered` (held-out plate 30 of experiments.flash_defect_map: its balance's ``a`` was
+    negative, and the layers stopped on it, the whole extension with them).
 
     Raises:
         ValueError: asked for, with effects that cannot be simulated
@@ -98,11 +101,13 @@ def layered_plate(diagnosis: Diagnosis, names: Collection[str]) -> LayeredPlate 
     anisotropy = rest.pop("anisotropy", None)
     if depth is None or any(e.replaces_diffusion for e in rest.values()):
         return None
-    lateral = (diagnosis.base, diagnosis.base, 0.0)
+    base, hint = diagnosis.base, held[0]
+    if base <= 0 and "a_x" in hint:  # as within_layered: an isotropic a not positive takes the map's mean
+        base = (hint["a_x"] + hint["a_y"]) / 2
+    lateral = (base, base, 0.0)
     measured = None
     if anisotropy is not None:
         lateral = (anisotropy.params["a_x"], anisotropy.params["a_y"], anisotropy.params["a_xy"])
-        hint = held[0]
         measured = (hint["a_x"], hint["a_y"], hint["a_xy"]) if "a_x" in hint else None
     plate_time = depth.params["depth_time"]
     defects = tuple(
@@ -233,7 +238,7 @@ def fitted_face(frames: Tensor, dt: float, dx: float, plate: LayeredPlate) -> La
 def _fitted_share(frames: Tensor, dt: float, dx: float, plate: LayeredPlate, j: int) -> tuple[Defect, ...]:
     """``plate``'s defects with the ``j``-th one's face passing the share :func:`fitted_face` fits."""
     x, y, radius, fraction, _ = plate.defects[j]
-    reach = radius + math.sqrt(max(plate.lateral[:2]) * (frames.shape[0] - 1) * dt) + 2 * dx
+    reach = radius + math.sqrt(max(*plate.lateral[:2], 0.0) * (frames.shape[0] - 1) * dt) + 2 * dx
     # the other terms are placed on the whole frame: only a plate without them is forecast on a crop
     rows, cols = (slice(0, None), slice(0, None)) if plate.others else _around(x, y, reach, frames.shape, dx)
     part = frames[:, rows, cols]

@@ -118,11 +118,13 @@ def test_a_layered_plates_refit_takes_the_maps_tensor_and_no_heat_gain() -> None
     assert within_layered(physical) == physical
     assert bounded.base == unphysical.base  # the anisotropy sets the lateral tensor, not ``base``
     alone = Fitted([{"name": "depth_conduction", "params": depth}], layered, base=-0.56)  # no delamination
-    with pytest.raises(ValueError, match="positive definite"):
-        layered_forecast(torch.full((6, 8, 8), T_REF + 1.0, dtype=torch.float64, device="cpu"), 3, 0.1, 0.25,
-                         layered_plate(alone, {"depth_conduction"}))  # fmt: skip
-    isotropic = layered_plate(within_layered(alone), {"depth_conduction"})
-    assert isotropic is not None and isotropic.lateral == ((7.0 + 1.1) / 2, (7.0 + 1.1) / 2, 0.0)
+    frames = torch.full((6, 8, 8), T_REF + 1.0, dtype=torch.float64, device="cpu")
+    for model in (within_layered(alone), alone):  # the final model's forecast as the inner refits'
+        isotropic = layered_plate(model, {"depth_conduction"})
+        assert isotropic is not None and isotropic.lateral == ((7.0 + 1.1) / 2, (7.0 + 1.1) / 2, 0.0)
+        assert torch.isfinite(layered_forecast(frames, 3, 0.1, 0.25, isotropic)).all()
+    with pytest.raises(ValueError, match="positive definite, got a_x=-0.56"):  # no map's tensor to take
+        layered_forecast(frames, 3, 0.1, 0.25, replace(isotropic, lateral=(-0.56, -0.56, 0.0)))
     assert within_layered(replace(alone, base=0.3)).base == 0.3
     not_layered = refit((-0.94, 0.38, 0.1), -0.028, {"depth_conduction": (held,)})
     replaced = refit((-0.94, 0.38, 0.1), -0.028, layered, {"name": "heterogeneity", "params": {}})
