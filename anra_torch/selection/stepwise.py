@@ -114,18 +114,21 @@ class Selection:
         spec = EFFECTS[name]
         return search_discount(spec.look_elsewhere, len(spec.regressors), self.scores[name])
 
-    def reach(self, fit: Fit, names: Sequence[str]) -> tuple[float, float]:
-        """The temperatures a forecast of ``names`` as fitted in ``fit`` runs over: the video's, widened by
-        the bounds each effect sets at any duration (a plate cooling towards its ``T_ref``) and by the
-        simulation's margin (:func:`~anra_torch.effects.simulated_span`). Held-out flash plate 21 of
-        experiments.flash_defect_map named a nonlinear diffusivity 0.03 mm^2/s at the frames' coolest and
-        -0.5 over this range, and the forecast then ran no effect at all."""
+    def reach(self, fitted: Mapping[str, dict[str, float]]) -> tuple[float, float]:
+        """The temperatures a forecast of the ``fitted`` effects (their parameters by name) runs over: the
+        video's, widened by the bounds each effect sets at any duration (a plate cooling towards its
+        ``T_ref``) and by the simulation's margin (:func:`~anra_torch.effects.simulated_span`). Held-out flash
+        plate 21 of experiments.flash_defect_map named a nonlinear diffusivity 0.03 mm^2/s at the frames'
+        coolest and -0.5 over this range, and the forecast then ran no effect at all."""
         low, high = self.span
-        context = self.context()
-        for name in names:
-            params = EFFECTS[name].from_coefficients(fit.coefficients(), context)
+        for name, params in fitted.items():
             low, high = EFFECTS[name].bounds(params, low, high, 0.0)
         return simulated_span(low, high)
+
+    def parameters(self, fit: Fit, names: Sequence[str]) -> dict[str, dict[str, float]]:
+        """The parameters of ``names`` in ``fit``, by name."""
+        coefficients, context = fit.coefficients(), self.context()
+        return {name: EFFECTS[name].from_coefficients(coefficients, context) for name in names}
 
     def physical(self, name: str, params: dict[str, float], reach: tuple[float, float]) -> bool:
         """Whether fitted ``params`` are valid and simulable over the temperatures ``reach`` (:meth:`reach`;
@@ -293,12 +296,10 @@ class Selection:
         """The selected effects whose parameters in the current fit are not physical (or, with
         ``material``, below their physical size: :meth:`material` then updates :attr:`negligible`)."""
         fit = self.fit(self.selected)
-        coefficients, context = fit.coefficients(), self.context()
-        reach, bad = self.reach(fit, self.selected), set()
-        for name in self.selected:
-            params = EFFECTS[name].from_coefficients(coefficients, context)
-            material_enough = not material or self.material(name, params, fit)
-            if not (self.physical(name, params, reach) and material_enough):
+        fitted = self.parameters(fit, self.selected)
+        reach, bad = self.reach(fitted), set()
+        for name, params in fitted.items():
+            if not self.physical(name, params, reach) or (material and not self.material(name, params, fit)):
                 bad.add(name)
         return bad
 
@@ -326,9 +327,11 @@ class Selection:
                 fit = self.fit([*self.selected, name])
                 self.scores[name] = wald_score(fit, EFFECTS[name].regressors)
                 self.thresholds[name] = self.threshold(name, len(candidates))
-                params = EFFECTS[name].from_coefficients(fit.coefficients(), self.context())
-                reach = self.reach(fit, [*self.selected, name])
-                significant = self.scores[name] > self.thresholds[name] and self.physical(name, params, reach)
+                fitted = self.parameters(fit, [*self.selected, name])
+                params = fitted[name]
+                significant = self.scores[name] > self.thresholds[name] and self.physical(
+                    name, params, self.reach(fitted)
+                )
                 if not significant:
                     self.negligible.pop(name, None)
                 elif self.material(name, params, fit):

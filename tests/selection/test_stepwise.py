@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from anra_torch.balance import BalanceSystem
-from anra_torch.effects import EFFECTS, simulated_span
+from anra_torch.effects import simulated_span
 from anra_torch.selection.stepwise import Selection
 
 F64 = torch.float64
@@ -92,12 +92,12 @@ def test_an_effect_is_checked_over_the_temperatures_the_forecast_reaches() -> No
     chosen = Selection(BalanceSystem(warmer, DT, DX, sigma=1.0, noise_sd=0.01), 0.01, NAMES, background=25.0)
     low, high = chosen.span
     assert low > 25.5  # the frames stay above the ambient, 25 C
-    fit = chosen.fit(["linear_loss"])
-    ambient = EFFECTS["linear_loss"].from_coefficients(fit.coefficients(), chosen.context())["T_ref"]
+    fitted = chosen.parameters(chosen.fit(["linear_loss"]), ["linear_loss"])
+    ambient = fitted["linear_loss"]["T_ref"]
     assert ambient == pytest.approx(25.0, abs=0.1)
-    reach = chosen.reach(fit, ["linear_loss"])
+    reach = chosen.reach(fitted)
     assert reach == pytest.approx(simulated_span(ambient, high))  # down to the loss's T_ref
-    assert chosen.reach(fit, []) == pytest.approx(simulated_span(low, high))
+    assert chosen.reach({}) == pytest.approx(simulated_span(low, high))
     nonlinear = {"a0": A, "beta": 1 / (high - 24.3), "T_ref": high}  # a(T) = 0 at 24.3 C
     assert chosen.physical("nonlinear_diffusion", nonlinear, simulated_span(low, high))
     assert not chosen.physical("nonlinear_diffusion", nonlinear, reach)
