@@ -36,6 +36,8 @@ __all__ = [
     "smooth_minimum",
     "tau_grid",
     "time_bins",
+    "window_floor",
+    "windowed_tau",
 ]
 
 _TERMS = 8  # each series' terms on its side of t = tau / 4: the first left out is below exp(-39)
@@ -134,6 +136,38 @@ def refine_minimum(rss: Tensor, taus: Tensor) -> tuple[Tensor, Tensor]:
     tau = torch.exp(log_taus[kk] + shift * step)
     unresolved = k >= points - 1  # at the grid's top or the half-space: beyond the recording
     return torch.where(unresolved, torch.full_like(tau, math.inf), tau), k
+
+
+def window_floor(elapsed: Tensor) -> float:
+    """The shortest fit window in s: the first 5 % of the recording, at least its first 9 bins."""
+    return max(float(elapsed[min(8, len(elapsed) - 1)]), 0.05 * float(elapsed[-1]))
+
+
+def windowed_tau(
+    y: Tensor, weights: Tensor, elapsed: Tensor, window: float
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Each row's ``tau`` fitted by ``c + g(t; tau)`` over the bins up to ``window tau``, the window grown
+    from :func:`window_floor` in three rounds (a row's own ``tau`` says how far its fit reaches).
+
+    Args:
+        y: ``ln u`` per row and bin, ``(P, N)``.
+        weights: the bins' inverse variances, ``(P, N)``.
+        elapsed: the bins' times since the flash in s, ``(N,)``.
+        window: the share of its ``tau`` a row's fit reaches.
+
+    Returns:
+        ``tau`` in s ``(P,)``, the residuals over the grid ``(P, K + 1)``, the windowed weights ``(P, N)``
+        and the grid's ``taus`` ``(K + 1,)`` (:func:`tau_grid`).
+    """
+    grid = tau_grid(elapsed)
+    floor = window_floor(elapsed)
+    limit = torch.full((len(y),), floor, dtype=y.dtype, device=y.device)
+    for _ in range(3):
+        windowed = weights * (elapsed[None, :] <= limit[:, None])
+        rss = profile_rss(y, windowed, grid.curves)
+        tau, _ = refine_minimum(rss, grid.taus)
+        limit = (window * tau).clamp(min=floor)
+    return tau, rss, windowed, grid.taus
 
 
 @dataclass(frozen=True)

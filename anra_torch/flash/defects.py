@@ -12,9 +12,9 @@ diffusivities to the sound plate and to each region of equal depth, in turns wit
 From the map: the plate's ``L^2 / a_z`` (the median of the sound pixels; front-face data fix only this
 ratio, not ``L`` or ``a_z``) with its standard error over tiles of the frame; defects where ``tau`` is
 significantly shorter than the plate's, each outlined where its log contrast ``ln(plate / tau)`` is above
-0.6 of its peak (any shape, running out of the frame or not) with its depth fraction
-``d / L = sqrt(tau / plate)`` at the peak (the 95 % quantile; heat flowing sideways across the defect's
-edge only lowers the contrast).
+0.6 of its peak (:mod:`~anra_torch.flash.outlines`) with its depth fraction ``d / L = sqrt(tau / plate)``
+at the peak (the 95 % quantile), ``tau`` corrected for the sideways spread of the heat the defect reflects
+(:mod:`~anra_torch.flash.spread`: a small deep defect otherwise reads deeper).
 
 Assumptions (each one a way for a recording to break the map): an instantaneous flash absorbed at the
 surface, smooth across the frame; a plate of uniform thickness and diffusivity (lateral anisotropy with
@@ -36,12 +36,13 @@ from anra_torch.checks import as_video, spacing_in_range
 from anra_torch.flash.cooling import (
     nelder_mead,
     profile_rss,
-    refine_minimum,
     smooth_minimum,
     tau_grid,
     time_bins,
+    windowed_tau,
 )
 from anra_torch.flash.lateral import fit_lateral, lateral_integrals, local_quadratic, value_noise_gain
+from anra_torch.flash.outlines import OUTLINE_SHARE, FoundDefect, outline_defects
 from anra_torch.flash.regions import (
     components,
     dilate,
@@ -51,6 +52,7 @@ from anra_torch.flash.regions import (
     smooth,
     tile_standard_error,
 )
+from anra_torch.flash.spread import spread_depth_time
 
 __all__ = ["DefectMap", "FoundDefect", "defect_map"]
 
@@ -62,9 +64,6 @@ _WINDOW = 0.4  # a pixel's fit reaches window * its tau
 _ODD = 0.3  # |ln tau - ln plate| beyond this: another depth (the lateral fit's regions)
 _CONTRAST = 0.2  # ln(plate / tau) a defect pixel exceeds (d / L < 0.9) ...
 _SIGNIFICANCE = 3.0  # ... at this many standard deviations of its own fit
-_OUTLINE = 0.6  # an outline's pixels: above this share of the peak (measured: the contrast's sideways
-# spread puts the true edge above half of it on most plates of experiments.flash_defect_map)
-_OUTLINE_SIGNIFICANCE = 2.0  # ... at this many
 _SCATTER = 4.0  # a defect's peak contrast exceeds this many robust sd of the sound pixels' contrast
 _MIN_PIXELS = math.ceil(math.pi * _SIGMA_LATERAL**2)  # smaller than the lateral derivatives' footprint
 _SOUND_SHARE = 0.25  # a longer region this large is the sound plate (a defect only shortens tau)
@@ -74,25 +73,6 @@ _LONG = 2.0  # a recording longer than this many plate times: the globals fitted
 _BOUNDS = torch.tensor([[-9.2, -3.0], [3.4, 1.6]], device="cpu")
 """The globals' search box: ``ln`` of how far ``T_ref`` lies below the coolest pixel over the cooling's
 span (1e-4 to 30), ``ln`` of the first frame's time since the flash in frame periods (0.05 to 5)."""
-
-
-@dataclass(frozen=True)
-class FoundDefect:
-    """One defect of a :class:`DefectMap`.
-
-    Attributes:
-        x: centroid in mm along the columns (from the frame's corner).
-        y: centroid in mm along the rows.
-        area: in mm^2 (inside the frame).
-        depth_fraction: ``d / L``.
-        touches_edge: the outline reaches the frame's edge (the defect may run out of it).
-    """
-
-    x: float
-    y: float
-    area: float
-    depth_fraction: float
-    touches_edge: bool
 
 
 @dataclass(frozen=True)
@@ -257,19 +237,10 @@ def _check(frames: object, dt: float, dx: float) -> Tensor:
 def _fit_pixels(
     cooling: _Cooling, a: Tensor, t_ref: float, first: float
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Each pixel's ``tau`` with its window grown from the first 5 % of the recording; also the
-    residuals over the grid ``(P, K + 1)`` and the windows' weights ``(P, N)``."""
+    """Each pixel's ``tau`` (:func:`~anra_torch.flash.cooling.windowed_tau`); also the residuals over the
+    grid ``(P, K + 1)``, the windows' weights ``(P, N)`` and the grid's ``taus``."""
     logs, integrals, weights, elapsed = cooling.series(t_ref, first)
-    grid = tau_grid(elapsed)
-    y = logs - torch.einsum("i,ipn->pn", a, integrals)
-    floor = max(float(elapsed[min(8, len(elapsed) - 1)]), 0.05 * float(elapsed[-1]))
-    limit = torch.full((len(y),), floor, dtype=y.dtype, device=y.device)
-    for _ in range(3):
-        windowed = weights * (elapsed[None, :] <= limit[:, None])
-        rss = profile_rss(y, windowed, grid.curves)
-        tau, _ = refine_minimum(rss, grid.taus)
-        limit = (_WINDOW * tau).clamp(min=floor)
-    return tau, rss, windowed, grid.taus
+    return windowed_tau(logs - torch.einsum("i,ipn->pn", a, integrals), weights, elapsed, _WINDOW)
 
 
 def _regions(log_tau: Tensor) -> Tensor:
@@ -364,18 +335,22 @@ def _finish(
         & (contrast > _SCATTER * edge_scatter(contrast, sound, _EDGE_RINGS, _MIN_PIXELS))
         & (z > _SIGNIFICANCE)
     )
-    mask, fraction, peaks, found = _outlines(contrast, candidate, z, least, dx)
-    score = _score(contrast, peaks)
     plate_time = math.exp(float(plate))
+
+    def depth(outline: Tensor, peak: Tensor) -> float:
+        return _depth_fraction(outline, peak, contrast, plate_time, (a, t_ref, first), cooling)
+
+    outlines = outline_defects(contrast, candidate, z, (least, _MIN_PIXELS, dx), depth)
+    score = _score(contrast, outlines.peaks)
     return DefectMap(
         depth_time=tau,
         plate_time=plate_time,
         plate_time_se=plate_time * tile_standard_error(log_tau, sound),
         back_wall_reached=last >= plate_time / math.pi,
         defect_score=score,
-        defect_mask=mask,
-        depth_fraction=fraction,
-        defects=tuple(found),
+        defect_mask=outlines.mask,
+        depth_fraction=outlines.depth_fraction,
+        defects=tuple(outlines.defects),
         lateral=(float(a[0]), float(a[1]), float(a[2])),
         t_ref=t_ref,
         first_time=first,
@@ -383,33 +358,24 @@ def _finish(
     )
 
 
-def _outlines(
-    contrast: Tensor, candidate: Tensor, z: Tensor, least: float, dx: float
-) -> tuple[Tensor, Tensor, list[tuple[Tensor, Tensor]], list[FoundDefect]]:
-    """The defects among the candidate pixels' regions, the strongest first: the mask, the depth fractions,
-    each defect's (outline, peak) and its description. A region inside a stronger defect's outline is
-    part of it (the outline reaches beyond the significant pixels)."""
-    labels, count = components(candidate)
-    regions = []
-    for k in range(1, count + 1):  # a few regions, each whole
-        region = labels == k
-        if int(region.sum()) >= _MIN_PIXELS:
-            peak = torch.quantile(contrast[region], 0.95)
-            if float(peak) >= least:  # above the sound plate's own scatter
-                regions.append((float(peak), k, region, peak))
-    mask = torch.zeros_like(candidate)
-    fraction = torch.full_like(contrast, math.nan)
-    peaks, found = [], []
-    for _, _, region, peak in sorted(regions, key=lambda r: (-r[0], r[1])):
-        if bool((region & mask).any()):
-            continue
-        outline = _grown(region, (contrast >= _OUTLINE * peak) & (z > _OUTLINE_SIGNIFICANCE)) & ~mask
-        depth = float(torch.exp(-0.5 * peak))  # at its peak: sideways flow only lowers the contrast
-        mask |= outline
-        fraction[outline] = depth
-        peaks.append((outline, peak))
-        found.append(_describe(outline, depth, dx))
-    return mask, fraction, peaks, found
+def _depth_fraction(
+    outline: Tensor,
+    peak: Tensor,
+    contrast: Tensor,
+    plate_time: float,
+    fitted: tuple[Tensor, float, float],
+    cooling: _Cooling,
+) -> float:
+    """A defect's ``d / L`` at its peak (the outline's pixel whose contrast is nearest it: sideways flow
+    only lowers the contrast), its ``tau`` corrected for the spread of the heat the defect reflects
+    (:func:`~anra_torch.flash.spread.spread_depth_time`)."""
+    a, t_ref, first = fitted
+    at = int(torch.where(outline, (contrast - peak).abs(), math.inf).flatten().argmin())
+    _, _, weights, elapsed = cooling.series(t_ref, first, torch.tensor([at], device=contrast.device))
+    tau = plate_time * math.exp(-float(peak))
+    where = (outline, divmod(at, contrast.shape[1]))
+    tau = spread_depth_time(tau, plate_time, where, a, cooling.dx, (elapsed, weights[0]), _WINDOW)
+    return math.sqrt(tau / plate_time)
 
 
 def _score(contrast: Tensor, peaks: list[tuple[Tensor, Tensor]]) -> Tensor:
@@ -424,27 +390,5 @@ def _score(contrast: Tensor, peaks: list[tuple[Tensor, Tensor]]) -> Tensor:
     for outline, peak in peaks:
         region = dilate(outline, 2)
         score = torch.where(region, torch.maximum(score, near / peak), score)
-        score = torch.where(outline, score.clamp_min(_OUTLINE), score)  # the mask: at least 0.6
+        score = torch.where(outline, score.clamp_min(OUTLINE_SHARE), score)  # the mask: at least 0.6
     return score
-
-
-def _grown(region: Tensor, level: Tensor) -> Tensor:
-    """The connected parts of ``level`` ``(H, W)`` that overlap ``region`` (a defect's outline is where its
-    contrast is above the level, out to its edge, not only where its own fit is significant)."""
-    labels, _ = components(level)
-    return torch.isin(labels, labels[region & level]) & level
-
-
-def _describe(outline: Tensor, depth: float, dx: float) -> FoundDefect:
-    rows, cols = torch.nonzero(outline, as_tuple=True)
-    height, width = outline.shape
-    edge = bool(
-        (rows == 0).any() or (cols == 0).any() or (rows == height - 1).any() or (cols == width - 1).any()
-    )
-    return FoundDefect(
-        x=float((cols.to(_F64) + 0.5).mean()) * dx,
-        y=float((rows.to(_F64) + 0.5).mean()) * dx,
-        area=len(rows) * dx**2,
-        depth_fraction=depth,
-        touches_edge=edge,
-    )

@@ -252,3 +252,22 @@ def test_a_defect_covering_nearly_half_the_frame_is_the_defect_not_the_plate() -
     mask = found.defect_mask.numpy()
     assert (mask & plate.defect_mask).sum() / (mask | plate.defect_mask).sum() > 0.6
     assert len(found.defects) == 1 and abs(found.defects[0].depth_fraction - 0.5) < 0.1
+
+
+@pytest.mark.slow
+def test_a_small_deep_disc_reads_its_depth_with_the_spread_of_its_heat_taken_off() -> None:
+    # 4 mm, a disc of 3 mm radius at d / L 0.5 (finite volumes, nothing shared with the map): the heat it
+    # reflects spreads sideways on its way back (lateral 7.3 mm^2/s), and its peak read 0.64
+    plate = reference_plate_video(
+        PlateSetup(
+            shape=(48, 48),
+            dx=0.4,
+            n_frames=300,
+            thickness=4.0,
+            duration=40.0,
+            seed=29,
+            defects=(Defect("ellipse", centre=(9.0, 10.0), size=(3.0, 3.0), depth=2.0),),
+        )
+    )
+    found = defect_map(plate.frames, plate.dt, plate.dx)
+    assert len(found.defects) == 1 and abs(found.defects[0].depth_fraction - 0.5) < 0.05
