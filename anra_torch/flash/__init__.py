@@ -6,7 +6,9 @@
 
 - :mod:`~anra_torch.flash.defects`: :func:`defect_map`, per pixel the through-thickness time constant of
   the cooling with the lateral conduction taken off (:mod:`~anra_torch.flash.lateral`,
-  :mod:`~anra_torch.flash.cooling`), the plate's ``L^2 / a_z``, the defects' outlines and depth fractions;
+  :mod:`~anra_torch.flash.cooling`), the plate's ``L^2 / a_z``, the defects' outlines
+  (:mod:`~anra_torch.flash.outlines`) and depth fractions (the spread of the heat a defect reflects taken
+  off, :mod:`~anra_torch.flash.spread`);
   :func:`flash_maps` (:mod:`~anra_torch.flash.maps`) adds the contrasts on the same frames
   (``anra diagnose --maps``).
 
