@@ -57,15 +57,27 @@ def log_surface(elapsed: Tensor, tau: Tensor) -> Tensor:
     """
     tau = tau.to(elapsed)
     s = elapsed[None, :] / tau[:, None]  # t / tau: 0 for tau = inf
-    n = torch.arange(1, _TERMS + 1, dtype=elapsed.dtype, device=elapsed.device)
     early = s < 0.25
     s_early = torch.where(early, s, torch.ones_like(s))
     s_late = torch.where(early, torch.ones_like(s), s)
-    dual = torch.log1p(2 * torch.exp(-(n**2) / s_early[..., None]).sum(-1))  # 0 for the half-space
-    direct = torch.log1p(2 * torch.exp(-(n**2) * math.pi**2 * s_late[..., None]).sum(-1))
+    dual = torch.log1p(2 * _theta_sum(torch.exp(-1 / s_early)))  # 0 for the half-space
+    direct = torch.log1p(2 * _theta_sum(torch.exp(-(math.pi**2) * s_late)))
     # the direct series is the dual one times sqrt(pi t / tau): back to the dual form's constant
     direct = direct + 0.5 * torch.log(math.pi * s_late)
     return -0.5 * torch.log(math.pi * elapsed)[None, :] + torch.where(early, dual, direct)
+
+
+def _theta_sum(q: Tensor) -> Tensor:
+    """``sum_n q^(n^2)`` over the first :data:`_TERMS` terms, by products (``q^(n^2) = q^((n-1)^2)
+    q^(2n - 1)``): two exponentials per element instead of one per term."""
+    step, square = q, q * q
+    term = q
+    total = q.clone()
+    for _ in range(_TERMS - 1):
+        step = step * square
+        term = term * step
+        total = total + term
+    return total
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ from torch import Tensor
 from anra_torch.balance import estimate_noise_sd
 from anra_torch.checks import as_video, spacing_in_range
 from anra_torch.flash.cooling import (
+    TauGrid,
     nelder_mead,
     profile_rss,
     smooth_minimum,
@@ -68,6 +69,7 @@ _SCATTER = 4.0  # a defect's peak contrast exceeds this many robust sd of the so
 _MIN_PIXELS = math.ceil(math.pi * _SIGMA_LATERAL**2)  # smaller than the lateral derivatives' footprint
 _SOUND_SHARE = 0.25  # a longer region this large is the sound plate (a defect only shortens tau)
 _EDGE_RINGS = 10
+_GRIDS_KEPT = 8  # tau grids kept per first-frame time (the globals' guesses use 5)
 _ROUNDS = 3
 _LONG = 2.0  # a recording longer than this many plate times: the globals fitted up to 1 / _LONG^2 of it
 _BOUNDS = torch.tensor([[-9.2, -3.0], [3.4, 1.6]], device="cpu")
@@ -126,6 +128,16 @@ class _Cooling:
         self.sd = noise_sd * value_noise_gain(_SIGMA_VALUE)
         self.low = float(self.value[-1].min())  # the coolest late pixel: T_ref lies below it
         self.span = float(self.value[0].median()) - self.low
+        self._grids: dict[float, TauGrid] = {}
+
+    def grid(self, first: float) -> TauGrid:
+        """:func:`~anra_torch.flash.cooling.tau_grid` at the bins' times for a first frame ``first`` s after
+        the flash, kept for the globals' starting guesses (a few values of ``first`` each)."""
+        if first not in self._grids:
+            if len(self._grids) >= _GRIDS_KEPT:
+                self._grids.clear()
+            self._grids[first] = tau_grid(self.offsets + first)
+        return self._grids[first]
 
     def series(
         self, t_ref: float, first: float, pixels: Tensor | None = None
@@ -164,10 +176,11 @@ def _trimmed_rss(
     time in frame periods), over the bins up to ``horizon`` s; ``profiled``: each pixel's residual scale
     (at least the noise's) profiled out."""
     t_ref = cooling.low - cooling.span * math.exp(float(point[0]))
-    logs, integrals, weights, elapsed = cooling.series(t_ref, cooling.dt * math.exp(float(point[1])), pixels)
+    first = cooling.dt * math.exp(float(point[1]))
+    logs, integrals, weights, elapsed = cooling.series(t_ref, first, pixels)
     used = (elapsed <= max(horizon, float(elapsed[min(8, len(elapsed) - 1)])))[None, :].expand_as(weights)
     weights = torch.where(used, weights, torch.zeros_like(weights))
-    grid = tau_grid(elapsed)
+    grid = cooling.grid(first)
     rss = profile_rss(logs - torch.einsum("i,ipn->pn", a, integrals), weights, grid.curves)
     # -2 ln(likelihood) of the temperatures, not of ln u: the variances' logs in T, ln(u^2 / w), change
     # with T_ref too (without them a T_ref far below the frames flattens ln u and fits it at any noise)
