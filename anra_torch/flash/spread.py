@@ -39,6 +39,7 @@ __all__ = ["reflected_share", "spread_depth_time"]
 _CANDIDATES = 61  # candidate tau from exp(-_RANGE) of the measured one up to it
 _RANGE = 3.0
 _UNCHANGED = 1e-3  # a share within this of 1 over the window: no spread to take off
+_CELLS = 128  # the Gaussians' reach in cells beyond which pixels are summed in cells
 
 
 def reflected_share(
@@ -46,7 +47,9 @@ def reflected_share(
 ) -> Tensor:
     """``L(t)``: the share of a defect's reflected excess that reaches ``pixel`` at each time.
 
-    The outline continues beyond the frame as its edge pixels say (a defect running out of the frame).
+    The outline continues beyond the frame as its edge pixels say (a defect running out of the frame). The
+    Gaussians reach 4 sd; past :data:`_CELLS` px they are summed over square cells of an odd number of
+    pixels, the pixel in the central one (a large camera and a thick plate: memory bounded by the cells).
 
     Args:
         outline: the defect's pixels, ``(H, W)`` booleans.
@@ -60,17 +63,21 @@ def reflected_share(
     """
     a_x, a_y, a_xy = (float(v) for v in lateral)
     widest = 0.5 * (a_x + a_y) + math.hypot(0.5 * (a_x - a_y), a_xy)  # the tensor's larger eigenvalue
-    height, width = outline.shape
-    radius = min(math.ceil(4 * math.sqrt(widest * float(elapsed.max())) / dx), 2 * max(height, width))
-    padded = nnf.pad(outline.to(elapsed)[None, None], (radius,) * 4, mode="replicate")[0, 0]
+    reach = math.ceil(4 * math.sqrt(widest * float(elapsed.max())) / dx)
+    half = math.ceil(reach / _CELLS) // 2  # cells of 2 half + 1 px
+    cell = 2 * half + 1
+    cells = math.ceil(reach / cell)  # on each side of the central cell
+    radius = cells * cell + half
+    padded = nnf.pad(outline.to(elapsed)[None, None], (radius,) * 4, mode="replicate")
     row, col = pixel
-    patch = padded[row : row + 2 * radius + 1, col : col + 2 * radius + 1].flatten()
-    steps = torch.arange(-radius, radius + 1, dtype=elapsed.dtype, device=elapsed.device) * dx
+    patch = padded[..., row : row + 2 * radius + 1, col : col + 2 * radius + 1]
+    covered = nnf.avg_pool2d(patch, cell).flatten()  # each cell's share of the outline
+    steps = torch.arange(-cells, cells + 1, dtype=elapsed.dtype, device=elapsed.device) * (cell * dx)
     y, x = (v.flatten() for v in torch.meshgrid(steps, steps, indexing="ij"))
     det = a_x * a_y - a_xy**2
     quadratic = (a_y * x * x - 2 * a_xy * x * y + a_x * y * y) / det  # x^T A^-1 x
-    weights = torch.exp(-0.5 * quadratic[None, :] / elapsed[:, None])  # (N, M)
-    return (weights @ patch) / weights.sum(1)
+    weights = torch.exp(-0.5 * quadratic[None, :] / elapsed[:, None])  # (N, cells)
+    return (weights @ covered) / weights.sum(1)
 
 
 def spread_depth_time(

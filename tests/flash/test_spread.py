@@ -25,6 +25,16 @@ def test_the_share_at_a_disc_centre_is_the_gaussian_outside_its_radius() -> None
     torch.testing.assert_close(share, exact, atol=0.02, rtol=0)
 
 
+def test_a_reach_of_hundreds_of_pixels_is_summed_in_cells_as_accurately() -> None:
+    # 0.01 mm pixels, the Gaussians reaching 760 px: without cells (N, 1521^2) weights; in cells of 7 px
+    dx, radius = 0.01, 1.0
+    outline = _disc(401, radius / dx)
+    elapsed = torch.tensor([0.05, 0.3, 1.0, 3.0], dtype=F64)
+    share = reflected_share(outline, (200, 200), torch.tensor([1.2, 1.2, 0.0]), dx, elapsed)
+    exact = 1 - torch.exp(-(radius**2) / (2 * 1.2 * elapsed))
+    torch.testing.assert_close(share, exact, atol=0.02, rtol=0)
+
+
 def test_an_edge_across_the_columns_sees_only_a_x_and_the_frame_edge_continues_the_defect() -> None:
     # a defect over the left half of the frame, running out of it: along a row only a_x spreads the edge
     outline = torch.zeros(40, 40, dtype=torch.bool)
