@@ -439,7 +439,16 @@ def summary(results: list[dict]) -> list[str]:
             f"contrast on {beats}; IoU >= 0.6 on {sum(r['iou'] >= 0.6 for r in defect)}"
         )
         errors = [abs(g - t) for r in defect for t, g in r["depths"] if r["back_wall_reached"]]
-        lines.append(f"depth fraction error (back wall reached): max {max(errors, default=math.nan):.3f}")
+        found = [e for e in errors if math.isfinite(e)]
+        lines.append(
+            f"depth fraction error (back wall reached): max {max(found, default=math.nan):.3f} over "
+            f"{len(found)} defects found ({len(errors) - len(found)} not found)"
+        )
+        every = [abs(g - t) for r in defect for t, g in r["depths"]]
+        lines.append(
+            f"depth fraction within 0.1 on {sum(e <= 0.1 for e in every)} of {len(every)} defects (the back "
+            "wall reached or not; a defect not found is not within)"
+        )
     reached = [
         abs(r["plate_time_error"]) for r in results if "error" not in r and r["back_wall_in_recording"]
     ]
