@@ -70,9 +70,7 @@ def log_surface(elapsed: Tensor, tau: Tensor) -> Tensor:
 def _theta_sum(q: Tensor) -> Tensor:
     """``sum_n q^(n^2)`` over the first :data:`_TERMS` terms, by products (``q^(n^2) = q^((n-1)^2)
     q^(2n - 1)``): two exponentials per element instead of one per term."""
-    step, square = q, q * q
-    term = q
-    total = q.clone()
+    step, square, term, total = q, q * q, q, q
     for _ in range(_TERMS - 1):
         step = step * square
         term = term * step

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from anra_torch.flash import defect_map
-from anra_torch.simulation import Defect, PlateSetup, reference_plate_video
+from anra_torch.flash import DefectMap, defect_map
+from anra_torch.simulation import Defect, PlateSetup, ReferencePlate, reference_plate_video
 
 TAU = 4.0  # s: the plate's L^2 / a_z
 DX = 0.3  # mm
@@ -51,6 +51,25 @@ def _plate(
         spread = 0.7 + 0.5 * 16 / np.sqrt(vx * vy) * np.exp(-r2 / 2)
     noise = 0.02 * np.random.default_rng(seed).standard_normal(depth.shape)
     return torch.from_numpy(20 + 3 * spread * depth + noise), dt, ~np.isnan(fraction), fraction
+
+
+def _independent(
+    size: int, n_frames: int, thickness: float, duration: float, seed: int, defect: Defect
+) -> tuple[ReferencePlate, DefectMap]:
+    """A plate of the independent finite-volume simulator (nothing shared with the map), ``size`` x ``size``
+    px at 0.4 mm with one defect, and its defect map."""
+    plate = reference_plate_video(
+        PlateSetup(
+            shape=(size, size),
+            dx=0.4,
+            n_frames=n_frames,
+            thickness=thickness,
+            duration=duration,
+            seed=seed,
+            defects=(defect,),
+        )
+    )
+    return plate, defect_map(plate.frames, plate.dt, plate.dx)
 
 
 @pytest.fixture(scope="module")
@@ -180,18 +199,9 @@ def test_a_defect_too_faint_to_outline_still_ranks_above_the_sound_plate() -> No
 def test_a_shallow_disc_on_the_independent_plate_is_one_defect_at_its_depth() -> None:
     # finite volumes (nothing shared with the map): its contrast spreads sideways past the disc, in two
     # significant parts; both inside one outline, one defect, its depth read at the peak
-    plate = reference_plate_video(
-        PlateSetup(
-            shape=(32, 32),
-            dx=0.4,
-            n_frames=200,
-            thickness=2.0,
-            duration=8.0,
-            seed=3,
-            defects=(Defect("ellipse", centre=(6.4, 6.4), size=(2.5, 2.5), depth=0.5),),
-        )
+    _, found = _independent(
+        32, 200, 2.0, 8.0, 3, Defect("ellipse", centre=(6.4, 6.4), size=(2.5, 2.5), depth=0.5)
     )
-    found = defect_map(plate.frames, plate.dt, plate.dx)
     assert len(found.defects) == 1  # 2 when each significant part was a defect
     (disc,) = found.defects
     assert abs(disc.x - 6.4) < 0.5 and abs(disc.y - 6.4) < 0.5
@@ -202,18 +212,9 @@ def test_a_shallow_disc_on_the_independent_plate_is_one_defect_at_its_depth() ->
 def test_a_large_defect_in_a_thick_plate_leaves_the_lateral_fit_physical() -> None:
     # 4.5 mm, a 9 x 7 mm ellipse at d / L 0.6 in the middle: the late blocks of the lateral fit turned a_y
     # negative; the map then took nothing off and read the flash's spreading as a defect at the side
-    plate = reference_plate_video(
-        PlateSetup(
-            shape=(48, 48),
-            dx=0.4,
-            n_frames=300,
-            thickness=4.5,
-            duration=50.0,
-            seed=26,
-            defects=(Defect("ellipse", centre=(9.5, 10.5), size=(4.5, 3.5), depth=2.7),),
-        )
+    plate, found = _independent(
+        48, 300, 4.5, 50.0, 26, Defect("ellipse", centre=(9.5, 10.5), size=(4.5, 3.5), depth=2.7)
     )
-    found = defect_map(plate.frames, plate.dt, plate.dx)
     assert abs(found.lateral[0] / 7.3 - 1) < 0.15 and found.lateral[1] > 0  # zeros before
     assert abs(found.plate_time / plate.plate_time - 1) < 0.1  # +20 % before
     for defect in found.defects:  # one at the side before
@@ -235,18 +236,9 @@ def test_a_defect_covering_nearly_half_the_frame_is_the_defect_not_the_plate() -
     # 2 mm, a 12 x 9 mm rectangle at d / L 0.5 in a 16 mm frame: the hot layer's sideways cooling, not yet
     # taken off, sent T_ref to -138 C (the model floor's variance grows with T - T_ref), and the median
     # took the defect's tau for the plate's (plate time -92 %, nothing outlined)
-    plate = reference_plate_video(
-        PlateSetup(
-            shape=(40, 40),
-            dx=0.4,
-            n_frames=200,
-            thickness=2.0,
-            duration=9.0,
-            seed=8,
-            defects=(Defect("rectangle", centre=(8.0, 8.0), size=(6.0, 4.6), depth=1.0),),
-        )
+    plate, found = _independent(
+        40, 200, 2.0, 9.0, 8, Defect("rectangle", centre=(8.0, 8.0), size=(6.0, 4.6), depth=1.0)
     )
-    found = defect_map(plate.frames, plate.dt, plate.dx)
     # +23 %: the thin sound ring beside the hot layer is warmed sideways by more than the fit takes off
     assert abs(found.plate_time / plate.plate_time - 1) < 0.3
     mask = found.defect_mask.numpy()
@@ -258,16 +250,7 @@ def test_a_defect_covering_nearly_half_the_frame_is_the_defect_not_the_plate() -
 def test_a_small_deep_disc_reads_its_depth_with_the_spread_of_its_heat_taken_off() -> None:
     # 4 mm, a disc of 3 mm radius at d / L 0.5 (finite volumes, nothing shared with the map): the heat it
     # reflects spreads sideways on its way back (lateral 7.3 mm^2/s), and its peak read 0.64
-    plate = reference_plate_video(
-        PlateSetup(
-            shape=(48, 48),
-            dx=0.4,
-            n_frames=300,
-            thickness=4.0,
-            duration=40.0,
-            seed=29,
-            defects=(Defect("ellipse", centre=(9.0, 10.0), size=(3.0, 3.0), depth=2.0),),
-        )
+    _, found = _independent(
+        48, 300, 4.0, 40.0, 29, Defect("ellipse", centre=(9.0, 10.0), size=(3.0, 3.0), depth=2.0)
     )
-    found = defect_map(plate.frames, plate.dt, plate.dx)
     assert len(found.defects) == 1 and abs(found.defects[0].depth_fraction - 0.5) < 0.05
