@@ -179,6 +179,18 @@ def test_the_outline_reaches_the_edge_where_single_pixels_are_not_significant() 
     assert len(found.defects) == 1 and abs(found.defects[0].depth_fraction - 0.7) < 0.05
 
 
+@pytest.mark.parametrize("seed", [3, 4])
+def test_a_noisy_defect_reads_its_depth_from_its_averaged_contrast(seed: int) -> None:
+    # d / L 0.6 at 0.3 K (10 % of the flash's rise): the 95 % quantile of the pixels' own contrasts read
+    # the disc shallower (0.52 with seed 3); averaged over the value's smoothing, 0.55 and 0.57
+    frames, dt, mask, _ = _plate(size=32, defects=((5.0, 5.0, 2.5, 0.6),), seed=seed)
+    noise = np.random.default_rng(seed + 10).standard_normal(frames.shape)
+    found = defect_map(frames + 0.3 * torch.from_numpy(noise), dt, DX)
+    got = found.defect_mask.numpy()
+    assert (got & mask).sum() / (got | mask).sum() > 0.85
+    assert len(found.defects) == 1 and abs(found.defects[0].depth_fraction - 0.6) < 0.06
+
+
 @pytest.mark.slow
 def test_a_defect_too_faint_to_outline_still_ranks_above_the_sound_plate() -> None:
     # d / L 0.93 (contrast 0.15, under the 0.2 a defect pixel needs) at 0.4 K: no defect is outlined
