@@ -44,9 +44,6 @@ _CHUNK = 64  # frames filtered at once
 _STOP_CHI2 = 3.0  # a block whose residual is this many times its noise, ...
 _STOP_R2 = 0.8  # ... and explains less than this share of its increments, ends the fit
 _LATER_R2 = 0.5  # a run from a later block explains at least this share of its increments
-_FIRST_R2 = 0.0  # the run from the first block explains more than none of its first blocks' increments, ...
-_FIRST_BLOCKS = 2  # ... where the flow is strongest (errors in variables can blow up a solution where the
-# regressors' signal is below their noise: R^2 -0.2 to -2.5 on every block at 0.1 K)
 RATIO = 1.25
 
 
@@ -314,18 +311,8 @@ def fit_lateral(
     first = _run(blocks, 0)
     if len(first) < 2:
         return frames.new_zeros(3), len(first)
-    found = _physical(first)
-    if found is not None and _explained(first[:_FIRST_BLOCKS], found[0]) <= _FIRST_R2:
-        found = None  # the noise corrections, not the increments, made it: no lateral flow shown
-    found = found or _later(blocks)
+    found = _physical(first) or _later(blocks)
     return found if found is not None else (frames.new_zeros(3), -len(first))
-
-
-def _explained(run: list[_Block], a: Tensor) -> float:
-    """The share of the blocks' increments (their mean squares, summed) that ``a`` explains: ``R^2``, below 0
-    where ``a`` leaves more than no lateral flow would."""
-    residual = sum(b.residual(a)[0] for b in run)
-    return 1 - residual / sum(float(b.yy) / b.pixels for b in run)
 
 
 def _later(blocks: list[_Block]) -> tuple[Tensor, int] | None:
@@ -338,7 +325,8 @@ def _later(blocks: list[_Block]) -> tuple[Tensor, int] | None:
         later = _physical(run)
         if later is None or (found is not None and later[1] <= found[1]):
             continue
-        if _explained(run[: later[1]], later[0]) >= _LATER_R2:
+        residual = sum(b.residual(later[0])[0] for b in run[: later[1]])
+        if residual <= (1 - _LATER_R2) * sum(float(b.yy) / b.pixels for b in run[: later[1]]):
             found = later
     return found
 

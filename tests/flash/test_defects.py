@@ -191,20 +191,6 @@ def test_a_noisy_defect_reads_its_depth_from_its_averaged_contrast(seed: int) ->
     assert len(found.defects) == 1 and abs(found.defects[0].depth_fraction - 0.6) < 0.06
 
 
-@pytest.mark.parametrize("seed", [7, 8])
-def test_a_lateral_fit_explaining_none_of_its_first_increments_is_no_flow(seed: int) -> None:
-    # no lateral flow, a disc at d / L 0.6, 0.1 K: the first lateral fit, over the whole frame with the disc's
-    # edges in it, read (5.7, 4.8, -4.1) and (17.1, 1.5, 3.1) mm^2/s (R^2 below 0 on every block); taken
-    # off, T_ref 18.3 and 19.5 for 20 and the plate time 1.4 and 45 times its own (4 of 16 seeds; none now)
-    frames, dt, mask, _ = _plate(size=32, defects=((5.0, 5.0, 2.5, 0.6),), seed=seed)
-    noise = np.random.default_rng(seed + 10).standard_normal(frames.shape)
-    found = defect_map(frames + 0.1 * torch.from_numpy(noise), dt, DX)
-    assert abs(found.plate_time / TAU - 1) < 0.05 and abs(found.t_ref - 20) < 0.05
-    assert max(abs(v) for v in found.lateral) < 1.0
-    got = found.defect_mask.numpy()
-    assert (got & mask).sum() / (got | mask).sum() > 0.85
-
-
 @pytest.mark.slow
 def test_a_defect_too_faint_to_outline_still_ranks_above_the_sound_plate() -> None:
     # d / L 0.93 (contrast 0.15, under the 0.2 a defect pixel needs) at 0.4 K: no defect is outlined
