@@ -17,7 +17,8 @@ most; what the diagnosis names (``depth_conduction``, ``delamination`` and where
 ``<= 0`` or centred outside the frame) and which defects the map lists.
 
 Run: ``python -m experiments.flash_defect_map [--map-only] [--held-out | --probes] [--no-layered] [--out DIR]
-[--plates 1,2,...]``;
+[--plates 1,2,...] [--noise-sd K]``; ``--noise-sd`` gives every plate's camera that noise (a noisier camera
+than the plates' own);
 ``--held-out`` runs :data:`HELD_OUT` (20 plates that break more of the map's assumptions) instead,
 ``--probes`` :data:`PROBES` (plates 1 and 2 taken apart, one defect at a time); ``--no-layered`` runs the
 diagnosis with ``--no-layered`` (its forecasts by the surface alone; by default, as ``anra diagnose --maps``,
@@ -314,11 +315,19 @@ def _maps_only(path: Path, maps_path: Path) -> dict:
 
 
 def evaluate(
-    name: str, case: dict, out: Path, seed: int, *, diagnose: bool = True, layered: bool = True
+    name: str,
+    case: dict,
+    out: Path,
+    seed: int,
+    *,
+    diagnose: bool = True,
+    layered: bool = True,
+    noise_sd: float | None = None,
 ) -> dict:
-    """Simulate one plate, run ``anra diagnose --maps`` (or only its map), score the maps."""
+    """Simulate one plate (its camera's noise ``noise_sd`` K where given), run ``anra diagnose --maps`` (or
+    only its map), score the maps."""
     path, maps_path = out / f"plate{seed}.npz", out / f"plate{seed}_maps.npz"
-    case = dict(case)
+    case = dict(case) if noise_sd is None else {**case, "noise_sd": noise_sd}
     simulated = case.pop("seed", seed)  # a probe is simulated with its parent plate's seed
     plate = reference_plate_video(
         PlateSetup(**{"shape": SHAPE, "dx": DX, "n_frames": FRAMES, **case}, seed=simulated)
@@ -411,15 +420,17 @@ def run(
     held_out: bool = False,
     probes: bool = False,
     layered: bool = True,
+    noise_sd: float | None = None,
 ) -> list[dict]:
-    """Evaluate the chosen plates (1-based) of :data:`PLATES`, :data:`HELD_OUT` or :data:`PROBES`, reusing
-    results already in ``out``; return every result."""
+    """Evaluate the chosen plates (1-based) of :data:`PLATES`, :data:`HELD_OUT` or :data:`PROBES` (every
+    camera's noise ``noise_sd`` K where given), reusing results already in ``out``; return every result."""
     results = []
     plates, first = (PROBES, 41) if probes else (HELD_OUT, 21) if held_out else (PLATES, 1)
     for index, (name, case) in enumerate(plates.items(), 1):
         cached = out / f"plate{index + first - 1}.json"
         if index in chosen and not cached.is_file():
-            result = evaluate(name, case, out, index + first - 1, diagnose=diagnose, layered=layered)
+            seed = index + first - 1
+            result = evaluate(name, case, out, seed, diagnose=diagnose, layered=layered, noise_sd=noise_sd)
             cached.write_text(json.dumps(result))
             print(_line(result), flush=True)
         if cached.is_file():
@@ -515,7 +526,15 @@ def cli() -> None:
         help="run anra diagnose with --layered (the default: the plate forecast through its thickness) or "
         "--no-layered (by its surface alone)",
     )
+    parser.add_argument(
+        "--noise-sd",
+        type=float,
+        default=None,
+        help="every plate's camera noise sd in K (default: each plate's own, 20 mK on most)",
+    )
     args = parser.parse_args()
+    if args.noise_sd is not None and not args.noise_sd >= 0:
+        parser.error(f"--noise-sd must be a noise sd in K, at least 0, got {args.noise_sd}")
     count = len(PROBES if args.probes else HELD_OUT if args.held_out else PLATES)
     chosen = list(range(1, count + 1)) if args.plates is None else [int(p) for p in args.plates.split(",")]
     with contextlib.ExitStack() as stack:
@@ -528,6 +547,7 @@ def cli() -> None:
             held_out=args.held_out,
             probes=args.probes,
             layered=args.layered,
+            noise_sd=args.noise_sd,
         )
         print("\n".join(summary(results)))
 
