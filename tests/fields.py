@@ -79,6 +79,7 @@ EXAMPLES = {
         "t_heat": -0.2,
         "plate_time": 3.0,
         "T_ref": 29.0,
+        "reflected": 1.0,
     },
 }
 """Parameters of every effect for the 16 px fields of the effect tests (mm, s, units of T)."""

@@ -230,6 +230,9 @@ class EffectSpec:
         tried: ``hints -> bool``: whether the diagnosis looks for it given the balance's candidate shapes
             by effect (:func:`~anra_torch.selection.checked_hints`; ``{}`` without any), e.g. a second
             delamination only where a defect map gives two regions or more; by default always.
+        footprint: ``(params, balance) -> float`` in ``(0, 1]``: the share of the balance's points a localised
+            effect held at a candidate region acts on (its share of ``dT/dt`` is then measured there, not
+            diluted by the rest of the frame); None: every point.
     """
 
     name: str
@@ -262,6 +265,7 @@ class EffectSpec:
     heat_input: bool = False
     continuum: Callable[[dict[str, float], Continuum, Grid], None] | None = None
     tried: Callable[[Mapping[str, tuple[dict[str, float], ...]]], bool] = lambda hints: True
+    footprint: Callable[[dict[str, float], BalanceSystem], float] | None = None
 
 
 def require(condition: bool, name: str, key: str, need: str, params: dict[str, float]) -> None:

@@ -5,14 +5,18 @@ defect is a thinner plate: it evens out through its thickness after ``d^2 / a_z`
 and then stays warm. In the disc the depth term of :mod:`anra_torch.effects.depth_conduction` runs with
 the thin layer's rate instead of the plate's, which adds
 
-    + strength disc(r) (r_plate(t - t_heat) - r_layer(t - t_heat)) (T - T_ref)
+    + strength reflected disc(r) (r_plate(t - t_heat) - r_layer(t - t_heat)) (T - T_ref)
 
 (``r_plate``, ``r_layer`` the depth rates of depth times ``plate_time`` and ``depth_time``; strength 1
-for a defect that lets no heat through). ``disc`` has a tanh edge about one pixel wide.
+for a defect that lets no heat through). ``disc`` has a tanh edge about one pixel wide. ``reflected`` is
+the share of the layer's excess the disc keeps while the heat the defect sends back spreads sideways
+(:func:`reflected_share`; 1 without a lateral diffusivity): a small deep defect's term is weak, not its
+defect.
 
 Parameters: ``x``, ``y``, ``radius`` (mm), ``strength`` (1), ``depth_time`` (s, ``d^2 / a_z`` of the
 layer above the defect), ``t_heat`` (s), ``plate_time`` (s, ``L^2 / a_z``), ``T_ref`` (data units): the
-last three are the plate's, copied from its ``depth_conduction`` fit. Derived: ``depth_fraction``
+last three are the plate's, copied from its ``depth_conduction`` fit; ``reflected`` (1), from the disc,
+its layer and a defect map's lateral diffusivity where one is given. Derived: ``depth_fraction``
 ``d / L = sqrt(depth_time / plate_time)``.
 
 Diagnosis: tried once ``depth_conduction`` is in the model (:attr:`EffectSpec.requires`); a fitted shape
@@ -25,7 +29,8 @@ centroid, its layer's ``d / L`` within 0.1 of the region's, its layer's time tha
 time where the region carries one (with its radius and depth free the disc grew over the frame into a
 second depth rate of negative strength); an empty set of regions rules it out. A second defect of the map
 is :mod:`~anra_torch.effects.delamination_2`'s (the same term and fit under another name, :data:`REGRESSORS`):
-each delamination is held at the regions the others in the model do not cover.
+each delamination is held at the regions the others in the model do not cover. Held at a region, its
+share of ``dT/dt`` is measured over its disc (:attr:`EffectSpec.footprint`), not over the whole frame.
 Validated on the independent 3-D plates of :func:`anra_torch.simulation.flash_plate_video` (the lateral
 and the depth problems do not separate over a defect, so the 2-D independent simulator has no model of it).
 Random draw: under the first hot spot (radius 1-2 of its sigmas), ``d / L`` in 0.2-0.5, ``strength``
@@ -51,7 +56,7 @@ from anra_torch.effects.shapes import draw_circle, edge_disc, optimise, peak, pi
 if TYPE_CHECKING:
     from anra_torch.balance import BalanceSystem, Fit
 
-__all__ = ["REGRESSORS", "SPEC", "spec_fields"]
+__all__ = ["REGRESSORS", "SPEC", "reflected_share", "spec_fields"]
 
 _F64 = torch.float64
 _MIN_RADIUS_PX = 2.0
@@ -76,7 +81,7 @@ def _build(p: dict[str, float], grid: Grid) -> Term:
         elapsed = (
             torch.as_tensor(t, dtype=_F64, device=u.device) - p["t_heat"]
         )  # > 0: the heating precedes the first frame
-        rate = p["strength"] * _difference(elapsed, p)
+        rate = p["strength"] * p["reflected"] * _difference(elapsed, p)
         return (rate * disc).to(u) * (u - p["T_ref"])
 
     return term
@@ -102,6 +107,7 @@ def _sample(rng: np.random.Generator, g: Geometry) -> dict[str, float]:
         "t_heat": -rng.uniform(0.02, 0.2) * g.duration,
         "plate_time": plate_time,
         "T_ref": g.background,
+        "reflected": 1.0,
     }
 
 
@@ -110,6 +116,7 @@ def _check(name: str, p: dict[str, float]) -> None:
     require(p["strength"] >= 0, name, "strength", "non-negative (1: no heat crosses the defect)", p)
     require(p["plate_time"] > 0, name, "plate_time", "positive in s (L^2 / a_z)", p)
     require(p["t_heat"] < 0, name, "t_heat", "before the first frame (< 0 s)", p)
+    require(0 < p["reflected"] <= 1, name, "reflected", "in (0, 1] (the share of the layer's excess kept)", p)
     require(
         0 < p["depth_time"] <= p["plate_time"],
         name,
@@ -122,7 +129,7 @@ def _check(name: str, p: dict[str, float]) -> None:
 def _rates(p: dict[str, float], span: tuple[float, float]) -> Rates:
     """The disc's rate is below the plate's own at the simulation's start, ``strength r_plate(-t_heat)``."""
     elapsed = torch.tensor(-p["t_heat"], dtype=_F64, device="cpu")
-    return Rates(decay=p["strength"] * float(depth_rate(elapsed, p["plate_time"])))
+    return Rates(decay=p["strength"] * p["reflected"] * float(depth_rate(elapsed, p["plate_time"])))
 
 
 def _bounds(p: dict[str, float], lo: float, hi: float, duration: float) -> tuple[float, float]:
@@ -130,7 +137,8 @@ def _bounds(p: dict[str, float], lo: float, hi: float, duration: float) -> tuple
 
 
 def _from_coefficients(name: str, c: dict[str, float], ctx: Context) -> dict[str, float]:
-    p = {**ctx.shape[name], "strength": c[REGRESSORS[name]]}
+    shape = ctx.shape[name]
+    p = {**shape, "strength": c[REGRESSORS[name]] / shape["reflected"]}
     return {**p, "depth_fraction": math.sqrt(p["depth_time"] / p["plate_time"])}
 
 
@@ -157,13 +165,14 @@ def delamination_term(system: BalanceSystem, theta: Tensor, plate: dict[str, flo
     return system.finish(system.filters.time.average(field)), weight
 
 
-_Region = tuple[float, float, float, float, float]
+_Region = tuple[float, float, float, float, float, float]
 
 
 def _regions(system: BalanceSystem, plate_time: float) -> list[_Region]:
     """The candidate regions the balance was given (``system.hints``: a flash defect map's defects,
-    centroid and equal-area radius in mm, depth fraction, the map's plate time ``L^2 / a_z`` in s) as
-    ``(x px, y px, radius px, d / L, the map's plate time over the depth term's plate_time)`` (1 without)."""
+    centroid and equal-area radius in mm, depth fraction, the map's plate time ``L^2 / a_z`` in s, its
+    lateral diffusivity in mm^2/s) as ``(x px, y px, radius px, d / L, the map's plate time over the depth
+    term's plate_time, lateral mm^2/s)`` (1 without the map's plate time, 0 without a lateral diffusivity)."""
     regions = []
     for h in system.hints.get(_HINTS, ()):
         fraction = h.get("depth_fraction", 0.5)
@@ -171,8 +180,22 @@ def _regions(system: BalanceSystem, plate_time: float) -> list[_Region]:
         scale = h.get("plate_time", math.nan) / plate_time
         scale = scale if math.isfinite(scale) and scale > 0 else 1.0
         radius = max(h["radius"] / system.dx, _MIN_RADIUS_PX + 0.5)
-        regions.append((h["x"] / system.dx, h["y"] / system.dx, radius, fraction, scale))
+        lateral = max(h.get("lateral", 0.0), 0.0)
+        regions.append((h["x"] / system.dx, h["y"] / system.dx, radius, fraction, scale, lateral))
     return regions
+
+
+def reflected_share(radius: float, depth_time: float, lateral: float) -> float:
+    """The share of a layer's excess (the heat a defect of ``radius`` mm sends back to the surface) that the
+    centre of its disc keeps at the layer's own time ``depth_time`` s (``d^2 / a_z``) under an isotropic
+    lateral diffusivity ``lateral`` mm^2/s: the disc averaged by the Gaussian of variance ``lateral t``
+    about its centre (:mod:`anra_torch.flash.spread`'s first-order model at ``t = d^2 / a_z``),
+    ``1 - exp(-radius^2 / (2 lateral depth_time))``; 1 without a lateral diffusivity. A small deep defect
+    keeps little (a disc of 2.6 mm radius at 2 mm depth of a plate with ``a_z`` 0.45 and a lateral 2.8
+    mm^2/s: 0.17), so its fitted strength reads far below its own."""
+    if lateral <= 0 or depth_time <= 0:
+        return 1.0
+    return -math.expm1(-(radius**2) / (2.0 * lateral * depth_time))
 
 
 def _held(region: _Region, phi: Tensor) -> Tensor:
@@ -182,7 +205,7 @@ def _held(region: _Region, phi: Tensor) -> Tensor:
     time ``d^2 / a_z`` that ``d / L`` of the map's plate time where the region has one: the depth term's
     plate time also takes up what the balance's isotropic lateral term misses on an anisotropic plate
     (45-480 s for the map's 8.9 s on a 2 mm plate), and ``(d / L)^2`` of it put the layer far off."""
-    cx, cy, radius, fraction, scale = region
+    cx, cy, radius, fraction, scale, _ = region
     bounded = torch.tanh(phi)
     depth = (fraction + _HELD_DEPTH * bounded[2]).clamp(0.05, 0.95)
     share = (depth**2 * scale).clamp(1e-6, 0.95**2)
@@ -274,9 +297,12 @@ def _fit(name: str, system: BalanceSystem, fit: Fit, start: Tensor | None) -> Sh
         return system.profile_loss(columns, term, NoiseSpec("T", weight.detach())) / scale
 
     others = [o for o, regressor in REGRESSORS.items() if o != name and regressor in columns]
+    lateral = 0.0
     if system.hints.get(_HINTS) or others:
         regions = _uncovered(system, fit, name, _regions(system, plate["depth_time"]))
         theta = _held_fit(system, loss, start, regions)
+        held = min(regions, key=lambda r: math.hypot(float(theta[0]) - r[0], float(theta[1]) - r[1]) / r[2])
+        lateral = held[5]
     else:
         starts = _starts(system, fit)
         theta = optimise(loss, starts if start is None else [start, *starts], iterations=25, runs=2)
@@ -290,9 +316,21 @@ def _fit(name: str, system: BalanceSystem, fit: Fit, start: Tensor | None) -> Sh
         "t_heat": plate["t_heat"],
         "plate_time": plate["depth_time"],
         "T_ref": plate["T_ref"],
+        "reflected": reflected_share(float(radius) * dx, float(depth_time), lateral),
     }
     term, weight = delamination_term(system, theta.detach(), plate)
     return Shape(term.detach(), NoiseSpec("T", weight.detach()), shape, theta.detach())
+
+
+def _footprint(p: dict[str, float], system: BalanceSystem) -> float:
+    """Held at a defect map's region (``system.hints``): the mean square of the disc over the balance's
+    points, at least one point's share; else 1 (a disc looked for anywhere is measured over every point)."""
+    if not system.hints.get(_HINTS):
+        return 1.0
+    gx, gy = pixel_grid(system)
+    m = system.margin
+    disc = edge_disc(gx, gy, p["x"], p["y"], p["radius"], system.dx)[m:-m, m:-m]
+    return max(float(disc.square().mean()), 1.0 / disc.numel())
 
 
 # ----------------------------------------------------------------------------------- presentation
@@ -305,8 +343,9 @@ def _inside(p: dict[str, float]) -> bool:
 
 
 def _equation(p: dict[str, float]) -> str:
+    kept = "" if p["reflected"] == 1 else f" x {p['reflected']:.2f}"
     return (
-        f"+ {p['strength']:.2f} disc(r < {p['radius']:.2f} mm at ({p['x']:.2f}, {p['y']:.2f}) mm) "
+        f"+ {p['strength']:.2f}{kept} disc(r < {p['radius']:.2f} mm at ({p['x']:.2f}, {p['y']:.2f}) mm) "
         f"(r_plate - r_layer(d^2/a_z {p['depth_time']:.3g} s)) (T - {p['T_ref']:.1f})"
     )
 
@@ -331,6 +370,7 @@ def spec_fields(name: str) -> dict[str, Any]:
             "t_heat": "s",
             "plate_time": "s",
             "T_ref": "data units",
+            "reflected": "1",
         },
         "build": _build,
         "sample": _sample,
@@ -351,6 +391,7 @@ def spec_fields(name: str) -> dict[str, Any]:
         "retime": _retime,
         "positive": frozenset({"radius", "depth_time", "plate_time"}),
         "draw": partial(_draw, name),
+        "footprint": _footprint,
     }
 
 

@@ -124,8 +124,10 @@ def flash_hints(defects: DefectMap, *, layered: bool = False) -> dict[str, Any]:
     map: the depth term held at the map's plate ``{"T_ref", "plate_time", "t_heat"}`` (the temperature
     before the flash, ``L^2 / a_z`` in s, the flash's time before the first frame in s); a delamination
     looked for at the map's defects only (where the cooling says the heat stops early), each a region
-    ``{"x", "y", "radius", "depth_fraction", "plate_time"}`` (its centroid and the radius of its area's
-    disc in mm, its ``d / L``, the map's ``L^2 / a_z`` in s); a map without a defect rules the
+    ``{"x", "y", "radius", "depth_fraction", "plate_time", "lateral"}`` (its centroid and the radius of its
+    area's disc in mm, its ``d / L``, the map's ``L^2 / a_z`` in s, the map's lateral diffusivity as one
+    isotropic value ``sqrt(a_x a_y - a_xy^2)`` in mm^2/s, 0 where not measured: how far the heat the defect
+    sends back spreads, :mod:`~anra_torch.effects.delamination`); a map without a defect rules the
     delamination out. ``layered``: the plate's forecasts resolved through its thickness
     (:mod:`anra_torch.forecast.layered`; the plate's ``"layered"`` 1.0 and the map's lateral diffusivities
     ``"a_x"``, ``"a_y"``, ``"a_xy"`` in mm^2/s)."""
@@ -133,6 +135,8 @@ def flash_hints(defects: DefectMap, *, layered: bool = False) -> dict[str, Any]:
     if layered:
         plate["layered"] = 1.0
         plate.update(zip(("a_x", "a_y", "a_xy"), defects.lateral, strict=True))
+    a_x, a_y, a_xy = defects.lateral
+    lateral = math.sqrt(max(a_x * a_y - a_xy**2, 0.0))
     regions = tuple(
         {
             "x": d.x,
@@ -140,6 +144,7 @@ def flash_hints(defects: DefectMap, *, layered: bool = False) -> dict[str, Any]:
             "radius": math.sqrt(d.area / math.pi),
             "depth_fraction": d.depth_fraction,
             "plate_time": defects.plate_time,
+            "lateral": lateral,
         }
         for d in defects.defects
         if d.area > 0

@@ -22,7 +22,7 @@ F64 = torch.float64
 PLATE = {"t_heat": -0.1, "plate_time": 8.0, "T_ref": 20.0}
 
 
-DEFECT = {"x": 4.0, "y": 3.0, "radius": 1.5, "strength": 1.0, "depth_time": 0.5, **PLATE}
+DEFECT = {"x": 4.0, "y": 3.0, "radius": 1.5, "strength": 1.0, "depth_time": 0.5, **PLATE, "reflected": 1.0}
 
 
 @pytest.fixture(scope="module")
@@ -140,3 +140,64 @@ def test_a_held_discs_layer_time_is_its_depth_fraction_of_the_maps_plate_time() 
         system = SimpleNamespace(hints={"delamination": (hint,)}, dx=0.4)
         theta = _held(_regions(system, 480.0)[0], phi)  # type: ignore[arg-type]
         assert float(_unpack(theta, 480.0)[3]) == pytest.approx(layer, rel=1e-6)
+
+
+def test_the_reflected_share_is_the_disc_averaged_by_the_spreads_gaussian() -> None:
+    """``reflected_share``: the disc (radius R) averaged by the Gaussian of variance ``a t`` per axis about
+    its centre at ``t = d^2 / a_z``, against a direct sum over a fine grid; 1 without lateral conduction."""
+    from anra_torch.effects.delamination import reflected_share
+
+    step = 0.01
+    for radius, depth_time, lateral in ((2.6, 6.3, 2.83), (5.0, 2.0, 1.0), (1.0, 10.0, 7.3)):
+        xs = np.arange(-radius, radius, step) + step / 2
+        x, y = np.meshgrid(xs, xs)
+        variance = lateral * depth_time
+        weights = np.exp(-(x**2 + y**2) / (2 * variance)) / (2 * math.pi * variance)
+        direct = weights[x**2 + y**2 <= radius**2].sum() * step**2
+        assert reflected_share(radius, depth_time, lateral) == pytest.approx(direct, rel=2e-3)
+    assert reflected_share(2.6, 6.3, 2.83) == pytest.approx(0.17, abs=0.01)  # the small deep disc
+    assert reflected_share(2.6, 6.3, 0.0) == 1.0
+
+
+def test_the_strength_is_the_defects_and_the_term_keeps_the_reflected_share() -> None:
+    """The term is ``strength reflected`` times the full layer's: a fitted coefficient ``c`` reads strength
+    ``c / reflected`` (a small deep defect that stops all the heat reads 1, not its share)."""
+    from types import SimpleNamespace
+
+    grid = Grid((16, 20), 0.5)
+    u = torch.full((16, 20), 21.0, dtype=F64)
+    full = Effect("delamination", DEFECT).term(u, 0.4, grid)
+    kept = Effect("delamination", {**DEFECT, "reflected": 0.25}).term(u, 0.4, grid)
+    torch.testing.assert_close(kept, 0.25 * full, rtol=1e-12, atol=0.0)
+    from anra_torch.effects import EFFECTS
+
+    context = SimpleNamespace(shape={"delamination": {**DEFECT, "reflected": 0.25}})
+    params = EFFECTS["delamination"].from_coefficients({"Y": 0.2}, context)
+    assert params["strength"] == pytest.approx(0.8)
+    with pytest.raises(ValueError, match="reflected"):
+        Effect("delamination", {**DEFECT, "reflected": 0.0})
+
+
+def test_a_held_delaminations_share_is_measured_over_its_disc() -> None:
+    """Held at a defect map's region, the delamination's share of dT/dt is measured over its disc:
+    ``footprint`` is the disc's mean square over the balance's points (its area share, the edge 1 px
+    wide); without regions every point counts (1)."""
+    from types import SimpleNamespace
+
+    from anra_torch.effects import EFFECTS
+
+    footprint = EFFECTS["delamination"].footprint
+    assert footprint is not None
+    frames = torch.zeros(5, 60, 60, dtype=F64)
+    system = SimpleNamespace(shape=(5, 60, 60), frames=frames, dx=0.5, margin=10, hints={"delamination": ()})
+    disc = {"x": 15.0, "y": 15.0, "radius": 4.0}  # 8 px radius in the 40 x 40 px interior
+    assert footprint(disc, system) == 1.0  # type: ignore[arg-type]
+    system.hints = {"delamination": ({"x": 15.0, "y": 15.0, "radius": 4.0},)}
+    share = footprint(disc, system)  # type: ignore[arg-type]
+    from scipy.integrate import quad
+
+    def ring(r: float) -> float:  # the squared disc with its tanh edge 1 px (0.5 mm) wide, radially
+        return 2 * math.pi * r * (0.5 * (1 + math.tanh((4.0 - r) / 0.5))) ** 2
+
+    assert share == pytest.approx(quad(ring, 0.0, 8.0)[0] / 20.0**2, rel=0.01)  # over the 20 mm interior
+    assert share < math.pi * 4.0**2 / 20.0**2  # below the disc's area share: its edge squared

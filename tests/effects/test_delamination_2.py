@@ -18,7 +18,7 @@ F64 = torch.float64
 
 PLATE = {"strength": 1.0, "t_heat": -0.08, "depth_time": 5.0, "T_ref": 30.0}
 FIRST = {"x": 8.0, "y": 9.0, "radius": 2.0, "strength": 1.0, "depth_time": 0.3, "t_heat": -0.08}
-FIRST = {**FIRST, "plate_time": 5.0, "T_ref": 30.0}  # d / L 0.245
+FIRST = {**FIRST, "plate_time": 5.0, "T_ref": 30.0, "reflected": 1.0}  # d / L 0.245
 SECOND = {**FIRST, "x": 15.0, "y": 15.0, "depth_time": 1.2}  # d / L 0.49
 REGIONS = [  # a defect map's outlines about them, off by a fraction of a pixel
     {"x": 8.2, "y": 8.9, "radius": 1.8, "depth_fraction": 0.25},

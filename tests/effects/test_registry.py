@@ -15,8 +15,28 @@ PARAMS = {
     "nonlinear_diffusion": ["a0", "beta", "T_ref"],
     "periodic_source": ["x", "y", "width", "rate", "frequency", "phase"],
     "depth_conduction": ["strength", "t_heat", "depth_time", "T_ref"],
-    "delamination": ["x", "y", "radius", "strength", "depth_time", "t_heat", "plate_time", "T_ref"],
-    "delamination_2": ["x", "y", "radius", "strength", "depth_time", "t_heat", "plate_time", "T_ref"],
+    "delamination": [
+        "x",
+        "y",
+        "radius",
+        "strength",
+        "depth_time",
+        "t_heat",
+        "plate_time",
+        "T_ref",
+        "reflected",
+    ],
+    "delamination_2": [
+        "x",
+        "y",
+        "radius",
+        "strength",
+        "depth_time",
+        "t_heat",
+        "plate_time",
+        "T_ref",
+        "reflected",
+    ],
 }
 """The fixed names of the truth records (a later JSON relies on them)."""
 

@@ -40,7 +40,7 @@ def test_the_model_of_a_flash_plate_is_read_from_the_chosen_effects() -> None:
     delamination = Effect(
         "delamination",
         {"x": 2.0, "y": 3.0, "radius": 1.5, "strength": 1.3, "depth_time": 1.0, "t_heat": -0.1,
-         "plate_time": 4.0, "T_ref": T_REF},
+         "plate_time": 4.0, "T_ref": T_REF, "reflected": 1.0},
     )  # fmt: skip
     loss = Effect("linear_loss", {"b": 0.01, "T_ref": T_REF})
     heterogeneity = Effect(

@@ -135,6 +135,7 @@ def test_a_flash_maps_defects_are_the_delaminations_candidate_regions(
     )
     hints = flash_hints(defects)
     region = {"x": 3.0, "y": 2.0, "radius": pytest.approx(2.0), "depth_fraction": 0.4, "plate_time": 8.0}
+    region["lateral"] = pytest.approx(math.sqrt(7.0))  # sqrt(a_x a_y - a_xy^2) of the map's (7, 1, 0)
     plate = {"T_ref": 20.0, "plate_time": 8.0, "t_heat": -0.1}
     assert hints == {"depth_conduction": (plate,), "delamination": (region,)}
     assert flash_hints(replace(defects, defects=()))["delamination"] == ()
