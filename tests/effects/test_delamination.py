@@ -201,3 +201,19 @@ def test_a_held_delaminations_share_is_measured_over_its_disc() -> None:
 
     assert share == pytest.approx(quad(ring, 0.0, 8.0)[0] / 20.0**2, rel=0.01)  # over the 20 mm interior
     assert share < math.pi * 4.0**2 / 20.0**2  # below the disc's area share: its edge squared
+
+
+def test_the_bounds_hold_the_defects_strength_from_below_and_the_term_from_above() -> None:
+    """A strength of at least 0.2 (after the spread), a term ``strength reflected`` of at most 5: a small deep
+    disc whose term is 0.17 of the full layer's, with a reflected share 0.19, is a defect (0.89); a term
+    0.29 of the layer's with a share 0.032 (a deep defect outlined over its core) is within bounds at
+    strength 9; with ``reflected`` 1 the bounds are the term's, as before."""
+    from anra_torch.effects import EFFECTS
+
+    valid = EFFECTS["delamination"].valid
+    p = {**DEFECT, "depth_time": 0.5}
+    assert valid({**p, "strength": 0.17 / 0.19, "reflected": 0.19})
+    assert valid({**p, "strength": 0.29 / 0.032, "reflected": 0.032})
+    assert not valid({**p, "strength": 0.17, "reflected": 1.0})
+    assert not valid({**p, "strength": 5.5, "reflected": 1.0})
+    assert not valid({**p, "strength": 0.03 / 0.19, "reflected": 0.19})  # a defect of strength 0.16
