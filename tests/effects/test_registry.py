@@ -6,6 +6,8 @@ from anra_torch.effects import (
     EFFECTS,
 )
 
+_DELAMINATION = ["x", "y", "radius", "strength", "depth_time", "t_heat", "plate_time", "T_ref", "reflected"]
+
 PARAMS = {
     "linear_loss": ["b", "T_ref"],
     "source": ["x0", "y0", "x1", "y1", "rate", "width"],
@@ -15,28 +17,8 @@ PARAMS = {
     "nonlinear_diffusion": ["a0", "beta", "T_ref"],
     "periodic_source": ["x", "y", "width", "rate", "frequency", "phase"],
     "depth_conduction": ["strength", "t_heat", "depth_time", "T_ref"],
-    "delamination": [
-        "x",
-        "y",
-        "radius",
-        "strength",
-        "depth_time",
-        "t_heat",
-        "plate_time",
-        "T_ref",
-        "reflected",
-    ],
-    "delamination_2": [
-        "x",
-        "y",
-        "radius",
-        "strength",
-        "depth_time",
-        "t_heat",
-        "plate_time",
-        "T_ref",
-        "reflected",
-    ],
+    "delamination": _DELAMINATION,
+    "delamination_2": _DELAMINATION,  # the same term under a second name
 }
 """The fixed names of the truth records (a later JSON relies on them)."""
 
