@@ -230,12 +230,12 @@ def _uncovered(system: BalanceSystem, fit: Fit, name: str, regions: list[_Region
 
 def _held_fit(
     system: BalanceSystem, loss: Callable[[Tensor], Tensor], start: Tensor | None, regions: list[_Region]
-) -> Tensor:
+) -> tuple[Tensor, _Region]:
     """With candidate regions (:func:`_regions`, :func:`_uncovered`): the disc held at each in turn
     (:func:`_held`: with its radius and depth free the disc grows over the frame as a second depth rate, its
     strength unphysical), its centre refined from the region's centroid (and from ``start``'s where
-    ``start`` lies on the region); the best region's ``theta``."""
-    best: tuple[float, Tensor] | None = None
+    ``start`` lies on the region); the best region's ``theta`` and that region."""
+    best: tuple[float, Tensor, _Region] | None = None
     for region in regions:
         phis = [torch.zeros(3, dtype=_F64, device=system.frames.device)]
         if start is not None and abs(float(start[2]) - math.log(region[2] - _MIN_RADIUS_PX)) < 1e-9:
@@ -253,10 +253,10 @@ def _held_fit(
         with torch.no_grad():
             value = float(loss(theta))
         if best is None or value < best[0]:
-            best = (value, theta)
+            best = (value, theta, region)
     if best is None:
         raise ValueError("delamination: the held fit needs a candidate region no other delamination covers")
-    return best[1]
+    return best[1], best[2]
 
 
 def _starts(system: BalanceSystem, fit: Fit) -> list[Tensor]:
@@ -300,8 +300,7 @@ def _fit(name: str, system: BalanceSystem, fit: Fit, start: Tensor | None) -> Sh
     lateral = 0.0
     if system.hints.get(_HINTS) or others:
         regions = _uncovered(system, fit, name, _regions(system, plate["depth_time"]))
-        theta = _held_fit(system, loss, start, regions)
-        held = min(regions, key=lambda r: math.hypot(float(theta[0]) - r[0], float(theta[1]) - r[1]) / r[2])
+        theta, held = _held_fit(system, loss, start, regions)
         lateral = held[5]
     else:
         starts = _starts(system, fit)
